@@ -1,0 +1,1 @@
+"""The logging daemon, its recorder, navigator, status server and command line."""

@@ -1,0 +1,37 @@
+"""The ``logger`` command: one entry point, one module per subcommand.
+
+Each subcommand lives in its own module with a ``main(argv) -> int``; importing it only when it is
+asked for keeps ``logger status`` quick on a slow board.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "gnss-decode": ("logger.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
+}
+
+
+def usage() -> str:
+    lines = ["usage: logger COMMAND [ARGS...]", "", "commands:"]
+    lines += [f"  {name:<14}{text}" for name, (_, text) in SUBCOMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if not args or args[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    entry = SUBCOMMANDS.get(args[0])
+    if entry is None:
+        print(f"logger: unknown command {args[0]!r}\n{usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(entry[0])
+    return int(module.main(args[1:]) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
