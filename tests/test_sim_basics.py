@@ -1,0 +1,79 @@
+"""The shared pieces of the simulation: clocks, truth interface, earth model, pty port."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import serial
+
+from sensors.sim import earth
+from sensors.sim.clock import ManualClock, ScaledClock
+from sensors.sim.pty import PtyPort
+from sensors.sim.truth import ParkedTrajectory, StraightTrajectory
+
+
+def test_manual_clock_moves_only_when_told() -> None:
+    clock = ManualClock()
+    assert clock.now_ns() == 0
+    clock.sleep(0.0045)
+    assert clock.now_ns() == 4_500_000
+    with pytest.raises(ValueError):
+        clock.advance(-1)
+
+
+def test_scaled_clock_runs_faster() -> None:
+    clock = ScaledClock(time_scale=1000.0)
+    a = clock.now_ns()
+    clock.sleep(1.0)  # one drive second is one host millisecond
+    assert clock.now_ns() - a >= 1_000_000_000
+
+
+def test_gravity_matches_published_values() -> None:
+    # WGS-84 normal gravity: 9.7803253359 at the equator, 9.8321849378 at the poles.
+    assert earth.gravity_ned(0.0, 0.0)[2] == pytest.approx(9.7803253359, abs=1e-9)
+    assert earth.gravity_ned(math.pi / 2, 0.0)[2] == pytest.approx(9.8321849378, abs=1e-8)
+    # Free-air gradient about -3.086e-6 /s^2 per metre.
+    assert earth.gravity_ned(0.7, 1000.0)[2] - earth.gravity_ned(0.7, 0.0)[2] == pytest.approx(-3.086e-3, rel=0.01)
+
+
+def test_dcm_is_a_rotation_and_yaw_turns_north_to_east() -> None:
+    c = earth.dcm_body_to_ned(np.array([0.1, -0.2, 1.0]))
+    assert np.allclose(c @ c.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(c) == pytest.approx(1.0)
+    c90 = earth.dcm_body_to_ned(np.array([0.0, 0.0, math.pi / 2]))
+    assert np.allclose(c90 @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+
+
+def test_parked_vehicle_senses_gravity_and_earth_rate() -> None:
+    s = ParkedTrajectory(lat_deg=45.0).state(3.0)
+    assert s.forward_speed_mps == 0.0
+    assert s.f_body_mps2[2] == pytest.approx(-earth.gravity_ned(s.lat_rad, s.height_m)[2])
+    assert np.linalg.norm(s.w_body_rps) == pytest.approx(earth.OMEGA_IE)
+
+
+def test_straight_drive_moves_at_its_speed() -> None:
+    traj = StraightTrajectory(speed_mps=20.0, heading_deg=0.0)
+    a, b = traj.state(0.0), traj.state(10.0)
+    rn, _ = earth.radii(a.lat_rad)
+    assert (b.lat_rad - a.lat_rad) * (rn + a.height_m) == pytest.approx(200.0, rel=1e-9)
+    assert b.forward_speed_mps == pytest.approx(20.0)
+
+
+def test_pty_port_vanishes_and_comes_back_under_the_same_path() -> None:
+    with PtyPort() as port:
+        ser = serial.Serial(port.path, 38400, timeout=0.5)
+        ser.write(b"ATI\r")
+        assert port.read(1.0) == b"ATI\r"
+        port.write(b"ELM327 v1.5\r\r>")
+        assert ser.read_until(b">") == b"ELM327 v1.5\r\r>"
+        port.vanish()
+        with pytest.raises(serial.SerialException):
+            ser.read(1)
+        ser.close()
+        port.reappear()
+        ser = serial.Serial(port.path, 38400, timeout=0.5)
+        port.write(b"OK\r>")
+        assert ser.read_until(b">") == b"OK\r>"
+        ser.close()
