@@ -1,0 +1,346 @@
+"""The MCAP recorder: one writer thread behind a bounded queue.
+
+Sensor threads hand over a record and return at once; a full queue is a counted drop, never a blocked sensor
+(the PX4 logger's rule). The writer closes the open chunk and fsyncs at least every ``flush_interval_s``, so a
+power cut loses about that much; it rotates files by duration and size, and stops recording with a clear state
+before the disk is full rather than leave a file it cannot finish.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import CompressionType, Writer
+
+from logger.topics import TopicSpec
+
+log = logging.getLogger(__name__)
+
+COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
+
+
+@dataclass
+class RecorderSettings:
+    out_dir: Path
+    prefix: str = "drive"
+    flush_interval_s: float = 1.0
+    rotate_duration_s: float = 3600.0
+    rotate_size_bytes: int = 1 << 30
+    min_free_bytes: int = 256 << 20
+    compression: str = "zstd"
+    queue_size: int = 20000
+    # Chunks are closed by time (flush_interval_s); this only caps one chunk's memory at high IMU rates.
+    chunk_size_bytes: int = 4 << 20
+
+
+@dataclass
+class RecorderStatus:
+    """What ``logger status`` shows of the recorder; a snapshot, safe to read from another thread."""
+
+    state: str  # "starting", "recording", "disk-full", "failed", "stopped"
+    detail: str
+    file: str | None
+    file_bytes: int
+    files_done: int
+    free_bytes: int | None
+    written: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    queue_depth: int = 0
+    queue_size: int = 0
+
+
+def _json_default(value: Any) -> Any:
+    tolist = getattr(value, "tolist", None)
+    if tolist is not None:  # numpy arrays and scalars
+        return tolist()
+    raise TypeError(f"cannot encode {type(value).__name__}")
+
+
+def encode(payload: Mapping[str, Any]) -> bytes:
+    return json.dumps(payload, separators=(",", ":"), default=_json_default, allow_nan=False).encode()
+
+
+def default_file_name(prefix: str, now_unix_ns: int | None, sequence: int) -> str:
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime((now_unix_ns or time.time_ns()) / 1e9))
+    return f"{prefix}_{stamp}_{sequence:04d}.mcap"
+
+
+class Recorder:
+    """Writes records to rotating MCAP files from its own thread."""
+
+    _STOP = object()
+
+    def __init__(self, settings: RecorderSettings, topics: Mapping[str, TopicSpec],
+                 metadata: Mapping[str, Mapping[str, str]] | None = None,
+                 file_name: Callable[[str, int | None, int], str] = default_file_name) -> None:
+        self.settings = settings
+        self.topics = dict(topics)
+        self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
+        self._file_name = file_name
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
+        self._lock = threading.Lock()
+        self._dropped: Counter[str] = Counter()
+        self._written: Counter[str] = Counter()
+        self._state = "starting"
+        self._detail = ""
+        self._thread: threading.Thread | None = None
+        self._writer: Writer | None = None
+        self._stream: Any = None
+        self._path: Path | None = None
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._file_started_mono = 0.0
+        self._first_log_ns: int | None = None
+        self._sequence = 0
+        self._files_done = 0
+        self._free: int | None = None
+        self._compression = COMPRESSION[settings.compression]
+        self._last_flush = 0.0
+        self._next_retry = 0.0
+        self.on_file_closed: Callable[[Path], None] | None = None
+
+    # ---- producer side (any thread) -------------------------------------------------------------------
+    def submit(self, topic: str, payload: Mapping[str, Any], log_time_ns: int, publish_time_ns: int) -> bool:
+        """Queue one record; False (and a counted drop) when the queue is full or recording has stopped."""
+        if self._state in ("stopped", "disk-full", "failed"):
+            with self._lock:
+                self._dropped[topic] += 1
+            return False
+        try:
+            self._queue.put_nowait((topic, payload, log_time_ns, publish_time_ns))
+            return True
+        except queue.Full:
+            with self._lock:
+                self._dropped[topic] += 1
+            return False
+
+    def status(self) -> RecorderStatus:
+        with self._lock:
+            return RecorderStatus(
+                state=self._state, detail=self._detail,
+                file=str(self._path) if self._path else None,
+                file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
+                files_done=self._files_done, free_bytes=self._free,
+                written=dict(self._written), dropped=dict(self._dropped),
+                queue_depth=self._queue.qsize(), queue_size=self.settings.queue_size)
+
+    # ---- life cycle --------------------------------------------------------------------------------------
+    def start(self) -> Path | None:
+        """Open the first file (so a bad output folder fails at start) and start the writer thread."""
+        self.settings.out_dir.mkdir(parents=True, exist_ok=True)
+        self._check_space_and_open()
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._thread.start()
+        return self._path
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Write what is queued, finish the file cleanly, and stop the thread."""
+        if self._thread is None:
+            return
+        self._queue.put(self._STOP)
+        self._thread.join(timeout_s)
+        self._thread = None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # ---- writer thread -----------------------------------------------------------------------------------
+    def _run(self) -> None:
+        interval = self.settings.flush_interval_s
+        while True:
+            wait = max(0.0, self._last_flush + interval - time.monotonic())
+            try:
+                item = self._queue.get(timeout=wait)
+            except queue.Empty:
+                item = None
+            if item is self._STOP:
+                self._drain()
+                self._close_file()
+                self._set_state("stopped", "recorder stopped")
+                return
+            if item is not None:
+                self._write(item)
+            if time.monotonic() - self._last_flush >= interval:
+                self._flush()
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if item is not self._STOP:
+                self._write(item)
+
+    def _write(self, item: tuple[str, Mapping[str, Any], int, int]) -> None:
+        topic, payload, log_ns, pub_ns = item
+        if self._writer is None:
+            if time.monotonic() >= self._next_retry:
+                self._check_space_and_open()
+            if self._writer is None:
+                with self._lock:
+                    self._dropped[topic] += 1
+                return
+        try:
+            data = encode(payload)
+        except (TypeError, ValueError) as exc:
+            log.error("record on %s cannot be encoded as JSON (%s); dropped", topic, exc)
+            with self._lock:
+                self._dropped[topic] += 1
+            return
+        try:
+            channel = self._channel(topic)
+            self._writer.add_message(channel, log_ns, data, pub_ns)
+        except OSError as exc:
+            self._io_failed(exc)
+            with self._lock:
+                self._dropped[topic] += 1
+            return
+        if self._first_log_ns is None:
+            self._first_log_ns = log_ns
+        with self._lock:
+            self._written[topic] += 1
+        if self._first_log_ns is not None and log_ns - self._first_log_ns >= self.settings.rotate_duration_s * 1e9:
+            self._rotate()
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is not None:
+            return cid
+        assert self._writer is not None
+        spec = self.topics.get(topic) or TopicSpec(topic, topic.strip("/").replace("/", "."), {"type": "object"},
+                                                    "unregistered topic")
+        sid = self._schemas.get(spec.schema_name)
+        if sid is None:
+            sid = self._writer.register_schema(spec.schema_name, "jsonschema", json.dumps(spec.schema).encode())
+            self._schemas[spec.schema_name] = sid
+        cid = self._writer.register_channel(topic, "json", sid, {"description": spec.description[:200]})
+        self._channels[topic] = cid
+        return cid
+
+    def _flush(self) -> None:
+        self._last_flush = time.monotonic()
+        if self._writer is None:
+            if self._state in ("disk-full", "failed") and time.monotonic() >= self._next_retry:
+                self._check_space_and_open()
+            return
+        try:
+            self._writer.flush()
+            os.fsync(self._stream.fileno())
+        except OSError as exc:
+            self._io_failed(exc)
+            return
+        size = self._stream.tell()
+        self._free = self._free_bytes()
+        if self._free is not None and self._free < self.settings.min_free_bytes:
+            self._close_file()
+            self._set_state("disk-full", f"recording stopped: {self._free >> 20} MiB free on "
+                            f"{self.settings.out_dir}, below the {self.settings.min_free_bytes >> 20} MiB minimum")
+            log.error(self._detail)
+            self._next_retry = time.monotonic() + 5.0
+            return
+        if size >= self.settings.rotate_size_bytes:
+            self._rotate()
+
+    def _rotate(self) -> None:
+        self._close_file()
+        self._check_space_and_open()
+
+    def _free_bytes(self) -> int | None:
+        try:
+            st = os.statvfs(self.settings.out_dir)
+        except OSError:
+            return None
+        return st.f_bavail * st.f_frsize
+
+    def _check_space_and_open(self) -> None:
+        self._free = self._free_bytes()
+        if self._free is not None and self._free < self.settings.min_free_bytes:
+            self._set_state("disk-full", f"not recording: {self._free >> 20} MiB free on {self.settings.out_dir}, "
+                            f"below the {self.settings.min_free_bytes >> 20} MiB minimum")
+            self._next_retry = time.monotonic() + 5.0
+            return
+        self._sequence += 1
+        name = self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
+        path = self.settings.out_dir / name
+        while path.exists():
+            self._sequence += 1
+            path = self.settings.out_dir / self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
+        try:
+            stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
+            writer = Writer(stream, chunk_size=self.settings.chunk_size_bytes, compression=self._compression)
+            writer.start(profile=PROFILE, library="vehicle-logger")
+            for name_, data in self.metadata.items():
+                writer.add_metadata(name_, data)
+            stream.flush()
+            os.fsync(stream.fileno())
+        except OSError as exc:
+            self._set_state("failed", f"cannot open {path}: {exc.strerror or exc}")
+            log.error(self._detail)
+            self._next_retry = time.monotonic() + 5.0
+            return
+        with self._lock:
+            self._writer, self._stream, self._path = writer, stream, path
+        self._channels.clear()
+        self._schemas.clear()
+        self._first_log_ns = None
+        self._file_started_mono = time.monotonic()
+        self._last_flush = time.monotonic()
+        self._set_state("recording", f"writing {path.name}")
+
+    def _close_file(self) -> None:
+        writer, stream, path = self._writer, self._stream, self._path
+        if writer is None:
+            return
+        try:
+            writer.finish()
+            stream.flush()
+            os.fsync(stream.fileno())
+        except OSError as exc:
+            log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
+        finally:
+            try:
+                stream.close()
+            except OSError:
+                pass
+            with self._lock:
+                self._writer = None
+                self._stream = None
+                self._files_done += 1
+        if self.on_file_closed is not None and path is not None:
+            self.on_file_closed(path)
+
+    def _io_failed(self, exc: OSError) -> None:
+        """A write failed: leave the file as it is (recovery keeps every flushed chunk) and stop writing."""
+        path = self._path
+        try:
+            if self._stream is not None:
+                self._stream.close()
+        except OSError:
+            pass
+        with self._lock:
+            self._writer = None
+            self._stream = None
+        if exc.errno == errno.ENOSPC:
+            self._set_state("disk-full", f"recording stopped: disk full while writing {path}")
+        else:
+            self._set_state("failed", f"recording stopped: {exc.strerror or exc} while writing {path}")
+        log.error(self._detail)
+        self._next_retry = time.monotonic() + 5.0
+
+    def _set_state(self, state: str, detail: str) -> None:
+        with self._lock:
+            self._state, self._detail = state, detail

@@ -1,0 +1,111 @@
+"""The recorder: flush cadence, a cut file recovered, drops counted, disk-full handled."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from logger.mcap_files import is_finished, recover, walk
+from logger.recorder import Recorder, RecorderSettings
+from logger.topics import TopicSpec
+
+TOPICS = {"/a": TopicSpec("/a", "test.A", {"type": "object", "properties": {"x": {"type": "integer"}}}, "test")}
+
+
+def _read_all(path: Path) -> list[tuple[str, int]]:
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        return [(ch.topic, m.log_time) for _, ch, m in reader.iter_messages()]
+
+
+def test_clean_stop_leaves_a_finished_indexed_file(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS)
+    path = rec.start()
+    for i in range(500):
+        assert rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
+    rec.stop()
+    assert path is not None and is_finished(path)
+    got = _read_all(path)
+    assert len(got) == 500
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count == 500
+    assert rec.status().state == "stopped"
+
+
+def test_a_cut_file_keeps_what_was_flushed_and_is_recovered(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    path = rec.start()
+    assert path is not None
+    for i in range(200):
+        rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
+    deadline = time.monotonic() + 5
+    while rec.status().written.get("/a", 0) < 200 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.1)  # past at least one flush interval: everything is in closed chunks on disk
+    # Simulate kill -9: copy the bytes as they are on disk now, while the writer still holds the file open.
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes())
+    rec.stop()
+    assert not is_finished(cut)
+    assert len(walk(cut).messages) == 200
+    report = recover(cut)
+    assert report.messages == 200 and report.chunks_bad == 0
+    assert is_finished(cut)
+    assert [t for t, _ in _read_all(cut)] == ["/a"] * 200
+
+
+def test_truncation_in_the_middle_of_a_chunk_loses_only_that_chunk(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=3600), TOPICS)
+    path = rec.start()
+    assert path is not None
+    for i in range(100):
+        rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
+    rec.stop()
+    data = path.read_bytes()
+    first = walk(path)
+    assert first.chunks_ok >= 1 and len(first.messages) == 100
+    # One chunk holds all 100 messages: a cut inside it loses them, a cut in the summary loses none.
+    for cut_at, expected in ((len(data) - 40, 100), (60, 0)):
+        p = tmp_path / f"t{cut_at}.mcap"
+        p.write_bytes(data[:cut_at])
+        found = walk(p)
+        assert found.stopped_at  # the walk notices the cut instead of raising
+        report = recover(p)
+        assert is_finished(p)
+        assert report.messages == expected
+
+
+def test_full_queue_is_a_counted_drop_not_a_block(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, queue_size=10), TOPICS)
+    # Not started: nothing drains the queue, so the 11th record must be refused at once.
+    accepted = sum(rec.submit("/a", {"x": i}, i, i) for i in range(25))
+    assert accepted == 10
+    assert rec.status().dropped == {"/a": 15}
+
+
+def test_disk_below_minimum_free_stops_recording_with_a_clear_state(tmp_path: Path) -> None:
+    free = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, min_free_bytes=free * 2), TOPICS)
+    assert rec.start() is None
+    st = rec.status()
+    assert st.state == "disk-full" and "below the" in st.detail
+    assert not rec.submit("/a", {"x": 1}, 1, 1)
+    rec.stop()
+    assert list(tmp_path.glob("*.mcap")) == []
+
+
+def test_rotation_by_duration_of_log_time(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, rotate_duration_s=10.0, flush_interval_s=0.05), TOPICS)
+    rec.start()
+    t0 = 1_700_000_000_000_000_000
+    for i in range(35):
+        rec.submit("/a", {"x": i}, t0 + i * 1_000_000_000, i)
+    rec.stop()
+    files = sorted(tmp_path.glob("*.mcap"))
+    assert len(files) == 4
+    assert all(is_finished(f) for f in files)
+    assert sum(len(_read_all(f)) for f in files) == 35
