@@ -1,0 +1,253 @@
+"""The daemon's configuration: one TOML file, every value checked before anything starts.
+
+A field engineer edits this file on the board with nano; when it is wrong, each problem gets one line naming
+the file, the line, the key and what is expected, and the daemon does not start. Python's ``tomllib`` gives no
+line numbers for keys, so a small index of ``[table]`` headers and ``key =`` lines supplies them.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import re
+import stat
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+DEFAULT_PATH = Path("/etc/vehicle-logger/logger.toml")
+
+
+class ConfigError(Exception):
+    """One or more problems in a configuration; ``problems`` holds one readable line each."""
+
+    def __init__(self, problems: list[str]) -> None:
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+@dataclass(frozen=True)
+class Key:
+    """One allowed key: its type, default, and the rule its value must follow."""
+
+    kind: type | tuple[type, ...]
+    default: Any = None
+    check: Callable[[Any], str | None] | None = None  # returns the complaint, or None when fine
+    help: str = ""
+
+
+def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
+    return lambda v: None if lo <= v <= hi else f"must be between {lo:g} and {hi:g}"
+
+
+def _one_of(*choices: Any) -> Callable[[Any], str | None]:
+    return lambda v: None if v in choices else "must be one of " + ", ".join(repr(c) for c in choices)
+
+
+def _i2c_address(v: int) -> str | None:
+    return None if 0x03 <= v <= 0x77 else "is not a 7-bit I2C device address (0x03..0x77)"
+
+
+def _abs_path(v: str) -> str | None:
+    return None if v.startswith("/") else "must be an absolute path"
+
+
+NUM = (int, float)
+SOURCES_I2C = ("i2c", "sim")
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "logger": {
+        "out_dir": Key(str, "/var/lib/vehicle-logger/drives", _abs_path, "folder for the MCAP files"),
+        "state_dir": Key(str, "/var/lib/vehicle-logger", _abs_path, "saved clock state"),
+        "status_socket": Key(str, "/run/vehicle-logger/status.sock", _abs_path, "Unix socket of `logger status`"),
+    },
+    "recorder": {
+        "flush_interval_s": Key(NUM, 1.0, _range(0.05, 60), "close the chunk and fsync this often"),
+        "rotate_duration_s": Key(NUM, 3600.0, _range(10, 86400), "start a new file after this much drive time"),
+        "rotate_size_mb": Key(NUM, 1024, _range(1, 65536), "start a new file at this size"),
+        "min_free_mb": Key(NUM, 256, _range(0, 1 << 20), "stop recording below this much free disk"),
+        "compression": Key(str, "zstd", _one_of("zstd", "lz4", "none"), "MCAP chunk compression"),
+        "queue_size": Key(int, 20000, _range(100, 1_000_000), "records waiting for the writer before drops"),
+    },
+    "imu": {
+        "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
+        "bus": Key(int, 2, _range(0, 255), "I2C bus number: /dev/i2c-N"),
+        "address": Key(int, 0x68, _i2c_address, "0x68, or 0x69 with AD0 high"),
+        "rate_hz": Key(NUM, 20, _range(1, 1000), "sample rate; above 50 Hz the FIFO is used"),
+        "accel_range_g": Key(int, 4, _one_of(2, 4, 8, 16)),
+        "gyro_range_dps": Key(int, 500, _one_of(250, 500, 1000, 2000)),
+    },
+    "baro": {
+        "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
+        "bus": Key(int, 2, _range(0, 255)),
+        "address": Key(int, 0x77, _i2c_address),
+        "rate_hz": Key(NUM, 1, _range(0.1, 10)),
+        "oversampling": Key(int, 3, _one_of(0, 1, 2, 3), "0 ultra low power .. 3 ultra high resolution"),
+        "sea_level_pa": Key(NUM, 101325.0, _range(85000, 110000), "P0 of the altitude formula (QNH)"),
+    },
+    "obd": {
+        "source": Key(str, "elm327", _one_of("elm327", "can", "sim")),
+        "port": Key(str, None, _abs_path, "ELM327 serial port, e.g. /dev/serial/by-id/..."),
+        "baud": Key(int, 38400, _one_of(9600, 38400, 57600, 115200, 230400, 500000)),
+        "protocol": Key(str, "0", _one_of(*"0123456789ABC"), "ATSP protocol number, 0 = automatic"),
+        "headers": Key(bool, False, None, "ask the adapter for CAN headers (tells which ECU answered)"),
+        "channel": Key(str, "can0", None, "SocketCAN interface for source = 'can'"),
+        "extended_id": Key(bool, False, None, "29-bit OBD addressing"),
+        "rate_hz": Key(NUM, 2, _range(0.1, 20)),
+    },
+    "gnss": {
+        "source": Key(str, "serial", _one_of("serial", "sim")),
+        "port": Key(str, None, _abs_path, "receiver serial/USB port"),
+        "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)),
+        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start"),
+    },
+    "pps": {
+        "source": Key(str, "gpio", _one_of("gpio", "sim", "none")),
+        "chip": Key(str, "/dev/gpiochip0", _abs_path),
+        "line": Key((int, str), 60, None, "line offset or line name"),
+    },
+    "sim": {
+        "scenario": Key(str, "urban", None, "drive to simulate"),
+        "seed": Key(int, 1, _range(0, 2**32 - 1)),
+        "time_scale": Key(NUM, 1.0, _range(0.01, 1000)),
+    },
+}
+
+# Keys that a source makes necessary: (section, source value) -> keys that must be set.
+REQUIRED_FOR_SOURCE = {("obd", "elm327"): ["port"], ("gnss", "serial"): ["port"]}
+
+
+@dataclass
+class Config:
+    """Validated settings: ``section -> key -> value`` with defaults filled in."""
+
+    values: dict[str, dict[str, Any]]
+    path: Path | None = None
+    explicit: set[str] = field(default_factory=set)  # "section.key" set in the file
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.values[section]
+
+
+def defaults(sim: bool = False) -> Config:
+    """The configuration with nothing set; with ``sim``, every sensor is simulated (``logger run --sim``)."""
+    values = {sec: {k: key.default for k, key in keys.items()} for sec, keys in SCHEMA.items()}
+    if sim:
+        for sec in ("imu", "baro", "obd", "gnss", "pps"):
+            values[sec]["source"] = "sim"
+    return Config(values)
+
+
+_TABLE = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\-\" ]+?)\s*\]\s*(#.*)?$")
+_KEY = re.compile(r"^\s*([A-Za-z0-9_\-\"]+(?:\s*\.\s*[A-Za-z0-9_\-\"]+)*)\s*=")
+
+
+def _line_index(text: str) -> dict[str, int]:
+    """Map ``section.key`` (and ``section``) to the 1-based line where the file sets it."""
+    index: dict[str, int] = {}
+    table = ""
+    for no, line in enumerate(text.splitlines(), 1):
+        m = _TABLE.match(line)
+        if m:
+            table = m.group(1).replace('"', "").replace(" ", "")
+            index.setdefault(table, no)
+            continue
+        m = _KEY.match(line)
+        if m:
+            key = m.group(1).replace('"', "").replace(" ", "")
+            index.setdefault(f"{table}.{key}" if table else key, no)
+    return index
+
+
+def _type_name(kind: type | tuple[type, ...]) -> str:
+    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if set(kinds) == {int, float}:
+        return "a number"
+    return " or ".join(names.get(k, k.__name__) for k in kinds)
+
+
+def _check_type(value: Any, kind: type | tuple[type, ...]) -> bool:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, bool):
+        return bool in kinds
+    return isinstance(value, kinds)
+
+
+def parse(text: str, name: str = "config", sim: bool = False) -> Config:
+    """Validate TOML text; raise :class:`ConfigError` listing every problem, one line each."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
+        where = f"{name}:{m.group(1)}" if m else name
+        msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
+        raise ConfigError([f"{where}: not valid TOML: {msg}"]) from None
+    lines = _line_index(text)
+    problems: list[str] = []
+    cfg = defaults(sim=sim)
+
+    def at(path: str) -> str:
+        no = lines.get(path) or lines.get(path.split(".")[0])
+        return f"{name}:{no}" if no else name
+
+    for section, body in raw.items():
+        keys = SCHEMA.get(section)
+        if keys is None:
+            hint = difflib.get_close_matches(section, SCHEMA, n=1)
+            problems.append(f"{at(section)}: unknown section [{section}]"
+                            + (f" (did you mean [{hint[0]}]?)" if hint else ""))
+            continue
+        if not isinstance(body, dict):
+            problems.append(f"{at(section)}: {section} must be a table [{section}]")
+            continue
+        for key, value in body.items():
+            path = f"{section}.{key}"
+            spec = keys.get(key)
+            if spec is None:
+                hint = difflib.get_close_matches(key, keys, n=1)
+                problems.append(f"{at(path)}: unknown key {path}" + (f" (did you mean {section}.{hint[0]}?)"
+                                                                      if hint else ""))
+                continue
+            if not _check_type(value, spec.kind):
+                problems.append(f"{at(path)}: {path} must be {_type_name(spec.kind)}, not {value!r}")
+                continue
+            complaint = spec.check(value) if spec.check else None
+            if complaint:
+                shown = f"{value:#04x}" if key == "address" and isinstance(value, int) else repr(value)
+                problems.append(f"{at(path)}: {path} = {shown} {complaint}")
+                continue
+            cfg.values[section][key] = float(value) if spec.kind == NUM else value
+            cfg.explicit.add(path)
+    for (section, source), needed in REQUIRED_FOR_SOURCE.items():
+        if cfg.values[section]["source"] == source:
+            for key in needed:
+                if cfg.values[section][key] is None:
+                    problems.append(f"{at(section + '.source')}: {section}.{key} is required when "
+                                    f"{section}.source = {source!r}")
+    if problems:
+        raise ConfigError(problems)
+    return cfg
+
+
+def load(path: str | os.PathLike[str], sim: bool = False) -> Config:
+    """Read and validate a file; refuse one that anybody may write, as it steers a root-started service."""
+    p = Path(path)
+    try:
+        st = p.stat()
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError([f"{p}: no such configuration file"]) from None
+    except PermissionError:
+        raise ConfigError([f"{p}: not allowed to read the configuration file"]) from None
+    except UnicodeDecodeError:
+        raise ConfigError([f"{p}: not a text file (TOML must be UTF-8)"]) from None
+    except OSError as exc:
+        raise ConfigError([f"{p}: cannot read ({exc.strerror})"]) from None
+    if st.st_mode & stat.S_IWOTH:
+        raise ConfigError([f"{p}: refusing a world-writable configuration file (chmod o-w {p})"])
+    cfg = parse(text, str(p), sim=sim)
+    cfg.path = p
+    return cfg

@@ -1,0 +1,95 @@
+"""Configuration: every mistake a person makes gets one line naming the key and its line."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from logger.config import ConfigError, defaults, load, parse
+
+GOOD = """\
+# a board with everything attached
+[logger]
+out_dir = "/data/drives"
+
+[imu]
+bus = 2
+address = 0x68
+rate_hz = 200
+
+[obd]
+source = "elm327"
+port = "/dev/ttyUSB0"
+
+[gnss]
+port = "/dev/ttyACM0"
+baud = 115200
+"""
+
+
+def _problems(text: str) -> list[str]:
+    with pytest.raises(ConfigError) as err:
+        parse(text, "logger.toml")
+    return err.value.problems
+
+
+def test_good_file_fills_defaults() -> None:
+    cfg = parse(GOOD, "logger.toml")
+    assert cfg["imu"]["rate_hz"] == 200.0 and cfg["imu"]["gyro_range_dps"] == 500
+    assert cfg["baro"]["address"] == 0x77
+    assert "imu.rate_hz" in cfg.explicit and "imu.gyro_range_dps" not in cfg.explicit
+
+
+def test_unknown_key_names_key_line_and_suggests() -> None:
+    (msg,) = _problems(GOOD.replace("rate_hz = 200", "rat_hz = 200"))
+    assert msg == "logger.toml:8: unknown key imu.rat_hz (did you mean imu.rate_hz?)"
+
+
+def test_unknown_section() -> None:
+    (msg,) = _problems(GOOD + "\n[gps]\nport = '/dev/ttyS1'\n")
+    assert msg.startswith("logger.toml:18: unknown section [gps]")
+
+
+def test_wrong_type() -> None:
+    (msg,) = _problems(GOOD.replace("rate_hz = 200", 'rate_hz = "fast"'))
+    assert msg == "logger.toml:8: imu.rate_hz must be a number, not 'fast'"
+
+
+def test_bad_address_and_out_of_range_reported_together() -> None:
+    problems = _problems(GOOD.replace("address = 0x68", "address = 0x90").replace("rate_hz = 200", "rate_hz = 5000"))
+    assert problems == [
+        "logger.toml:7: imu.address = 0x90 is not a 7-bit I2C device address (0x03..0x77)",
+        "logger.toml:8: imu.rate_hz = 5000 must be between 1 and 1000",
+    ]
+
+
+def test_missing_device_path() -> None:
+    (msg,) = _problems(GOOD.replace('port = "/dev/ttyUSB0"\n', ""))
+    assert msg == "logger.toml:11: obd.port is required when obd.source = 'elm327'"
+
+
+def test_toml_syntax_error_has_a_line() -> None:
+    (msg,) = _problems(GOOD.replace("bus = 2", "bus = = 2"))
+    assert msg.startswith("logger.toml:6: not valid TOML")
+
+
+def test_sim_defaults_need_no_file() -> None:
+    cfg = defaults(sim=True)
+    assert {cfg[s]["source"] for s in ("imu", "baro", "obd", "gnss", "pps")} == {"sim"}
+
+
+def test_world_writable_file_is_refused(tmp_path: Path) -> None:
+    p = tmp_path / "logger.toml"
+    p.write_text(GOOD)
+    os.chmod(p, 0o666)
+    with pytest.raises(ConfigError, match="world-writable"):
+        load(p)
+    os.chmod(p, 0o640)
+    assert load(p)["gnss"]["baud"] == 115200
+
+
+def test_missing_file() -> None:
+    with pytest.raises(ConfigError, match="no such configuration file"):
+        load("/nonexistent/logger.toml")
