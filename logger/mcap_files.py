@@ -74,7 +74,7 @@ def walk(path: str | os.PathLike[str]) -> Salvage:
             if isinstance(record, Chunk):
                 try:
                     inner = breakup_chunk(record, validate_crc=True)
-                except Exception:  # noqa: BLE001 - a corrupt chunk is skipped, not fatal
+                except Exception:
                     found.chunks_bad += 1
                     continue
                 found.chunks_ok += 1
@@ -94,7 +94,7 @@ def _records_until_cut(reader: StreamReader, found: Salvage) -> Iterator[object]
             record = next(it)
         except StopIteration:
             return
-        except (EOFError, struct.error, ValueError, MemoryError, Exception) as exc:  # noqa: BLE001
+        except (EOFError, struct.error, ValueError, MemoryError, Exception) as exc:
             found.stopped_at = f"{type(exc).__name__}: {exc}"[:200]
             return
         yield record
