@@ -11,6 +11,8 @@ import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "gnss-decode": ("logger.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
+    "info": ("logger.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
+    "recover": ("logger.recover_cmd", "make a file cut short by a crash readable and indexed again"),
 }
 
 

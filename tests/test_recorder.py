@@ -109,3 +109,32 @@ def test_rotation_by_duration_of_log_time(tmp_path: Path) -> None:
     assert len(files) == 4
     assert all(is_finished(f) for f in files)
     assert sum(len(_read_all(f)) for f in files) == 35
+
+
+def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
+    from logger.cli import main
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    path = rec.start()
+    assert path is not None
+    t0 = 1_700_000_000_000_000_000
+    for i in range(50):
+        # 10 Hz with one missing second between samples 19 and 20
+        rec.submit("/a", {"x": i}, t0 + i * 100_000_000 + (1_000_000_000 if i >= 20 else 0), i)
+    rec.stop()
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "Closed:    cleanly" in out and "/a" in out and "1.100" in out  # the gap, in seconds
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:-100])
+    assert main(["info", str(cut)]) == 0
+    assert "NO (cut short)" in capsys.readouterr().out
+    assert main(["recover", str(cut)]) == 0
+    assert "recovered 50 messages" in capsys.readouterr().out
+    assert is_finished(cut)
+    assert main(["info", "/nonexistent.mcap"]) == 1
+    assert "No such file" in capsys.readouterr().err
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"hello world" * 10)
+    assert main(["recover", str(junk)]) == 1
+    assert "not an MCAP file" in capsys.readouterr().err

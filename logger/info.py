@@ -1,0 +1,136 @@
+"""``logger info FILE``: what is in a recorded file, at a glance (like ``ros2 bag info``).
+
+Per-topic counts, rates and the largest gap come from the message indexes, so the chunks need not be
+decompressed: a day's file is summarised in seconds on the board. A file that was not closed cleanly is
+walked record by record instead, and says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import sys
+import time
+from collections import defaultdict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from mcap.records import Channel, MessageIndex
+from mcap.stream_reader import StreamReader
+
+from logger.mcap_files import McapFileError, is_finished, walk
+
+
+@dataclass
+class TopicInfo:
+    topic: str
+    schema: str
+    count: int
+    rate_hz: float
+    largest_gap_s: float
+
+
+@dataclass
+class FileInfo:
+    path: str
+    size_bytes: int
+    closed_cleanly: bool
+    start_ns: int | None
+    end_ns: int | None
+    duration_s: float
+    messages: int
+    topics: list[TopicInfo]
+    note: str = ""
+
+
+def inspect(path: str | os.PathLike[str]) -> FileInfo:
+    """Summarise one file; raises McapFileError with a readable message for a file that is not MCAP."""
+    p = Path(path)
+    finished = is_finished(p)
+    times: dict[int, list[int]] = defaultdict(list)
+    channels: dict[int, Channel] = {}
+    schemas: dict[int, str] = {}
+    note = ""
+    if finished:
+        try:
+            with open(p, "rb") as f:
+                for record in StreamReader(f, emit_chunks=True, record_size_limit=max(p.stat().st_size, 1)).records:
+                    if isinstance(record, MessageIndex):
+                        times[record.channel_id].extend(t for t, _ in record.records)
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif type(record).__name__ == "Schema":
+                        schemas[record.id] = record.name  # type: ignore[attr-defined]
+        except Exception as exc:  # a footer present but a broken body: fall back to the walk
+            finished = False
+            note = f"index unreadable ({type(exc).__name__}); walked the records instead"
+            times.clear()
+    if not finished:
+        found = walk(p)
+        channels = dict(found.channels)
+        schemas = {sid: s.name for sid, s in found.schemas.items()}
+        for m in found.messages:
+            times[m.channel_id].append(m.log_time)
+        if found.stopped_at and not note:
+            note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
+    topics = []
+    all_times = [t for ts in times.values() for t in ts]
+    for cid, ch in sorted(channels.items(), key=lambda kv: kv[1].topic):
+        ts = sorted(times.get(cid, []))
+        span = (ts[-1] - ts[0]) / 1e9 if len(ts) > 1 else 0.0
+        gap = max((b - a for a, b in itertools.pairwise(ts)), default=0) / 1e9
+        rate = (len(ts) - 1) / span if span > 0 else 0.0
+        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), len(ts), rate, gap))
+    start = min(all_times) if all_times else None
+    end = max(all_times) if all_times else None
+    duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
+    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note)
+
+
+def _utc(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(ns / 1e9)) + f".{(ns // 1_000_000) % 1000:03d} UTC"
+
+
+def render(info: FileInfo) -> str:
+    lines = [
+        f"File:      {info.path}",
+        f"Size:      {info.size_bytes / 1e6:.1f} MB",
+        f"Closed:    {'cleanly' if info.closed_cleanly else 'NO (cut short)'}",
+        f"Start:     {_utc(info.start_ns)}",
+        f"End:       {_utc(info.end_ns)}",
+        f"Duration:  {info.duration_s:.1f} s",
+        f"Messages:  {info.messages}",
+    ]
+    if info.note:
+        lines.append(f"Note:      {info.note}")
+    width = max([len(t.topic) for t in info.topics] + [5])
+    lines.append("")
+    lines.append(f"  {'topic':<{width}}  {'count':>8}  {'rate Hz':>8}  {'max gap s':>9}  schema")
+    for t in info.topics:
+        lines.append(f"  {t.topic:<{width}}  {t.count:>8}  {t.rate_hz:>8.2f}  {t.largest_gap_s:>9.3f}  {t.schema}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="logger info", description="summarise a recorded MCAP file")
+    parser.add_argument("files", nargs="+", metavar="FILE")
+    parser.add_argument("--json", action="store_true", help="one JSON object per file")
+    args = parser.parse_args(argv)
+    status = 0
+    for f in args.files:
+        try:
+            info = inspect(f)
+        except McapFileError as exc:
+            print(f"logger info: {exc}", file=sys.stderr)
+            status = 1
+            continue
+        except FileNotFoundError:
+            print(f"logger info: {f}: no such file", file=sys.stderr)
+            status = 1
+            continue
+        print(json.dumps(asdict(info)) if args.json else render(info))
+    return status
