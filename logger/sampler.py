@@ -1,0 +1,208 @@
+"""Sampler threads: one per sensor, owning timing, retries and reconnects; drivers stay simple.
+
+A periodic sampler keeps deadlines on the monotonic clock (period n is due at start + n * period), so sleeping
+after slow work never makes it drift; a sample taken after its deadline is counted late and periods that
+passed unsampled are counted as missed, never silently shifted. Any :class:`SensorError` closes the source
+and retries it with a growing back-off while every other thread goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from logger.timebase import TimeBase
+from sensors.errors import DeviceNotFound, SensorError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(slots=True)
+class Reading:
+    """One message for the recorder: the source fills topic, payload and the acquisition time."""
+
+    topic: str
+    payload: dict[str, Any]
+    t_mono_ns: int
+    stamped: bool = True  # False for messages that carry no sensor time (e.g. raw receiver bytes)
+
+
+class Source(Protocol):
+    """A sensor as a sampler sees it: adapters in ``logger.sources`` wrap each driver."""
+
+    name: str
+
+    def open(self) -> None:
+        ...
+
+    def read(self) -> list[Reading]:
+        """One sample (periodic sensors) or what arrived (event sensors, waiting at most a short while)."""
+        ...
+
+    def close(self) -> None:
+        ...
+
+
+Sink = Callable[[Reading], None]
+
+
+@dataclass
+class SensorHealth:
+    """Counters a sensor thread keeps for ``logger status`` and ``/health``; read from other threads."""
+
+    name: str
+    rate_hz: float | None  # configured; None for event-driven sensors
+    state: str = "starting"  # starting, ok, retrying, missing, stopped
+    samples: int = 0
+    errors: int = 0
+    late: int = 0
+    missed: int = 0
+    gaps: int = 0
+    reconnects: int = 0
+    last_error: str = ""
+    last_sample_mono_ns: int | None = None
+    heartbeat_mono_ns: int = 0
+    _recent: deque[int] = field(default_factory=lambda: deque(maxlen=2048))
+
+    def measured_rate_hz(self, now_ns: int, window_s: float = 10.0) -> float:
+        cutoff = now_ns - int(window_s * 1e9)
+        recent = [t for t in list(self._recent) if t >= cutoff]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9) if recent[-1] > recent[0] else 0.0
+
+    def snapshot(self, now_ns: int) -> dict[str, Any]:
+        age = (now_ns - self.last_sample_mono_ns) / 1e9 if self.last_sample_mono_ns is not None else None
+        return {"name": self.name, "state": self.state, "rate_hz": self.rate_hz,
+                "measured_rate_hz": round(self.measured_rate_hz(now_ns), 3), "last_sample_age_s": age,
+                "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
+                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error}
+
+
+class Sampler(threading.Thread):
+    """Runs one source: periodic at ``rate_hz``, or as its events arrive when ``rate_hz`` is None."""
+
+    BACKOFF_START_S = 0.5
+    BACKOFF_MAX_S = 10.0
+
+    def __init__(self, source: Source, sink: Sink, timebase: TimeBase, rate_hz: float | None,
+                 stop: threading.Event, expected_hz: float | None = None, gap_factor: float = 2.5) -> None:
+        super().__init__(name=f"sampler-{source.name}", daemon=True)
+        self.source = source
+        self.sink = sink
+        self.tb = timebase
+        self.rate_hz = rate_hz
+        self.stop_event = stop
+        expected_hz = expected_hz or rate_hz
+        self.health = SensorHealth(source.name, expected_hz)
+        # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
+        self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
+
+    # The thread body: open, sample until an error, back off, reopen.
+    def run(self) -> None:
+        backoff = self.BACKOFF_START_S
+        opened_once = False
+        while not self.stop_event.is_set():
+            self.health.heartbeat_mono_ns = self.tb.monotonic_ns()
+            try:
+                self.source.open()
+            except SensorError as exc:
+                self._failed(exc, missing=not opened_once or isinstance(exc, DeviceNotFound))
+                if self.tb.wait(self.stop_event, backoff):
+                    break
+                backoff = min(backoff * 2, self.BACKOFF_MAX_S)
+                continue
+            if opened_once:
+                self.health.reconnects += 1
+                log.warning("%s: back after %s", self.source.name, self.health.last_error or "an error")
+            opened_once = True
+            self.health.state = "ok"
+            backoff = self.BACKOFF_START_S
+            try:
+                if self.rate_hz:
+                    self._periodic()
+                else:
+                    self._events()
+            except SensorError as exc:
+                self._failed(exc, missing=isinstance(exc, DeviceNotFound))
+                self._close()
+                if self.tb.wait(self.stop_event, backoff):
+                    break
+                continue
+            except Exception as exc:  # a bug in a driver must not take the daemon down: log it, retry
+                log.exception("%s: unexpected error", self.source.name)
+                self._failed(SensorError(f"internal error: {type(exc).__name__}: {exc}"), missing=False)
+                self._close()
+                if self.tb.wait(self.stop_event, self.BACKOFF_MAX_S):
+                    break
+                continue
+        self._close()
+        self.health.state = "stopped"
+
+    def _periodic(self) -> None:
+        assert self.rate_hz
+        period_ns = round(1e9 / self.rate_hz)
+        start = self.tb.monotonic_ns()
+        n = 0
+        while not self.stop_event.is_set():
+            due = start + n * period_ns
+            now = self.tb.monotonic_ns()
+            if due > now and self.tb.wait(self.stop_event, (due - now) / 1e9):
+                return
+            self._deliver(self.source.read())
+            n += 1
+            after = self.tb.monotonic_ns()
+            if after > start + n * period_ns:
+                # This sample ended after the next one was due: count it late; skip periods already gone.
+                self.health.late += 1
+                next_n = int((after - start) // period_ns) + 1  # first deadline still ahead
+                self.health.missed += next_n - n
+                n = next_n
+
+    def _events(self) -> None:
+        while not self.stop_event.is_set():
+            self._deliver(self.source.read())
+
+    def _deliver(self, readings: list[Reading]) -> None:
+        h = self.health
+        h.heartbeat_mono_ns = self.tb.monotonic_ns()
+        for r in readings:
+            if r.stamped:
+                last = h.last_sample_mono_ns
+                if last is not None and self._gap_ns and r.t_mono_ns - last > self._gap_ns:
+                    h.gaps += 1
+                h.last_sample_mono_ns = r.t_mono_ns
+                h._recent.append(r.t_mono_ns)
+                h.samples += 1
+            self.sink(r)
+
+    def _failed(self, exc: SensorError, missing: bool) -> None:
+        h = self.health
+        h.errors += 1
+        message = str(exc) or type(exc).__name__
+        if message != h.last_error or h.state == "ok":
+            log.warning("%s: %s", self.source.name, message)
+        h.last_error = message
+        h.state = "missing" if missing else "retrying"
+        h.heartbeat_mono_ns = self.tb.monotonic_ns()
+
+    def _close(self) -> None:
+        try:
+            self.source.close()
+        except Exception:  # closing a broken device must not raise out of the thread
+            log.debug("%s: error while closing", self.source.name, exc_info=True)
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
+    """Poll ``predicate`` on the host clock; for tests and start-up checks."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return predicate()

@@ -1,0 +1,110 @@
+"""Sampler scheduling and recovery, in virtual time so nothing depends on the machine's load.
+
+The source here is a scripted stand-in for a driver adapter: these tests are about the thread's deadlines and
+back-off, which no device model can make deterministic. Drivers are tested against device models elsewhere.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+
+from logger.sampler import Reading, Sampler, wait_until
+from logger.timebase import TimeBase
+from sensors.errors import BusError, DeviceNotFound
+from sensors.sim.clock import ManualClock
+
+
+class VirtualTime(TimeBase):
+    """Waiting advances a manual clock at once: the thread runs as fast as it can in drive time."""
+
+    def __init__(self) -> None:
+        self.clock = ManualClock(start_ns=1_000_000_000)
+        super().__init__(self.clock.now_ns, 1.0)
+
+    def wait(self, event: threading.Event, seconds: float) -> bool:
+        if seconds > 0:
+            self.clock.advance(seconds)
+        return event.is_set()
+
+    def sleep(self, seconds: float) -> None:
+        self.clock.advance(max(0.0, seconds))
+
+
+class Scripted:
+    name = "imu"
+
+    def __init__(self, tb: VirtualTime, work_s: list[float] | None = None, fail_at: set[int] | None = None,
+                 absent_opens: int = 0, limit: int = 100) -> None:
+        self.tb, self.work_s, self.fail_at = tb, work_s or [], fail_at or set()
+        self.absent_opens, self.limit = absent_opens, limit
+        self.n = 0
+        self.opens = 0
+        self.done = threading.Event()
+
+    def open(self) -> None:
+        self.opens += 1
+        if self.opens <= self.absent_opens:
+            raise DeviceNotFound("/dev/i2c-2: no such device")
+
+    def read(self) -> list[Reading]:
+        i = self.n
+        self.n += 1
+        if i >= self.limit:
+            self.done.set()
+            return []
+        t = self.tb.monotonic_ns()
+        if i in self.fail_at:
+            raise BusError("I2C transfer failed (EIO)")
+        if i < len(self.work_s):
+            self.tb.clock.advance(self.work_s[i])
+        return [Reading("/imu", {"i": i}, t)]
+
+
+def _run(src: Scripted, rate: float) -> tuple[Sampler, list[Reading]]:
+    out: list[Reading] = []
+    stop = threading.Event()
+    s = Sampler(src, out.append, src.tb, rate, stop)
+    s.start()
+    assert wait_until(src.done.is_set, 10)
+    stop.set()
+    s.join(5)
+    assert not s.is_alive()
+    return s, out
+
+
+def test_deadlines_do_not_drift() -> None:
+    tb = VirtualTime()
+    # Each read takes 30 % of the period: sleeping a full period after it would drift by 30 %.
+    src = Scripted(tb, work_s=[0.015] * 100, limit=100)
+    s, out = _run(src, 20.0)
+    t = [r.t_mono_ns for r in out]
+    assert len(t) == 100
+    assert all(b - a == 50_000_000 for a, b in itertools.pairwise(t))
+    assert s.health.late == 0 and s.health.missed == 0 and s.health.gaps == 0
+
+
+def test_a_slow_sample_is_counted_late_and_missed_periods_are_counted() -> None:
+    tb = VirtualTime()
+    work = [0.0] * 100
+    work[10] = 0.175  # ends 3.5 periods later: three deadlines passed unsampled
+    src = Scripted(tb, work_s=work, limit=50)
+    s, out = _run(src, 20.0)
+    assert s.health.late == 1
+    assert s.health.missed == 3
+    t = [r.t_mono_ns for r in out]
+    # After the slow one the sampler is back on the original grid, not shifted.
+    assert (t[11] - t[0]) % 50_000_000 == 0 and t[11] - t[10] == 200_000_000
+    assert s.health.gaps == 1
+
+
+def test_failure_backs_off_reconnects_and_counts() -> None:
+    tb = VirtualTime()
+    src = Scripted(tb, fail_at={5}, absent_opens=2, limit=30)
+    s, out = _run(src, 20.0)
+    h = s.health
+    assert h.errors == 3  # two opens while absent, one bus error
+    assert h.reconnects == 1  # the first successful open is not a reconnect
+    assert h.state == "stopped"
+    assert h.last_error == "I2C transfer failed (EIO)"
+    assert len(out) == 29  # every read but the failed one delivered
