@@ -1,0 +1,200 @@
+"""The status socket and ``logger status``: what an operator at a red light needs, in one screen.
+
+The daemon answers each connection on a Unix socket with one JSON snapshot and closes it; no network listener,
+and the socket is readable by the daemon's group only (mode 0660). ``logger status`` renders it, and its exit
+code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+EXIT = {"ok": 0, "degraded": 1, "critical": 2}
+NOT_RUNNING = 3
+MAX_REPLY = 4 << 20
+
+
+class StatusServer(threading.Thread):
+    """Serves ``snapshot()`` as JSON to every client that connects."""
+
+    def __init__(self, path: str | os.PathLike[str], snapshot: Callable[[], dict[str, Any]],
+                 mode: int = 0o660) -> None:
+        super().__init__(name="status", daemon=True)
+        self.path = Path(path)
+        self.snapshot = snapshot
+        self._stop = threading.Event()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.exists() or self.path.is_symlink():
+            self.path.unlink()  # a socket left by a crashed daemon
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old = os.umask(0o117)  # never world-accessible, not even between bind and chmod
+        try:
+            self._sock.bind(str(self.path))
+        finally:
+            os.umask(old)
+        os.chmod(self.path, mode)
+        self._sock.listen(8)
+        self._sock.settimeout(0.5)
+
+    def run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._sock.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                if self._stop.is_set():
+                    return
+                continue
+            with conn:
+                try:
+                    conn.settimeout(2.0)
+                    data = json.dumps(self.snapshot(), default=str).encode() + b"\n"
+                    conn.sendall(data)
+                except Exception:  # a client that hangs up early, or a snapshot bug: never kill the server
+                    log.debug("status client failed", exc_info=True)
+
+    def close(self) -> None:
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            self._sock.close()
+        with contextlib.suppress(OSError):
+            self.path.unlink()
+        if self.is_alive():
+            self.join(2.0)
+
+
+def fetch(path: str | os.PathLike[str], timeout_s: float = 3.0) -> dict[str, Any]:
+    """One snapshot from the daemon; raises ConnectionError with a readable reason when it is not there."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(timeout_s)
+    try:
+        s.connect(str(path))
+        chunks, size = [], 0
+        while True:
+            part = s.recv(65536)
+            if not part:
+                break
+            chunks.append(part)
+            size += len(part)
+            if size > MAX_REPLY:
+                raise ConnectionError("status reply too large")
+    except FileNotFoundError:
+        raise ConnectionError(f"logger is not running (no status socket at {path})") from None
+    except ConnectionRefusedError:
+        raise ConnectionError(f"logger is not running (nobody answers on {path})") from None
+    except PermissionError:
+        raise ConnectionError(f"not allowed to read {path}: add yourself to the logger's group") from None
+    except TimeoutError:
+        raise ConnectionError(f"logger did not answer on {path} within {timeout_s:g} s") from None
+    finally:
+        s.close()
+    try:
+        return json.loads(b"".join(chunks))
+    except ValueError:
+        raise ConnectionError("logger sent an unreadable status") from None
+
+
+def _age(s: float | None) -> str:
+    if s is None:
+        return "never"
+    return f"{s:.1f}s" if s < 120 else f"{s / 60:.0f}min"
+
+
+def _duration(s: float) -> str:
+    s = int(s)
+    return f"{s // 3600}h{s % 3600 // 60:02d}m{s % 60:02d}s"
+
+
+def render(snap: dict[str, Any]) -> str:
+    verdict = snap.get("verdict", "?")
+    lines = [f"logger: {verdict.upper()}   up {_duration(snap.get('uptime_s', 0))}   pid {snap.get('pid', '?')}"
+             + (f"   [{snap['mode']}]" if snap.get("mode") else "")]
+    for p in snap.get("problems", []):
+        lines.append(f"  ! {p}")
+    lines.append("")
+    lines.append(f"  {'sensor':<8} {'state':<9} {'rate Hz':>12} {'last':>7} {'errors':>6} {'gaps':>5} "
+                 f"{'late':>5} {'reconn':>6}  last error")
+    for h in snap.get("sensors", []):
+        rate = f"{h['measured_rate_hz']:.1f}/{h['rate_hz']:g}" if h.get("rate_hz") else f"{h['measured_rate_hz']:.1f}"
+        lines.append(f"  {h['name']:<8} {h['state']:<9} {rate:>12} {_age(h['last_sample_age_s']):>7} "
+                     f"{h['errors']:>6} {h['gaps']:>5} {h['late']:>5} {h['reconnects']:>6}  {h['last_error']}")
+    sync = snap.get("sync")
+    if sync:
+        lines.append("")
+        lines.append(f"  clock    {sync.get('state', '?'):<9} error bound {sync.get('err_ns', 0) / 1e3:.1f} us"
+                     + (f", offset {sync['offset_ns'] / 1e3:+.1f} us" if sync.get("offset_ns") is not None else "")
+                     + (f", freq {sync['freq_ppm']:+.3f} ppm" if sync.get("freq_ppm") is not None else "")
+                     + (f", last PPS {_age(sync.get('since_edge_s'))} ago" if "since_edge_s" in sync else ""))
+    nav = snap.get("nav")
+    if nav and nav.get("lat_deg") is not None:
+        lines.append(f"  position {nav['lat_deg']:.7f} {nav['lon_deg']:.7f} h {nav['height_m']:.1f} m"
+                     + (f"  (sigma {nav['sigma_h_m']:.1f} m)" if nav.get("sigma_h_m") is not None else "")
+                     + (f"  {nav['source']}" if nav.get("source") else ""))
+    rec = snap.get("recorder") or {}
+    if rec:
+        lines.append("")
+        free = rec.get("free_bytes")
+        lines.append(f"  recorder {rec.get('state', '?')}: {rec.get('file') or '-'}"
+                     f" ({rec.get('file_bytes', 0) / 1e6:.1f} MB), free disk "
+                     + (f"{free / 1e9:.2f} GB" if free is not None else "?"))
+        dropped = sum((rec.get("dropped") or {}).values())
+        lines.append(f"  records  {sum((rec.get('written') or {}).values())} written, {dropped} dropped, "
+                     f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    from logger.config import DEFAULT_PATH, ConfigError, load
+
+    parser = argparse.ArgumentParser(prog="logger status", description="show the running logger's health")
+    parser.add_argument("--json", action="store_true", help="print the raw snapshot")
+    parser.add_argument("--watch", nargs="?", const=1.0, type=float, metavar="SECONDS",
+                        help="refresh until Ctrl-C (default every second)")
+    parser.add_argument("--socket", help="status socket path (default: from the configuration)")
+    parser.add_argument("--config", default=None, help=f"configuration file (default {DEFAULT_PATH})")
+    args = parser.parse_args(argv)
+    path = args.socket
+    if path is None:
+        path = os.environ.get("LOGGER_STATUS_SOCKET")
+    if path is None:
+        cfg_path = Path(args.config) if args.config else DEFAULT_PATH
+        try:
+            path = load(cfg_path)["logger"]["status_socket"] if cfg_path.exists() else None
+        except ConfigError:
+            path = None
+        if path is None:
+            from logger.config import SCHEMA
+
+            path = SCHEMA["logger"]["status_socket"].default
+    code = NOT_RUNNING
+    try:
+        while True:
+            try:
+                snap = fetch(path)
+                code = EXIT.get(snap.get("verdict", ""), 2)
+                text = json.dumps(snap, indent=1) if args.json else render(snap)
+            except ConnectionError as exc:
+                code, text = NOT_RUNNING, f"logger status: {exc}"
+            if args.watch:
+                sys.stdout.write("\x1b[H\x1b[2J" + text + "\n")
+                sys.stdout.flush()
+                time.sleep(max(0.2, args.watch))
+                continue
+            print(text, file=sys.stderr if code == NOT_RUNNING else sys.stdout)
+            return code
+    except KeyboardInterrupt:
+        return code

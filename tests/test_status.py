@@ -1,0 +1,40 @@
+"""The status socket: group-only permissions, one snapshot per connection, exit codes for scripts."""
+
+from __future__ import annotations
+
+import stat
+from pathlib import Path
+
+from logger.cli import main
+from logger.status import StatusServer, fetch
+
+SNAP = {
+    "verdict": "degraded", "uptime_s": 3723, "pid": 42, "problems": ["obd: NO DATA (engine off?)"],
+    "sensors": [{"name": "imu", "state": "ok", "rate_hz": 20, "measured_rate_hz": 20.0, "last_sample_age_s": 0.02,
+                 "errors": 0, "gaps": 0, "late": 0, "reconnects": 0, "last_error": ""},
+                {"name": "obd", "state": "retrying", "rate_hz": 2, "measured_rate_hz": 0.0, "last_sample_age_s": 12.5,
+                 "errors": 7, "gaps": 1, "late": 0, "reconnects": 0, "last_error": "NO DATA (engine off?)"}],
+    "sync": {"state": "locked", "err_ns": 15000, "offset_ns": 1200, "freq_ppm": 31.2, "since_edge_s": 0.4},
+    "recorder": {"state": "recording", "file": "/data/drive_1.mcap", "file_bytes": 1_200_000,
+                 "free_bytes": 3_000_000_000, "written": {"/imu": 100}, "dropped": {}, "queue_depth": 0,
+                 "queue_size": 20000},
+}
+
+
+def test_status_round_trip_and_exit_codes(tmp_path: Path, capsys) -> None:
+    sock = tmp_path / "run" / "status.sock"
+    server = StatusServer(sock, lambda: SNAP)
+    server.start()
+    try:
+        mode = stat.S_IMODE(sock.stat().st_mode)
+        assert mode == 0o660
+        assert fetch(sock)["sensors"][1]["last_error"] == "NO DATA (engine off?)"
+        assert main(["status", "--socket", str(sock)]) == 1
+        out = capsys.readouterr().out
+        assert "DEGRADED" in out and "up 1h02m03s" in out and "obd: NO DATA" in out
+        assert "obd      retrying" in out and "locked" in out and "31.200 ppm" in out
+        assert main(["status", "--json", "--socket", str(sock)]) == 1
+    finally:
+        server.close()
+    assert main(["status", "--socket", str(sock)]) == 3
+    assert "not running" in capsys.readouterr().err
