@@ -35,7 +35,7 @@ class StatusServer(threading.Thread):
         super().__init__(name="status", daemon=True)
         self.path = Path(path)
         self.snapshot = snapshot
-        self._stop = threading.Event()
+        self._halt = threading.Event()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists() or self.path.is_symlink():
             self.path.unlink()  # a socket left by a crashed daemon
@@ -50,13 +50,13 @@ class StatusServer(threading.Thread):
         self._sock.settimeout(0.5)
 
     def run(self) -> None:
-        while not self._stop.is_set():
+        while not self._halt.is_set():
             try:
                 conn, _ = self._sock.accept()
             except TimeoutError:
                 continue
             except OSError:
-                if self._stop.is_set():
+                if self._halt.is_set():
                     return
                 continue
             with conn:
@@ -68,7 +68,7 @@ class StatusServer(threading.Thread):
                     log.debug("status client failed", exc_info=True)
 
     def close(self) -> None:
-        self._stop.set()
+        self._halt.set()
         with contextlib.suppress(OSError):
             self._sock.close()
         with contextlib.suppress(OSError):
