@@ -1,7 +1,9 @@
 """Every recorded topic and the JSON schema of its messages: the one place the file format is defined.
 
 Field names carry their units (``_mps``, ``_ns``, ``_deg``...) so a reader needs no other document;
-``docs/topics.md`` is generated from this module by ``tools/topics_doc.py``.
+``docs/topics.md`` is generated from this module by ``tools/topics_doc.py`` (a test keeps it current).
+``/gnss/fix`` and ``/nav/fix`` use the well-known schema name ``foxglove.LocationFix`` with its fields, so
+Foxglove's map panel draws the drive; the extra fields ride along in the same JSON object.
 """
 
 from __future__ import annotations
@@ -16,3 +18,141 @@ class TopicSpec:
     schema_name: str
     schema: dict[str, Any]
     description: str
+
+
+Field = tuple[str, str]  # (JSON type or "number[3]", description with unit)
+
+STAMP: dict[str, Field] = {
+    "t_mono_ns": ("integer", "acquisition time on the board's monotonic clock, ns, taken next to the bus transfer"),
+    "t_sync_ns": ("integer", "synchronised time of the sample, Unix ns UTC (also the MCAP log_time)"),
+    "sync_state": ("string", "state of the clock at this stamp: freerun, locked or holdover"),
+    "sync_err_ns": ("integer", "bound on the error of t_sync_ns, ns"),
+    "imu_cnt": ("integer", "the paper's IMU counter: IMU periods since the last PPS edge"),
+    "timer_cnt": ("integer", "the paper's timer counter: IMU periods carried while PPS is missing"),
+    "seq": ("integer", "per-topic message counter since the daemon started; a jump is a lost message"),
+}
+
+
+def _prop(kind: str, text: str) -> dict[str, Any]:
+    nullable = kind.endswith("?")
+    kind = kind.rstrip("?")
+    if kind.endswith("]"):
+        base, n = kind[:-1].split("[")
+        prop: dict[str, Any] = {"type": "array", "items": {"type": base}, "minItems": int(n), "maxItems": int(n)}
+    else:
+        prop = {"type": kind}
+    if nullable:
+        prop["type"] = [prop["type"], "null"]
+    prop["description"] = text
+    return prop
+
+
+def _schema(title: str, fields: dict[str, Field], stamped: bool = True) -> dict[str, Any]:
+    allf = {**(STAMP if stamped else {}), **fields}
+    return {"title": title, "type": "object",
+            "properties": {k: _prop(*v) for k, v in allf.items()},
+            "required": [k for k, (kind, _) in allf.items() if not kind.endswith("?")]}
+
+
+LOCATION_FIX: dict[str, Field] = {
+    "timestamp": ("object", "foxglove.LocationFix time: {sec, nsec} of the fix, Unix UTC"),
+    "frame_id": ("string", "foxglove.LocationFix frame: 'gnss' antenna or 'nav' filter output"),
+    "latitude": ("number", "latitude, deg, WGS-84"),
+    "longitude": ("number", "longitude, deg, WGS-84"),
+    "altitude": ("number", "height above the WGS-84 ellipsoid, m"),
+    "position_covariance": ("number[9]", "ENU position covariance, m^2, row-major"),
+    "position_covariance_type": ("integer", "0 unknown, 1 approximated, 2 diagonal known, 3 known"),
+}
+
+GNSS_FIX: dict[str, Field] = {
+    **LOCATION_FIX,
+    "gnss_time_ns": ("integer?", "the receiver's epoch time, Unix ns UTC, null while not valid"),
+    "itow_ms": ("integer?", "GPS time of week of the epoch, ms (UBX receivers)"),
+    "fix_mode": ("integer", "1 no fix, 2 2D, 3 3D (gpsd's convention)"),
+    "fix_ok": ("boolean", "the receiver flags the fix as valid (gnssFixOK / NMEA status A)"),
+    "height_msl_m": ("number?", "height above mean sea level, m"),
+    "vel_ned_mps": ("number[3]?", "velocity north, east, down, m/s; null when the receiver gives none"),
+    "h_acc_m": ("number?", "horizontal accuracy estimate, m"),
+    "v_acc_m": ("number?", "vertical accuracy estimate, m"),
+    "s_acc_mps": ("number?", "speed accuracy estimate, m/s"),
+    "num_sv": ("integer?", "satellites used in the solution"),
+    "pdop": ("number?", "position dilution of precision"),
+    "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA"),
+}
+
+TOPICS: dict[str, TopicSpec] = {}
+
+
+def _add(topic: str, schema_name: str, fields: dict[str, Field], description: str, stamped: bool = True) -> None:
+    TOPICS[topic] = TopicSpec(topic, schema_name, _schema(schema_name, fields, stamped), description)
+
+
+_add("/imu", "vehicle_logger.Imu", {
+    "accel_mps2": ("number[3]", "specific force along the chip's x, y, z axes, m/s^2"),
+    "gyro_rps": ("number[3]", "angular rate about the chip's x, y, z axes, rad/s"),
+    "temp_degc": ("number", "die temperature, degC"),
+    "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
+    "lost": ("integer", "samples lost to a FIFO overflow just before this one"),
+}, "MPU-6050 accelerometer and gyro, one message per sample")
+_add("/baro", "vehicle_logger.Baro", {
+    "pressure_pa": ("number", "compensated static pressure, Pa"),
+    "temp_degc": ("number", "compensated temperature, degC"),
+    "altitude_m": ("number", "pressure altitude by the paper's Eq. 4 against sea_level_pa, m"),
+    "sea_level_pa": ("number", "reference pressure P0 used for altitude_m, Pa"),
+    "oversampling": ("integer", "BMP085 oversampling setting 0..3"),
+    "ut": ("integer", "raw temperature word, for re-processing"),
+    "up": ("integer", "raw pressure word, for re-processing"),
+}, "BMP085/BMP180 pressure, temperature and pressure altitude")
+_add("/obd/speed", "vehicle_logger.ObdSpeed", {
+    "speed_kmh": ("integer", "vehicle speed as the ECU reports it (OBD-II PID 0x0D), km/h, 1 km/h steps"),
+    "speed_mps": ("number", "the same speed, m/s"),
+    "ecu": ("string", "which ECU answered (CAN id such as 7E8, or '' when headers are off)"),
+    "interface": ("string", "elm327 or can"),
+}, "OBD-II vehicle speed")
+_add("/gnss/fix", "foxglove.LocationFix", GNSS_FIX, "u-blox navigation solution, one per epoch")
+_add("/gnss/timepulse", "vehicle_logger.TimePulse", {
+    "tow_ms": ("integer", "GPS time of week of the next PPS edge, ms"),
+    "tow_sub_ms": ("number", "sub-millisecond part, ms"),
+    "week": ("integer", "GPS week of the next edge"),
+    "qerr_ps": ("integer", "quantisation error of the next edge, ps"),
+    "time_base": ("string", "gnss or utc: the time scale the pulse is aligned to"),
+}, "UBX TIM-TP: the GNSS time of the next PPS edge")
+_add("/gnss/raw", "vehicle_logger.RawBytes", {
+    "t_mono_ns": ("integer", "board monotonic time when these bytes were read, ns"),
+    "data_b64": ("string", "the receiver's bytes exactly as read, base64 (UBX, NMEA, RTCM, garbage included)"),
+    "n_bytes": ("integer", "number of bytes"),
+}, "the receiver's byte stream for post-processing (RTKLIB, gpsd tools)", stamped=False)
+_add("/pps", "vehicle_logger.PpsEdge", {
+    "seqno": ("integer", "the line's edge sequence number from the kernel"),
+    "lost": ("integer", "edges the kernel saw but were not read (sequence gap)"),
+}, "PPS rising edges; t_mono_ns is the kernel's edge time stamp")
+_add("/sync", "vehicle_logger.Sync", {
+    "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
+    "state": ("string", "freerun, locked or holdover"),
+    "offset_ns": ("integer?", "last measured offset of the board clock from GNSS time at a PPS edge, ns"),
+    "freq_ppm": ("number?", "estimated frequency error of the board clock, ppm"),
+    "skew_ppm": ("number?", "uncertainty of freq_ppm, ppm"),
+    "rms_ns": ("number?", "RMS of the regression residuals, ns"),
+    "err_ns": ("integer", "current error bound of stamps, ns"),
+    "since_edge_s": ("number?", "time since the last PPS edge used, s"),
+    "samples": ("integer", "edges in the regression"),
+}, "the clock's state once a second (what `chronyc tracking` shows)", stamped=False)
+_add("/health", "vehicle_logger.Health", {
+    "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
+    "verdict": ("string", "ok, degraded or critical"),
+    "problems": ("array", "one line per problem"),
+    "sensors": ("array", "per sensor: state, rates, errors, gaps, late, missed, reconnects, last_error"),
+    "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
+}, "the daemon's health once a second", stamped=False)
+_add("/truth/clock", "vehicle_logger.TruthClock", {
+    "t_mono_ns": ("integer", "board monotonic time, ns"),
+    "t_true_ns": ("integer", "true GNSS time at that instant, Unix ns UTC (simulation only)"),
+}, "simulation: pairs of board time and true time, 10 Hz", stamped=False)
+_add("/truth/nav", "vehicle_logger.TruthNav", {
+    "t_true_ns": ("integer", "true time, Unix ns UTC"),
+    "lat_deg": ("number", "true latitude, deg"),
+    "lon_deg": ("number", "true longitude, deg"),
+    "height_m": ("number", "true height above the ellipsoid, m"),
+    "vel_ned_mps": ("number[3]", "true velocity north, east, down, m/s"),
+    "rpy_deg": ("number[3]", "true roll, pitch, yaw, deg"),
+}, "simulation: the vehicle's true state at the IMU rate", stamped=False)
