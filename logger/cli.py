@@ -12,6 +12,7 @@ import sys
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "gnss-decode": ("logger.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
     "status": ("logger.status", "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
+    "config": ("logger.config_cmd", "check a configuration file without starting: logger config check FILE"),
     "info": ("logger.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
     "recover": ("logger.recover_cmd", "make a file cut short by a crash readable and indexed again"),
 }

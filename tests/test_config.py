@@ -93,3 +93,25 @@ def test_world_writable_file_is_refused(tmp_path: Path) -> None:
 def test_missing_file() -> None:
     with pytest.raises(ConfigError, match="no such configuration file"):
         load("/nonexistent/logger.toml")
+
+
+def test_example_config_in_systemd_is_valid_and_documents_every_key(tmp_path: Path) -> None:
+    from logger.config import SCHEMA
+
+    example = Path(__file__).resolve().parents[1] / "systemd" / "logger.toml"
+    cfg = parse(example.read_text(), str(example))
+    for section, keys in SCHEMA.items():
+        for key in keys:
+            assert f"{section}.{key}" in cfg.explicit, f"{section}.{key} missing from the example"
+
+
+def test_config_check_command(tmp_path: Path, capsys) -> None:
+    from logger.cli import main
+
+    p = tmp_path / "logger.toml"
+    p.write_text(GOOD.replace("rate_hz = 200", "rat_hz = 200").replace("bus = 2", "bus = 'two'"))
+    assert main(["config", "check", str(p)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "imu.bus must be an integer" in err[0] and "imu.rat_hz" in err[1]
+    p.write_text(GOOD)
+    assert main(["config", "check", str(p)]) == 0

@@ -1,0 +1,25 @@
+"""``logger config check FILE``: validate a configuration without starting anything."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from logger.config import ConfigError, load
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="logger config", description="work with the logger's configuration")
+    sub = parser.add_subparsers(dest="action", required=True)
+    check = sub.add_parser("check", help="validate a configuration file; exit 1 listing every problem")
+    check.add_argument("file", metavar="FILE")
+    args = parser.parse_args(argv)
+    try:
+        cfg = load(args.file)
+    except ConfigError as exc:
+        for line in exc.problems:
+            print(line, file=sys.stderr)
+        return 1
+    sources = ", ".join(f"{s}={cfg[s]['source']}" for s in ("imu", "baro", "obd", "gnss", "pps"))
+    print(f"{args.file}: OK ({sources})")
+    return 0
