@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from logger.timebase import TimeBase
-from sensors.errors import DeviceNotFound, SensorError
+from sensors.errors import DeviceNotFound, NoData, SensorError
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ class SensorHealth:
 
     name: str
     rate_hz: float | None  # configured; None for event-driven sensors
-    state: str = "starting"  # starting, ok, retrying, missing, stopped
+    state: str = "starting"  # starting, ok, no-data, retrying, missing, stopped
     samples: int = 0
     errors: int = 0
     late: int = 0
@@ -154,7 +154,7 @@ class Sampler(threading.Thread):
             now = self.tb.monotonic_ns()
             if due > now and self.tb.wait(self.stop_event, (due - now) / 1e9):
                 return
-            self._deliver(self.source.read())
+            self._read_once()
             n += 1
             after = self.tb.monotonic_ns()
             if after > start + n * period_ns:
@@ -166,7 +166,18 @@ class Sampler(threading.Thread):
 
     def _events(self) -> None:
         while not self.stop_event.is_set():
-            self._deliver(self.source.read())
+            self._read_once()
+
+    def _read_once(self) -> None:
+        """One read; 'no data now' (engine off, no answer yet) keeps the device open and the schedule going."""
+        try:
+            readings = self.source.read()
+        except NoData as exc:
+            self._failed(exc, missing=False, state="no-data")
+            return
+        if self.health.state != "ok":
+            self.health.state = "ok"
+        self._deliver(readings)
 
     def _deliver(self, readings: list[Reading]) -> None:
         h = self.health
@@ -181,14 +192,14 @@ class Sampler(threading.Thread):
                 h.samples += 1
             self.sink(r)
 
-    def _failed(self, exc: SensorError, missing: bool) -> None:
+    def _failed(self, exc: SensorError, missing: bool, state: str | None = None) -> None:
         h = self.health
         h.errors += 1
         message = str(exc) or type(exc).__name__
         if message != h.last_error or h.state == "ok":
-            log.warning("%s: %s", self.source.name, message)
+            log.warning("%s: %s", self.source.name, message)  # once per change: a flapping sensor is no flood
         h.last_error = message
-        h.state = "missing" if missing else "retrying"
+        h.state = state or ("missing" if missing else "retrying")
         h.heartbeat_mono_ns = self.tb.monotonic_ns()
 
     def _close(self) -> None:

@@ -108,3 +108,30 @@ def test_failure_backs_off_reconnects_and_counts() -> None:
     assert h.state == "stopped"
     assert h.last_error == "I2C transfer failed (EIO)"
     assert len(out) == 29  # every read but the failed one delivered
+
+
+class Silent(Scripted):
+    """Answers NO DATA for a while, like an ELM327 with the engine off."""
+
+    def __init__(self, tb: VirtualTime, quiet: range, limit: int) -> None:
+        super().__init__(tb, limit=limit)
+        self.quiet = quiet
+
+    def read(self) -> list[Reading]:
+        if self.n in self.quiet:
+            self.n += 1
+            from sensors.errors import NoData
+
+            raise NoData("NO DATA (engine off?)")
+        return super().read()
+
+
+def test_no_data_keeps_the_device_open_and_the_schedule() -> None:
+    tb = VirtualTime()
+    src = Silent(tb, quiet=range(5, 15), limit=40)
+    s, out = _run(src, 2.0)
+    assert src.opens == 1  # no reset and protocol search for an engine that is off
+    assert s.health.errors == 10 and s.health.reconnects == 0
+    assert len(out) == 30 and s.health.gaps == 1
+    t = [r.t_mono_ns for r in out]
+    assert all((b - t[0]) % 500_000_000 == 0 for b in t)  # still on the 2 Hz grid
