@@ -1,0 +1,462 @@
+"""MPU-6050 driver against the register model, through the real smbus2 on the simulated adapter."""
+
+from __future__ import annotations
+
+import errno
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from sensors import mpu6050 as drv
+from sensors.errors import BusError, DeviceNotFound, WrongDevice
+from sensors.mpu6050 import Mpu6050, choose_sample_timing
+from sensors.sim.clock import ManualClock
+from sensors.sim.earth import gravity_ned
+from sensors.sim.i2c import SimI2cAdapter, SimI2cBus
+from sensors.sim.mpu6050 import Mpu6050Errors, Mpu6050Model
+from sensors.sim.truth import ParkedTrajectory, TruthState
+
+G0 = 9.80665
+# Register map, section 4: sensitivity per full-scale setting, written out here independently.
+ACCEL_LSB_PER_G = {2: 16384, 4: 8192, 8: 4096, 16: 2048}
+GYRO_LSB_PER_DPS = {250: 131, 500: 65.5, 1000: 32.8, 2000: 16.4}
+
+
+@dataclass
+class MotionTrajectory:
+    """Constant specific force and an angular rate growing linearly in time: each sample is distinct."""
+
+    f_body: tuple[float, float, float] = (1.0, -2.0, -9.5)
+    w0: tuple[float, float, float] = (0.3, -0.6, 0.0)
+    w_dot_z: float = 0.5  # rad/s^2
+    ambient_degc: float = 25.0
+    duration_s: float = math.inf
+
+    def state(self, t_s: float) -> TruthState:
+        w = np.array(self.w0) + np.array([0.0, 0.0, self.w_dot_z * t_s])
+        return TruthState(t_s, 0.65, 2.2, 40.0, np.zeros(3), np.zeros(3), np.array(self.f_body), w,
+                          ambient_degc=self.ambient_degc)
+
+
+class Rig:
+    """Clock, truth, chip model, adapter and one smbus2 bus: what a test needs."""
+
+    def __init__(self, trajectory=None, *, errors: Mpu6050Errors | None = None, seed: int = 7,
+                 who_am_i: int = 0x68, nack_errno: int = errno.EREMOTEIO, **model_kw) -> None:
+        self.clock = ManualClock()
+        self.trajectory = trajectory if trajectory is not None else ParkedTrajectory()
+        self.model = Mpu6050Model(self.clock, self.trajectory, seed=seed, errors=errors, who_am_i=who_am_i,
+                                  **model_kw)
+        self.adapter = SimI2cAdapter({0x68: self.model}, nack_errno=nack_errno)
+        self.bus = SimI2cBus(self.adapter)
+
+    def driver(self, **kw) -> Mpu6050:
+        return Mpu6050(self.bus, sleep=self.clock.sleep, bus_name=self.adapter.path, **kw)
+
+    def raw_words(self) -> np.ndarray:
+        """ACCEL_XOUT_H..GYRO_ZOUT_L as the chip holds them, read with plain smbus2."""
+        return np.frombuffer(bytes(self.bus.read_i2c_block_data(0x68, 0x3B, 14)), dtype=">i2")
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+@pytest.fixture
+def rig():
+    made: list[Rig] = []
+
+    def make(*args, **kw) -> Rig:
+        r = Rig(*args, **kw)
+        made.append(r)
+        return r
+
+    yield make
+    for r in made:
+        r.close()
+
+
+# ---- rate and filter choice ------------------------------------------------------------------------
+@pytest.mark.parametrize(("rate", "cfg", "div", "gyro_delay_s", "accel_delay_s"), [
+    (20, 6, 49, 18.6e-3, 19.0e-3),
+    (50, 4, 19, 8.3e-3, 8.5e-3),
+    (100, 3, 9, 4.8e-3, 4.9e-3),
+    (200, 2, 4, 2.8e-3, 3.0e-3),
+    (500, 1, 1, 1.9e-3, 2.0e-3),
+    (1000, 0, 7, 0.98e-3, 0.0),
+])
+def test_filter_and_divider_for_rate(rate, cfg, div, gyro_delay_s, accel_delay_s) -> None:
+    timing = choose_sample_timing(rate)
+    assert (timing.dlpf.cfg, timing.smplrt_div) == (cfg, div)
+    assert timing.rate_hz == rate
+    assert max(timing.dlpf.accel_bandwidth_hz, timing.dlpf.gyro_bandwidth_hz) < rate / 2
+    assert timing.dlpf.gyro_delay_s == gyro_delay_s
+    assert timing.dlpf.accel_delay_s == accel_delay_s
+
+
+@pytest.mark.parametrize("rate", [300, 10, 2000, 0, -5, 7.5])
+def test_rates_the_chip_cannot_do(rate) -> None:
+    with pytest.raises(ValueError, match="MPU-6050 rate"):
+        choose_sample_timing(rate)
+
+
+def test_explicit_filter_setting() -> None:
+    timing = choose_sample_timing(20, dlpf_cfg=5)
+    assert (timing.dlpf.cfg, timing.smplrt_div) == (5, 49)
+    with pytest.raises(ValueError, match="dlpf_cfg 7"):
+        choose_sample_timing(20, dlpf_cfg=7)
+    with pytest.raises(ValueError, match="must divide"):
+        choose_sample_timing(300, dlpf_cfg=1)
+
+
+def test_bad_ranges_named() -> None:
+    with pytest.raises(ValueError, match="accel range 3 g"):
+        Mpu6050(None, accel_range_g=3)
+    with pytest.raises(ValueError, match="gyro range 300"):
+        Mpu6050(None, gyro_range_dps=300)
+
+
+# ---- set-up ----------------------------------------------------------------------------------------
+def test_configure_writes_the_register_map(rig) -> None:
+    r = rig()
+    d = r.driver(rate_hz=100, accel_range_g=8, gyro_range_dps=1000, fifo=True)
+    d.configure()
+    regs = r.model.regs
+    assert regs[0x19] == 9  # SMPLRT_DIV: 1 kHz / (1 + 9)
+    assert regs[0x1A] == 3  # DLPF_CFG 3: 44/42 Hz
+    assert regs[0x1B] == 2 << 3  # FS_SEL 2
+    assert regs[0x1C] == 2 << 3  # AFS_SEL 2
+    assert regs[0x6B] == 0x01  # awake, PLL on the X gyro
+    assert regs[0x38] == 0x11  # FIFO overflow and data-ready flags
+    assert regs[0x23] == 0x78  # gyro x, y, z and accel into the FIFO
+    assert regs[0x6A] == 0x40  # FIFO on
+    assert r.clock.now_ns() == 100_000_000  # the reset wait went through the injected sleep
+    assert d.sample_rate_hz == pytest.approx(r.model.sample_rate_hz)
+    assert d.is_configured()
+
+
+def test_wrong_who_am_i(rig) -> None:
+    r = rig(who_am_i=0x70)
+    with pytest.raises(WrongDevice, match=r"WHO_AM_I reads 0x70, expected 0x68 \(looks like an MPU-6500\)"):
+        r.driver().configure()
+
+
+@pytest.mark.parametrize("code", [errno.EREMOTEIO, errno.ENXIO])
+def test_no_chip_is_device_not_found(code) -> None:
+    adapter = SimI2cAdapter({}, nack_errno=code)
+    with SimI2cBus(adapter) as bus:
+        d = Mpu6050(bus, bus_name="/dev/i2c-2")
+        with pytest.raises(DeviceNotFound) as exc:
+            d.configure()
+    message = str(exc.value)
+    assert "\n" not in message
+    assert "MPU-6050 at 0x68 on /dev/i2c-2" in message
+    assert "no ACK" in message
+
+
+def test_eio_is_bus_error_then_recovers(rig) -> None:
+    r = rig(MotionTrajectory(), errors=Mpu6050Errors.ideal())
+    d = r.driver()
+    d.configure()
+    r.clock.advance(0.1)
+    r.adapter.fail_next(1)
+    with pytest.raises(BusError, match="I2C transfer failed while reading the data registers"):
+        d.read()
+    sample = d.read()
+    assert sample.accel_mps2 == pytest.approx([1.0, -2.0, -9.5], abs=2 * G0 / 16384)
+
+
+def test_unplugged_then_power_cycled_chip_is_configured_again(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=100, fifo=True)
+    d.configure()
+    r.adapter.unplug(0x68)
+    with pytest.raises(DeviceNotFound):
+        d.read_fifo()
+    r.adapter.replug(0x68)  # supply came back: the chip sleeps with its reset values
+    assert r.model.regs[0x6B] == 0x40
+    assert not d.is_configured()
+    d.configure()
+    assert d.is_configured()
+    r.clock.advance(0.5)
+    d.read_fifo(r.clock.now_ns())
+    r.clock.advance(0.5)
+    assert len(d.read_fifo(r.clock.now_ns())) == 50
+
+
+# ---- conversions -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("accel_range_g", [2, 4, 8, 16])
+@pytest.mark.parametrize("gyro_range_dps", [250, 500, 1000, 2000])
+def test_scale_factors_of_every_full_scale(rig, accel_range_g, gyro_range_dps) -> None:
+    truth = MotionTrajectory()
+    r = rig(truth, errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=200, accel_range_g=accel_range_g, gyro_range_dps=gyro_range_dps)
+    d.configure()
+    r.clock.advance(0.25)  # the chip wakes at 0.1 s and samples from 0.13 s: 0.35 s is a sample instant
+    sample = d.read()
+    raw = r.raw_words()
+    a_lsb, g_lsb = ACCEL_LSB_PER_G[accel_range_g], GYRO_LSB_PER_DPS[gyro_range_dps]
+    np.testing.assert_allclose(sample.accel_mps2, raw[0:3] / a_lsb * G0, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(sample.gyro_rps, np.radians(raw[4:7] / g_lsb), rtol=1e-12, atol=0)
+    assert sample.temp_degc == pytest.approx(raw[3] / 340 + 36.53, rel=1e-12)
+    # And the chip's counts are the truth, to half a count.
+    t_gyro = r.clock.now_ns() / 1e9 - d.gyro_delay_s
+    assert np.all(np.abs(sample.accel_mps2 - truth.f_body) <= 0.5 * G0 / a_lsb + 1e-12)
+    assert np.all(np.abs(sample.gyro_rps - truth.state(t_gyro).w_body_rps) <= math.radians(0.5 / g_lsb) + 1e-12)
+    assert abs(sample.temp_degc - 25.0) <= 0.5 / 340 + 1e-9
+
+
+def test_saturation_at_full_scale(rig) -> None:
+    r = rig(MotionTrajectory(f_body=(0.0, 25.0, -40.0)), errors=Mpu6050Errors.ideal())
+    d = r.driver(accel_range_g=2)
+    d.configure()
+    r.clock.advance(0.2)
+    raw = r.raw_words()
+    assert (raw[1], raw[2]) == (32767, -32768)
+    assert d.read().accel_mps2[2] == -2 * G0
+
+
+def test_parked_level_vehicle_reads_minus_one_g_on_z(rig) -> None:
+    """With the datasheet's noise and realistic turn-on biases, in chip axes = body FRD."""
+    truth = ParkedTrajectory(lat_deg=37.6, height_m=40.0)
+    r = rig(truth, seed=3)
+    d = r.driver(rate_hz=100, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    batches = []
+    for _ in range(40):
+        r.clock.advance(0.05)
+        batches.append(d.read_fifo(r.clock.now_ns()))
+    accel = np.vstack([b.accel_mps2 for b in batches])
+    gyro = np.vstack([b.gyro_rps for b in batches])
+    assert len(accel) == 200
+    g_local = gravity_ned(math.radians(37.6), 40.0)[2]
+    # Turn-on bias 30 mg 1-sigma: 4 sigma is 1.2 m/s^2; the mean of 200 samples has ~0.4 mg of noise.
+    assert accel.mean(axis=0) == pytest.approx([0.0, 0.0, -g_local], abs=1.2)
+    assert np.all(np.abs(gyro.mean(axis=0)) < math.radians(12.0))
+    # Noise, not bias: the sample scatter matches 400 ug/sqrt(Hz) through a 44 Hz filter sampled at 100 Hz.
+    pole = math.exp(-2 * math.pi * 44 / 100)
+    sigma = 400e-6 * G0 * math.sqrt(100 * (1 - pole) / (2 * (1 + pole)))
+    assert accel.std(axis=0) == pytest.approx([sigma] * 3, rel=0.25)
+
+
+def test_gyro_noise_matches_datasheet_figure(rig) -> None:
+    """0.05 deg/s RMS at the ~100 Hz filter (DLPF_CFG 2), sampled at 1 kHz."""
+    errors = Mpu6050Errors(gyro_turn_on_bias_dps=0.0, gyro_bias_walk_dps_per_rts=0.0)
+    r = rig(ParkedTrajectory(), errors=errors, seed=11)
+    d = r.driver(rate_hz=1000, dlpf_cfg=2, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    gyro = []
+    for _ in range(40):
+        r.clock.advance(0.05)
+        gyro.append(d.read_fifo(r.clock.now_ns()).gyro_rps)
+    rms_dps = np.degrees(np.vstack(gyro).std(axis=0))
+    assert np.all((rms_dps > 0.045) & (rms_dps < 0.075))
+
+
+def test_group_delay_is_the_register_maps(rig) -> None:
+    """A linear ramp read at time t shows the value of t - delay: the driver's delay is the chip's."""
+    truth = MotionTrajectory(w0=(0.0, 0.0, 0.0), w_dot_z=1.0)
+    r = rig(truth, errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=20, gyro_range_dps=250)
+    d.configure()
+    r.clock.advance(0.93)  # woken at 0.1 s, start-up 30 ms: 1.03 s is a sample instant of the 20 Hz clock
+    seen = d.read().gyro_rps[2]
+    delay = r.clock.now_ns() / 1e9 - seen / truth.w_dot_z
+    assert delay == pytest.approx(d.gyro_delay_s, abs=math.radians(1 / 131))
+    assert d.gyro_delay_s == 18.6e-3
+
+
+def test_data_registers_freeze_while_asleep(rig) -> None:
+    r = rig(MotionTrajectory(), errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=100)
+    d.configure()
+    r.clock.advance(0.2)
+    before = d.read().gyro_rps
+    r.bus.write_byte_data(0x68, 0x6B, 0x41)  # SLEEP
+    r.clock.advance(1.0)
+    np.testing.assert_array_equal(d.read().gyro_rps, before)
+    r.bus.write_byte_data(0x68, 0x6B, 0x01)
+    r.clock.advance(0.1)
+    assert d.read().gyro_rps[2] > before[2]
+
+
+def test_data_ready_flag_clears_on_read(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=100)
+    d.configure()
+    r.clock.advance(0.05)
+    assert d.data_ready()
+    assert not d.data_ready()
+    r.clock.advance(0.01)
+    assert d.data_ready()
+
+
+# ---- FIFO ------------------------------------------------------------------------------------------
+def _run_fifo(r: Rig, d: Mpu6050, seconds: float, every_s: float, max_bytes: int | None = None):
+    gyro_z, lost = [], 0
+    for _ in range(round(seconds / every_s)):
+        r.clock.advance(every_s)
+        batch = d.read_fifo(r.clock.now_ns(), max_bytes=max_bytes)
+        assert not batch.overflowed
+        lost += batch.lost_samples
+        gyro_z.append(batch.gyro_rps[:, 2])
+    return np.concatenate(gyro_z), lost
+
+
+@pytest.mark.parametrize(("rate", "every_s"), [(100, 0.25), (200, 0.2), (1000, 0.05)])
+def test_fifo_loses_nothing_and_keeps_order(rig, rate, every_s) -> None:
+    truth = MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5)
+    r = rig(truth, errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=rate, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)  # past the gyro start-up
+    d.read_fifo(r.clock.now_ns())
+    before = r.model.samples_generated
+    duration = 5.0
+    gyro_z, lost = _run_fifo(r, d, duration, every_s)
+    assert len(gyro_z) == rate * duration
+    assert r.model.samples_generated - before == rate * duration
+    assert lost == 0
+    steps = np.diff(gyro_z)
+    assert np.all(steps > 0)  # strictly in order, none repeated
+    assert steps == pytest.approx(truth.w_dot_z / rate, abs=math.radians(1 / 131))
+
+
+def test_fifo_reads_in_pieces_of_at_most_32_bytes_and_stitches_frames(rig) -> None:
+    truth = MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5)
+    r = rig(truth, errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.adapter.trace = []
+    # 96 bytes arrive per 8 ms and at most 90 are read: frames are cut at every read.
+    gyro_z, lost = _run_fifo(r, d, 0.4, 0.008, max_bytes=90)
+    fifo_reads = [len(data) for addr, kind, data in r.adapter.trace if kind == "R" and len(data) > 2]
+    assert max(fifo_reads) == 32
+    assert sum(fifo_reads) == 50 * 90
+    assert len(gyro_z) == 50 * 90 // 12
+    assert lost == 0
+    assert np.all(np.diff(gyro_z) > 0)
+    assert gyro_z == pytest.approx(gyro_z[0] + np.arange(len(gyro_z)) * 0.5e-3, abs=math.radians(1 / 131))
+
+
+def test_fifo_overflow_is_detected_counted_and_recovered(rig) -> None:
+    r = rig(MotionTrajectory(w0=(0.0, 0.0, -1.0)), errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    start = r.model.samples_generated
+    delivered, lost = 0, 0
+    for gap_s in (0.05, 0.05, 0.5, 0.05, 0.05, 0.3, 0.05):
+        r.clock.advance(gap_s)
+        batch = d.read_fifo(r.clock.now_ns())
+        delivered += len(batch)
+        lost += batch.lost_samples
+        if gap_s > 1024 / 12 / 1000:  # longer than the FIFO holds
+            assert batch.overflowed
+            assert len(batch) == 0
+            assert batch.lost_samples == round(gap_s * 1000)
+        else:
+            assert not batch.overflowed
+            assert len(batch) == round(gap_s * 1000)
+    assert delivered + lost == r.model.samples_generated - start
+    assert r.model.fifo_bytes_dropped > 0
+
+
+def test_overflow_loss_includes_frames_left_behind(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    start = r.model.samples_generated
+    r.clock.advance(0.05)
+    first = d.read_fifo(r.clock.now_ns(), max_bytes=100)  # 8 of 50 frames, 4 bytes of a 9th
+    r.clock.advance(0.2)
+    second = d.read_fifo(r.clock.now_ns())
+    assert len(first) == 8
+    assert second.overflowed
+    assert second.lost_samples == 200 + 42
+    assert len(first) + second.lost_samples == r.model.samples_generated - start
+
+
+def test_overflow_without_read_times_is_reported_uncounted(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.5)
+    batch = d.read_fifo()
+    assert batch.overflowed
+    assert batch.lost_samples is None
+    r.clock.advance(0.05)
+    assert len(d.read_fifo()) == 50
+
+
+def test_overflow_seen_by_data_ready_is_not_forgotten(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.clock.advance(0.2)
+    d.data_ready()  # reads (and so clears) INT_STATUS, overflow bit included
+    assert d.read_fifo(r.clock.now_ns()).overflowed
+
+
+def test_fifo_read_error_keeps_bytes_already_read(rig) -> None:
+    truth = MotionTrajectory(w0=(0.0, 0.0, -1.0))
+    r = rig(truth, errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.clock.advance(0.05)
+    # INT_STATUS, FIFO_COUNT, two 32-byte pieces of the 600 waiting bytes, then the third piece fails.
+    r.adapter.fail_next(1, after=4)
+    with pytest.raises(BusError, match="while reading the FIFO"):
+        d.read_fifo(r.clock.now_ns())
+    assert len(r.model.fifo) == 600 - 64
+    batch = d.read_fifo(r.clock.now_ns())
+    assert len(batch) == 50
+    assert np.all(np.diff(batch.gyro_rps[:, 2]) > 0)
+
+
+def test_chip_clock_error_shows_in_the_sample_count(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal(), clock_error_ppm=5000.0)  # a chip running 0.5 % slow
+    d = r.driver(rate_hz=200, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    count = 0
+    for _ in range(40):
+        r.clock.advance(0.25)
+        count += len(d.read_fifo(r.clock.now_ns()))
+    assert count == pytest.approx(2000 / 1.005, abs=1)
+
+
+def test_long_absence_costs_only_the_last_fifo(rig) -> None:
+    r = rig(errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.clock.advance(3600.0)
+    batch = d.read_fifo(r.clock.now_ns())
+    assert batch.overflowed and batch.lost_samples == 3_600_000
+    assert r.model.samples_generated >= 3_600_000
+
+
+def test_driver_constants_match_register_map() -> None:
+    assert (drv.SMPLRT_DIV, drv.CONFIG, drv.GYRO_CONFIG, drv.ACCEL_CONFIG) == (0x19, 0x1A, 0x1B, 0x1C)
+    assert (drv.FIFO_EN, drv.INT_ENABLE, drv.INT_STATUS, drv.ACCEL_XOUT_H) == (0x23, 0x38, 0x3A, 0x3B)
+    assert (drv.USER_CTRL, drv.PWR_MGMT_1, drv.FIFO_COUNTH, drv.FIFO_R_W, drv.WHO_AM_I) == (
+        0x6A, 0x6B, 0x72, 0x74, 0x75)
+    assert {g: s for g, (_, s) in drv.ACCEL_FULL_SCALE.items()} == ACCEL_LSB_PER_G
+    assert {g: s for g, (_, s) in drv.GYRO_FULL_SCALE.items()} == GYRO_LSB_PER_DPS
