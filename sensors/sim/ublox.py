@@ -1,0 +1,959 @@
+"""A u-blox receiver at the far end of a serial line, driven by the truth of a simulated drive.
+
+The model plays the device side of a :class:`~sensors.sim.pty.PtyPort`: a driver opens the port with
+pyserial and cannot tell it from a NEO-M8 on a USB-serial adapter. It runs its own thread and keeps its
+schedule on the true drive time of a :class:`~sensors.sim.clock.DriveClock`, so a test steps it with a
+``ManualClock`` (and :meth:`UbloxReceiverModel.sync`) while the daemon runs it on a scaled clock.
+
+What it does, as the hardware does:
+
+- a navigation epoch every ``measRate`` ms aligned to the configured time scale (UBX-CFG-RATE), the
+  solution computed some tens to a few hundred ms later; per epoch UBX NAV-PVT and NAV-TIMEGPS, NMEA GGA
+  and RMC, and once a second a UBX TIM-TP announcing the next time pulse, each at the rate UBX-CFG-MSG
+  (or the configuration keys) set on the port;
+- the UART at its baud rate: messages take their transmission time, a full transmit buffer drops
+  messages, and a host listening at another baud rate receives what a real UART would (see
+  :mod:`sensors.sim.uart_line`);
+- configuration answered with ACK-ACK / ACK-NAK. ``generation`` picks the configuration interface:
+  8 (M8: legacy UBX-CFG-MSG/RATE/PRT only; CFG-VALSET is unknown and NAKed), 9 (F9: both), 10 (M10:
+  configuration keys only; the legacy messages are NAKed). A legacy CFG-PRT baud change is acknowledged at
+  the old rate and takes effect after the ACK; a CFG-VALSET baud change takes effect at once, so its ACK
+  comes at the new rate. CFG messages outside these are NAKed, as not modelled, so a test notices.
+- GNSS errors from :mod:`sensors.sim.gnss_errors`, with the error of every epoch kept in
+  :attr:`UbloxReceiverModel.history` so a decoded solution can be checked against truth + error.
+- faults on demand: garbage bytes, corrupted checksums, unplugging (the PtyPort vanishes), power cycles.
+
+A PPS line model of the same receiver shares :attr:`UbloxReceiverModel.timeline` (edges on whole GPS
+seconds, :meth:`~sensors.sim.gnss_time.GnssTimeline.pulse_drive_ns`), its ``pulse_quantisation`` (the
+edge's offset that TIM-TP announces as qErr) and :func:`has_time_fix` (no pulse without a time solution).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import heapq
+import itertools
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from pynmeagps import NMEAMessage
+from pyubx2 import GET, SET, UBX_MSGIDS, UBXMessage, UBXReader
+
+from sensors.sim import earth
+from sensors.sim.clock import DriveClock
+from sensors.sim.gnss_errors import (
+    MAX_SATELLITES,
+    EpochError,
+    GnssErrorModel,
+    fix_type_for,
+    has_time_fix,
+    satellites_tracked,
+)
+from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline, PulseQuantisation
+from sensors.sim.pty import PtyPort
+from sensors.sim.truth import Trajectory, TruthState
+from sensors.sim.uart_line import STANDARD_BAUDS, HostSide, resample
+
+__all__ = [
+    "DEFAULT_MESSAGES",
+    "FACTORY_MESSAGES",
+    "MESSAGE_IDS",
+    "EpochRecord",
+    "ModelCounters",
+    "UbloxReceiverModel",
+    "has_time_fix",
+]
+
+# Class and id of the output messages the model produces (u-blox M8 protocol spec; NMEA class 0xF0).
+MESSAGE_IDS: dict[str, tuple[int, int]] = {
+    "NAV-PVT": (0x01, 0x07),
+    "NAV-TIMEGPS": (0x01, 0x20),
+    "TIM-TP": (0x0D, 0x01),
+    "GGA": (0xF0, 0x00),
+    "RMC": (0xF0, 0x04),
+}
+DEFAULT_MESSAGES = ("NAV-PVT", "TIM-TP", "GGA", "RMC")  # a receiver whose flash holds the logger's setup
+FACTORY_MESSAGES = ("GGA", "RMC")  # fresh from the factory: NMEA only (GSA, GSV, GLL, VTG not modelled)
+
+_MSGOUT_KEYS = {  # configuration keys of the modelled messages on UART1 (u-blox 9/10 interface description)
+    "CFG_MSGOUT_UBX_NAV_PVT_UART1": "NAV-PVT",
+    "CFG_MSGOUT_UBX_NAV_TIMEGPS_UART1": "NAV-TIMEGPS",
+    "CFG_MSGOUT_UBX_TIM_TP_UART1": "TIM-TP",
+    "CFG_MSGOUT_NMEA_ID_GGA_UART1": "GGA",
+    "CFG_MSGOUT_NMEA_ID_RMC_UART1": "RMC",
+}
+_FIRMWARE = {  # MON-VER as these firmware releases report it
+    8: ("ROM CORE 3.01 (107888)", "00080000",
+        ("FWVER=SPG 3.01", "PROTVER=18.00", "GPS;GLO;GAL;BDS", "SBAS;IMES;QZSS")),
+    9: ("EXT CORE 1.00 (61b2dd)", "00190000",
+        ("ROM BASE 0x118B2060", "FWVER=HPG 1.13", "PROTVER=27.12", "MOD=ZED-F9P", "GPS;GLO;GAL;BDS", "QZSS")),
+    10: ("ROM SPG 5.10 (7b202e)", "000A0000",
+         ("ROM BASE 0x118B2060", "FWVER=SPG 5.10", "PROTVER=34.10", "MOD=NEO-M10", "GPS;GAL;GLO;BDS",
+          "SBAS;QZSS")),
+}
+_DEFAULT_BAUD = {8: 9600, 9: 38400, 10: 38400}
+# Offsets of the time scales CFG-RATE timeRef can align epochs to, from GPS time in whole seconds:
+# UTC, GPS, GLONASS (UTC(SU) + 3 h), BeiDou (GPS - 14 s), Galileo (GPS).
+_TIME_REF_OFFSET_S = {0: None, 1: 0, 2: None, 3: -14, 4: 0}
+_HOST_BUFFER_BYTES = 4095  # Linux n_tty read buffer: beyond it a host that does not read loses bytes
+_U4_MAX = 0xFFFF_FFFF
+_MIN_MOVING_MPS = 0.5  # below this speed the receiver keeps its last heading of motion
+_CLOCK_HOLDOVER_NS_PER_S = 100.0  # growth of tAcc without a fix: a TCXO known to 0.1 ppm
+_UBX_HDR = b"\xb5\x62"
+
+
+@dataclass(frozen=True, slots=True)
+class EpochRecord:
+    """One navigation solution as computed: the truth, the error applied and what was reported."""
+
+    drive_ns: int  # true drive time of the epoch
+    gps_ns: int  # true GPS time of the epoch
+    itow_ms: int
+    truth: TruthState
+    fix_type: int
+    num_sv: int
+    lat_deg: float  # reported, before the 1e-7 deg quantisation of NAV-PVT
+    lon_deg: float
+    height_m: float  # reported ellipsoidal height
+    vel_ned_mps: np.ndarray  # reported
+    pos_error_ned_m: np.ndarray  # reported minus true, metres north-east-down
+    vel_error_ned_mps: np.ndarray
+    time_error_ns: float  # reported minus true epoch time
+    error: EpochError  # the error model's draw (accuracies, DOPs, multipath part)
+    h_acc_m: float
+    v_acc_m: float
+    s_acc_mps: float
+    t_acc_ns: float
+    head_mot_deg: float = 0.0  # heading of motion; kept from the last epoch with enough speed
+    head_acc_deg: float = 180.0
+
+
+@dataclass(slots=True)
+class ModelCounters:
+    """What the model did, for tests and the soak report."""
+
+    sent: dict[str, int] = field(default_factory=dict)
+    bytes_written: int = 0  # to the pty, after the UART line (what the host can read)
+    tx_overflow_drops: int = 0  # messages dropped because the receiver's transmit buffer was full
+    host_overrun_drops: int = 0  # messages lost because the host left its receive buffer full
+    unplugged_drops: int = 0
+    acks: int = 0
+    naks: int = 0
+    garbage_bytes: int = 0
+    corrupted: int = 0
+    input_frames: int = 0
+
+
+@dataclass(slots=True)
+class _PortConfig:
+    baud: int
+    in_ubx: bool = True
+    in_nmea: bool = True
+    out_ubx: bool = True
+    out_nmea: bool = True
+
+
+@dataclass(slots=True)
+class _RamConfig:
+    """The receiver's current (RAM) configuration; a power cycle restores the one it started with."""
+
+    port: _PortConfig
+    meas_ms: int = 1000
+    nav_rate: int = 1
+    time_ref: int = 1  # GPS
+    rates: dict[tuple[int, int], int] = field(default_factory=dict)
+
+    def copy(self) -> _RamConfig:
+        return _RamConfig(replace(self.port), self.meas_ms, self.nav_rate, self.time_ref, dict(self.rates))
+
+
+@dataclass(order=True, slots=True)
+class _TxItem:
+    ready_ns: int
+    seq: int
+    data: bytes = field(compare=False)
+    label: str = field(compare=False)
+    after: Callable[[], None] | None = field(compare=False, default=None)
+
+
+def _scaled(n: int, resolution: float) -> float:
+    """A float that pyubx2 turns back into exactly the integer ``n`` at ``resolution``.
+
+    pyubx2 truncates value / resolution; a quarter of a step away from the integer survives both
+    truncation and rounding whatever the binary representation of the resolution.
+    """
+    return (n + math.copysign(0.25, n)) * resolution
+
+
+def _nmea_coordinate(deg: float, width: int) -> str:
+    """(d)ddmm.mmmmm as u-blox prints it, rounded once to the 1e-5 minute the sentence carries."""
+    units = round(abs(deg) * 60 * 100_000)  # 1e-5 minutes
+    whole, minutes = divmod(units, 60 * 100_000)
+    return f"{whole:0{width}d}{minutes // 100_000:02d}.{minutes % 100_000:05d}"
+
+
+def _nmea_time(utc_ns: int) -> tuple[str, str]:
+    """hhmmss.ss and ddmmyy of a UTC instant (Unix ns)."""
+    cs = round(utc_ns / 10_000_000)
+    seconds, cs = divmod(cs, 100)
+    days, sod = divmod(seconds, 86_400)
+    hh, rem = divmod(sod, 3600)
+    mm, ss = divmod(rem, 60)
+    d = dt.date(1970, 1, 1) + dt.timedelta(days=days)
+    return f"{hh:02d}{mm:02d}{ss:02d}.{cs:02d}", f"{d.day:02d}{d.month:02d}{d.year % 100:02d}"
+
+
+def _child_rngs(seed: int | np.random.Generator, n: int) -> list[np.random.Generator]:
+    """Independent generators, so that (say) command timing never shifts the GNSS error sequence."""
+    if isinstance(seed, np.random.Generator):
+        return [np.random.default_rng(int(seed.integers(2**63))) for _ in range(n)]
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(n)]
+
+
+class UbloxReceiverModel:
+    """A u-blox receiver (M8 by default) playing the device end of ``port``, driven by ``trajectory``."""
+
+    def __init__(
+        self,
+        port: PtyPort,
+        clock: DriveClock,
+        trajectory: Trajectory,
+        *,
+        seed: int | np.random.Generator = 0,
+        timeline: GnssTimeline | None = None,
+        generation: int = 8,
+        baud: int | None = None,
+        messages: Iterable[str] = DEFAULT_MESSAGES,
+        nmea_talker: str = "GN",
+        time_to_first_fix_s: float = 1.0,
+        pulse_time_base: str = "utc",
+        error_model: GnssErrorModel | None = None,
+        max_satellites: int = MAX_SATELLITES,
+        tx_buffer_bytes: int = 4096,
+        min_meas_period_ms: int = 25,
+        latency_s: tuple[float, float] = (0.04, 0.06),
+        history_len: int = 3600,
+        poll_s: float = 0.002,
+    ) -> None:
+        if generation not in _FIRMWARE:
+            raise ValueError(f"generation must be one of {sorted(_FIRMWARE)}, not {generation}")
+        if pulse_time_base not in ("utc", "gps"):
+            raise ValueError("pulse_time_base must be 'utc' or 'gps'")
+        unknown = set(messages) - set(MESSAGE_IDS)
+        if unknown:
+            raise ValueError(f"the model cannot output {sorted(unknown)}; it knows {sorted(MESSAGE_IDS)}")
+        self.port = port
+        self.clock = clock
+        self.trajectory = trajectory
+        self.timeline = timeline or GnssTimeline()
+        self.generation = generation
+        self.nmea_talker = nmea_talker
+        self.time_to_first_fix_s = float(time_to_first_fix_s)
+        self.pulse_time_base = pulse_time_base
+        self.max_satellites = max_satellites
+        self.tx_buffer_bytes = tx_buffer_bytes
+        # The fastest epoch the firmware accepts: 25 ms is the protocol's floor; a product that runs at
+        # most 10 Hz with two constellations NAKs anything below 100 ms.
+        self.min_meas_period_ms = max(25, min_meas_period_ms)
+        self.latency_s = latency_s  # (minimum, mean of the exponential excess) of the solution delay
+        self.poll_s = poll_s
+        rng_err, rng_lat, rng_cmd, rng_garbage, rng_pulse = _child_rngs(seed, 5)
+        self.errors = error_model or GnssErrorModel(rng_err)
+        self.pulse_quantisation = PulseQuantisation.from_seed(rng_pulse)
+        self._rng_latency = rng_lat
+        self._rng_command = rng_cmd
+        self._rng_garbage = rng_garbage
+        start_baud = baud if baud is not None else _DEFAULT_BAUD[generation]
+        if start_baud not in STANDARD_BAUDS:
+            raise ValueError(f"{start_baud} is not a baud rate a u-blox UART offers")
+        self._startup = _RamConfig(_PortConfig(start_baud), rates={MESSAGE_IDS[m]: 1 for m in messages})
+        self._cfg = self._startup.copy()
+        self.history: deque[EpochRecord] = deque(maxlen=history_len)
+        self.counters = ModelCounters()
+        self.error: BaseException | None = None
+
+        self._host = HostSide(port.path)
+        self._probe = HostSide(port.path)  # used by sync() on the caller's thread
+        self._tx: list[_TxItem] = []
+        self._seq = itertools.count()
+        self._line_free_ns = 0
+        self._input = bytearray()
+        self._written_this_pass = 0
+        self._pending: list[Callable[[int], None]] = []  # fault injections, run by the model thread
+        self._corrupt_left = 0
+        self._last_reply_ns = 0
+        self._lock = threading.Lock()
+        self._cv = threading.Condition()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._started_passes = 0
+        self._completed_passes = 0
+        self._power_on(clock.now_ns())
+
+    # ------------------------------------------------------------------ life cycle
+
+    def start(self) -> UbloxReceiverModel:
+        if self._thread is not None:
+            raise RuntimeError("the receiver model is already running")
+        self._thread = threading.Thread(target=self._run, name="ublox-model", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise RuntimeError("the receiver model thread did not stop")
+            self._thread = None
+        self._host.close()
+        self._probe.close()
+
+    def __enter__(self) -> UbloxReceiverModel:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def sync(self, timeout_s: float = 5.0, settle: bool = True) -> None:
+        """Return once the model has handled everything up to the clock's present, input included.
+
+        With a ManualClock a test advances the clock and syncs, so every byte due by then has been
+        written to the pty, whatever the host's scheduler did meanwhile. The kernel hands bytes from the
+        pty master to the slave asynchronously; with ``settle`` sync also waits (at most ``timeout_s``)
+        until the bytes written meanwhile can be read on the host side. That assumes nobody reads the port
+        while sync runs, which holds when the caller is the reader; pass ``settle=False`` otherwise.
+        """
+        unread0 = self._probe.unread() if settle else -1
+        written0 = self.counters.bytes_written
+        with self._cv:
+            target = self._started_passes
+            self._wake.set()
+            done = self._cv.wait_for(
+                lambda: self._completed_passes > target or self.error is not None or self._thread is None,
+                timeout_s,
+            )
+        if self.error is not None:
+            raise RuntimeError("the receiver model failed") from self.error
+        if self._thread is None:
+            raise RuntimeError("the receiver model is not running")
+        if not done:
+            raise RuntimeError(f"the receiver model did not catch up within {timeout_s} s")
+        if unread0 >= 0:
+            expect = min(_HOST_BUFFER_BYTES, unread0 + self.counters.bytes_written - written0)
+            deadline = time.monotonic() + timeout_s
+            while 0 <= self._probe.unread() < expect and time.monotonic() < deadline:
+                time.sleep(0.0002)
+
+    # ------------------------------------------------------------------ faults
+
+    def inject_garbage(self, n_bytes: int = 64) -> None:
+        """Queue ``n_bytes`` of line noise into the output stream now."""
+        self._post(lambda now: self._enqueue(
+            now, self._rng_garbage.integers(0, 256, n_bytes, dtype=np.uint8).tobytes(), "garbage"))
+
+    def corrupt_checksums(self, count: int = 1) -> None:
+        """Damage the checksum of the next ``count`` messages sent (UBX or NMEA)."""
+        def arm(_now: int) -> None:
+            self._corrupt_left += count
+        self._post(arm)
+
+    def vanish(self) -> None:
+        """Unplug the USB-serial adapter: the driver gets an error, the receiver keeps running."""
+        self.port.vanish()
+
+    def reappear(self, power_cycle: bool = False) -> None:
+        """Plug the adapter back in; with ``power_cycle`` the receiver also restarts (RAM config lost)."""
+        self.port.reappear()
+        if power_cycle:
+            self._post(self._power_on)
+
+    def _post(self, action: Callable[[int], None]) -> None:
+        with self._lock:
+            self._pending.append(action)
+        self._wake.set()
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def baud(self) -> int:
+        return self._cfg.port.baud
+
+    @property
+    def meas_period_ms(self) -> int:
+        return self._cfg.meas_ms
+
+    def rate(self, message: str) -> int:
+        """Output rate of a modelled message on the port (0 = off), as configured now."""
+        return self._cfg.rates.get(MESSAGE_IDS[message], 0)
+
+    def time_pulse_locked(self, t_s: float) -> bool:
+        """Whether the receiver drives its time pulse at drive time ``t_s``: its first fix since power-on is
+        behind it and the sky gives it a time solution. The ``has_fix`` a PPS line model wants."""
+        if (t_s * NS_PER_S - self._power_on_ns) < self.time_to_first_fix_s * NS_PER_S:
+            return False
+        return has_time_fix(self.trajectory.state(min(t_s, self.trajectory.duration_s)), self.max_satellites)
+
+    def solution_for_itow(self, itow_ms: int) -> EpochRecord | None:
+        for rec in reversed(self.history):
+            if rec.itow_ms == itow_ms:
+                return rec
+        return None
+
+    def _power_on(self, now_ns: int) -> None:
+        """Start (again) as from power-up: the configuration the receiver boots with, no output pending,
+        and a fix only after the time to first fix."""
+        self._cfg = self._startup.copy()
+        self._tx.clear()
+        self._input.clear()
+        self._power_on_ns = now_ns
+        self._time_known = False
+        self._last_fix: EpochRecord | None = None
+        self._last_solution_ns: int | None = None
+        self._head_mot_deg = 0.0
+        self._last_pulse_second = -1
+        self._next_epoch_ns = self._epoch_after(now_ns)
+
+    # ------------------------------------------------------------------ thread
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                with self._cv:
+                    self._started_passes += 1
+                self._wake.clear()
+                self._service()
+                with self._cv:
+                    self._completed_passes = self._started_passes
+                    self._cv.notify_all()
+                self._wake.wait(self.poll_s)
+        except BaseException as exc:  # reported through sync(); a model must never die silently
+            self.error = exc
+            with self._cv:
+                self._cv.notify_all()
+
+    def _service(self) -> None:
+        now = self.clock.now_ns()
+        self._written_this_pass = 0
+        with self._lock:
+            pending, self._pending = self._pending, []
+        for action in pending:
+            action(now)
+        self._advance(now)
+        data = self.port.read(0.0, 65536)
+        if data:
+            host_out = self._host.speeds()[1]  # the host's bytes went out at its output speed
+            self._receive(resample(data, host_out or 0, self._cfg.port.baud), now)
+        self._advance(now)
+
+    def _advance(self, now: int) -> None:
+        """Run epochs and transmissions in time order up to ``now``."""
+        while True:
+            t_tx = math.inf
+            if self._tx:
+                head = self._tx[0]
+                t_tx = max(head.ready_ns, self._line_free_ns) + self._tx_ns(len(head.data))
+            t_epoch = self._next_epoch_ns
+            if min(t_tx, t_epoch) > now:
+                return
+            if t_epoch <= t_tx:
+                self._next_epoch_ns = self._epoch_after(t_epoch)
+                self._epoch(t_epoch)
+            else:
+                item = heapq.heappop(self._tx)
+                self._line_free_ns = int(t_tx)
+                self._transmit(item)
+                if item.after is not None:
+                    item.after()
+
+    def _tx_ns(self, n_bytes: int) -> int:
+        return -(-n_bytes * 10 * NS_PER_S // self._cfg.port.baud)  # 8N1: ten bit times a byte
+
+    def _enqueue(self, ready_ns: int, data: bytes, label: str, after: Callable[[], None] | None = None) -> None:
+        pending = sum(len(i.data) for i in self._tx)
+        if pending + len(data) > self.tx_buffer_bytes:
+            self.counters.tx_overflow_drops += 1
+            return
+        heapq.heappush(self._tx, _TxItem(int(ready_ns), next(self._seq), data, label, after))
+
+    def _transmit(self, item: _TxItem) -> None:
+        data = item.data
+        if item.label == "garbage":
+            self.counters.garbage_bytes += len(data)
+        elif self._corrupt_left > 0:
+            self._corrupt_left -= 1
+            self.counters.corrupted += 1
+            data = self._corrupt(data)
+        host_in, _ = self._host.speeds()
+        wire = resample(data, self._cfg.port.baud, host_in)
+        unread = self._host.unread()
+        if unread < 0 or not self.port.present:
+            self.counters.unplugged_drops += 1
+            return
+        if unread + self._written_this_pass + len(wire) > _HOST_BUFFER_BYTES:
+            self.counters.host_overrun_drops += 1
+            return
+        self.port.write(wire)
+        self._written_this_pass += len(wire)
+        self.counters.bytes_written += len(wire)
+        self.counters.sent[item.label] = self.counters.sent.get(item.label, 0) + 1
+
+    @staticmethod
+    def _corrupt(data: bytes) -> bytes:
+        if data.startswith(_UBX_HDR):
+            return data[:-1] + bytes([data[-1] ^ 0x5A])
+        star = data.rfind(b"*")
+        if star >= 0:  # NMEA: a checksum that is valid hex but wrong
+            wrong = (int(data[star + 1:star + 3], 16) ^ 0x5A) & 0xFF
+            return data[:star + 1] + f"{wrong:02X}".encode() + data[star + 3:]
+        return data
+
+    # ------------------------------------------------------------------ epochs
+
+    def _epoch_after(self, drive_ns: int) -> int:
+        """Drive time of the first measurement epoch strictly after ``drive_ns``."""
+        meas_ns = self._cfg.meas_ms * NS_PER_MS
+        offset_ns = self._time_scale_offset_ns()
+        gps = self.timeline.gps_ns(drive_ns) + offset_ns
+        return self.timeline.drive_ns((gps // meas_ns + 1) * meas_ns - offset_ns)
+
+    def _time_scale_offset_ns(self) -> int:
+        offset_s = _TIME_REF_OFFSET_S[self._cfg.time_ref]
+        if offset_s is None:  # UTC-based scales: UTC itself or GLONASS time (UTC + 3 h)
+            offset_s = -self.timeline.leap_s
+        return offset_s * NS_PER_S
+
+    def _epoch(self, t_ns: int) -> None:
+        meas_ns = self._cfg.meas_ms * NS_PER_MS
+        gps_ns = self.timeline.gps_ns(t_ns)
+        index = (gps_ns + self._time_scale_offset_ns()) // meas_ns
+        if index % self._cfg.nav_rate:
+            return  # a measurement without a navigation solution
+        solution_index = index // self._cfg.nav_rate
+        rec = self._solve(t_ns, gps_ns)
+        excess = self._rng_latency.exponential(self.latency_s[1])
+        ready = t_ns + round((self.latency_s[0] + min(excess, 0.35)) * NS_PER_S)
+        rates = self._cfg.rates
+
+        def due(name: str, count: int) -> bool:
+            r = rates.get(MESSAGE_IDS[name], 0)
+            return r > 0 and count % r == 0
+
+        if due("NAV-PVT", solution_index):
+            self._enqueue_ubx(ready, self._nav_pvt(rec), "NAV-PVT")
+        if due("NAV-TIMEGPS", solution_index):
+            self._enqueue_ubx(ready, self._nav_timegps(rec), "NAV-TIMEGPS")
+        if due("GGA", solution_index):
+            self._enqueue_nmea(ready, self._gga(rec), "GGA")
+        if due("RMC", solution_index):
+            self._enqueue_nmea(ready, self._rmc(rec), "RMC")
+        second = gps_ns // NS_PER_S
+        if second != self._last_pulse_second:
+            self._last_pulse_second = second
+            # The pulse is locked, and announced, only while the clock is solved (see has_time_fix).
+            if rec.fix_type >= 2 and due("TIM-TP", second):
+                self._enqueue_ubx(ready, self._tim_tp(second + 1), "TIM-TP")
+
+    def _tracking(self, t_ns: int) -> bool:
+        return (t_ns - self._power_on_ns) >= self.time_to_first_fix_s * NS_PER_S
+
+    def _enqueue_ubx(self, ready: int, msg: UBXMessage, label: str) -> None:
+        if self._cfg.port.out_ubx:
+            self._enqueue(ready, msg.serialize(), label)
+
+    def _enqueue_nmea(self, ready: int, msg: NMEAMessage, label: str) -> None:
+        if self._cfg.port.out_nmea:
+            self._enqueue(ready, msg.serialize(), label)
+
+    def _solve(self, t_ns: int, gps_ns: int) -> EpochRecord:
+        """The navigation solution of one epoch: truth plus the error model, or the last fix held."""
+        dur = self.trajectory.duration_s
+        truth = self.trajectory.state(min(t_ns / NS_PER_S, dur))
+        dt_s = 1.0 if self._last_solution_ns is None else (t_ns - self._last_solution_ns) / NS_PER_S
+        self._last_solution_ns = t_ns
+        num_sv = satellites_tracked(truth.sky_open, self.max_satellites) if self._tracking(t_ns) else 0
+        fix_type = fix_type_for(num_sv)
+        err = self.errors.step(dt_s, truth.sky_open, num_sv)
+        rn, re = earth.radii(truth.lat_rad)
+        last = self._last_fix
+        itow_ms = (GnssTimeline.week_tow(gps_ns)[1] + NS_PER_MS // 2) // NS_PER_MS
+        if fix_type >= 2:
+            pos_err = err.pos_ned_m.copy()
+            v_acc = err.v_acc_m
+            if fix_type == 2:  # 2D: the height is held at the last one known
+                held = last.height_m if last is not None else truth.height_m - pos_err[2]
+                pos_err[2] = truth.height_m - held  # down error
+                v_acc = math.hypot(err.v_acc_m, pos_err[2])
+            vel = truth.vel_ned_mps + err.vel_ned_mps
+            if fix_type == 2:
+                vel = np.array([vel[0], vel[1], 0.0])
+            lat = math.degrees(truth.lat_rad + pos_err[0] / (rn + truth.height_m))
+            lon = math.degrees(truth.lon_rad + pos_err[1] / ((re + truth.height_m) * math.cos(truth.lat_rad)))
+            height = truth.height_m - pos_err[2]
+            self._time_known = True
+            rec = EpochRecord(t_ns, gps_ns, itow_ms, truth, fix_type, num_sv, lat, lon, height, vel, pos_err,
+                              vel - truth.vel_ned_mps, err.time_ns, err, err.h_acc_m, v_acc, err.s_acc_mps,
+                              err.t_acc_ns)
+            self._last_fix = rec
+        elif last is not None:  # no fix now: the last position is kept, its accuracy grows to bound it
+            pos_err = np.array([
+                (math.radians(last.lat_deg) - truth.lat_rad) * (rn + truth.height_m),
+                (math.radians(last.lon_deg) - truth.lon_rad) * (re + truth.height_m) * math.cos(truth.lat_rad),
+                truth.height_m - last.height_m,
+            ])
+            held_s = (t_ns - last.drive_ns) / NS_PER_S
+            h_acc = max(last.h_acc_m, 1.5 * math.hypot(pos_err[0], pos_err[1]))
+            v_acc = max(last.v_acc_m, 1.5 * abs(pos_err[2]))
+            s_acc = max(last.s_acc_mps, 1.5 * float(np.linalg.norm(truth.vel_ned_mps)))
+            rec = EpochRecord(t_ns, gps_ns, itow_ms, truth, 0, num_sv, last.lat_deg, last.lon_deg, last.height_m,
+                              np.zeros(3), pos_err, -truth.vel_ned_mps, last.time_error_ns, err, h_acc, v_acc,
+                              s_acc, last.t_acc_ns + _CLOCK_HOLDOVER_NS_PER_S * held_s)
+        else:  # nothing known yet: u-blox reports zeros and no accuracy at all
+            rec = EpochRecord(t_ns, gps_ns, itow_ms, truth, 0, num_sv, 0.0, 0.0, 0.0, np.zeros(3),
+                              np.full(3, math.nan), -truth.vel_ned_mps, 0.0, err, math.inf, math.inf,
+                              math.inf, math.inf)
+        vn, ve = float(rec.vel_ned_mps[0]), float(rec.vel_ned_mps[1])
+        g_speed = math.hypot(vn, ve)
+        head_acc = 180.0
+        if rec.fix_type >= 2 and g_speed >= _MIN_MOVING_MPS:  # slower: the heading is noise, keep the last
+            self._head_mot_deg = math.degrees(math.atan2(ve, vn)) % 360.0
+            head_acc = min(180.0, math.degrees(math.atan2(rec.s_acc_mps, g_speed)))
+        rec = replace(rec, head_mot_deg=self._head_mot_deg, head_acc_deg=head_acc)
+        self.history.append(rec)
+        return rec
+
+    # ------------------------------------------------------------------ output messages
+
+    def _reported_time(self, rec: EpochRecord) -> tuple[int, int]:
+        """(UTC second as Unix ns, nano) of the epoch as the receiver states it, error included."""
+        gps = rec.gps_ns + round(rec.time_error_ns)
+        utc = self.timeline.utc_unix_ns(gps)
+        second = (utc + NS_PER_S // 2) // NS_PER_S * NS_PER_S  # nearest second; nano carries the rest
+        return second, utc - second
+
+    def _nav_pvt(self, rec: EpochRecord) -> UBXMessage:
+        known = self._time_known
+        second_ns, nano = self._reported_time(rec)
+        day = _unix_to_calendar(second_ns)
+        fix_ok = rec.fix_type >= 2
+        vn, ve, vd = (float(v) for v in rec.vel_ned_mps)
+        g_speed = math.hypot(vn, ve)
+        return UBXMessage(
+            "NAV", "NAV-PVT", GET,
+            iTOW=rec.itow_ms,
+            year=day[0], month=day[1], day=day[2], hour=day[3], min=day[4], second=day[5],
+            validDate=int(known), validTime=int(known), fullyResolved=int(known), validMag=0,
+            tAcc=_acc(rec.t_acc_ns, 1.0),
+            nano=int(nano) if known else 0,
+            fixType=rec.fix_type,
+            gnssFixOk=int(fix_ok), diffSoln=0, psmState=0, headVehValid=0, carrSoln=0,
+            confirmedAvai=1, confirmedDate=int(known), confirmedTime=int(known),
+            numSV=rec.num_sv,
+            lon=_scaled(round(rec.lon_deg * 1e7), 1e-7),
+            lat=_scaled(round(rec.lat_deg * 1e7), 1e-7),
+            height=round(rec.height_m * 1000),
+            hMSL=round((rec.height_m - rec.truth.geoid_m) * 1000) if self._last_fix is not None else 0,
+            hAcc=_acc(rec.h_acc_m, 1e3),
+            vAcc=_acc(rec.v_acc_m, 1e3),
+            velN=round(vn * 1000), velE=round(ve * 1000), velD=round(vd * 1000),
+            gSpeed=round(g_speed * 1000),
+            headMot=_scaled(round(rec.head_mot_deg * 1e5) % 36_000_000, 1e-5),
+            sAcc=_acc(rec.s_acc_mps, 1e3),
+            headAcc=_scaled(round(rec.head_acc_deg * 1e5), 1e-5),
+            pDOP=_scaled(round(rec.error.dops.pdop * 100), 0.01),
+            invalidLlh=int(self.generation >= 9 and self._last_fix is None),
+        )
+
+    def _nav_timegps(self, rec: EpochRecord) -> UBXMessage:
+        known = self._time_known
+        week, _ = GnssTimeline.week_tow(rec.gps_ns)
+        f_tow = max(-500_000, min(500_000, round(rec.time_error_ns)))
+        return UBXMessage(
+            "NAV", "NAV-TIMEGPS", GET,
+            iTOW=rec.itow_ms, fTOW=f_tow if known else 0, week=week if known else 0,
+            leapS=self.timeline.leap_s if known else 0,
+            towValid=int(known), weekValid=int(known), leapSValid=int(known),
+            tAcc=_acc(rec.t_acc_ns, 1.0),
+        )
+
+    def _tim_tp(self, pulse_second: int) -> UBXMessage:
+        utc_base = self.pulse_time_base == "utc"
+        base_ns = (pulse_second - (self.timeline.leap_s if utc_base else 0)) * NS_PER_S
+        week, tow_ns = GnssTimeline.week_tow(base_ns)
+        return UBXMessage(
+            "TIM", "TIM-TP", GET,
+            towMS=tow_ns // NS_PER_MS, towSubMS=0,
+            qErr=self.pulse_quantisation.qerr_ps(pulse_second),
+            week=week,
+            timeBase=int(utc_base), utc=int(self._time_known), raim=2, qErrInvalid=0,
+            timeRefGnss=0, utcStandard=3 if utc_base else 0,  # GPS; UTC(USNO) as GPS broadcasts it
+        )
+
+    def _gga(self, rec: EpochRecord) -> NMEAMessage:
+        known = self._time_known
+        hhmmss, _ = _nmea_time(sum(self._reported_time(rec))) if known else ("", "")
+        if rec.fix_type >= 2:
+            lat, lon = rec.lat_deg, rec.lon_deg
+            fields = [
+                hhmmss, _nmea_coordinate(lat, 2), "N" if lat >= 0 else "S", _nmea_coordinate(lon, 3),
+                "E" if lon >= 0 else "W", "1", f"{min(rec.num_sv, 12):02d}", f"{rec.error.dops.hdop:.2f}",
+                f"{rec.height_m - rec.truth.geoid_m:.1f}", "M", f"{rec.truth.geoid_m:.1f}", "M", "", "",
+            ]
+        else:
+            fields = [hhmmss, "", "", "", "", "0", f"{min(rec.num_sv, 12):02d}", "99.99", "", "", "", "", "", ""]
+        return NMEAMessage(self.nmea_talker, "GGA", GET, payload=fields)
+
+    def _rmc(self, rec: EpochRecord) -> NMEAMessage:
+        known = self._time_known
+        hhmmss, ddmmyy = _nmea_time(sum(self._reported_time(rec))) if known else ("", "")
+        if rec.fix_type >= 2:
+            lat, lon = rec.lat_deg, rec.lon_deg
+            vn, ve = float(rec.vel_ned_mps[0]), float(rec.vel_ned_mps[1])
+            knots = math.hypot(vn, ve) * 3600.0 / 1852.0
+            fields = [
+                hhmmss, "A", _nmea_coordinate(lat, 2), "N" if lat >= 0 else "S", _nmea_coordinate(lon, 3),
+                "E" if lon >= 0 else "W", f"{knots:.3f}", f"{rec.head_mot_deg:.2f}", ddmmyy, "", "", "A", "V",
+            ]
+        else:
+            fields = [hhmmss, "V", "", "", "", "", "", "", ddmmyy, "", "", "N", "V"]
+        return NMEAMessage(self.nmea_talker, "RMC", GET, payload=fields)
+
+    # ------------------------------------------------------------------ input and configuration
+
+    def _receive(self, data: bytes, now: int) -> None:
+        """Scan the host's bytes for complete UBX frames with a valid checksum; others are ignored."""
+        buf = self._input
+        buf += data
+        while True:
+            start = buf.find(_UBX_HDR)
+            if start < 0:
+                del buf[:-1 if buf.endswith(b"\xb5") else len(buf)]
+                return
+            del buf[:start]
+            if len(buf) < 8:
+                return
+            length = int.from_bytes(buf[4:6], "little")
+            if length > 4096:  # not a frame: a stray 0xB5 0x62
+                del buf[:2]
+                continue
+            if len(buf) < 8 + length:
+                return
+            frame = bytes(buf[:8 + length])
+            ck_a = ck_b = 0
+            for b in frame[2:-2]:
+                ck_a = (ck_a + b) & 0xFF
+                ck_b = (ck_b + ck_a) & 0xFF
+            if frame[-2:] != bytes((ck_a, ck_b)):
+                del buf[:2]
+                continue
+            del buf[:8 + length]
+            self.counters.input_frames += 1
+            if self._cfg.port.in_ubx:
+                self._command(frame, now)
+
+    def _reply(self, now: int, *messages: UBXMessage, after: Callable[[], None] | None = None) -> None:
+        """Queue responses a few ms after the command, as the receiver's firmware takes that long."""
+        ready = now + round(self._rng_command.uniform(0.002, 0.015) * NS_PER_S)
+        ready = self._last_reply_ns = max(ready, self._last_reply_ns)  # commands are handled in order
+        if not self._cfg.port.out_ubx:
+            if after is not None:
+                after()
+            return
+        for i, msg in enumerate(messages):
+            self._enqueue(ready, msg.serialize(), msg.identity, after if i == len(messages) - 1 else None)
+
+    def _ack(self, now: int, cls: int, mid: int, ok: bool, *before: UBXMessage,
+             after: Callable[[], None] | None = None) -> None:
+        if ok:
+            self.counters.acks += 1
+        else:
+            self.counters.naks += 1
+        ack = UBXMessage("ACK", "ACK-ACK" if ok else "ACK-NAK", GET, clsID=cls, msgID=mid)
+        self._reply(now, *before, ack, after=after)
+
+    def _command(self, frame: bytes, now: int) -> None:
+        cls, mid = frame[2], frame[3]
+        payload = frame[6:-2]
+        legacy = self.generation <= 9
+        if (cls, mid) == (0x0A, 0x04) and not payload:  # MON-VER poll: answered, never acknowledged
+            self._reply(now, self._mon_ver())
+        elif cls != 0x06:
+            return  # other input classes (AID, MGA, RXM...) are not modelled and have no ACK
+        elif mid == 0x01 and legacy:
+            self._cfg_msg(payload, now)
+        elif mid == 0x08 and legacy:
+            self._cfg_rate(payload, now)
+        elif mid == 0x00 and legacy:
+            self._cfg_prt(payload, now)
+        elif mid == 0x8A and self.generation >= 9:
+            self._cfg_valset(frame, now)
+        else:
+            self._ack(now, cls, mid, False)
+
+    def _mon_ver(self) -> UBXMessage:
+        sw, hw, ext = _FIRMWARE[self.generation]
+        payload = sw.encode().ljust(30, b"\0") + hw.encode().ljust(10, b"\0")
+        payload += b"".join(e.encode().ljust(30, b"\0") for e in ext)
+        return UBXMessage("MON", "MON-VER", GET, payload=payload)
+
+    def _cfg_msg(self, payload: bytes, now: int) -> None:
+        if len(payload) == 2:  # poll the rates of one message
+            key = (payload[0], payload[1])
+            rate = self._cfg.rates.get(key, 0)
+            reply = UBXMessage("CFG", "CFG-MSG", GET, msgClass=key[0], msgID=key[1], rateUART1=rate)
+            self._ack(now, 0x06, 0x01, True, reply)
+            return
+        if len(payload) == 3:
+            # The short form sets the port the command came in on. pyubx2 knows only the eight-byte
+            # layout, so these three bytes are read directly.
+            key, rate = (payload[0], payload[1]), payload[2]
+        elif len(payload) == 8:
+            msg = UBXReader.parse(_frame(0x06, 0x01, payload), msgmode=SET)
+            key, rate = (msg.msgClass, msg.msgID), msg.rateUART1
+        else:
+            self._ack(now, 0x06, 0x01, False)
+            return
+        if bytes(key) not in UBX_MSGIDS and key[0] not in (0xF0, 0xF1):
+            self._ack(now, 0x06, 0x01, False)  # no such message on this receiver
+            return
+        self._cfg.rates[key] = rate
+        self._ack(now, 0x06, 0x01, True)
+
+    def _cfg_rate(self, payload: bytes, now: int) -> None:
+        cfg = self._cfg
+        if not payload:
+            reply = UBXMessage("CFG", "CFG-RATE", GET, measRate=cfg.meas_ms, navRate=cfg.nav_rate,
+                               timeRef=cfg.time_ref)
+            self._ack(now, 0x06, 0x08, True, reply)
+            return
+        if len(payload) != 6:
+            self._ack(now, 0x06, 0x08, False)
+            return
+        msg = UBXReader.parse(_frame(0x06, 0x08, payload), msgmode=SET)
+        if not self._apply_rate(msg.measRate, msg.navRate, msg.timeRef, now):
+            self._ack(now, 0x06, 0x08, False)
+            return
+        self._ack(now, 0x06, 0x08, True)
+
+    def _apply_rate(self, meas_ms: int, nav_rate: int, time_ref: int, now: int) -> bool:
+        # Out-of-range values are refused: measRate below the firmware's floor, navRate above 127, an
+        # unknown time scale.
+        if meas_ms < self.min_meas_period_ms or not 1 <= nav_rate <= 127 or time_ref not in _TIME_REF_OFFSET_S:
+            return False
+        cfg = self._cfg
+        cfg.meas_ms, cfg.nav_rate, cfg.time_ref = meas_ms, nav_rate, time_ref
+        self._next_epoch_ns = self._epoch_after(now)
+        return True
+
+    def _cfg_prt(self, payload: bytes, now: int) -> None:
+        port = self._cfg.port
+        if len(payload) in (0, 1):
+            port_id = payload[0] if payload else 1
+            if port_id != 1:
+                self._ack(now, 0x06, 0x00, port_id in (0, 2, 3, 4))
+                return
+            reply = UBXMessage(
+                "CFG", "CFG-PRT", GET, portID=1, charLen=3, parity=4, nStopBits=0, baudRate=port.baud,
+                inUBX=int(port.in_ubx), inNMEA=int(port.in_nmea), outUBX=int(port.out_ubx),
+                outNMEA=int(port.out_nmea),
+            )
+            self._ack(now, 0x06, 0x00, True, reply)
+            return
+        if len(payload) != 20:
+            self._ack(now, 0x06, 0x00, False)
+            return
+        msg = UBXReader.parse(_frame(0x06, 0x00, payload), msgmode=SET)
+        if msg.portID != 1:  # other ports exist but nothing of them is modelled
+            self._ack(now, 0x06, 0x00, msg.portID in (0, 2, 3, 4))
+            return
+        # Only 8N1 (charLen 3 = 8 bit, parity 10x = none, one stop bit) at a rate the UART offers.
+        if msg.charLen != 3 or msg.parity not in (4, 5) or msg.nStopBits != 0 \
+                or msg.baudRate not in STANDARD_BAUDS:
+            self._ack(now, 0x06, 0x00, False)
+            return
+        new = _PortConfig(msg.baudRate, bool(msg.inUBX), bool(msg.inNMEA), bool(msg.outUBX), bool(msg.outNMEA))
+
+        def switch() -> None:  # after the ACK has left at the old rate
+            self._cfg.port = new
+
+        self._ack(now, 0x06, 0x00, True, after=switch)
+
+    def _cfg_valset(self, frame: bytes, now: int) -> None:
+        try:
+            msg = UBXReader.parse(frame, msgmode=SET)
+        except Exception:  # a malformed key list: the receiver rejects the whole message
+            self._ack(now, 0x06, 0x8A, False)
+            return
+        if msg.version != 0:  # transactions are not modelled
+            self._ack(now, 0x06, 0x8A, False)
+            return
+        items = {k: v for k, v in vars(msg).items() if k.startswith("CFG_")}
+        cfg = self._cfg.copy()
+        rate = [cfg.meas_ms, cfg.nav_rate, cfg.time_ref]
+        for key, value in items.items():
+            if key in _MSGOUT_KEYS:
+                cfg.rates[MESSAGE_IDS[_MSGOUT_KEYS[key]]] = int(value)
+            elif key.startswith("CFG_MSGOUT_") and not key.startswith("CFG_0x"):
+                continue  # a message the model does not produce, or another port
+            elif key == "CFG_RATE_MEAS":
+                rate[0] = int(value)
+            elif key == "CFG_RATE_NAV":
+                rate[1] = int(value)
+            elif key == "CFG_RATE_TIMEREF":
+                rate[2] = int(value)
+            elif key == "CFG_UART1_BAUDRATE":
+                if int(value) not in STANDARD_BAUDS:
+                    self._ack(now, 0x06, 0x8A, False)
+                    return
+                cfg.port.baud = int(value)
+            elif key in ("CFG_UART1INPROT_UBX", "CFG_UART1INPROT_NMEA", "CFG_UART1OUTPROT_UBX",
+                         "CFG_UART1OUTPROT_NMEA"):
+                name = {"CFG_UART1INPROT_UBX": "in_ubx", "CFG_UART1INPROT_NMEA": "in_nmea",
+                        "CFG_UART1OUTPROT_UBX": "out_ubx", "CFG_UART1OUTPROT_NMEA": "out_nmea"}[key]
+                setattr(cfg.port, name, bool(value))
+            else:  # an unknown or unmodelled key: the receiver rejects the whole message
+                self._ack(now, 0x06, 0x8A, False)
+                return
+        if not msg.ram:  # BBR or flash only: stored for the next start, nothing changes now
+            self._ack(now, 0x06, 0x8A, True)
+            return
+        saved = self._cfg
+        self._cfg = cfg
+        if not self._apply_rate(rate[0], rate[1], rate[2], now):
+            self._cfg = saved
+            self._ack(now, 0x06, 0x8A, False)
+            return
+        # Configuration keys take effect at once, the baud rate included: the ACK leaves at the new rate.
+        self._ack(now, 0x06, 0x8A, True)
+
+
+def _checksum(body: bytes) -> bytes:
+    ck_a = ck_b = 0
+    for b in body:
+        ck_a = (ck_a + b) & 0xFF
+        ck_b = (ck_b + ck_a) & 0xFF
+    return bytes((ck_a, ck_b))
+
+
+def _frame(cls: int, mid: int, payload: bytes) -> bytes:
+    body = bytes((cls, mid)) + len(payload).to_bytes(2, "little") + payload
+    return _UBX_HDR + body + _checksum(body)
+
+
+def _acc(value: float, scale: float) -> int:
+    """An accuracy field (U4), saturated as u-blox does when there is no estimate."""
+    if not math.isfinite(value):
+        return _U4_MAX
+    return min(_U4_MAX, max(0, round(value * scale)))
+
+
+def _unix_to_calendar(unix_ns: int) -> tuple[int, int, int, int, int, int]:
+    t = dt.datetime(1970, 1, 1) + dt.timedelta(seconds=unix_ns // NS_PER_S)
+    return t.year, t.month, t.day, t.hour, t.minute, t.second

@@ -1,0 +1,319 @@
+"""Receiver setup at start: the messages, the navigation rate and the baud rate the logger relies on.
+
+A receiver may come from the factory (NMEA only, 9600 baud) or with a configuration saved by someone
+else, so the logger states what it needs instead of trusting the flash: NAV-PVT for the solution, TIM-TP
+for the time of the next PPS edge, NAV-TIMEGPS for GPS week and leap seconds, one epoch per second on
+GPS time. Every command must be confirmed by ACK-ACK for the same class and id, else the log would
+silently lack what the time synchronisation needs.
+
+u-blox has two configuration interfaces. Receivers up to M8 know only the legacy messages (UBX-CFG-MSG,
+-RATE, -PRT); F9 knows both; M10 only the configuration keys (UBX-CFG-VALSET). The legacy message is tried
+first and, once NAKed, the keys are used for the rest of the setup.
+
+The baud rate changes last, on its own. A legacy CFG-PRT is acknowledged at the old rate, then the receiver
+switches; a VALSET takes effect at once, so its ACK (if the host is quick enough to catch it) comes at the
+new rate. Either way the host follows and confirms with a MON-VER poll at the new rate, and if that stays
+silent goes back to the old rate, so a lost ACK never leaves the two ends talking past each other.
+
+Waiting goes through an injected ``sleep`` and timeouts count the time slept, so a test hands in a
+simulated clock and never waits, and a slow host does not shorten a timeout.
+"""
+
+from __future__ import annotations
+
+import termios
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import serial
+from pyubx2 import POLL, SET, SET_LAYER_RAM, TXN_NONE, UBX_CONFIG_DATABASE, UBX_MSGIDS, UBXMessage
+
+from sensors.errors import BusError, NoData, ProtocolError
+from sensors.ublox_frames import KIND_UBX, UbxNmeaFramer
+
+__all__ = ["ReceiverSetup", "SetupResult", "configure_receiver", "message_id"]
+
+# Message names as pyubx2 spells them ("NAV-PVT", "TIM-TP"; NMEA sentences by their id, "GGA").
+_ID_BY_NAME: dict[str, bytes] = {}
+for _key, _name in UBX_MSGIDS.items():
+    _ID_BY_NAME.setdefault(_name, _key)
+
+_TIME_REF = {"utc": 0, "gps": 1, "glonass": 2, "beidou": 3, "galileo": 4}
+_UART_PORT_ID = {"UART1": 1, "UART2": 2}
+_BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+
+
+def message_id(name: str) -> tuple[int, int]:
+    """UBX class and id of an output message, by its pyubx2 name (NMEA sentences are class 0xF0)."""
+    try:
+        key = _ID_BY_NAME[name]
+    except KeyError:
+        raise ValueError(f"unknown u-blox message {name!r}") from None
+    return key[0], key[1]
+
+
+def _msgout_key(name: str, uart: str) -> str:
+    nmea = message_id(name)[0] == 0xF0
+    key = f"CFG_MSGOUT_NMEA_ID_{name}_{uart}" if nmea else f"CFG_MSGOUT_UBX_{name.replace('-', '_')}_{uart}"
+    if key not in UBX_CONFIG_DATABASE:
+        raise ValueError(f"u-blox has no configuration key for {name} on {uart} ({key})")
+    return key
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiverSetup:
+    """What the logger asks of the receiver.
+
+    ``uart`` is the receiver port wired to the host (configuration keys name it; the legacy CFG-MSG
+    short form acts on whichever port the command arrives at). ``baud`` None keeps the current rate.
+    """
+
+    meas_period_ms: int = 1000
+    nav_rate: int = 1
+    time_ref: str = "gps"
+    enable: tuple[str, ...] = ("NAV-PVT", "TIM-TP", "NAV-TIMEGPS")
+    disable: tuple[str, ...] = ()
+    baud: int | None = None
+    uart: str = "UART1"
+    nmea_output: bool = True
+
+    def __post_init__(self) -> None:
+        if self.time_ref not in _TIME_REF:
+            raise ValueError(f"time_ref must be one of {sorted(_TIME_REF)}, not {self.time_ref!r}")
+        if self.uart not in _UART_PORT_ID:
+            raise ValueError(f"uart must be one of {sorted(_UART_PORT_ID)}, not {self.uart!r}")
+        if self.baud is not None and self.baud not in _BAUDS:
+            raise ValueError(f"baud must be one of {_BAUDS}, not {self.baud}")
+        if not 25 <= self.meas_period_ms <= 65535 or not 1 <= self.nav_rate <= 127:
+            raise ValueError("meas_period_ms must be 25..65535 and nav_rate 1..127")
+        for name in (*self.enable, *self.disable):
+            _msgout_key(name, self.uart)  # fails early on a name the receiver cannot have
+
+
+@dataclass(frozen=True, slots=True)
+class SetupResult:
+    """What the receiver confirmed, for the log's header."""
+
+    software: str
+    hardware: str
+    extensions: tuple[str, ...]
+    interface: str  # "legacy" (UBX-CFG-MSG/RATE/PRT) or "keys" (UBX-CFG-VALSET)
+    baud: int
+    acknowledged: tuple[str, ...] = field(default=())
+
+
+class _Session:
+    """One setup conversation: commands out, ACKs and poll answers in, through the reader's framer."""
+
+    def __init__(self, port: serial.SerialBase, path: str, sleep: Callable[[float], None], timeout_s: float,
+                 tries: int, poll_s: float) -> None:
+        self.port = port
+        self.path = path
+        self.sleep = sleep
+        self.timeout_s = timeout_s
+        self.tries = tries
+        self.poll_s = poll_s
+        self.framer = UbxNmeaFramer()
+        self.interface = "legacy"
+        self.acknowledged: list[str] = []
+
+    # -- bytes
+
+    def _io(self, action: Callable[[], object], what: str) -> object:
+        try:
+            return action()
+        except (serial.SerialException, OSError, ValueError, termios.error) as err:
+            detail = " ".join(str(err).split()) or type(err).__name__
+            raise BusError(f"GNSS receiver on {self.path}: serial port failed while {what}: {detail}") from err
+
+    def write(self, msg: UBXMessage) -> None:
+        raw = msg.serialize()
+        self._io(lambda: (self.port.write(raw), self.port.flush()), f"sending {_name(msg)}")
+
+    def _frames(self) -> list:
+        def take() -> bytes:
+            waiting = self.port.in_waiting
+            return self.port.read(waiting) if waiting else b""
+
+        data = self._io(take, "reading")
+        return [f for f in self.framer.feed(data) if f.kind == KIND_UBX and f.message is not None]  # type: ignore[arg-type]
+
+    def set_host_baud(self, baud: int) -> None:
+        self._io(lambda: setattr(self.port, "baudrate", baud), f"switching to {baud} baud")
+        self.discard_input()
+
+    def discard_input(self) -> None:
+        self._io(self.port.reset_input_buffer, "clearing input")
+        self.framer = UbxNmeaFramer()  # half a frame is garbage now
+
+    # -- waiting
+
+    def wait_for(self, match: Callable[[UBXMessage], object], timeout_s: float | None = None) -> object:
+        """The first non-None ``match`` of an arriving UBX message, or None when the time is up."""
+        limit = self.timeout_s if timeout_s is None else timeout_s
+        waited = 0.0
+        while True:
+            for frame in self._frames():
+                hit = match(frame.message)
+                if hit is not None:
+                    return hit
+            if waited >= limit:
+                return None
+            self.sleep(self.poll_s)
+            waited += self.poll_s
+
+    def command(self, msg: UBXMessage, what: str) -> bool:
+        """Send a configuration message until ACKed (True) or NAKed (False); silence raises NoData."""
+        cls, mid = msg.msg_cls[0], msg.msg_id[0]
+        for _ in range(self.tries):
+            self.write(msg)
+            answer = self.wait_for(lambda reply: _ack_of(reply, cls, mid))
+            if answer is not None:
+                if answer:
+                    self.acknowledged.append(what)
+                return bool(answer)
+        raise NoData(
+            f"GNSS receiver on {self.path} did not acknowledge {what} within {self.timeout_s:g} s "
+            f"({self.tries} tries): wrong baud rate, or UBX input disabled on the receiver"
+        )
+
+    def poll(self, msg: UBXMessage, identity: str, tries: int | None = None) -> UBXMessage | None:
+        for _ in range(self.tries if tries is None else tries):
+            self.write(msg)
+            reply = self.wait_for(lambda m: m if m.identity == identity else None)
+            if reply is not None:
+                return reply  # type: ignore[return-value]
+        return None
+
+    # -- configuration steps
+
+    def configure(self, legacy: UBXMessage | None, keys: list[tuple[str, int]], what: str) -> None:
+        """One setting, by the legacy message while the receiver takes it, else by configuration keys."""
+        if self.interface == "legacy" and legacy is not None:
+            if self.command(legacy, f"UBX-{legacy.identity} ({what})"):
+                return
+            self.interface = "keys"
+            refused = f"UBX-{legacy.identity} and "
+        else:
+            refused = ""
+        valset = UBXMessage.config_set(SET_LAYER_RAM, TXN_NONE, keys)
+        names = ", ".join(k.replace("_", "-") for k, _ in keys)
+        if not self.command(valset, f"UBX-CFG-VALSET {names}"):
+            raise ProtocolError(
+                f"GNSS receiver on {self.path} rejected {what} (ACK-NAK to {refused}UBX-CFG-VALSET {names})"
+            )
+
+
+def _name(msg: UBXMessage) -> str:
+    return f"UBX-{msg.identity}"
+
+
+def _port_of(link: object) -> tuple[serial.SerialBase, str]:
+    """The pyserial port behind ``link``: a port itself, or a GnssReceiver (which keeps it as ``_port``)."""
+    if isinstance(link, serial.SerialBase):
+        return link, str(link.port)
+    port = getattr(link, "_port", None)
+    if isinstance(port, serial.SerialBase):
+        return port, str(getattr(link, "path", None) or port.port)
+    raise TypeError(f"expected a pyserial port or a GnssReceiver, not {type(link).__name__}")
+
+
+def _text(value: object) -> str:
+    raw = value if isinstance(value, bytes | bytearray) else str(value).encode()
+    return bytes(raw).split(b"\0", 1)[0].decode("ascii", "replace").strip()
+
+
+def configure_receiver(
+    link: object,
+    setup: ReceiverSetup | None = None,
+    *,
+    sleep: Callable[[float], None] = time.sleep,
+    reply_timeout_s: float = 1.0,
+    tries: int = 2,
+    poll_s: float = 0.02,
+) -> SetupResult:
+    """Configure the receiver on ``link`` (a pyserial port or a GnssReceiver) and confirm every step.
+
+    Raises NoData when the receiver does not answer (wrong baud rate, not a u-blox), ProtocolError when it
+    refuses a setting by both interfaces, BusError when the port fails.
+    """
+    setup = setup or ReceiverSetup()
+    port, path = _port_of(link)
+    s = _Session(port, path, sleep, reply_timeout_s, tries, poll_s)
+    s.discard_input()  # an ACK left from before must not count
+
+    version = s.poll(UBXMessage("MON", "MON-VER", POLL), "MON-VER")
+    if version is None:
+        raise NoData(
+            f"GNSS receiver on {path} did not answer UBX-MON-VER within {reply_timeout_s:g} s ({tries} tries) "
+            f"at {port.baudrate} baud: wrong baud rate, not a u-blox receiver, or UBX input disabled"
+        )
+    extensions = tuple(_text(v) for k, v in sorted(vars(version).items()) if k.startswith("extension"))
+
+    time_ref = _TIME_REF[setup.time_ref]
+    s.configure(
+        UBXMessage("CFG", "CFG-RATE", SET, measRate=setup.meas_period_ms, navRate=setup.nav_rate,
+                   timeRef=time_ref),
+        [("CFG_RATE_MEAS", setup.meas_period_ms), ("CFG_RATE_NAV", setup.nav_rate),
+         ("CFG_RATE_TIMEREF", time_ref)],
+        f"navigation rate {setup.meas_period_ms} ms x {setup.nav_rate} on {setup.time_ref.upper()} time",
+    )
+    for rate, names in ((1, setup.enable), (0, setup.disable)):
+        for name in names:
+            cls, mid = message_id(name)
+            # The three-byte form sets the rate on the port the command arrives at, whichever that is.
+            # pyubx2 defines only the eight-byte (all ports) layout, hence the explicit payload.
+            legacy = UBXMessage("CFG", "CFG-MSG", SET, payload=bytes((cls, mid, rate)))
+            s.configure(legacy, [(_msgout_key(name, setup.uart), rate)],
+                        f"{name} {'on' if rate else 'off'}")
+
+    if setup.baud is not None and setup.baud != port.baudrate:
+        _change_baud(s, setup)
+    return SetupResult(_text(version.swVersion), _text(version.hwVersion), extensions, s.interface,
+                       int(port.baudrate), tuple(s.acknowledged))
+
+
+def _change_baud(s: _Session, setup: ReceiverSetup) -> None:
+    old, new = int(s.port.baudrate), int(setup.baud or 0)
+    mon_ver = UBXMessage("MON", "MON-VER", POLL)
+    attempts = 0
+    while attempts < s.tries:
+        attempts += 1
+        if s.interface == "legacy":
+            what = f"UBX-CFG-PRT ({setup.uart} at {new} baud)"
+            s.write(UBXMessage(
+                "CFG", "CFG-PRT", SET, portID=_UART_PORT_ID[setup.uart], charLen=3, parity=4, nStopBits=0,
+                baudRate=new, inUBX=1, inNMEA=1, outUBX=1, outNMEA=int(setup.nmea_output),
+            ))
+            # The ACK comes at the old rate; without it the receiver may still have switched.
+            if s.wait_for(lambda m: _ack_of(m, 0x06, 0x00)) is False:
+                s.interface = "keys"  # refused: the configuration keys may still do it
+                attempts -= 1
+                continue
+        else:
+            what = f"UBX-CFG-VALSET CFG-{setup.uart}-BAUDRATE={new}"
+            valset = UBXMessage.config_set(SET_LAYER_RAM, TXN_NONE, [(f"CFG_{setup.uart}_BAUDRATE", new)])
+            s.write(valset)
+            # The change takes effect at once, so the ACK leaves at the new rate and is usually lost in
+            # the switch; a refusal leaves at the old rate, so listen at the old rate for a NAK first.
+            s.sleep(len(valset.serialize()) * 10 / old)
+            if s.wait_for(lambda m: _ack_of(m, 0x06, 0x8A), timeout_s=s.poll_s * 3) is False:
+                raise ProtocolError(f"GNSS receiver on {s.path} rejected {what} (ACK-NAK)")
+        s.set_host_baud(new)
+        s.sleep(s.poll_s)  # what was sent around the switch is garbage: let it pass, then drop it
+        s.discard_input()
+        if s.poll(mon_ver, "MON-VER", tries=1) is not None:
+            s.acknowledged.append(what)
+            return
+        s.set_host_baud(old)  # it did not follow: talk at the old rate again and retry
+    raise NoData(
+        f"GNSS receiver on {s.path} did not answer at {new} baud after {s.tries} tries to switch it; "
+        f"it still runs at {old} baud or has stopped answering"
+    )
+
+
+def _ack_of(msg: UBXMessage, cls: int, mid: int) -> bool | None:
+    if msg.identity in ("ACK-ACK", "ACK-NAK") and (msg.clsID, msg.msgID) == (cls, mid):
+        return msg.identity == "ACK-ACK"
+    return None

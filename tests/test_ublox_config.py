@@ -1,0 +1,239 @@
+"""Receiver setup against the receiver model over a real pty with pyserial.
+
+The setup's ``sleep`` advances the ManualClock and waits for the model to catch up, so every timeout is
+drive time and a test never waits for real.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import serial
+
+from sensors.errors import BusError, NoData, ProtocolError
+from sensors.sim import earth
+from sensors.sim.clock import ManualClock
+from sensors.sim.pty import PtyPort
+from sensors.sim.truth import StraightTrajectory
+from sensors.sim.ublox import FACTORY_MESSAGES, UbloxReceiverModel
+from sensors.ublox import GnssFix, GnssReceiver, GnssTime, TimePulse
+from sensors.ublox_config import ReceiverSetup, SetupResult, configure_receiver, message_id
+from sensors.ublox_frames import UbxNmeaFramer
+
+
+class Bench:
+    """A receiver model on a pty and the host's pyserial port, both on one ManualClock."""
+
+    def __init__(self) -> None:
+        self.clock = ManualClock()
+        self.port = PtyPort()
+        self.model: UbloxReceiverModel | None = None
+        self.serials: list[serial.Serial] = []
+
+    def receiver(self, **kw: object) -> UbloxReceiverModel:
+        kw.setdefault("time_to_first_fix_s", 0.0)
+        kw.setdefault("messages", FACTORY_MESSAGES)
+        self.model = UbloxReceiverModel(self.port, self.clock, StraightTrajectory(), **kw).start()  # type: ignore[arg-type]
+        return self.model
+
+    def host(self, baud: int) -> serial.Serial:
+        ser = serial.Serial(self.port.path, baud, timeout=0)
+        self.serials.append(ser)
+        return ser
+
+    def sleep(self, seconds: float) -> None:
+        self.clock.advance(seconds)
+        if self.model is not None:
+            self.model.sync()
+
+    def listen(self, ser: serial.Serial, seconds: float) -> UbxNmeaFramer:
+        """Frames arriving over ``seconds`` of drive time, through the reader's framer."""
+        framer = UbxNmeaFramer()
+        framer.frames = []  # type: ignore[attr-defined]
+        for _ in range(round(seconds / 0.1)):
+            self.sleep(0.1)
+            framer.frames += framer.feed(ser.read(ser.in_waiting or 0))  # type: ignore[attr-defined]
+        ser.timeout = 0.05
+        framer.frames += framer.feed(ser.read(8192))  # type: ignore[attr-defined]
+        ser.timeout = 0
+        return framer
+
+    def close(self) -> None:
+        if self.model is not None:
+            self.model.stop()
+            assert self.model.error is None
+        for s in self.serials:
+            s.close()
+        self.port.close()
+
+
+@pytest.fixture
+def bench():
+    b = Bench()
+    yield b
+    b.close()
+
+
+def identities(framer: UbxNmeaFramer) -> list[str]:
+    out = []
+    for f in framer.frames:  # type: ignore[attr-defined]
+        msg = f.message
+        out.append(msg.identity if f.kind == "UBX" else msg.msgID)
+    return out
+
+
+def test_message_names_map_to_class_and_id() -> None:
+    assert message_id("NAV-PVT") == (0x01, 0x07)
+    assert message_id("TIM-TP") == (0x0D, 0x01)
+    assert message_id("GGA") == (0xF0, 0x00)
+    with pytest.raises(ValueError, match="unknown u-blox message"):
+        message_id("NAV-XYZ")
+    with pytest.raises(ValueError, match="baud"):
+        ReceiverSetup(baud=12345)
+
+
+def test_factory_m8_is_configured_by_legacy_messages_each_acknowledged(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=1)
+    ser = bench.host(9600)
+    result = configure_receiver(ser, ReceiverSetup(disable=("GGA",)), sleep=bench.sleep)
+    assert isinstance(result, SetupResult)
+    assert result.interface == "legacy" and result.baud == 9600
+    assert result.software == "ROM CORE 3.01 (107888)" and "PROTVER=18.00" in result.extensions
+    assert result.acknowledged == (
+        "UBX-CFG-RATE (navigation rate 1000 ms x 1 on GPS time)",
+        "UBX-CFG-MSG (NAV-PVT on)",
+        "UBX-CFG-MSG (TIM-TP on)",
+        "UBX-CFG-MSG (NAV-TIMEGPS on)",
+        "UBX-CFG-MSG (GGA off)",
+    )
+    assert (model.counters.acks, model.counters.naks) == (5, 0)
+    assert [model.rate(m) for m in ("NAV-PVT", "TIM-TP", "NAV-TIMEGPS", "GGA", "RMC")] == [1, 1, 1, 0, 1]
+    seen = identities(bench.listen(ser, 3.0))
+    assert seen.count("NAV-PVT") == seen.count("NAV-TIMEGPS") == seen.count("RMC") == 3
+    assert seen.count("TIM-TP") == 3 and "GGA" not in seen
+
+
+def test_m10_naks_the_legacy_message_and_is_configured_by_keys(bench: Bench) -> None:
+    model = bench.receiver(generation=10, seed=2)
+    ser = bench.host(38400)
+    result = configure_receiver(ser, sleep=bench.sleep)
+    assert result.interface == "keys"
+    assert model.counters.naks == 1  # only the first legacy message: the keys are used from then on
+    assert result.acknowledged[0] == "UBX-CFG-VALSET CFG-RATE-MEAS, CFG-RATE-NAV, CFG-RATE-TIMEREF"
+    assert [model.rate(m) for m in ("NAV-PVT", "TIM-TP", "NAV-TIMEGPS")] == [1, 1, 1]
+    assert "NAV-PVT" in identities(bench.listen(ser, 2.0))
+
+
+def test_f9_still_takes_the_legacy_messages(bench: Bench) -> None:
+    model = bench.receiver(generation=9, seed=3)
+    result = configure_receiver(bench.host(38400), sleep=bench.sleep)
+    assert result.interface == "legacy" and model.counters.naks == 0
+    assert "MOD=ZED-F9P" in result.extensions
+
+
+def test_a_setting_refused_by_both_interfaces_names_itself(bench: Bench) -> None:
+    # A NEO-M8N running two constellations manages 10 Hz; 20 Hz is refused, and an M8 has no VALSET.
+    model = bench.receiver(generation=8, seed=4, min_meas_period_ms=100)
+    with pytest.raises(ProtocolError) as err:
+        configure_receiver(bench.host(9600), ReceiverSetup(meas_period_ms=50), sleep=bench.sleep)
+    text = str(err.value)
+    assert "\n" not in text
+    assert "rejected navigation rate 50 ms" in text and "ACK-NAK" in text and "UBX-CFG-RATE" in text
+    assert model.counters.naks == 2 and model.meas_period_ms == 1000
+
+
+def test_silence_is_a_timeout_in_drive_time(bench: Bench) -> None:
+    ser = bench.host(9600)  # nothing plays the receiver
+    with pytest.raises(NoData) as err:
+        configure_receiver(ser, sleep=bench.sleep, reply_timeout_s=0.5, tries=3)
+    assert "did not answer UBX-MON-VER within 0.5 s (3 tries)" in str(err.value)
+    assert "wrong baud rate" in str(err.value)
+    assert bench.clock.now_ns() == pytest.approx(3 * 0.5e9, rel=0.1)
+
+
+def test_a_receiver_at_another_baud_rate_is_silence_too(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=5, baud=38400)
+    with pytest.raises(NoData, match="at 9600 baud"):
+        configure_receiver(bench.host(9600), sleep=bench.sleep, reply_timeout_s=0.3)
+    assert model.counters.input_frames == 0  # it never understood a byte of it
+
+
+def test_a_corrupted_reply_is_retried_and_too_many_are_an_error(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=6, messages=())  # nothing periodic: only replies are sent
+    model.corrupt_checksums(1)  # the first MON-VER answer is damaged on the line
+    quiet = ReceiverSetup(enable=())  # still nothing periodic afterwards
+    result = configure_receiver(bench.host(9600), quiet, sleep=bench.sleep, reply_timeout_s=0.3)
+    assert result.software.startswith("ROM CORE")
+    assert model.counters.sent["MON-VER"] == 2 and model.counters.acks == 1
+
+    model.corrupt_checksums(3)  # every answer to three tries
+    with pytest.raises(NoData, match=r"UBX-MON-VER within 0.3 s \(3 tries\)"):
+        configure_receiver(bench.serials[0], sleep=bench.sleep, reply_timeout_s=0.3, tries=3)
+    assert model.counters.corrupted == 4
+
+
+@pytest.mark.parametrize("generation, start_baud, interface", [(8, 9600, "legacy"), (10, 38400, "keys")])
+def test_baud_change_is_followed_by_the_host(bench: Bench, generation: int, start_baud: int,
+                                             interface: str) -> None:
+    model = bench.receiver(generation=generation, seed=7)
+    ser = bench.host(start_baud)
+    result = configure_receiver(ser, ReceiverSetup(baud=115200), sleep=bench.sleep)
+    assert result.interface == interface
+    assert result.baud == ser.baudrate == model.baud == 115200
+    assert result.acknowledged[-1].endswith("115200") or "115200 baud" in result.acknowledged[-1]
+    framer = bench.listen(ser, 2.0)
+    assert identities(framer).count("NAV-PVT") == 2 and framer.bad_checksum == 0
+
+
+def test_a_host_that_does_not_follow_the_baud_change_hears_garbage(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=8)
+    ser = bench.host(9600)
+    configure_receiver(ser, ReceiverSetup(baud=57600), sleep=bench.sleep)
+    ser.baudrate = 9600  # as if the host had not switched
+    framer = bench.listen(ser, 2.0)
+    assert model.baud == 57600 and framer.frames_ok == 0 and framer.garbage_bytes > 0
+
+
+def test_an_unplugged_port_is_a_bus_error(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=9)
+    ser = bench.host(9600)
+    model.vanish()
+    with pytest.raises(BusError, match="serial port failed"):
+        configure_receiver(ser, sleep=bench.sleep)
+
+
+def test_end_to_end_through_the_gnss_receiver_driver(bench: Bench) -> None:
+    model = bench.receiver(generation=8, seed=10)
+    receiver = GnssReceiver.open(bench.port.path, 9600)
+    bench.serials.append(receiver._port)
+    result = configure_receiver(receiver, ReceiverSetup(baud=115200, disable=("GGA", "RMC")),
+                                sleep=bench.sleep)
+    assert result.baud == 115200
+    items = []
+    for _ in range(40):
+        bench.sleep(0.1)
+        items += receiver.read(0.0).items
+    bench.sleep(0.0)
+    items += receiver.read(0.05).items
+    fixes = [i for i in items if isinstance(i, GnssFix)]
+    pulses = [i for i in items if isinstance(i, TimePulse)]
+    times = [i for i in items if isinstance(i, GnssTime)]
+    assert len(fixes) >= 3 and len(pulses) >= 3 and len(times) >= 3
+    for fix in fixes:
+        assert fix.source and fix.fix_ok and fix.fix_mode == 3 and fix.time_valid
+        rec = model.solution_for_itow(fix.itow_ms)
+        assert rec is not None
+        assert fix.lat_deg == pytest.approx(rec.lat_deg, abs=1e-7)
+        assert fix.lon_deg == pytest.approx(rec.lon_deg, abs=1e-7)
+        rn, re = earth.radii(rec.truth.lat_rad)
+        north = math.radians(fix.lat_deg - math.degrees(rec.truth.lat_rad)) * rn
+        east = math.radians(fix.lon_deg - math.degrees(rec.truth.lon_rad)) * re * math.cos(rec.truth.lat_rad)
+        assert math.hypot(north, east) < 3 * fix.h_acc_m  # the truth is inside the reported accuracy
+        assert fix.time_utc_ns == pytest.approx(model.timeline.utc_unix_ns(rec.gps_ns), abs=1e3)
+    tl = model.timeline
+    for tp in pulses:
+        assert tp.time_base == "utc" and tp.utc_available
+        gps_second = (tp.week * 604_800_000 + tp.tow_ms) // 1000 + tl.leap_s
+        assert tp.qerr_ps == model.pulse_quantisation.qerr_ps(gps_second)
+    assert {t.leap_s for t in times} == {18}

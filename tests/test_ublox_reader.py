@@ -1,0 +1,461 @@
+"""The u-blox reader: framing, decoding into epochs, and the serial driver on a pty."""
+
+from __future__ import annotations
+
+import calendar
+import math
+import os
+import threading
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pynmeagps.nmeahelpers import calc_checksum
+from pyubx2 import GET, UBXMessage
+
+from sensors.errors import BusError, DeviceNotFound
+from sensors.sim.pty import PtyPort
+from sensors.ublox import (
+    GnssDecoder,
+    GnssFix,
+    GnssReceiver,
+    GnssTime,
+    TimePulse,
+    ecef_to_geodetic,
+    ecef_velocity_to_ned,
+    gps_to_unix_ns,
+)
+from sensors.ublox_frames import (
+    KIND_NMEA,
+    KIND_RTCM3,
+    KIND_UBX,
+    UBX_MAX_PAYLOAD,
+    UbxNmeaFramer,
+    crc24q,
+)
+
+NS = 1_000_000_000
+WGS84_A = 6_378_137.0
+WGS84_E2 = (1 / 298.257223563) * (2 - 1 / 298.257223563)
+
+
+def nmea(body: str) -> bytes:
+    """A sentence with its checksum and CR LF, from the text between '$' and '*'."""
+    return f"${body}*{calc_checksum(body)}\r\n".encode()
+
+
+def rtcm3(payload: bytes) -> bytes:
+    head = bytes((0xD3, len(payload) >> 8, len(payload) & 0xFF)) + payload
+    return head + crc24q(head).to_bytes(3, "big")
+
+
+def nav_pvt(itow: int = 345_600_250, **fields: object) -> bytes:
+    values: dict[str, object] = dict(
+        iTOW=itow, year=2024, month=3, day=5, hour=0, min=0, second=0, validDate=1, validTime=1,
+        fullyResolved=1, tAcc=25, nano=250_000_000, fixType=3, gnssFixOk=1, numSV=14,
+        lon=9.1234567, lat=48.7654321, height=312_345, hMSL=264_321, hAcc=1500, vAcc=2300,
+        velN=1234, velE=-567, velD=89, gSpeed=1358, headMot=335.5, sAcc=120, headAcc=2.5, pDOP=1.37,
+    )
+    values.update(fields)
+    return UBXMessage("NAV", "NAV-PVT", GET, **values).serialize()
+
+
+def tim_tp(**fields: object) -> bytes:
+    values: dict[str, object] = dict(
+        towMS=345_601_000, towSubMS=0.25, qErr=-1234, week=2304, timeBase=0, utc=1, raim=2,
+        qErrInvalid=0, timeRefGnss=0, utcStandard=3,
+    )
+    values.update(fields)
+    return UBXMessage("TIM", "TIM-TP", GET, **values).serialize()
+
+
+def nav_eoe(itow: int) -> bytes:
+    return UBXMessage("NAV", "NAV-EOE", GET, iTOW=itow).serialize()
+
+
+def mixed_stream() -> tuple[bytes, list[str]]:
+    parts = [
+        (nav_pvt(), KIND_UBX),
+        (nmea("GPGGA,000000.25,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,"), KIND_NMEA),
+        (rtcm3(bytes(range(40))), KIND_RTCM3),
+        (tim_tp(), KIND_UBX),
+        (nmea("GPTXT,01,01,02,ANTSTATUS=OK"), KIND_NMEA),
+        (nav_eoe(345_600_250), KIND_UBX),
+    ]
+    return b"".join(p for p, _ in parts), [k for _, k in parts]
+
+
+def geodetic_to_ecef(lat: float, lon: float, h: float) -> tuple[float, float, float]:
+    n = WGS84_A / math.sqrt(1 - WGS84_E2 * math.sin(lat) ** 2)
+    return (
+        (n + h) * math.cos(lat) * math.cos(lon),
+        (n + h) * math.cos(lat) * math.sin(lon),
+        (n * (1 - WGS84_E2) + h) * math.sin(lat),
+    )
+
+
+# ---------------------------------------------------------------------------------------------------
+# Framing
+
+
+def test_crc24q_check_value() -> None:
+    assert crc24q(b"123456789") == 0xCDE703  # the catalogued check value of CRC-24/LTE-A (= 24Q)
+
+
+def test_framing_one_byte_at_a_time_gives_the_same_frames() -> None:
+    stream, kinds = mixed_stream()
+    framer = UbxNmeaFramer()
+    frames = [f for byte in stream for f in framer.feed(bytes([byte]))]
+    assert [f.kind for f in frames] == kinds
+    assert b"".join(f.raw for f in frames) == stream
+    assert framer.frames_ok == 6 and framer.garbage_bytes == 0 and framer.bad_checksum == 0
+    assert frames[0].message.identity == "NAV-PVT"
+    assert frames[1].message.msgID == "GGA"
+    assert frames[2].message is None  # RTCM3 is framed, not decoded
+
+
+def test_garbage_between_frames_is_counted_and_skipped() -> None:
+    stream, kinds = mixed_stream()
+    junk = [b"\x00\xff\x13", b"\xb5\x00", b"$$\x01", b"\xd3\xff\xff", b"noise\r\n", b"\xb5"]
+    pieces = [stream[: len(nav_pvt())]]  # start with a whole frame, then junk between the others
+    framer = UbxNmeaFramer()
+    frames = framer.feed(pieces[0])
+    rest = stream[len(pieces[0]) :]
+    for j in junk[:-1]:
+        frames += framer.feed(j)
+    frames += framer.feed(rest) + framer.feed(junk[-1]) + framer.finish()
+    assert [f.kind for f in frames] == kinds
+    assert framer.garbage_bytes == sum(map(len, junk))
+
+
+def test_bad_checksum_is_counted_and_the_next_frame_survives() -> None:
+    bad_ubx = bytearray(nav_pvt())
+    bad_ubx[20] ^= 0x40
+    bad_nmea = bytearray(nmea("GPGGA,000001.00,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,"))
+    bad_nmea[10] = ord("9")
+    bad_rtcm = bytearray(rtcm3(b"\x3e\xd0" + bytes(20)))
+    bad_rtcm[5] ^= 1
+    good = tim_tp()
+    framer = UbxNmeaFramer()
+    frames = framer.feed(bytes(bad_ubx) + bytes(bad_nmea) + bytes(bad_rtcm) + good)
+    assert [f.raw for f in frames] == [good]
+    assert framer.bad_checksum == 3
+    assert framer.garbage_bytes == len(bad_ubx) + len(bad_nmea) + len(bad_rtcm)
+
+
+def test_truncated_frame_waits_then_counts_as_garbage_at_the_end() -> None:
+    pvt = nav_pvt()
+    framer = UbxNmeaFramer()
+    assert framer.feed(pvt[:50]) == []
+    assert framer.pending == 50 and framer.garbage_bytes == 0  # waits for the rest
+    assert [f.raw for f in framer.feed(pvt[50:] + pvt[:30])] == [pvt]
+    assert framer.finish() == []
+    assert framer.garbage_bytes == 30 and framer.pending == 0
+
+
+def test_huge_bogus_length_does_not_stall_the_stream() -> None:
+    good = tim_tp()
+    framer = UbxNmeaFramer()
+    header = b"\xb5\x62\x01\x07" + (UBX_MAX_PAYLOAD + 1).to_bytes(2, "little")
+    assert [f.raw for f in framer.feed(header + good)] == [good]  # no waiting for 8 KiB
+    assert framer.garbage_bytes == len(header)
+
+
+def test_plausible_bogus_length_waits_at_most_its_bound() -> None:
+    good = tim_tp()
+    framer = UbxNmeaFramer()
+    header = b"\xb5\x62\x01\x07" + (4000).to_bytes(2, "little")  # believable, but a lie
+    assert framer.feed(header + good * 3) == []
+    # once the promised length is there the checksum fails and the frames inside are found
+    frames = framer.feed(bytes(4000))
+    assert [f.raw for f in frames] == [good] * 3
+    assert framer.bad_checksum == 1 and framer.pending == 0
+
+
+def test_overlong_nmea_line_is_dropped_without_waiting_for_a_line_feed() -> None:
+    good = nmea("GPTXT,01,01,02,OK")
+    framer = UbxNmeaFramer()
+    frames = framer.feed(b"$GP" + b"A" * 300 + good)
+    assert [f.raw for f in frames] == [good]
+    assert framer.garbage_bytes == 303
+
+
+def test_sentence_cut_by_a_binary_frame_resyncs_on_the_frame() -> None:
+    pvt = nav_pvt()
+    framer = UbxNmeaFramer()
+    frames = framer.feed(b"$GPGGA,0000" + pvt)
+    assert [f.raw for f in frames] == [pvt]
+
+
+def test_runt_message_with_a_good_checksum_is_rejected_not_zero_filled() -> None:
+    body = b"\x01\x07\x03\x00\x01\x02\x03"  # NAV-PVT with a 3-byte payload
+    a = b = 0
+    for c in body:
+        a = (a + c) & 0xFF
+        b = (b + a) & 0xFF
+    runt = b"\xb5\x62" + body + bytes((a, b))
+    framer = UbxNmeaFramer()
+    decoder = GnssDecoder()
+    frames = framer.feed(runt + nav_pvt() + nav_eoe(345_600_250))
+    assert framer.frames_ok == 3 and framer.bad_checksum == 0
+    items = decoder.push_all(frames)
+    assert decoder.rejected == 1
+    assert [(i.source, i.lat_deg) for i in items] == [("NAV-PVT", pytest.approx(48.7654321))]
+
+
+def test_frame_the_library_cannot_decode_is_counted_and_still_framed() -> None:
+    body = b"\x02\x15\x10\x00" + bytes(11) + b"\x05" + bytes(4)  # RXM-RAWX claiming 5 measurements, none sent
+    a = b = 0
+    for c in body:
+        a = (a + c) & 0xFF
+        b = (b + a) & 0xFF
+    raw = b"\xb5\x62" + body + bytes((a, b))
+    framer = UbxNmeaFramer()
+    frames = framer.feed(raw + tim_tp())
+    assert [(f.raw, f.message is None) for f in frames] == [(raw, True), (tim_tp(), False)]
+    assert framer.undecoded == 1 and framer.bad_checksum == 0
+
+
+def test_sentence_with_a_garbled_time_is_rejected() -> None:
+    decoder = GnssDecoder()
+    framer = UbxNmeaFramer()
+    good = nmea("GPGGA,120000.00,4404.1306,N,12118.8446,W,1,12,0.49,1129.9,M,-21.3,M,,")
+    bad = nmea("GPGGA,12:00:01,4404.0000,N,12118.0000,W,1,12,0.49,9999.9,M,-21.3,M,,")
+    decoder.push_all(framer.feed(good + bad))
+    (fix,) = decoder.flush()
+    assert fix.height_msl_m == 1129.9 and decoder.rejected == 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.binary(max_size=300), max_size=30), st.booleans())
+def test_arbitrary_bytes_never_raise_and_every_byte_is_accounted_for(chunks: list[bytes], salt: bool) -> None:
+    if salt:  # make sync bytes and real frames likely, so the framer's deeper paths run
+        chunks = [c + tim_tp()[: len(c) % 30] + b"\xb5\x62$\xd3" for c in chunks] + [nav_pvt()]
+    framer = UbxNmeaFramer()
+    decoder = GnssDecoder()
+    frames = []
+    for chunk in chunks:
+        got = framer.feed(chunk)
+        frames += got
+        for frame in got:
+            decoder.push(frame)
+    frames += framer.finish()
+    decoder.flush()
+    total = sum(map(len, chunks))
+    assert sum(len(f.raw) for f in frames) + framer.garbage_bytes == total
+    assert framer.pending == 0 and framer.frames_ok == len(frames)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Decoding
+
+
+def decode(stream: bytes) -> list[object]:
+    framer = UbxNmeaFramer()
+    decoder = GnssDecoder()
+    return decoder.push_all(framer.feed(stream) + framer.finish()) + decoder.flush()
+
+
+def test_tim_tp_decoded_field_by_field() -> None:
+    (tp,) = decode(tim_tp())
+    assert tp == TimePulse(
+        tow_ms=345_601_000, tow_sub_ms=0.25, week=2304, qerr_ps=-1234, qerr_valid=True,
+        time_base="gnss", utc_available=True, gnss="gps",
+    )
+    assert tp.tow_ns == 345_601_000 * 1_000_000 + 250_000
+    (utc,) = decode(tim_tp(timeBase=1, qErrInvalid=1, towSubMS=0.0))
+    assert utc.time_base == "utc" and utc.gnss is None and not utc.qerr_valid
+
+
+def test_nav_pvt_decoded_field_by_field() -> None:
+    items = decode(nav_pvt() + nav_eoe(345_600_250))
+    (fix,) = items
+    assert isinstance(fix, GnssFix)
+    assert fix.source == "NAV-PVT" and fix.itow_ms == 345_600_250
+    assert fix.time_utc_ns == calendar.timegm((2024, 3, 5, 0, 0, 0)) * NS + 250_000_000
+    assert fix.time_valid and fix.fix_mode == 3 and fix.fix_ok
+    assert fix.lat_deg == pytest.approx(48.7654321, abs=1e-12)
+    assert fix.lon_deg == pytest.approx(9.1234567, abs=1e-12)
+    assert fix.height_hae_m == 312.345 and fix.height_msl_m == 264.321
+    assert fix.vel_ned_mps == (1.234, -0.567, 0.089)
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps) == (1.5, 2.3, 0.12)
+    assert fix.num_sv == 14 and fix.pdop == pytest.approx(1.37)
+    assert fix.week is None  # NAV-PVT carries no week and no leap seconds were heard yet
+
+
+def test_pvt_flags_drive_mode_validity_and_position() -> None:
+    (no_fix,) = decode(nav_pvt(fixType=0, gnssFixOk=0) + nav_eoe(345_600_250))
+    assert no_fix.fix_mode == 1 and not no_fix.fix_ok and no_fix.lat_deg is None and no_fix.vel_ned_mps is None
+    (dr,) = decode(nav_pvt(fixType=1) + nav_eoe(345_600_250))
+    assert dr.fix_mode == 2  # dead reckoning only counts as 2D, as in gpsd
+    (unresolved,) = decode(nav_pvt(fullyResolved=0) + nav_eoe(345_600_250))
+    assert unresolved.time_utc_ns is not None and not unresolved.time_valid
+    (no_date,) = decode(nav_pvt(validDate=0) + nav_eoe(345_600_250))
+    assert no_date.time_utc_ns is None and not no_date.time_valid
+
+
+def test_epoch_is_reported_at_the_learned_end_of_its_burst() -> None:
+    decoder = GnssDecoder()
+    framer = UbxNmeaFramer()
+
+    def push(raw: bytes) -> list[object]:
+        return decoder.push_all(framer.feed(raw))
+
+    dop = lambda itow: UBXMessage("NAV", "NAV-DOP", GET, iTOW=itow, pDOP=1.2).serialize()  # noqa: E731
+    assert push(nav_pvt(1000)) == [] and push(dop(1000)) == []  # first burst: end not known yet
+    first = push(nav_pvt(2000))  # the next epoch starts: the first one is over
+    assert [f.itow_ms for f in first] == [1000]
+    second = push(dop(2000))  # NAV-DOP closed the last burst, so it closes this one at once
+    assert [f.itow_ms for f in second] == [2000]
+    assert decoder.flush() == []
+
+
+def test_old_receiver_messages_are_combined_per_epoch() -> None:
+    lat, lon, h = math.radians(44.0688112), math.radians(-121.31409), 1109.961
+    x, y, z = geodetic_to_ecef(lat, lon, h)
+    itow, week = 345_600_000, 2304
+    vx, vy, vz = 1.0, -2.0, 0.5
+    sol = UBXMessage(
+        "NAV", "NAV-SOL", GET, iTOW=itow, fTOW=-1234, week=week, gpsFix=3, gpsfixOK=1, wknSet=1, towSet=1,
+        ecefX=round(x * 100), ecefY=round(y * 100), ecefZ=round(z * 100), pAcc=250,
+        ecefVX=round(vx * 100), ecefVY=round(vy * 100), ecefVZ=round(vz * 100), sAcc=40, pDOP=1.5, numSV=9,
+    ).serialize()
+    posllh = UBXMessage(
+        "NAV", "NAV-POSLLH", GET, iTOW=itow, lon=-121.31409, lat=44.0688112, height=1_109_961,
+        hMSL=1_131_311, hAcc=700, vAcc=1100,
+    ).serialize()
+    timegps = UBXMessage(
+        "NAV", "NAV-TIMEGPS", GET, iTOW=itow, fTOW=-1234, week=week, leapS=18, towValid=1, weekValid=1,
+        leapSValid=1, tAcc=20,
+    ).serialize()
+    items = decode(sol + posllh + timegps)
+    times = [i for i in items if isinstance(i, GnssTime)]
+    (fix,) = [i for i in items if isinstance(i, GnssFix)]
+    assert times[0].leap_s == 18 and times[0].week == week and times[0].utc_valid
+    expected_utc = gps_to_unix_ns(week, itow * 1_000_000 - 1234, 18)
+    assert times[0].time_utc_ns == expected_utc
+    assert fix.source == "NAV-SOL" and fix.week == week and fix.time_utc_ns == expected_utc and fix.time_valid
+    # the position comes from NAV-POSLLH (it has MSL), the velocity from the ECEF one of NAV-SOL
+    assert (fix.lat_deg, fix.lon_deg, fix.height_msl_m) == (44.0688112, -121.31409, 1131.311)
+    assert fix.vel_ned_mps == pytest.approx(ecef_velocity_to_ned(vx, vy, vz, lat, lon), abs=1e-3)
+    assert fix.num_sv == 9 and fix.pdop == 1.5 and fix.h_acc_m == 0.7
+
+
+def test_ecef_to_geodetic_round_trip_below_a_millimetre() -> None:
+    for lat_deg, lon_deg, h in ((44.07, -121.31, 1110.0), (-34.9, 138.6, 25.0), (89.9, 10.0, 3000.0),
+                                (0.0, 0.0, -50.0), (-89.99, -170.0, 12.0)):
+        lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+        got = ecef_to_geodetic(*geodetic_to_ecef(lat, lon, h))
+        assert got[0] == pytest.approx(lat, abs=1e-11) and got[1] == pytest.approx(lon, abs=1e-11)
+        assert got[2] == pytest.approx(h, abs=1e-4)
+
+
+def test_nmea_sentences_are_combined_per_epoch() -> None:
+    stream = b"".join(nmea(s) for s in (
+        "GNRMC,235959.00,A,4404.1306024,N,12118.8446777,W,1.944,90.0,231221,,,D,V",
+        "GNVTG,90.0,T,,M,1.944,N,3.600,K,D",
+        "GNGGA,235959.00,4404.1306024,N,12118.8446777,W,2,12,0.49,1129.913,M,-21.350,M,,0278",
+        "GNGSA,A,3,21,30,46,13,17,51,14,44,15,19,07,01,0.98,0.49,0.84,1",
+        "GNGST,235959.00,32,0.19,0.12,97,0.030,0.040,0.088",
+        "GNRMC,000000.00,A,4404.1306000,N,12118.8446700,W,0.000,,241221,,,D,V",
+        "GNGGA,000000.00,4404.1306000,N,12118.8446700,W,2,12,0.49,1129.900,M,-21.350,M,,0278",
+    ))
+    first, second = decode(stream)
+    assert first.source == "NMEA" and first.itow_ms is None
+    assert first.time_utc_ns == calendar.timegm((2021, 12, 23, 23, 59, 59)) * NS
+    assert first.fix_mode == 3 and first.fix_ok and first.time_valid
+    assert first.lat_deg == pytest.approx(44 + 4.1306024 / 60, abs=1e-9)
+    assert first.lon_deg == pytest.approx(-(121 + 18.8446777 / 60), abs=1e-9)
+    assert first.height_msl_m == 1129.913 and first.height_hae_m == pytest.approx(1129.913 - 21.350)
+    north, east, down = first.vel_ned_mps
+    assert north == pytest.approx(0.0, abs=1e-9) and east == pytest.approx(1.0, abs=1e-3) and math.isnan(down)
+    assert first.h_acc_m == pytest.approx(0.05) and first.v_acc_m == 0.088
+    assert first.num_sv == 12 and first.pdop == 0.98
+    assert second.time_utc_ns == calendar.timegm((2021, 12, 24, 0, 0, 0)) * NS  # the date moved on
+
+
+def test_ubx_solutions_take_over_from_nmea() -> None:
+    gga = nmea("GPGGA,000000.25,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,")
+    items = decode(gga + nav_pvt() + gga + nav_eoe(345_600_250))
+    assert [i.source for i in items if isinstance(i, GnssFix)] == ["NMEA", "NAV-PVT"]
+
+
+def test_time_messages_come_out_at_once() -> None:
+    timeutc = UBXMessage(
+        "NAV", "NAV-TIMEUTC", GET, iTOW=1000, tAcc=30, nano=-5, year=2024, month=3, day=5, hour=1,
+        min=2, sec=3, validTOW=1, validWKN=1, validUTC=1,
+    ).serialize()
+    (item,) = decode(timeutc)
+    assert isinstance(item, GnssTime) and item.source == "NAV-TIMEUTC" and item.utc_valid
+    assert item.time_utc_ns == calendar.timegm((2024, 3, 5, 1, 2, 3)) * NS - 5
+
+
+# ---------------------------------------------------------------------------------------------------
+# The serial driver on a pty
+
+
+def test_open_missing_port_is_device_not_found(tmp_path: os.PathLike[str]) -> None:
+    with pytest.raises(DeviceNotFound, match="no serial port"):
+        GnssReceiver.open(os.path.join(tmp_path, "ttyNONE"))
+
+
+def test_serial_round_trip_vanish_and_come_back() -> None:
+    stream, _ = mixed_stream()
+    with PtyPort() as device:
+        receiver = GnssReceiver.open(device.path, 115200)
+        try:
+            assert receiver.read(0.01).raw == b""  # silent receiver: an empty read, not an error
+            device.write(b"\x00garbage" + stream)
+            raw = b""
+            items: list[object] = []
+            for _ in range(200):  # the pty hands the bytes over in however many reads it likes
+                got = receiver.read(0.05)
+                raw += got.raw
+                items += got.items
+                if len(raw) >= len(stream) + 8:
+                    break
+            assert raw == b"\x00garbage" + stream  # every byte for the raw log, garbage included
+            assert [type(i).__name__ for i in items] == ["TimePulse", "GnssFix"]
+            assert receiver.framer.garbage_bytes == 8
+
+            config = UBXMessage("CFG", "CFG-RATE", 1, measRate=200, navRate=1, timeRef=1).serialize()
+            receiver.write(config)
+            echoed = b""
+            for _ in range(50):
+                echoed += device.read(0.05)
+                if len(echoed) >= len(config):
+                    break
+            assert echoed == config
+
+            device.vanish()
+            with pytest.raises(BusError, match="serial port lost") as lost:
+                receiver.read(0.05)
+            assert "\n" not in str(lost.value)
+        finally:
+            receiver.close()
+
+        device.reappear()
+        again = GnssReceiver.open(device.path, 115200)
+        try:
+            sender = threading.Timer(0.05, device.write, args=(tim_tp(),))
+            sender.start()
+            got = again.read(1.0)
+            for _ in range(20):
+                if got.items:
+                    break
+                more = again.read(0.05)
+                got = type(got)(got.raw + more.raw, got.items + more.items)
+            sender.join()
+            assert [type(i).__name__ for i in got.items] == ["TimePulse"]
+        finally:
+            again.close()
+
+
+def test_write_to_a_vanished_port_is_bus_error() -> None:
+    with PtyPort() as device:
+        receiver = GnssReceiver.open(device.path)
+        device.vanish()
+        with pytest.raises(BusError):
+            for _ in range(50):  # the tty layer may buffer the first writes
+                receiver.write(b"\xb5\x62\x06\x08\x00\x00\x0e\x30" * 64)
+        receiver.close()
