@@ -10,6 +10,7 @@ import importlib
 import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("logger.run_cmd", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
     "gnss-decode": ("logger.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
     "status": ("logger.status", "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
     "config": ("logger.config_cmd", "check a configuration file without starting: logger config check FILE"),

@@ -84,6 +84,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "bus": Key(int, 2, _range(0, 255)),
         "address": Key(int, 0x77, _i2c_address),
         "rate_hz": Key(NUM, 1, _range(0.1, 10)),
+        "variant": Key(str, "BMP180", _one_of("BMP085", "BMP180")),
         "oversampling": Key(int, 3, _one_of(0, 1, 2, 3), "0 ultra low power .. 3 ultra high resolution"),
         "sea_level_pa": Key(NUM, 101325.0, _range(85000, 110000), "P0 of the altitude formula (QNH)"),
     },

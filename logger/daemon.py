@@ -21,6 +21,7 @@ from logger.config import Config
 from logger.mcap_files import McapFileError, is_finished, recover
 from logger.recorder import Recorder, RecorderSettings
 from logger.sampler import Reading, Sampler
+from logger.sources import Plan
 from logger.timebase import TimeBase, host_timebase
 from logger.topics import TOPICS
 from sync.stamp import FreeRunClock, StampClock
@@ -28,15 +29,6 @@ from sync.stamp import FreeRunClock, StampClock
 log = logging.getLogger(__name__)
 
 HEARTBEAT_STALE_S = 10.0
-
-
-@dataclass
-class SensorPlan:
-    """A source ready to run, with its scheduling: ``rate_hz`` None means it is event-driven."""
-
-    source: Any
-    rate_hz: float | None
-    expected_hz: float | None = None
 
 
 @dataclass
@@ -67,7 +59,7 @@ def recover_unfinished(out_dir: Path) -> list[str]:
 
 
 class Daemon:
-    def __init__(self, cfg: Config, plans: list[SensorPlan], timebase: TimeBase | None = None,
+    def __init__(self, cfg: Config, plans: list[Plan], timebase: TimeBase | None = None,
                  clock: StampClock | None = None, extras: Extras | None = None, out_dir: Path | None = None,
                  status_socket: Path | None = None, mode: str = "") -> None:
         self.cfg = cfg

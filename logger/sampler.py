@@ -89,6 +89,7 @@ class Sampler(threading.Thread):
 
     BACKOFF_START_S = 0.5
     BACKOFF_MAX_S = 10.0
+    LOG_REPEAT_S = 60.0
 
     def __init__(self, source: Source, sink: Sink, timebase: TimeBase, rate_hz: float | None,
                  stop: threading.Event, expected_hz: float | None = None, gap_factor: float = 2.5) -> None:
@@ -102,6 +103,8 @@ class Sampler(threading.Thread):
         self.health = SensorHealth(source.name, expected_hz)
         # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
         self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
+        self._logged: dict[str, float] = {}
+        self._suppressed = 0
 
     # The thread body: open, sample until an error, back off, reopen.
     def run(self) -> None:
@@ -119,7 +122,7 @@ class Sampler(threading.Thread):
                 continue
             if opened_once:
                 self.health.reconnects += 1
-                log.warning("%s: back after %s", self.source.name, self.health.last_error or "an error")
+                self._log(f"back after: {self.health.last_error or 'an error'}")
             opened_once = True
             self.health.state = "ok"
             backoff = self.BACKOFF_START_S
@@ -196,11 +199,24 @@ class Sampler(threading.Thread):
         h = self.health
         h.errors += 1
         message = str(exc) or type(exc).__name__
-        if message != h.last_error or h.state == "ok":
-            log.warning("%s: %s", self.source.name, message)  # once per change: a flapping sensor is no flood
+        self._log(message)
         h.last_error = message
         h.state = state or ("missing" if missing else "retrying")
         h.heartbeat_mono_ns = self.tb.monotonic_ns()
+
+    def _log(self, message: str) -> None:
+        """Warn once per distinct message per ``LOG_REPEAT_S``: a flapping sensor must not flood the journal."""
+        now = time.monotonic()
+        last = self._logged.get(message)
+        if last is not None and now - last < self.LOG_REPEAT_S:
+            self._suppressed += 1
+            return
+        if len(self._logged) > 64:
+            self._logged.clear()
+        self._logged[message] = now
+        extra = f" ({self._suppressed} repeats not logged)" if self._suppressed else ""
+        self._suppressed = 0
+        log.warning("%s: %s%s", self.source.name, message, extra)
 
     def _close(self) -> None:
         try:

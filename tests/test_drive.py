@@ -182,9 +182,10 @@ def test_urban_drive_has_what_the_scenario_promises(urban):
         inside = (d["t"] >= s.start_s) & (d["t"] <= s.end_s)
         assert np.all((d["sky"][inside] >= 0.3) & (d["sky"][inside] <= 0.8))
         assert np.ptp(d["sky"][inside]) > 0.1
-    # Parked with the engine off at both ends.
+    # Idling at the start (the logger comes up with the ignition), parked with the engine off at the end.
+    assert urban.spans_of("idle")[0].start_s == 0.0 and urban.state(0.0).engine_on
     parked = urban.spans_of("parked")
-    assert parked[0].start_s == 0.0 and parked[-1].end_s == pytest.approx(urban.duration_s)
+    assert parked[-1].end_s == pytest.approx(urban.duration_s)
     for s in parked:
         inside = (d["t"] >= s.start_s) & (d["t"] < s.end_s)
         assert not np.any(d["engine"][inside]) and np.all(d["v"][inside] == 0.0)
@@ -261,10 +262,11 @@ def test_same_seed_same_drive_other_seed_other_drive():
     assert a.duration_s != c.duration_s
 
 
-def test_before_start_and_after_end_the_vehicle_stands_parked(urban):
+def test_before_start_and_after_end_the_vehicle_stands_still(urban):
     for t in (-5.0, urban.duration_s + 100.0):
         s = urban.state(t)
-        assert s.t_s == t and not s.engine_on and np.all(s.vel_ned_mps == 0.0)
+        assert s.t_s == t and np.all(s.vel_ned_mps == 0.0)
+    assert urban.state(-5.0).engine_on and not urban.state(urban.duration_s + 100.0).engine_on
     assert urban.state(-5.0).lat_rad == urban.state(0.0).lat_rad
 
 

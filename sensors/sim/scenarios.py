@@ -1,7 +1,8 @@
 """Named, seeded drives: the urban loop, a GNSS outage at a steady speed, a long tunnel.
 
-Each drive is an intro (parked with the engine off, then idling: time for a static alignment), a body that
-repeats until the requested duration is filled, and an outro (stop, idle, engine off). A seed fixes every
+Each drive is an intro (idling with the engine running: the logger is powered with the ignition, and the
+vehicle stands still long enough for a static alignment), a body that repeats until the requested duration is
+filled, and an outro (stop, idle, engine off). A seed fixes every
 choice (speeds, stop lengths, grades, sky in street canyons, weather) so a run can be repeated exactly; the
 body is re-drawn for each repetition from ``(seed, repetition)``, so a long drive does not repeat itself
 while a short one does not depend on how long the long one was.
@@ -67,10 +68,8 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
     )
     heading0, body, speed = _SCENARIO_BODIES[name](rng, scenario_opts)
 
-    b = RouteBuilder(heading_rad=heading0, engine_on=False)
-    b.stand(20.0, "parked")
-    b.engine(True)
-    b.stand(20.0, "idle")
+    b = RouteBuilder(heading_rad=heading0, engine_on=True)
+    b.stand(30.0, "idle")
     if speed > 0.0:
         b.speed_to(speed, 1.5)
     outro_s = 60.0

@@ -1,0 +1,166 @@
+"""The simulated vehicle: one drive, one board crystal, and every device model wired to it.
+
+``logger run --sim`` asks for this and gets back what a board would have: an I2C bus path with the MPU-6050
+and BMP180 on it, two serial port paths (ELM327, u-blox), a GPIO chip path with the PPS line. The daemon
+then opens them with the same drivers it uses on hardware. The truth (true time against board time, the
+vehicle's state) stays available so a recorded drive can be scored.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sensors.sim import gpiod_ext
+from sensors.sim.bmp085 import Bmp085Model
+from sensors.sim.drive import Drive
+from sensors.sim.elm327 import Elm327Model
+from sensors.sim.gnss_time import GnssTimeline
+from sensors.sim.i2c import SimI2cAdapter
+from sensors.sim.mpu6050 import Mpu6050Model
+from sensors.sim.obd_ecu import engine_ecu, transmission_ecu
+from sensors.sim.oscillator import Oscillator, OscillatorClock
+from sensors.sim.pps import PpsSignal, pps_chip
+from sensors.sim.pty import PtyPort
+from sensors.sim.scenarios import make_drive
+from sensors.sim.ublox import UbloxReceiverModel
+
+NS_PER_S = 1_000_000_000
+MPU6050_ADDRESS = 0x68
+BMP180_ADDRESS = 0x77
+PPS_CHIP_PATH = "/dev/gpiochip-sim"
+PPS_LINE = 28
+
+# How far the vehicle's speed sensor reads high in each scenario (OBD speed = factor * true speed).
+OBD_SPEED_FACTOR = {"urban": 1.02, "outage-60s": 1.02, "tunnel-130s": 1.03}
+
+
+@dataclass
+class VehicleDevices:
+    """Where the daemon finds each simulated device, as it would find hardware."""
+
+    i2c_path: str | None = None
+    imu_address: int = MPU6050_ADDRESS
+    baro_address: int = BMP180_ADDRESS
+    elm327_path: str | None = None
+    gnss_path: str | None = None
+    gnss_baud: int = 9600
+    gpio_chip: str | None = None
+    pps_line: int = PPS_LINE
+
+
+@dataclass
+class SimVehicle:
+    """A drive with its devices; ``start()`` powers them, ``stop()`` unplugs everything."""
+
+    scenario: str
+    seed: int
+    drive: Drive
+    oscillator: Oscillator
+    clock: OscillatorClock
+    timeline: GnssTimeline
+    devices: VehicleDevices
+    i2c: SimI2cAdapter | None = None
+    imu: Mpu6050Model | None = None
+    baro: Bmp085Model | None = None
+    elm327_port: PtyPort | None = None
+    elm327: Elm327Model | None = None
+    gnss_port: PtyPort | None = None
+    gnss: UbloxReceiverModel | None = None
+    pps: PpsSignal | None = None
+    gpio: Any = None
+    _stack: list[Any] = field(default_factory=list)
+
+    @property
+    def time_scale(self) -> float:
+        return self.clock.time_scale
+
+    def true_unix_ns(self, board_ns: int) -> int:
+        """True UTC time (Unix ns) at a board monotonic time: what a perfect stamp would say."""
+        return self.timeline.utc_unix_ns(self.timeline.gps_ns(self.oscillator.true_ns(board_ns)))
+
+    def truth_nav(self, board_ns: int) -> dict[str, Any]:
+        true_ns = self.oscillator.true_ns(board_ns)
+        s = self.drive.state(true_ns / NS_PER_S)
+        return {"t_true_ns": self.timeline.utc_unix_ns(self.timeline.gps_ns(true_ns)),
+                "lat_deg": math.degrees(s.lat_rad), "lon_deg": math.degrees(s.lon_rad), "height_m": s.height_m,
+                "vel_ned_mps": [float(v) for v in s.vel_ned_mps],
+                "rpy_deg": [math.degrees(float(a)) for a in s.rpy_rad]}
+
+    def start(self) -> None:
+        if self.elm327 is not None:
+            self.elm327.start()
+            self._stack.append(self.elm327.stop)
+        if self.gnss is not None:
+            self.gnss.start()
+            self._stack.append(self.gnss.stop)
+        if self.gpio is not None:
+            gpiod_ext.install()
+            gpiod_ext.register(self.gpio)
+            self._stack.append(gpiod_ext.uninstall)
+            self._stack.append(lambda: gpiod_ext.unregister(self.gpio))
+
+    def stop(self) -> None:
+        while self._stack:
+            fn = self._stack.pop()
+            try:
+                fn()
+            except Exception:  # unplugging a model must never stop the others from being unplugged
+                pass
+        for port in (self.elm327_port, self.gnss_port):
+            if port is not None:
+                port.close()
+
+
+def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float = 1.0,
+                  duration_s: float | None = None, imu: bool = True, baro: bool = True, obd: bool = True,
+                  gnss: bool = True, pps: bool = True, start_utc: dt.datetime | None = None,
+                  host_monotonic_ns: Any = time.monotonic_ns) -> SimVehicle:
+    """Build the drive and the models asked for. Board time starts at the host's monotonic clock, so at time
+    scale 1 simulated and real devices share one clock; the drive starts at the current UTC second."""
+    horizon = duration_s if duration_s is not None else 8 * 3600.0
+    drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0)
+    rng = np.random.default_rng([seed, 7])
+    oscillator = Oscillator.for_trajectory(drive, horizon_s=horizon + 60.0, board_start_ns=host_monotonic_ns(),
+                                           offset_ppm=float(rng.uniform(-40.0, 40.0)), seed=rng)
+    clock = OscillatorClock(oscillator, time_scale, host_monotonic_ns=host_monotonic_ns)
+    if start_utc is None:
+        start_utc = dt.datetime.fromtimestamp(math.floor(time.time()), dt.UTC)
+    timeline = GnssTimeline(start_utc=start_utc)
+    devices = VehicleDevices()
+    v = SimVehicle(scenario, seed, drive, oscillator, clock, timeline, devices)
+    child = np.random.SeedSequence([seed, 11]).spawn(5)
+    if imu or baro:
+        v.i2c = SimI2cAdapter()
+        devices.i2c_path = v.i2c.path
+        if imu:
+            v.imu = Mpu6050Model(clock, drive, seed=np.random.default_rng(child[0]))
+            v.i2c.attach(MPU6050_ADDRESS, v.imu)
+        if baro:
+            v.baro = Bmp085Model(clock, drive, seed=np.random.default_rng(child[1]))
+            v.i2c.attach(BMP180_ADDRESS, v.baro)
+    if obd:
+        scale = OBD_SPEED_FACTOR.get(scenario, 1.02)
+        ecus = [engine_ecu(drive, scale_error=1.0 / scale - 1.0),
+                transmission_ecu(drive, scale_error=1.0 / scale - 1.0)]
+        v.elm327_port = PtyPort()
+        v.elm327 = Elm327Model(v.elm327_port, ecus, clock, seed=np.random.default_rng(child[2]))
+        devices.elm327_path = v.elm327_port.path
+    if gnss or pps:
+        v.gnss_port = PtyPort()
+        v.gnss = UbloxReceiverModel(v.gnss_port, clock, drive, seed=np.random.default_rng(child[3]),
+                                    timeline=timeline)
+        devices.gnss_path = v.gnss_port.path
+        devices.gnss_baud = v.gnss.baud
+    if pps and v.gnss is not None:
+        v.pps = PpsSignal(oscillator, v.gnss.time_pulse_locked, seed=int(child[4].generate_state(1)[0]),
+                          gnss_ns_at_start=timeline.start_gps_ns,
+                          pulse_offset_ns=v.gnss.pulse_quantisation.edge_offset_ns)
+        v.gpio = pps_chip(v.pps, clock, path=PPS_CHIP_PATH, offset=PPS_LINE, paced=True)
+        devices.gpio_chip = PPS_CHIP_PATH
+    return v
