@@ -129,7 +129,7 @@ def main(argv: list[str]) -> int:
         print("logger: --duration must be positive", file=sys.stderr)
         return 2
     try:
-        daemon, vehicle = build(cfg, args.duration)
+        daemon, _vehicle = build(cfg, args.duration)
     except ConfigError as exc:
         for line in exc.problems:
             print(f"logger: {line}", file=sys.stderr)
