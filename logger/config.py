@@ -50,6 +50,18 @@ def _i2c_address(v: int) -> str | None:
     return None if 0x03 <= v <= 0x77 else "is not a 7-bit I2C device address (0x03..0x77)"
 
 
+def _imu_rate(v: float) -> str | None:
+    from sensors.mpu6050 import choose_sample_timing
+
+    if not 1 <= v <= 1000:
+        return "must be between 1 and 1000"
+    try:
+        choose_sample_timing(v)
+    except ValueError as exc:
+        return str(exc).split(": ", 1)[-1].replace(", or set dlpf_cfg", "")
+    return None
+
+
 def _abs_path(v: str) -> str | None:
     return None if v.startswith("/") else "must be an absolute path"
 
@@ -75,7 +87,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
         "bus": Key(int, 2, _range(0, 255), "I2C bus number: /dev/i2c-N"),
         "address": Key(int, 0x68, _i2c_address, "0x68, or 0x69 with AD0 high"),
-        "rate_hz": Key(NUM, 20, _range(1, 1000), "sample rate; above 50 Hz the FIFO is used"),
+        "rate_hz": Key(NUM, 20, lambda v: _imu_rate(v), "sample rate; above 50 Hz the FIFO is used"),
         "accel_range_g": Key(int, 4, _one_of(2, 4, 8, 16)),
         "gyro_range_dps": Key(int, 500, _one_of(250, 500, 1000, 2000)),
     },

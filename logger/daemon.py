@@ -12,6 +12,7 @@ import logging
 import os
 import signal
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ from sync.stamp import FreeRunClock, StampClock
 log = logging.getLogger(__name__)
 
 HEARTBEAT_STALE_S = 10.0
+DROP_WINDOW_NS = 60 * 1_000_000_000
 
 
 @dataclass
@@ -74,7 +76,8 @@ class Daemon:
         self.recorder = Recorder(RecorderSettings(
             out_dir=self.out_dir, flush_interval_s=rc["flush_interval_s"], rotate_duration_s=rc["rotate_duration_s"],
             rotate_size_bytes=int(rc["rotate_size_mb"] * 2**20), min_free_bytes=int(rc["min_free_mb"] * 2**20),
-            compression=rc["compression"], queue_size=rc["queue_size"]), TOPICS, metadata=self.extras.metadata)
+            compression=rc["compression"], queue_size=rc["queue_size"]), TOPICS, metadata=self.extras.metadata,
+            monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale)
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
@@ -82,6 +85,7 @@ class Daemon:
         self._threads: list[threading.Thread] = []
         self.status_server: Any = None
         self.startup_lines: list[str] = []
+        self._drop_history: deque[tuple[int, int]] = deque()
 
     # ---- the sink every sampler calls: stamp, count, queue ------------------------------------------------
     def sink(self, r: Reading) -> None:
@@ -184,12 +188,16 @@ class Daemon:
         if self.samplers and all(s["state"] != "ok" for s in sensors):
             critical = True
         dropped = sum(rec.dropped.values())
-        if dropped and rec.state == "recording":
-            problems.append(f"recorder: {dropped} records dropped (queue full)")
+        self._drop_history.append((now, dropped))
+        while len(self._drop_history) > 2 and now - self._drop_history[0][0] > DROP_WINDOW_NS:
+            self._drop_history.popleft()
+        recent = dropped - self._drop_history[0][1]
+        if recent:
+            problems.append(f"recorder: {recent} records dropped in the last minute (queue full: writer too slow)")
         verdict = "critical" if critical else ("degraded" if problems else "ok")
         sync = getattr(self.clock, "report", None)
         return {
-            "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(),
+            "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
             "sync": sync(now) if callable(sync) else {"state": self.clock.stamp(now).state,
                                                       "err_ns": self.clock.stamp(now).err_ns},

@@ -57,6 +57,7 @@ class RecorderStatus:
     free_bytes: int | None
     written: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
+    unrecorded: dict[str, int] = field(default_factory=dict)
     queue_depth: int = 0
     queue_size: int = 0
 
@@ -84,14 +85,20 @@ class Recorder:
 
     def __init__(self, settings: RecorderSettings, topics: Mapping[str, TopicSpec],
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
-                 file_name: Callable[[str, int | None, int], str] = default_file_name) -> None:
+                 file_name: Callable[[str, int | None, int], str] = default_file_name,
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, time_scale: float = 1.0) -> None:
         self.settings = settings
+        # Flush cadence and retries run on the drive's clock, so a simulated drive at 60x still closes its
+        # chunk every drive second: what is lost at a cut is measured in the data's own time.
+        self._mono_ns = monotonic_ns
+        self._scale = time_scale
         self.topics = dict(topics)
         self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
         self._file_name = file_name
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
         self._lock = threading.Lock()
-        self._dropped: Counter[str] = Counter()
+        self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
+        self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
         self._written: Counter[str] = Counter()
         self._state = "starting"
         self._detail = ""
@@ -116,7 +123,7 @@ class Recorder:
         """Queue one record; False (and a counted drop) when the queue is full or recording has stopped."""
         if self._state in ("stopped", "disk-full", "failed"):
             with self._lock:
-                self._dropped[topic] += 1
+                self._unrecorded[topic] += 1
             return False
         try:
             self._queue.put_nowait((topic, payload, log_time_ns, publish_time_ns))
@@ -133,7 +140,7 @@ class Recorder:
                 file=str(self._path) if self._path else None,
                 file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
                 files_done=self._files_done, free_bytes=self._free,
-                written=dict(self._written), dropped=dict(self._dropped),
+                written=dict(self._written), dropped=dict(self._dropped), unrecorded=dict(self._unrecorded),
                 queue_depth=self._queue.qsize(), queue_size=self.settings.queue_size)
 
     # ---- life cycle --------------------------------------------------------------------------------------
@@ -157,13 +164,16 @@ class Recorder:
     def alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def _now(self) -> float:
+        return self._mono_ns() / 1e9
+
     # ---- writer thread -----------------------------------------------------------------------------------
     def _run(self) -> None:
         interval = self.settings.flush_interval_s
         while True:
-            wait = max(0.0, self._last_flush + interval - time.monotonic())
+            wait = max(0.0, self._last_flush + interval - self._now())
             try:
-                item = self._queue.get(timeout=wait)
+                item = self._queue.get(timeout=wait / self._scale)
             except queue.Empty:
                 item = None
             if item is self._STOP:
@@ -173,7 +183,7 @@ class Recorder:
                 return
             if item is not None:
                 self._write(item)
-            if time.monotonic() - self._last_flush >= interval:
+            if self._now() - self._last_flush >= interval:
                 self._flush()
 
     def _drain(self) -> None:
@@ -188,11 +198,11 @@ class Recorder:
     def _write(self, item: tuple[str, Mapping[str, Any], int, int]) -> None:
         topic, payload, log_ns, pub_ns = item
         if self._writer is None:
-            if time.monotonic() >= self._next_retry:
+            if self._now() >= self._next_retry:
                 self._check_space_and_open()
             if self._writer is None:
                 with self._lock:
-                    self._dropped[topic] += 1
+                    self._unrecorded[topic] += 1
                 return
         try:
             data = encode(payload)
@@ -232,9 +242,9 @@ class Recorder:
         return cid
 
     def _flush(self) -> None:
-        self._last_flush = time.monotonic()
+        self._last_flush = self._now()
         if self._writer is None:
-            if self._state in ("disk-full", "failed") and time.monotonic() >= self._next_retry:
+            if self._state in ("disk-full", "failed") and self._now() >= self._next_retry:
                 self._check_space_and_open()
             return
         try:
@@ -250,7 +260,7 @@ class Recorder:
             self._set_state("disk-full", f"recording stopped: {self._free >> 20} MiB free on "
                             f"{self.settings.out_dir}, below the {self.settings.min_free_bytes >> 20} MiB minimum")
             log.error(self._detail)
-            self._next_retry = time.monotonic() + 5.0
+            self._next_retry = self._now() + 5.0
             return
         if size >= self.settings.rotate_size_bytes:
             self._rotate()
@@ -271,7 +281,7 @@ class Recorder:
         if self._free is not None and self._free < self.settings.min_free_bytes:
             self._set_state("disk-full", f"not recording: {self._free >> 20} MiB free on {self.settings.out_dir}, "
                             f"below the {self.settings.min_free_bytes >> 20} MiB minimum")
-            self._next_retry = time.monotonic() + 5.0
+            self._next_retry = self._now() + 5.0
             return
         self._sequence += 1
         name = self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
@@ -290,15 +300,15 @@ class Recorder:
         except OSError as exc:
             self._set_state("failed", f"cannot open {path}: {exc.strerror or exc}")
             log.error(self._detail)
-            self._next_retry = time.monotonic() + 5.0
+            self._next_retry = self._now() + 5.0
             return
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
         self._channels.clear()
         self._schemas.clear()
         self._first_log_ns = None
-        self._file_started_mono = time.monotonic()
-        self._last_flush = time.monotonic()
+        self._file_started_mono = self._now()
+        self._last_flush = self._now()
         self._set_state("recording", f"writing {path.name}")
 
     def _close_file(self) -> None:
@@ -339,7 +349,7 @@ class Recorder:
         else:
             self._set_state("failed", f"recording stopped: {exc.strerror or exc} while writing {path}")
         log.error(self._detail)
-        self._next_retry = time.monotonic() + 5.0
+        self._next_retry = self._now() + 5.0
 
     def _set_state(self, state: str, detail: str) -> None:
         with self._lock:

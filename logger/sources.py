@@ -18,6 +18,7 @@ from logger.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, SensorError
 
 FIFO_THRESHOLD_HZ = 50.0  # above this the IMU is read through its FIFO in batches
+DIRECT_CHIP_RATE_HZ = 1000.0
 
 
 def _i2c_bus(path_or_number: str | int) -> Any:
@@ -60,14 +61,24 @@ class ImuSource:
         self._pending_lost = 0
 
     def open(self) -> None:
-        from sensors.mpu6050 import Mpu6050
+        from sensors.mpu6050 import Mpu6050, choose_sample_timing
 
+        if self.fifo:
+            chip_rate, dlpf = self.rate_hz, None
+        else:
+            # Read on demand: the chip samples at 1 kHz behind the low-pass filter chosen for the read rate,
+            # so each read gets a sample at most 1 ms old and none is read twice or skipped when the board's
+            # and the chip's clocks slide past each other.
+            try:
+                chip_rate, dlpf = DIRECT_CHIP_RATE_HZ, choose_sample_timing(self.rate_hz).dlpf.cfg
+            except ValueError as exc:  # an unsupported rate: a configuration problem, reported as one line
+                raise SensorError(f"MPU-6050: {exc}") from None
         self._bus = _i2c_bus(self.bus_id)
         try:
-            self.driver = Mpu6050(self._bus, self.address, rate_hz=self.rate_hz, accel_range_g=self.ranges[0],
-                                  gyro_range_dps=self.ranges[1], fifo=self.fifo, bus_name=f"I2C bus {self.bus_id}",
-                                  sleep=self.tb.sleep)
-        except ValueError as exc:  # an unsupported rate: a configuration problem, reported as one line
+            self.driver = Mpu6050(self._bus, self.address, rate_hz=chip_rate, dlpf_cfg=dlpf,
+                                  accel_range_g=self.ranges[0], gyro_range_dps=self.ranges[1], fifo=self.fifo,
+                                  bus_name=f"I2C bus {self.bus_id}", sleep=self.tb.sleep)
+        except ValueError as exc:
             raise SensorError(f"MPU-6050: {exc}") from None
         self.driver.configure()
 

@@ -1,0 +1,127 @@
+"""Faults injected at the bus while the whole daemon runs: the failing sensor is reported and comes back,
+every other sensor keeps logging, and what was recorded stays readable."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from logger.config import defaults
+from logger.mcap_files import is_finished
+from logger.run_cmd import build
+from logger.status import fetch
+
+
+@pytest.fixture
+def running(tmp_path: Path) -> Iterator[tuple[Any, Any, Path]]:
+    cfg = defaults(sim=True)
+    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
+    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg.values["sim"]["time_scale"] = 4.0
+    daemon, vehicle = build(cfg, duration_s=3600)
+    daemon.start()
+    try:
+        yield daemon, vehicle, tmp_path
+    finally:
+        daemon.stop()
+
+
+def wait_for(what: str, predicate: Callable[[], bool], timeout_s: float = 60.0) -> None:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for: {what}")
+
+
+def sensor(snap: dict, name: str) -> dict:
+    return next(s for s in snap["sensors"] if s["name"] == name)
+
+
+def samples(daemon: Any) -> dict[str, int]:
+    return {s.health.name: s.health.samples for s in daemon.samplers}
+
+
+def others_keep_logging(daemon: Any, failing: str, during: Callable[[], None]) -> None:
+    """Run ``during`` and check that every sensor but ``failing`` delivered samples meanwhile."""
+    before = samples(daemon)
+    during()
+    after = samples(daemon)
+    stalled = [n for n in before if n != failing and after[n] <= before[n]]
+    assert not stalled, f"stalled while {failing} failed: {stalled}"
+
+
+def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running: tuple[Any, Any, Path]) -> None:
+    daemon, vehicle, tmp = running
+    sock = tmp / "status.sock"
+    wait_for("all sensors ok", lambda: all(s["state"] == "ok" for s in fetch(sock)["sensors"]))
+    wait_for("pps and gnss delivering", lambda: samples(daemon)["pps"] > 2 and samples(daemon)["gnss"] > 2)
+
+    # 1. The MPU-6050 stops answering on the I2C bus (loose connector); the barometer on the same bus goes on.
+    def imu_unplugged() -> None:
+        vehicle.i2c.unplug(0x68)
+        wait_for("imu reported", lambda: sensor(fetch(sock), "imu")["state"] in ("retrying", "missing"))
+        snap = fetch(sock)
+        assert snap["verdict"] == "degraded" and any(p.startswith("imu:") for p in snap["problems"])
+        assert "no answer" in sensor(snap, "imu")["last_error"] or "I2C" in sensor(snap, "imu")["last_error"]
+        time.sleep(1.0)
+
+    others_keep_logging(daemon, "imu", imu_unplugged)
+    vehicle.i2c.replug(0x68)
+    wait_for("imu back", lambda: sensor(fetch(sock), "imu")["state"] == "ok")
+    assert sensor(fetch(sock), "imu")["reconnects"] >= 1
+
+    # 2. Transient I2C errors (EIO) on the bus: both chips see them, both come back.
+    errors_before = sensor(fetch(sock), "imu")["errors"] + sensor(fetch(sock), "baro")["errors"]
+    vehicle.i2c.fail_next(count=3)
+    wait_for("errors counted",
+             lambda: sensor(fetch(sock), "imu")["errors"] + sensor(fetch(sock), "baro")["errors"] > errors_before)
+    wait_for("i2c sensors ok", lambda: all(sensor(fetch(sock), n)["state"] == "ok" for n in ("imu", "baro")))
+
+    # 3. The receiver's USB serial vanishes and comes back under the same name.
+    def gnss_unplugged() -> None:
+        vehicle.gnss.vanish()
+        wait_for("gnss reported", lambda: sensor(fetch(sock), "gnss")["state"] in ("retrying", "missing"))
+        time.sleep(1.0)
+
+    others_keep_logging(daemon, "gnss", gnss_unplugged)
+    fixes_before = daemon.recorder.status().written.get("/gnss/fix", 0)
+    vehicle.gnss.reappear()
+    wait_for("gnss back", lambda: sensor(fetch(sock), "gnss")["state"] == "ok" and
+             daemon.recorder.status().written.get("/gnss/fix", 0) > fixes_before + 2)
+
+    # 4. Garbage on the receiver's line: counted and skipped by the framer, fixes keep coming.
+    fixes_before = daemon.recorder.status().written.get("/gnss/fix", 0)
+    for _ in range(3):
+        vehicle.gnss.inject_garbage(400)
+    wait_for("fixes through garbage", lambda: daemon.recorder.status().written.get("/gnss/fix", 0) > fixes_before + 3)
+
+    # 5. The ELM327 resets mid-drive (a voltage dip): the driver sets it up again and speed keeps coming.
+    obd_before = samples(daemon)["obd"]
+    vehicle.elm327.reset()
+    wait_for("speed after reset", lambda: samples(daemon)["obd"] > obd_before + 6)
+    assert sensor(fetch(sock), "obd")["state"] == "ok"
+
+    # 6. The disk fills up: recording stops with a clear, critical status; the sensors keep sampling; when
+    #    space is back, a new file starts. The file that was open is finished, not corrupted.
+    first_file = Path(daemon.recorder.status().file)
+    daemon.recorder.settings.min_free_bytes = 1 << 62
+
+    def disk_full() -> None:
+        wait_for("disk-full reported", lambda: fetch(sock)["recorder"]["state"] == "disk-full")
+        snap = fetch(sock)
+        assert snap["verdict"] == "critical"
+        assert any("recording stopped" in p and "MiB free" in p for p in snap["problems"])
+        time.sleep(1.0)
+
+    others_keep_logging(daemon, "", disk_full)
+    assert is_finished(first_file)
+    daemon.recorder.settings.min_free_bytes = 1 << 20
+    wait_for("recording again", lambda: fetch(sock)["recorder"]["state"] == "recording")
+    assert Path(fetch(sock)["recorder"]["file"]) != first_file
+    wait_for("healthy again", lambda: fetch(sock)["verdict"] == "ok", timeout_s=90)
