@@ -178,8 +178,11 @@ def main(argv: list[str]) -> int:
             path = None
         if path is None:
             from logger.config import SCHEMA
+            from logger.run_cmd import DEFAULT_SIM_SOCKET
 
             path = SCHEMA["logger"]["status_socket"].default
+            if not Path(path).exists() and Path(DEFAULT_SIM_SOCKET).exists():
+                path = DEFAULT_SIM_SOCKET  # `logger run --sim` without a configuration
     code = NOT_RUNNING
     try:
         while True:
