@@ -115,3 +115,24 @@ def test_config_check_command(tmp_path: Path, capsys) -> None:
     assert len(err) == 2 and "imu.bus must be an integer" in err[0] and "imu.rat_hz" in err[1]
     p.write_text(GOOD)
     assert main(["config", "check", str(p)]) == 0
+
+
+def test_run_refuses_a_bad_config_with_one_line_per_problem(tmp_path: Path, capsys) -> None:
+    from logger.cli import main
+
+    p = tmp_path / "logger.toml"
+    p.write_text(GOOD.replace("address = 0x68", "address = 0x90").replace('port = "/dev/ttyUSB0"\n', ""))
+    assert main(["run", "--config", str(p)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"logger: {p}:7: imu.address = 0x90 is not a 7-bit I2C device address (0x03..0x77)",
+                   f"logger: {p}:11: obd.port is required when obd.source = 'elm327'"]
+    assert not (tmp_path / "drives").exists()
+
+
+def test_time_scale_needs_every_sensor_simulated(tmp_path: Path, capsys) -> None:
+    from logger.cli import main
+
+    p = tmp_path / "logger.toml"
+    p.write_text(GOOD + "\n[sim]\ntime_scale = 10\n")
+    assert main(["run", "--config", str(p)]) == 2
+    assert "needs every sensor simulated" in capsys.readouterr().err

@@ -125,3 +125,45 @@ def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running
     wait_for("recording again", lambda: fetch(sock)["recorder"]["state"] == "recording")
     assert Path(fetch(sock)["recorder"]["file"]) != first_file
     wait_for("healthy again", lambda: fetch(sock)["verdict"] == "ok", timeout_s=90)
+
+
+def test_a_sensor_missing_at_start_is_reported_and_the_rest_records(tmp_path: Path) -> None:
+    cfg = defaults(sim=True)
+    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
+    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg.values["obd"].update(source="elm327", port=str(tmp_path / "ttyUSB9"))  # not plugged in
+    daemon, _ = build(cfg, duration_s=60)
+    daemon.start()
+    try:
+        sock = tmp_path / "status.sock"
+        wait_for("obd reported missing", lambda: sensor(fetch(sock), "obd")["state"] == "missing")
+        wait_for("imu recording", lambda: daemon.recorder.status().written.get("/imu", 0) > 20)
+        snap = fetch(sock)
+        assert snap["verdict"] == "degraded"
+        assert any(p.startswith("obd: missing") and "ttyUSB9" in p for p in snap["problems"]), snap["problems"]
+    finally:
+        daemon.stop()
+
+
+def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
+    cfg = defaults(sim=True)
+    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
+    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg.values["imu"]["rate_hz"] = 1000.0
+    daemon, _ = build(cfg, duration_s=60)
+    daemon.start()
+    try:
+        wait_for("8 s of 1 kHz samples", lambda: daemon.recorder.status().written.get("/imu", 0) > 8000)
+    finally:
+        daemon.stop()
+    (path,) = sorted((tmp_path / "drives").glob("*.mcap"))
+    from test_daemon_sim import read_messages
+
+    imu = [m for _, _, m in read_messages(path)["/imu"]]
+    assert all(m["fifo"] for m in imu) and sum(m["lost"] for m in imu) == 0
+    assert [m["seq"] for m in imu] == list(range(len(imu)))
+    t = [m["t_mono_ns"] for m in imu]
+    rate = (len(t) - 1) / ((t[-1] - t[0]) / 1e9)
+    assert abs(rate - 1000.0) < 2.0, rate
+    imu_health = next(s for s in daemon.samplers if s.health.name == "imu").health
+    assert imu_health.errors == 0 and imu_health.missed == 0
