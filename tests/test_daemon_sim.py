@@ -6,6 +6,7 @@ is in drive time (the board's monotonic clock as the simulation runs it).
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import signal
@@ -67,11 +68,11 @@ def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
         assert span > 56, (topic, span)  # started within the first seconds, ran to the end
         seq = [m["seq"] for _, _, m in msgs[topic]]
         assert seq == list(range(len(seq))), topic  # nothing lost between sensor and file
-        gaps = [b - a for a, b in zip(t, t[1:], strict=False)]
+        gaps = [b - a for a, b in itertools.pairwise(t)]
         assert max(gaps) < 1.5e9 / hz, (topic, max(gaps))
     # The receiver's epochs follow each other second by second, and every PPS edge is there.
     epochs = [m["gnss_time_ns"] for _, _, m in msgs["/gnss/fix"] if m["gnss_time_ns"] is not None]
-    assert len(epochs) >= 55 and all(b - a == 1_000_000_000 for a, b in zip(epochs, epochs[1:], strict=False))
+    assert len(epochs) >= 55 and all(b - a == 1_000_000_000 for a, b in itertools.pairwise(epochs))
     seqnos = [m["seqno"] for _, _, m in msgs["/pps"]]
     assert seqnos == list(range(seqnos[0], seqnos[0] + len(seqnos)))
 
