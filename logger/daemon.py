@@ -38,6 +38,8 @@ class Extras:
     """What a run adds beyond the sensors: simulation truth publishers, metadata for the file."""
 
     periodic: list[tuple[float, Callable[[], list[Reading]]]] = field(default_factory=list)
+    taps: list[Any] = field(default_factory=list)  # objects with offer(topic, payload) -> None, never blocking
+    sections: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)  # extra status sections
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     close: list[Callable[[], None]] = field(default_factory=list)
 
@@ -85,6 +87,9 @@ class Daemon:
         self._threads: list[threading.Thread] = []
         self.status_server: Any = None
         self.startup_lines: list[str] = []
+        # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
+        self.taps: list[Any] = list(self.extras.taps)
+        self._observe: Callable[[str, dict[str, Any], int], None] | None = getattr(self.clock, "observe", None)
         self._drop_history: deque[tuple[int, int]] = deque()
 
     # ---- the sink every sampler calls: stamp, count, queue ------------------------------------------------
@@ -93,6 +98,8 @@ class Daemon:
         if seq is None:
             seq = self._seq.setdefault(r.topic, itertools.count())
         payload = r.payload
+        if self._observe is not None:
+            self._observe(r.topic, payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
         if r.stamped:
             stamp = self.clock.stamp(r.t_mono_ns)
             payload = {"t_mono_ns": r.t_mono_ns, **stamp.fields(), "seq": next(seq), **payload}
@@ -100,6 +107,8 @@ class Daemon:
         else:
             log_ns = self.clock.stamp(r.t_mono_ns).t_sync_ns
         self.recorder.submit(r.topic, payload, log_ns, r.t_mono_ns)
+        for tap in self.taps:
+            tap.offer(r.topic, payload)
 
     # ---- life cycle ---------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -202,6 +211,7 @@ class Daemon:
             "sync": sync(now) if callable(sync) else {"state": self.clock.stamp(now).state,
                                                       "err_ns": self.clock.stamp(now).err_ns},
             "recorder": rec.__dict__,
+            **{name: fn() for name, fn in self.extras.sections.items()},
         }
 
     def _health_loop(self) -> None:
