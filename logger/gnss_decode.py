@@ -19,7 +19,7 @@ import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
-from sensors.ublox import GnssDecoder, GnssFix, GnssItem
+from sensors.ublox_decode import GnssDecoder, GnssFix, GnssItem
 from sensors.ublox_frames import UbxNmeaFramer
 
 NS_PER_MS = 1_000_000

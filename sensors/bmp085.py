@@ -13,13 +13,13 @@ register 0xF4, which the driver checks; the BMP085 has no such bit, so there the
 
 from __future__ import annotations
 
-import errno
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple, TypeVar
 
-from sensors.errors import BusError, DeviceNotFound, NoData, ProtocolError, WrongDevice
+from sensors.errors import NoData, ProtocolError, WrongDevice
+from sensors.i2c import i2c_transfer
 
 DEFAULT_ADDRESS = 0x77
 CHIP_ID_VALUE = 0x55
@@ -180,14 +180,7 @@ class Bmp085:
         self.calibration: Bmp085Calibration | None = None
 
     def _bus(self, doing: str, fn: Callable[..., _T], *args: Any) -> _T:
-        try:
-            return fn(self.address, *args)
-        except OSError as exc:
-            where = f"{self.variant} at 0x{self.address:02x} on {self.bus_name}"
-            if exc.errno in (errno.ENXIO, errno.EREMOTEIO):
-                raise DeviceNotFound(f"{where}: no answer while {doing} (no ACK): check wiring and power"
-                                     ) from exc
-            raise BusError(f"{where}: I2C transfer failed while {doing}: {exc.strerror or exc}") from exc
+        return i2c_transfer(self.variant, self.address, self.bus_name, doing, fn, *args)
 
     def configure(self) -> None:
         """Check the chip id and read and check the calibration EEPROM."""

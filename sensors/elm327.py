@@ -28,6 +28,8 @@ from sensors.obd import (
     ObdSpeed,
     decode_speed_payload,
     isotp_single_frame_payload,
+    j1850_crc,
+    kline_checksum,
 )
 
 PROMPT = b">"
@@ -383,7 +385,7 @@ class Elm327:
         if len(raw) < 5:
             return None
         frame, check = raw[:-1], raw[-1]
-        expected = _j1850_crc(frame) if self._family == J1850 else sum(frame) & 0xFF
+        expected = j1850_crc(frame) if self._family == J1850 else kline_checksum(frame)
         if check != expected:
             return None
         return frame[2], frame[3:]
@@ -432,13 +434,3 @@ def _is_engine(ecu_id: int | None) -> bool:
     if ecu_id is None:
         return False
     return ecu_id in (ENGINE_RESPONSE_ID_11, RESPONSE_BASE_29 | ENGINE_ADDRESS, ENGINE_ADDRESS)
-
-
-def _j1850_crc(data: bytes) -> int:
-    """SAE J1850 CRC-8 (polynomial 0x1D, preset 0xFF, inverted), the check byte of PWM and VPW frames."""
-    crc = 0xFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc ^ 0xFF

@@ -21,7 +21,6 @@ caller's read times and the nominal rate (the chip's own clock is good to about 
 
 from __future__ import annotations
 
-import errno
 import math
 import time
 from collections.abc import Callable
@@ -30,7 +29,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from sensors.errors import BusError, DeviceNotFound, ProtocolError, WrongDevice
+from sensors.errors import BusError, ProtocolError, WrongDevice
+from sensors.i2c import i2c_transfer
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 
@@ -262,14 +262,8 @@ class Mpu6050:
 
     # ---- bus access with errors a field engineer can act on ---------------------------------------
     def _bus(self, doing: str, fn: Callable[..., _T], *args: Any) -> _T:
-        try:
-            return fn(self.address, *args)
-        except OSError as exc:
-            where = f"MPU-6050 at 0x{self.address:02x} on {self.bus_name}"
-            if exc.errno in (errno.ENXIO, errno.EREMOTEIO):
-                raise DeviceNotFound(f"{where}: no answer while {doing} (no ACK): check wiring, power and "
-                                     f"the AD0 address") from exc
-            raise BusError(f"{where}: I2C transfer failed while {doing}: {exc.strerror or exc}") from exc
+        return i2c_transfer("MPU-6050", self.address, self.bus_name, doing, fn, *args,
+                            no_ack_hint="check wiring, power and the AD0 address")
 
     def _read_byte(self, reg: int, doing: str) -> int:
         return self._bus(doing, self.bus.read_byte_data, reg)

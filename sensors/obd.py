@@ -5,7 +5,9 @@ canyons. SAE J1979 defines it as one byte, km/h, 0..255, so the driver keeps the
 (the navigation filter estimates the scale error of exactly that number) and gives m/s beside it.
 
 The ISO 15765-4 constants live here too: the functional request ids, the response id ranges and the
-single-frame layout, which the CAN driver uses directly and the ELM327 driver needs to read headers.
+single-frame layout, which the CAN driver uses directly and the ELM327 driver needs to read headers. So do
+the check bytes of the older buses' frames (SAE J1850 CRC-8, ISO 9141-2 / ISO 14230-4 sum), which the
+ELM327 shows with headers on and the adapter model computes.
 """
 
 from __future__ import annotations
@@ -86,3 +88,18 @@ def isotp_single_frame_payload(data: bytes) -> bytes:
     if not 1 <= length <= len(data) - 1:
         raise ProtocolError(f"ISO-TP length {length} does not fit a {len(data)}-byte frame")
     return bytes(data[1 : 1 + length])
+
+
+def j1850_crc(data: bytes) -> int:
+    """SAE J1850 CRC-8 (polynomial 0x1D, preset 0xFF, inverted), the check byte of PWM and VPW frames."""
+    crc = 0xFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc ^ 0xFF
+
+
+def kline_checksum(data: bytes) -> int:
+    """ISO 9141-2 / ISO 14230-4 check byte: the sum of the header and data bytes, modulo 256."""
+    return sum(data) & 0xFF

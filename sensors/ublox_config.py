@@ -210,10 +210,10 @@ def _name(msg: UBXMessage) -> str:
 
 
 def _port_of(link: object) -> tuple[serial.SerialBase, str]:
-    """The pyserial port behind ``link``: a port itself, or a GnssReceiver (which keeps it as ``_port``)."""
+    """The pyserial port behind ``link``: a port itself, or a GnssReceiver's ``port``."""
     if isinstance(link, serial.SerialBase):
         return link, str(link.port)
-    port = getattr(link, "_port", None)
+    port = getattr(link, "port", None)
     if isinstance(port, serial.SerialBase):
         return port, str(getattr(link, "path", None) or port.port)
     raise TypeError(f"expected a pyserial port or a GnssReceiver, not {type(link).__name__}")

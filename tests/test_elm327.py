@@ -12,15 +12,17 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pytest
 import serial
+from helpers_obd import SwitchableTrajectory
 
-from sensors.elm327 import Elm327, _j1850_crc
+from sensors.elm327 import Elm327
 from sensors.errors import BusError, DeviceNotFound, NoData, ProtocolError, SensorError
+from sensors.obd import j1850_crc
 from sensors.sim import elm327 as sim_elm
 from sensors.sim.clock import DriveClock, ManualClock, ScaledClock
 from sensors.sim.elm327 import AdapterQuirks, Elm327Model, ElmFault
@@ -29,19 +31,6 @@ from sensors.sim.pty import PtyPort
 from sensors.sim.truth import StraightTrajectory, TruthState
 
 INIT = ["ATZ", "ATE0", "ATL0", "ATS0", "ATH1", "ATSP0", "ATAT1"]
-
-
-@dataclass
-class SwitchableTrajectory:
-    """A straight drive whose ignition a test turns on and off."""
-
-    speed_mps: float = 13.9
-    engine_on: bool = True
-    duration_s: float = math.inf
-
-    def state(self, t_s: float) -> TruthState:
-        s = StraightTrajectory(speed_mps=self.speed_mps).state(t_s)
-        return replace(s, engine_on=self.engine_on)
 
 
 @dataclass
@@ -130,7 +119,7 @@ def test_model_headers_on_the_other_buses(port: PtyPort) -> None:
         "7": b"18 DA F1 10 03 41 0D 32 ",
         "3": b"BUS INIT: ...OK\r48 6B 10 41 0D 32 " + b"%02X " % ((0x48 + 0x6B + 0x10 + 0x41 + 0x0D + 0x32) & 0xFF),
         "4": b"BUS INIT: ...OK\r83 F1 10 41 0D 32 " + b"%02X " % ((0x83 + 0xF1 + 0x10 + 0x41 + 0x0D + 0x32) & 0xFF),
-        "2": b"48 6B 10 41 0D 32 " + b"%02X " % _j1850_crc(bytes.fromhex("486B10410D32")),
+        "2": b"48 6B 10 41 0D 32 " + b"%02X " % j1850_crc(bytes.fromhex("486B10410D32")),
     }
     for protocol, line in expected.items():
         with adapter(port, [engine_ecu(traj)], vehicle_protocol=protocol), \
@@ -144,8 +133,8 @@ def test_model_headers_on_the_other_buses(port: PtyPort) -> None:
 def test_j1850_crc_matches_a_recorded_frame() -> None:
     # A J1850 PWM answer to 0100 as an adapter printed it with headers on: 41 6B 10 | 41 00 BF DF B9 91 | 78.
     frame = bytes.fromhex("416B104100BFDFB991")
-    assert _j1850_crc(frame) == 0x78
-    assert sim_elm._j1850_crc(frame) == 0x78
+    assert j1850_crc(frame) == 0x78
+    assert sim_elm.j1850_crc(frame) == 0x78
 
 
 # ------------------------------------------------------------------------------------ set-up

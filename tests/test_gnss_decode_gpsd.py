@@ -24,7 +24,7 @@ from typing import Any
 import pytest
 
 from logger.gnss_decode import DecodeResult, decode_pieces, fix_to_tpv, main, strip_capture_comments
-from sensors.ublox import GnssDecoder, GnssFix, GnssTime
+from sensors.ublox_decode import GnssDecoder, GnssFix, GnssTime
 from sensors.ublox_frames import KIND_NMEA, KIND_UBX, Frame, UbxNmeaFramer
 
 DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gpsd-ublox"

@@ -7,16 +7,15 @@ driver sends.
 
 from __future__ import annotations
 
-import math
 import threading
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
 from typing import Any
 
 import can
 import pytest
+from helpers_obd import SwitchableTrajectory
 
 from sensors.errors import BusError, NoData, ProtocolError, SensorError
 from sensors.obd import ObdSpeed, decode_speed_payload, isotp_single_frame, isotp_single_frame_payload
@@ -24,19 +23,9 @@ from sensors.obd_can import ObdCan
 from sensors.sim.can_ecu import CanEcuModel
 from sensors.sim.clock import ManualClock
 from sensors.sim.obd_ecu import ObdEcu, engine_ecu, transmission_ecu
-from sensors.sim.truth import StraightTrajectory, TruthState
+from sensors.sim.truth import StraightTrajectory
 
 GENEROUS_P2_S = 1.0  # answers come in microseconds; a loaded machine must not turn them into timeouts
-
-
-@dataclass
-class SwitchableTrajectory:
-    speed_mps: float = 13.9
-    engine_on: bool = True
-    duration_s: float = math.inf
-
-    def state(self, t_s: float) -> TruthState:
-        return replace(StraightTrajectory(speed_mps=self.speed_mps).state(t_s), engine_on=self.engine_on)
 
 
 class GateClock(ManualClock):

@@ -14,6 +14,7 @@ from pynmeagps.nmeahelpers import calc_checksum
 from pyubx2 import GET, UBXMessage
 
 from sensors.errors import BusError, DeviceNotFound
+from sensors.geodesy import ecef_to_geodetic, ecef_velocity_to_ned, gps_to_unix_ns
 from sensors.sim.pty import PtyPort
 from sensors.ublox import (
     GnssDecoder,
@@ -21,9 +22,6 @@ from sensors.ublox import (
     GnssReceiver,
     GnssTime,
     TimePulse,
-    ecef_to_geodetic,
-    ecef_velocity_to_ned,
-    gps_to_unix_ns,
 )
 from sensors.ublox_frames import (
     KIND_NMEA,

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sensors.obd import j1850_crc, kline_checksum
 from sensors.sim.clock import DriveClock
 from sensors.sim.obd_ecu import ObdEcu
 from sensors.sim.pty import PtyPort
@@ -371,13 +372,13 @@ class Elm327Model:
             frame = bytes([len(payload)]) + payload
         elif protocol in ("1", "2"):
             frame = bytes([0x41 if protocol == "1" else 0x48, 0x6B, ecu.address]) + payload
-            check = bytes([_j1850_crc(frame)])
+            check = bytes([j1850_crc(frame)])
         elif protocol == "3":
             frame = bytes([0x48, 0x6B, ecu.address]) + payload
-            check = bytes([sum(frame) & 0xFF])
+            check = bytes([kline_checksum(frame)])
         else:
             frame = bytes([0x80 | len(payload), 0xF1, ecu.address]) + payload
-            check = bytes([sum(frame) & 0xFF])
+            check = bytes([kline_checksum(frame)])
         if flip_bit:
             frame = frame[:-1] + bytes([frame[-1] ^ 0x40])
         return prefix + _hex(frame + check, sep)
@@ -413,13 +414,3 @@ def _is_obd_request(command: str) -> bool:
 def _hex(data: bytes, sep: str) -> str:
     # The ELM327 follows every byte with a space when spaces are on, the last one included.
     return "".join(f"{b:02X}{sep}" for b in data)
-
-
-def _j1850_crc(data: bytes) -> int:
-    """SAE J1850 CRC-8: polynomial x^8 + x^4 + x^3 + x^2 + 1, preset 0xFF, result inverted."""
-    crc = 0xFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc ^ 0xFF
