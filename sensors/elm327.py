@@ -101,6 +101,7 @@ class Elm327:
         self.protocol_number: str | None = None  # the vehicle protocol the adapter settled on (AT DPN)
         self.echo_stuck = False  # the adapter ignores ATE0, as many clones do
         self.resets_seen = 0  # adapter resets noticed during reads (and recovered from)
+        self.connect_problem: str | None = None  # why the vehicle did not answer during set-up, if it did not
         self._serial: serial.Serial | None = None
         self._rx = bytearray()
         self._family: str | None = None
@@ -134,6 +135,20 @@ class Elm327:
         except SensorError:
             self.close()
             raise
+        self._find_vehicle()
+
+    def _find_vehicle(self) -> None:
+        """Ask for the speed once during set-up, so that the adapter's protocol search (seconds, with
+        SEARCHING...) happens now and not in the sampler's first period. The answer itself is not kept; a
+        vehicle that does not answer yet (ignition off) is left for the reads to report."""
+        try:
+            self.read()
+        except (NoData, BusError, ProtocolError) as exc:
+            if self._serial is None:
+                raise
+            self.connect_problem = str(exc)
+        else:
+            self.connect_problem = None
 
     def close(self) -> None:
         ser, self._serial = self._serial, None

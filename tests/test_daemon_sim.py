@@ -63,7 +63,14 @@ def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
     for topic, hz in expected_hz.items():
         t = [m["t_mono_ns"] for _, _, m in msgs[topic]]
         span = (t[-1] - t[0]) / 1e9
-        rate = (len(t) - 1) / span
+        # A fix's arrival wanders with the receiver's solution latency (40-390 ms): its rate is that of the
+        # epochs it reports. Every other topic is sampled by the board, on the board's clock.
+        if topic == "/gnss/fix":
+            when = [m["gnss_time_ns"] for _, _, m in msgs[topic] if m["gnss_time_ns"] is not None]
+            assert len(when) >= len(t) - 2  # only the receiver's first second may come without a valid time
+        else:
+            when = t
+        rate = (len(when) - 1) / ((when[-1] - when[0]) / 1e9)
         assert abs(rate / hz - 1) < 0.01, (topic, rate)
         assert span > 56, (topic, span)  # started within the first seconds, ran to the end
         seq = [m["seq"] for _, _, m in msgs[topic]]
@@ -72,7 +79,8 @@ def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
         assert max(gaps) < 1.5e9 / hz, (topic, max(gaps))
     # The receiver's epochs follow each other second by second, and every PPS edge is there.
     epochs = [m["gnss_time_ns"] for _, _, m in msgs["/gnss/fix"] if m["gnss_time_ns"] is not None]
-    assert len(epochs) >= 55 and all(b - a == 1_000_000_000 for a, b in itertools.pairwise(epochs))
+    # (the solution's UTC carries the receiver's time error of some ns: compare whole milliseconds)
+    assert len(epochs) >= 55 and all(round((b - a) / 1e6) == 1000 for a, b in itertools.pairwise(epochs))
     seqnos = [m["seqno"] for _, _, m in msgs["/pps"]]
     assert seqnos == list(range(seqnos[0], seqnos[0] + len(seqnos)))
 
