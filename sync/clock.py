@@ -1,0 +1,345 @@
+"""The PPS-disciplined clock: board monotonic time -> GNSS (UTC) time, with a state and an honest error bound.
+
+Samples are PPS edges (kernel time stamps on the monotonic clock) paired with the GNSS second each one marks
+(:mod:`sync.pairing`). A robust line through the recent samples (:mod:`sync.regress`) gives offset and
+frequency, so a stamp between edges is interpolated with the estimated frequency. When edges stop (tunnel,
+blocked sky) the clock carries on in HOLDOVER with the last frequency, corrected for the board's temperature
+when the temperature coefficient could be learned while locked, and its error bound grows with the frequency's
+uncertainty plus an oscillator stability, as chrony's does. When edges return, the difference between the
+holdover prediction and the new fit is slewed out at a bounded rate: time never runs backwards and never steps.
+
+States: FREERUN (no GNSS time yet: the wall clock read once at start), LOCKED, HOLDOVER.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sync.pairing import EdgeLabeller
+from sync.paper import PaperCounters
+from sync.regress import LineFit, fit_line
+from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp
+from sync.tempco import TempcoEstimator
+
+log = logging.getLogger(__name__)
+
+NS = 1_000_000_000
+
+
+@dataclass
+class SyncSettings:
+    imu_rate_hz: float = 20.0
+    pps_latency_ns: int = 7_000  # mean delay from the pulse to the kernel's time stamp (pps-gpio interrupt)
+    pps_latency_spread_ns: int = 10_000  # allowance for that delay's variation in the error bound
+    max_samples: int = 64
+    lock_samples: int = 3
+    holdover_after_s: float = 1.5  # no edge for this long: HOLDOVER
+    restart_window_after_s: float = 30.0  # a gap this long starts the regression afresh (frequency prior)
+    stability_ppm: float = 1.0  # how far the frequency may wander unseen (chrony's maxclockerror)
+    tempco_bound_ppm_per_degc: float = 1.5  # assumed |df/dT| while the coefficient is not learned
+    sigma_k: float = 4.0  # error bound = sigma_k * standard error + the allowances
+    max_slew_ppm: float = 500.0
+    min_sigma_ns: float = 500.0
+    freerun_err_ns: int = 10 * NS  # a board without RTC: its wall clock is only roughly right, if at all
+    save_interval_s: float = 300.0
+
+
+class PpsClock:
+    """A :class:`sync.stamp.StampClock` that observes PPS edges, time pulses, fixes and IMU temperatures."""
+
+    def __init__(self, settings: SyncSettings | None = None, monotonic_ns: Callable[[], int] = time.monotonic_ns,
+                 wall_ns: Callable[[], int] = time.time_ns, state_path: Path | None = None,
+                 clock_id: str = "") -> None:
+        self.s = settings or SyncSettings()
+        self._mono = monotonic_ns
+        self._lock = threading.RLock()
+        mono = monotonic_ns()
+        self._freerun_offset_ns = wall_ns() - mono
+        self.labeller = EdgeLabeller(self.s.pps_latency_ns)
+        self.paper = PaperCounters(self.s.imu_rate_hz)
+        self.tempco = TempcoEstimator()
+        self.state_path = state_path
+        self.clock_id = clock_id
+        # Samples: board time of the edge (ns) and offset = GNSS time - board time (ns), oldest first.
+        self._edges: deque[int] = deque(maxlen=self.s.max_samples)
+        self._offsets: deque[int] = deque(maxlen=self.s.max_samples)
+        self._base_ns = 0  # offsets are fitted relative to this, in float64 with ns resolution
+        self._fit: LineFit | None = None
+        self._locked_once = False
+        self._consecutive = 0
+        self._last_sample_ns: int | None = None
+        self._slope_prior: float | None = None
+        self._skew_prior = 1e-6
+        self._err_at_last_ns = float(self.s.freerun_err_ns)
+        self._slew_from_ns: int | None = None  # board time the current slew started
+        self._slew_ns = 0.0  # correction to be slewed out, ns
+        self._slew_len_ns = 1
+        self._temp_at_fit: float | None = None
+        self._comp_ns = 0.0  # integral of the temperature correction since the last sample
+        self._comp_abs_ns = 0.0  # integral of the worst-case temperature term, for the bound
+        self._last_temp: tuple[int, float] | None = None
+        self._saved_at: int | None = None
+        self._restored = False
+        self._last_offset_ns: int | None = None
+        self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0}
+        self._load()
+
+    # ---- observation (called by the daemon for every record, from any thread) ------------------------------
+    def observe(self, topic: str, payload: dict[str, Any], t_mono_ns: int) -> None:
+        if topic == "/imu":
+            with self._lock:
+                self.paper.on_imu(t_mono_ns)
+                temp = payload.get("temp_degc")
+                if temp is not None:
+                    self._on_temperature(t_mono_ns, float(temp))
+        elif topic == "/pps":
+            with self._lock:
+                self.counts["edges"] += 1
+                self.paper.on_edge(t_mono_ns)
+                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
+        elif topic == "/gnss/timepulse":
+            with self._lock:
+                self._take(self.labeller.on_timepulse(payload, t_mono_ns, self._predict_unix_ns))
+        elif topic == "/gnss/fix":
+            with self._lock:
+                self._take(self.labeller.on_fix(payload, t_mono_ns, self._predict_unix_ns))
+
+    def _take(self, pairs: list[tuple[int, int]]) -> None:
+        for edge_ns, label_ns in pairs:
+            self._add_sample(edge_ns, label_ns)
+        self.counts["rejected"] = self.labeller.rejected
+        self.counts["unlabelled"] = self.labeller.unlabelled
+
+    # ---- samples and the fit ---------------------------------------------------------------------------------
+    def _add_sample(self, edge_ns: int, label_ns: int) -> None:
+        true_board_ns = edge_ns - self.s.pps_latency_ns  # the interrupt stamped the edge this much late
+        offset = label_ns - true_board_ns
+        if self._last_sample_ns is not None and edge_ns <= self._last_sample_ns:
+            return
+        state_before = self._state_at(edge_ns)
+        predicted = self._offset_at(edge_ns) if state_before != FREERUN else None
+        # chrony's "last offset": how far the published time was from this edge's GNSS time.
+        self._last_offset_ns = round(predicted - offset) if predicted is not None else None
+        gap_s = (edge_ns - self._last_sample_ns) / NS if self._last_sample_ns is not None else math.inf
+        if predicted is not None and gap_s > self.s.restart_window_after_s:
+            # After a long gap the old samples describe another temperature: start afresh, keep the frequency.
+            self._slope_prior = self._current_slope(edge_ns)
+            self._edges.clear()
+            self._offsets.clear()
+        if not self._edges:
+            self._base_ns = offset
+        self._edges.append(true_board_ns)
+        self._offsets.append(offset)
+        self._last_sample_ns = edge_ns
+        self.counts["samples"] += 1
+        self._refit()
+        self._temp_at_fit = self._last_temp[1] if self._last_temp else None
+        self._comp_ns = 0.0
+        self._comp_abs_ns = 0.0
+        if self._fit is not None:
+            self.tempco.add(edge_ns, self._fit.slope / NS, self._temp_at_fit, self._fit.n_used)
+        if predicted is not None:
+            new = self._offset_at(edge_ns, slewed=False)
+            step = predicted - new
+            if state_before == HOLDOVER:
+                self.counts["relocks"] += 1
+                log.info("PPS back after %.1f s: holdover was %+.1f us off", gap_s, step / 1e3)
+            # Whatever the new fit says, published time moves on continuously: slew the difference out.
+            self._slew_from_ns = edge_ns
+            self._slew_ns = step
+            self._slew_len_ns = max(1, int(abs(step) / (self.s.max_slew_ppm * 1e-6)))
+        self._consecutive += 1
+        if not self._locked_once and len(self._edges) >= self.s.lock_samples:
+            self._locked_once = True
+            self._slew_from_ns = None
+            self._slew_ns = 0.0
+            log.info("clock locked to GNSS time (%d PPS edges)", len(self._edges))
+        self._maybe_save(edge_ns)
+
+    def _refit(self) -> None:
+        x = (np.fromiter(self._edges, dtype=np.float64) - float(self._edges[-1])) / NS
+        y = np.fromiter(self._offsets, dtype=np.float64) - float(self._base_ns)
+        prior = self._slope_prior * NS if self._slope_prior is not None else None  # ns of offset per s
+        fit = fit_line(x, y, slope_prior=prior if len(x) < 3 else None, min_sigma=self.s.min_sigma_ns)
+        if math.isnan(fit.skew):
+            fit = LineFit(fit.x_ref, fit.offset_at_ref, fit.slope, fit.sigma_offset, self._skew_prior * NS, fit.rms,
+                          fit.n_used, fit.n_dropped_old, fit.n_outliers)
+        self._fit = fit
+        self._fit_origin_ns = self._edges[-1]
+        if fit.n_used >= 3:
+            self._slope_prior = fit.slope / NS
+            self._skew_prior = max(fit.skew / NS, 1e-9)
+
+    def _current_slope(self, t_ns: int) -> float:
+        slope = self._fit.slope / NS if self._fit is not None else (self._slope_prior or 0.0)
+        k = self.tempco.coefficient()
+        if k is not None and self._last_temp is not None and self._temp_at_fit is not None:
+            slope += k * (self._last_temp[1] - self._temp_at_fit)
+        return slope
+
+    def _on_temperature(self, t_ns: int, temp: float) -> None:
+        last = self._last_temp
+        if last is None and self._restored and self._temp_at_fit is not None and self._last_sample_ns is not None:
+            # Restarted from a saved mapping: bridge the time the daemon was down with what is known of it.
+            last = (self._last_sample_ns, self._temp_at_fit)
+        self._last_temp = (t_ns, temp)
+        if last is None or t_ns <= last[0] or self._temp_at_fit is None:
+            return
+        dt = (t_ns - last[0]) / NS
+        d_temp = 0.5 * (temp + last[1]) - self._temp_at_fit
+        k = self.tempco.coefficient()
+        if k is not None:
+            self._comp_ns += k * d_temp * dt * NS
+        self._comp_abs_ns += self._tempco_uncertainty() * abs(d_temp) * dt * NS
+
+    def _tempco_uncertainty(self) -> float:
+        k_sigma = self.tempco.sigma()
+        return self.s.tempco_bound_ppm_per_degc * 1e-6 if k_sigma is None else 3.0 * k_sigma
+
+    # ---- what a stamp is ------------------------------------------------------------------------------------
+    def _state_at(self, t_ns: int) -> str:
+        if not self._locked_once and not self._restored:
+            return FREERUN
+        if self._last_sample_ns is not None and (t_ns - self._last_sample_ns) <= self.s.holdover_after_s * NS:
+            return LOCKED if self._locked_once else HOLDOVER
+        return HOLDOVER
+
+    def _offset_at(self, t_ns: int, slewed: bool = True) -> float:
+        """GNSS time minus board time at ``t_ns``, in ns."""
+        fit = self._fit
+        assert fit is not None
+        x = (t_ns - self._fit_origin_ns) / NS
+        off = self._base_ns + fit.offset(x)
+        if t_ns > self._last_sample_ns:
+            off += self._comp_ns
+        if slewed and self._slew_from_ns is not None:
+            left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
+            if left > 0:
+                off += self._slew_ns * min(1.0, left)
+        return off
+
+    def _predict_unix_ns(self, t_ns: int) -> int | None:
+        """The clock's current idea of GNSS time at a board time, or None before it knows any."""
+        with self._lock:
+            if self._fit is None:
+                return None
+            return t_ns + round(self._offset_at(t_ns))
+
+    def _err_at(self, t_ns: int, state: str) -> float:
+        fit = self._fit
+        assert fit is not None
+        x = (t_ns - self._fit_origin_ns) / NS
+        err = self.s.sigma_k * fit.sigma_at(x) + self.s.pps_latency_spread_ns
+        since = max(0.0, (t_ns - (self._last_sample_ns or t_ns)) / NS)
+        if state == HOLDOVER or since > 0:
+            err += self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
+        if self._slew_from_ns is not None:
+            left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
+            if left > 0:
+                err += abs(self._slew_ns) * min(1.0, left)
+        return err
+
+    def stamp(self, t_mono_ns: int) -> Stamp:
+        with self._lock:
+            imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
+            state = self._state_at(t_mono_ns)
+            if state == FREERUN or self._fit is None:
+                return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self.s.freerun_err_ns, imu_cnt, timer_cnt)
+            off = self._offset_at(t_mono_ns)
+            return Stamp(t_mono_ns + round(off), state, max(1, round(self._err_at(t_mono_ns, state))), imu_cnt,
+                         timer_cnt)
+
+    # ---- reporting and persistence ----------------------------------------------------------------------------
+    def report(self, now_ns: int | None = None) -> dict[str, Any]:
+        """What ``chronyc tracking`` would show, for /sync and ``logger status``."""
+        now = self._mono() if now_ns is None else now_ns
+        with self._lock:
+            st = self.stamp(now)
+            fit = self._fit
+            since = (now - self._last_sample_ns) / NS if self._last_sample_ns is not None else None
+            k = self.tempco.coefficient()
+            return {
+                "t_mono_ns": now, "state": st.state,
+                "offset_ns": self._last_offset_ns,
+                # The board clock's rate error (positive: it runs fast); GNSS minus board drifts the other way.
+                "freq_ppm": round(-self._current_slope(now) * 1e6, 4) if fit is not None else None,
+                "skew_ppm": round(fit.skew / NS * 1e6, 5) if fit is not None else None,
+                "rms_ns": round(fit.rms, 1) if fit is not None else None,
+                "err_ns": st.err_ns, "since_edge_s": round(since, 3) if since is not None else None,
+                "samples": fit.n_used if fit is not None else 0,
+                "tempco_ppm_per_degc": round(-k * 1e6, 4) if k is not None else None,
+                "edges": self.counts["edges"], "rejected": self.counts["rejected"],
+                "relocks": self.counts["relocks"],
+            }
+
+    def _maybe_save(self, now_ns: int) -> None:
+        if self.state_path is None or self._fit is None or not self._locked_once:
+            return
+        if self._saved_at is not None and now_ns - self._saved_at < self.s.save_interval_s * NS:
+            return
+        self._saved_at = now_ns
+        self.save(now_ns)
+
+    def save(self, now_ns: int | None = None) -> None:
+        """Write the frequency (and, for a restart on the same boot, the mapping) like chrony's driftfile."""
+        if self.state_path is None or self._fit is None:
+            return
+        now = self._mono() if now_ns is None else now_ns
+        with self._lock:
+            if self._last_sample_ns is None:
+                return
+            ref = self._last_sample_ns
+            state = {
+                "clock_id": self.clock_id, "ref_mono_ns": ref, "ref_offset_ns": round(self._offset_at(ref)),
+                "freq": self._current_slope(now), "skew": self._fit.skew / NS,
+                "err_ns": round(self._err_at(ref, LOCKED)), "tempco": self.tempco.coefficient(),
+                "temp_degc": self._temp_at_fit,
+            }
+        tmp = self.state_path.with_suffix(".tmp")
+        try:
+            self.state_path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(state))
+            os.replace(tmp, self.state_path)
+        except OSError as exc:
+            log.warning("cannot save clock state to %s: %s", self.state_path, exc.strerror or exc)
+
+    def _load(self) -> None:
+        if self.state_path is None or not self.state_path.exists():
+            return
+        try:
+            st = json.loads(self.state_path.read_text())
+            freq = float(st["freq"])
+            skew = float(st["skew"])
+        except (OSError, ValueError, KeyError, TypeError):
+            log.warning("ignoring unreadable clock state %s", self.state_path)
+            return
+        if not (abs(freq) < 1e-3 and 0 <= skew < 1e-4):
+            return
+        self._slope_prior = freq
+        self._skew_prior = max(skew, 1e-9)
+        if st.get("tempco") is not None:
+            self.tempco.prior(float(st["tempco"]))
+        if self.clock_id and st.get("clock_id") == self.clock_id:
+            # Same boot: the monotonic clock went on, so the saved mapping still holds; start in holdover.
+            ref = int(st["ref_mono_ns"])
+            self._edges.append(ref)
+            self._offsets.append(int(st["ref_offset_ns"]))
+            self._base_ns = int(st["ref_offset_ns"])
+            self._last_sample_ns = ref
+            self._fit = LineFit(0.0, 0.0, freq * NS, float(st["err_ns"]) / self.s.sigma_k, skew * NS, 0.0, 1, 0, 0)
+            self._fit_origin_ns = ref
+            self._temp_at_fit = st.get("temp_degc")
+            self._restored = True
+            log.info("clock restored from %s: holdover from the previous run's mapping", self.state_path)

@@ -1,0 +1,142 @@
+"""Which GNSS second does a PPS edge mark? Pairing edges with the receiver's time messages.
+
+The receiver announces the next pulse with UBX TIM-TP some hundreds of ms before it; its navigation solution for
+second T (NAV-PVT, or NMEA without UBX) arrives tens to hundreds of ms after the pulse of T. Both reach this code
+from other threads, a little late and in any order, so edges and messages wait here until they can be matched.
+
+Checks: a label must fall on a whole second; once the clock has a prediction, the label must agree with it
+(a message of the previous second, a false edge or a doubled edge otherwise); before that, consecutive pairs
+must agree with each other (labels one second apart for edges one second apart).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+NS = 1_000_000_000
+UNIX_NS_AT_GPS_EPOCH = 315_964_800 * NS
+WEEK_NS = 604_800 * NS
+ANNOUNCE_WINDOW_NS = 1_100_000_000  # a TIM-TP is followed by its edge within this
+REPORT_WINDOW_NS = 1_000_000_000  # a solution arrives within this after the edge of its second
+WHOLE_SECOND_TOLERANCE_NS = 1_000_000
+PREDICTION_TOLERANCE_NS = 200_000_000
+CHAIN_TOLERANCE_NS = 2_000_000
+KEEP_NS = 3 * NS
+
+Predict = Callable[[int], "int | None"]
+
+
+class EdgeLabeller:
+    def __init__(self, latency_ns: int = 0) -> None:
+        self.latency_ns = latency_ns
+        self.leap_s: int | None = None
+        self.rejected = 0
+        self.unlabelled = 0
+        self._edges: deque[int] = deque()
+        self._announced: deque[tuple[int, int]] = deque()  # (received at, label of the next edge)
+        self._reported: deque[tuple[int, int]] = deque()  # (received at, epoch just past)
+        self._last: tuple[int, int] | None = None  # last accepted (edge, label)
+
+    # ---- inputs ----------------------------------------------------------------------------------------------
+    def on_edge(self, edge_ns: int, predict: Predict) -> list[tuple[int, int]]:
+        self._edges.append(edge_ns)
+        return self._match(predict)
+
+    def on_timepulse(self, tp: dict[str, Any], received_ns: int, predict: Predict) -> list[tuple[int, int]]:
+        label = self._timepulse_unix_ns(tp)
+        if label is not None:
+            self._announced.append((received_ns, label))
+        return self._match(predict)
+
+    def on_fix(self, fix: dict[str, Any], received_ns: int, predict: Predict) -> list[tuple[int, int]]:
+        utc = fix.get("gnss_time_ns")
+        if utc is None:
+            return []
+        itow = fix.get("itow_ms")
+        if itow is not None:
+            utc_tow_ns = (utc - UNIX_NS_AT_GPS_EPOCH) % WEEK_NS
+            leap = round(((itow * 1_000_000 - utc_tow_ns) % WEEK_NS) / NS)
+            if 0 <= leap < 100:
+                self.leap_s = leap
+        whole = round(utc / NS) * NS
+        if abs(utc - whole) <= WHOLE_SECOND_TOLERANCE_NS:
+            self._reported.append((received_ns, whole))
+        return self._match(predict)
+
+    def _timepulse_unix_ns(self, tp: dict[str, Any]) -> int | None:
+        try:
+            week, tow_ms = int(tp["week"]), int(tp["tow_ms"])
+        except (KeyError, TypeError, ValueError):
+            return None
+        sub_ns = round(float(tp.get("tow_sub_ms") or 0.0) * 1e6)
+        t = UNIX_NS_AT_GPS_EPOCH + week * WEEK_NS + tow_ms * 1_000_000 + sub_ns
+        if tp.get("time_base") != "utc":
+            if self.leap_s is None:
+                return None  # GPS-based pulse time, and GPS-UTC not known yet
+            t -= self.leap_s * NS
+        # The receiver puts the pulse qErr early of the ideal instant it announces.
+        qerr_ps = tp.get("qerr_ps") or 0
+        return t - round(qerr_ps / 1000)
+
+    # ---- matching --------------------------------------------------------------------------------------------
+    def _match(self, predict: Predict) -> list[tuple[int, int]]:
+        out: list[tuple[int, int]] = []
+        for edge in list(self._edges):
+            label = self._label_for(edge, predict)
+            if label is None:
+                continue
+            self._edges.remove(edge)
+            if self._accept(edge, label, predict):
+                out.append((edge, label))
+            else:
+                self.rejected += 1
+        self._expire()
+        return out
+
+    def _label_for(self, edge: int, predict: Predict) -> int | None:
+        # Another, earlier edge in the same window is the better candidate unless the prediction says otherwise.
+        for received, label in self._announced:
+            if received < edge <= received + ANNOUNCE_WINDOW_NS and self._first_candidate(edge, received, label,
+                                                                                          predict):
+                return label
+        for received, label in self._reported:
+            if received - REPORT_WINDOW_NS < edge < received and self._first_candidate(
+                    edge, received - REPORT_WINDOW_NS, label, predict):
+                return label
+        return None
+
+    def _first_candidate(self, edge: int, window_start: int, label: int, predict: Predict) -> bool:
+        others = [e for e in self._edges if window_start < e < edge]
+        if not others:
+            return True
+        p = predict(edge)
+        if p is None:
+            return False  # keep the earliest edge: a glitch comes after the real one
+        best = min([edge, *others], key=lambda e: abs((predict(e) or 0) - label))
+        return best == edge
+
+    def _accept(self, edge: int, label: int, predict: Predict) -> bool:
+        p = predict(edge)
+        if p is not None and abs(p - label) > PREDICTION_TOLERANCE_NS:
+            return False
+        if p is None and self._last is not None:
+            last_edge, last_label = self._last
+            if abs((label - last_label) - (edge - last_edge)) > CHAIN_TOLERANCE_NS and edge - last_edge < 100 * NS:
+                self._last = (edge, label)  # a chain starts again from here
+                return False
+        if self._last is not None and label <= self._last[1]:
+            return False  # this second has a pulse already
+        self._last = (edge, label)
+        return True
+
+    def _expire(self) -> None:
+        newest = max([*self._edges, *(r for r, _ in self._announced), *(r for r, _ in self._reported)], default=0)
+        while self._edges and newest - self._edges[0] > KEEP_NS:
+            self._edges.popleft()
+            self.unlabelled += 1
+        while self._announced and newest - self._announced[0][0] > KEEP_NS:
+            self._announced.popleft()
+        while self._reported and newest - self._reported[0][0] > KEEP_NS:
+            self._reported.popleft()

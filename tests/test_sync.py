@@ -1,0 +1,237 @@
+"""The clock on synthetic edge streams: many seeds, hours of edges in seconds, the truth known everywhere."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from sync_streams import NS, Stream, feed, make_stream
+
+from sync.clock import PpsClock, SyncSettings
+from sync.paper import PaperCounters, split_count
+from sync.regress import count_runs, critical_runs, fit_line
+
+# ---------------------------------------------------------------------------------------------- regression
+
+
+def test_line_fit_recovers_offset_and_slope_with_honest_errors() -> None:
+    rng = np.random.default_rng(1)
+    x = np.arange(64.0) - 63
+    y = 1000.0 + 30_000.0 * x + rng.normal(0, 2000.0, 64)  # 30 ppm in ns per s, 2 us noise
+    f = fit_line(x, y)
+    assert abs(f.offset_at_ref - 1000.0) < 4 * f.sigma_offset
+    assert abs(f.slope - 30_000.0) < 4 * f.skew
+    assert 1500 < f.rms < 2500 and f.n_used == 64 and f.n_outliers == 0
+
+
+def test_outliers_are_rejected() -> None:
+    rng = np.random.default_rng(2)
+    x = np.arange(40.0)
+    y = 5.0 * x + rng.normal(0, 1.0, 40)
+    y[[7, 21]] += 200.0  # two interrupts served very late
+    f = fit_line(x, y)
+    assert f.n_outliers == 2 and abs(f.slope - 5.0) < 0.1
+
+
+def test_runs_test_drops_a_stale_head() -> None:
+    rng = np.random.default_rng(3)
+    x = np.arange(64.0)
+    # The frequency changed 20 samples ago: the old part no longer lies on today's line.
+    y = np.where(x < 44, 0.0, 300.0 * (x - 44)) + rng.normal(0, 5.0, 64)
+    f = fit_line(x, y)
+    assert f.n_dropped_old >= 30
+    assert abs(f.slope - 300.0) < 10
+
+
+def test_runs_statistics() -> None:
+    assert count_runs(np.array([1, 1, -1, -1, 1.0])) == 3
+    assert critical_runs(64) < 33 < 64  # fewer runs than noise would give is what flags a trend
+
+
+# ---------------------------------------------------------------------------------------------- the paper
+
+
+def test_paper_counter_split() -> None:
+    assert split_count(20, 20) == (20, 0)
+    assert split_count(21, 20) == (21, 0)
+    assert split_count(22, 20) == (2, 20)
+    assert split_count(20 * 3600 + 5, 20) == (5, 20 * 3600)
+
+
+def test_paper_counters_stay_at_most_21_with_pps_and_carry_without() -> None:
+    c = PaperCounters(20.0)
+    rng = np.random.default_rng(4)
+    worst = 0
+    t_imu = np.arange(0, 120, 0.05) * NS + 13_000_000
+    edges = [k * NS + int(rng.normal(7000, 2000)) for k in range(1, 60)]  # PPS for the first minute only
+    events = sorted([(int(t), "imu") for t in t_imu] + [(e, "pps") for e in edges])
+    for t, kind in events:
+        if kind == "pps":
+            c.on_edge(t)
+        else:
+            c.on_imu(t)
+            imu, timer = c.counters(t)
+            if t < 59.5 * NS:
+                worst = max(worst, imu)
+                assert timer == 0
+    assert worst in (20, 21)
+    imu, timer = c.counters(int(t_imu[-1]))
+    since_last_edge = int(np.sum(t_imu > edges[-1]))
+    assert since_last_edge == 1220
+    assert timer + imu == since_last_edge and timer % 20 == 0 and imu <= 21  # a minute carried into the timer
+
+
+def test_an_edge_reported_late_recounts_the_samples_after_it() -> None:
+    c = PaperCounters(20.0)
+    for k in range(5):
+        c.on_imu(1_000_000_000 + k * 50_000_000)
+    c.on_edge(1_120_000_000)  # the PPS thread reports after the IMU thread already counted two later samples
+    assert c.counters(1_200_000_000) == (2, 0)
+
+
+# ---------------------------------------------------------------------------------------------- the clock
+
+
+def covered(r: dict[str, np.ndarray]) -> bool:
+    """The error bound holds at every stamp once GNSS time is known (before, the wall clock is all there is)."""
+    known = r["state"] != "freerun"
+    return bool(np.all(np.abs(r["err"][known]) <= r["bound"][known]))
+
+
+def run(stream: Stream, settings: SyncSettings | None = None, state_path: Path | None = None,
+        clock_id: str = "") -> tuple[PpsClock, dict[str, np.ndarray]]:
+    now = [0]
+    clock = PpsClock(settings or SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0,
+                     state_path=state_path, clock_id=clock_id)
+    rows = []
+    for board, topic, _ in feed(clock, stream.events):
+        now[0] = board
+        if topic in ("/imu", "/pps"):
+            q = board + 17_000_000  # a sample 17 ms after the event: between edges, like any sensor's
+            s = clock.stamp(q)
+            rows.append((q, s.t_sync_ns, s.t_sync_ns - stream.true_unix_ns(q), s.err_ns, s.state))
+    arr = np.array([r[:4] for r in rows], dtype=np.int64)
+    return clock, {"board": arr[:, 0], "sync": arr[:, 1], "err": arr[:, 2], "bound": arr[:, 3],
+                   "state": np.array([r[4] for r in rows])}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_locked_stamps_are_within_20us_rms_and_100us_max(seed: int) -> None:
+    _, r = run(make_stream(900, seed=seed))
+    locked = r["state"] == "locked"
+    assert locked.mean() > 0.97
+    err = r["err"][locked]
+    assert np.sqrt(np.mean(err.astype(float) ** 2)) <= 20_000
+    assert np.abs(err).max() <= 100_000
+    assert covered(r)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_minute_without_pps_stays_within_200us(seed: int) -> None:
+    _, r = run(make_stream(1200, seed=seed, outages=((600, 660),)))
+    hold = r["state"] == "holdover"
+    assert hold.sum() > 50
+    end = r["board"][hold].max()
+    assert abs(r["err"][r["board"] == end][0]) <= 200_000
+    assert covered(r)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_an_hour_without_pps_stays_within_5ms_and_the_bound_holds(seed: int) -> None:
+    # The cabin warms during the outage (20 degC over the 3 h drive): temperature compensation matters.
+    clock, r = run(make_stream(3 * 3600, seed=seed, outages=((3600, 7200),)))
+    hold = r["state"] == "holdover"
+    assert np.abs(r["err"][hold]).max() <= 5_000_000
+    assert covered(r)
+    assert clock.report()["relocks"] == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_relock_never_runs_backwards_nor_steps_beyond_the_bound(seed: int) -> None:
+    _, r = run(make_stream(2 * 3600, seed=seed, outages=((1800, 3000),)))
+    sync, board, bound = r["sync"], r["board"], r["bound"]
+    order = np.argsort(board, kind="stable")
+    sync, board, bound = sync[order], board[order], bound[order]
+    after_lock = np.flatnonzero(r["state"][order] != "freerun")[0]
+    d_sync = np.diff(sync[after_lock:])
+    d_board = np.diff(board[after_lock:])
+    assert np.all(d_sync[d_board > 0] > 0)
+    # The published time moves with the board clock but for its rate error and the slew: no step.
+    step = np.abs(d_sync - d_board)
+    assert np.all(step <= np.maximum(bound[after_lock + 1:], 1) + 1e-3 * d_board)
+
+
+def test_doubled_spurious_edges_and_late_messages_are_rejected() -> None:
+    stream = make_stream(600, seed=7, double_edges=(100, 200, 300), spurious=(150.4, 250.6),
+                         late_fix_at=(120, 121, 400))
+    clock, r = run(stream)
+    locked = r["state"] == "locked"
+    assert np.abs(r["err"][locked]).max() <= 100_000
+    assert covered(r)
+    assert clock.labeller.rejected + clock.labeller.unlabelled >= 5
+
+
+def test_gps_based_time_pulse_waits_for_the_leap_seconds() -> None:
+    # TIM-TP in GPS time and no solution to tell GPS-UTC: the clock must not lock 18 s off.
+    _, r = run(make_stream(120, seed=8, fixes=False))
+    assert set(r["state"]) == {"freerun"}
+    clock, r = run(make_stream(120, seed=8))
+    assert clock.labeller.leap_s == 18
+    assert np.abs(r["err"][r["state"] == "locked"]).max() < 100_000
+
+
+def test_nmea_style_fixes_alone_lock_the_clock() -> None:
+    _, r = run(make_stream(300, seed=9, timepulse=False))
+    locked = r["state"] == "locked"
+    assert locked.mean() > 0.9 and np.abs(r["err"][locked]).max() <= 100_000
+
+
+def stream_temp(stream: Stream, board_ns: int) -> float:
+    temps = [(b, p["temp_degc"]) for b, t, p in stream.events if t == "/imu"]
+    return min(temps, key=lambda bt: abs(bt[0] - board_ns))[1]
+
+
+def test_state_file_restarts_in_holdover_on_the_same_boot(tmp_path: Path) -> None:
+    path = tmp_path / "clock.json"
+    stream = make_stream(1200, seed=10, outages=((900, 1200),))
+    first = [e for e in stream.events if e[0] < stream.osc.board_ns(600 * NS)]
+    clock, _ = run(Stream(stream.osc, first), state_path=path, clock_id="boot-A")
+    clock.save()
+    saved = json.loads(path.read_text())
+    assert saved["clock_id"] == "boot-A" and abs(saved["freq"]) > 10e-6
+    # Restarted at 950 s, inside the outage, same boot: holdover from the saved mapping, not free-running.
+    now = stream.osc.board_ns(950 * NS)
+    again = PpsClock(SyncSettings(), monotonic_ns=lambda: now, wall_ns=lambda: 0, state_path=path,
+                     clock_id="boot-A")
+    again.observe("/imu", {"temp_degc": stream_temp(stream, now)}, now)  # the first IMU sample after start
+    s = again.stamp(now)
+    assert s.state == "holdover"
+    assert abs(s.t_sync_ns - stream.true_unix_ns(now)) <= s.err_ns
+    assert abs(s.t_sync_ns - stream.true_unix_ns(now)) < 5_000_000
+    # Another boot: the monotonic clock started over, so only the frequency is reused.
+    other = PpsClock(SyncSettings(), monotonic_ns=lambda: now, wall_ns=lambda: 0, state_path=path,
+                     clock_id="boot-B")
+    assert other.stamp(now).state == "freerun"
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 200_000_000_000), st.sampled_from(["/pps", "/gnss/timepulse", "/gnss/fix",
+                                                                          "/imu"]),
+                          st.integers(0, 2**40)), max_size=80))
+def test_any_event_stream_keeps_stamps_monotonic_and_never_raises(events: list[tuple[int, str, int]]) -> None:
+    now = [0]
+    clock = PpsClock(SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    last = None
+    for board, topic, n in sorted(events):
+        now[0] = board
+        payload = {"seqno": n, "tow_ms": n % 604_800_000, "week": 2300, "time_base": "utc", "qerr_ps": 0,
+                   "gnss_time_ns": 1_700_000_000 * NS + n * 1000, "itow_ms": n % 604_800_000, "temp_degc": 20.0}
+        clock.observe(topic, payload, board)
+        s = clock.stamp(board)
+        if last is not None and last[1] == s.state != "freerun":
+            assert s.t_sync_ns >= last[0]
+        last = (s.t_sync_ns, s.state)
