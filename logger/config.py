@@ -121,6 +121,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "chip": Key(str, "/dev/gpiochip0", _abs_path),
         "line": Key((int, str), 60, None, "line offset or line name"),
     },
+    "sync": {
+        "pps_latency_us": Key(NUM, 7.0, _range(0, 1000), "mean delay of the PPS interrupt's time stamp"),
+        "stability_ppm": Key(NUM, 1.0, _range(0.01, 100), "how far the board clock may wander unseen (holdover)"),
+        "max_slew_ppm": Key(NUM, 500.0, _range(1, 10000), "how fast a correction is slewed in after holdover"),
+    },
     "sim": {
         "scenario": Key(str, "urban", None, "drive to simulate"),
         "seed": Key(int, 1, _range(0, 2**32 - 1)),

@@ -218,6 +218,9 @@ class Daemon:
         while not self.tb.wait(self.stop_event, 1.0):
             snap = self.snapshot()
             now = self.tb.monotonic_ns()
+            report = getattr(self.clock, "report", None)
+            if callable(report):
+                self.sink(Reading("/sync", report(now), now, stamped=False))
             payload = {"t_mono_ns": now, "verdict": snap["verdict"], "problems": snap["problems"],
                        "sensors": snap["sensors"],
                        "recorder": {k: snap["recorder"][k] for k in ("state", "queue_depth", "written", "dropped",

@@ -19,6 +19,7 @@ from logger.daemon import Daemon, Extras
 from logger.sampler import Reading
 from logger.sources import plans_from_config
 from logger.timebase import TimeBase, host_timebase
+from sync.clock import PpsClock, SyncSettings
 
 log = logging.getLogger("logger")
 
@@ -51,6 +52,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
         cfg = defaults(sim=True)
         cfg.values["logger"]["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
         cfg.values["logger"]["status_socket"] = DEFAULT_SIM_SOCKET
+        cfg.values["logger"]["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
     else:
         cfg = load(DEFAULT_PATH)
     sim = cfg.values["sim"]
@@ -65,6 +67,8 @@ def resolve_config(args: argparse.Namespace) -> Config:
         sim["time_scale"] = float(args.time_scale)
     if args.out:
         cfg.values["logger"]["out_dir"] = str(Path(args.out).resolve())
+        if args.sim and not args.config:
+            cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
     if args.status_socket:
         cfg.values["logger"]["status_socket"] = args.status_socket
     real = [s for s in SIM_SECTIONS if cfg[s]["source"] not in ("sim", "none")]
@@ -109,11 +113,30 @@ def build(cfg: Config, duration_s: float | None) -> tuple[Daemon, Any]:
         extras.periodic.append((0.1, truth_clock))
         extras.periodic.append((1.0 / cfg["imu"]["rate_hz"], truth_nav))
     extras.metadata["config"] = {f"{s}.{k}": str(v) for s, keys in cfg.values.items() for k, v in keys.items()}
+    clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}" if vehicle
+                       else boot_id())
+    extras.close.append(clock.save)
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
         "partly simulated" if vehicle else "")
-    daemon = Daemon(cfg, plans, timebase=tb, extras=extras, mode=mode)
+    daemon = Daemon(cfg, plans, timebase=tb, clock=clock, extras=extras, mode=mode)
     return daemon, vehicle
+
+
+def boot_id() -> str:
+    """Identifies this boot: a clock mapping saved under the same id is still valid (CLOCK_MONOTONIC went on)."""
+    try:
+        return "boot-" + Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def make_clock(cfg: Config, tb: TimeBase, clock_id: str) -> PpsClock:
+    sc = cfg["sync"]
+    settings = SyncSettings(imu_rate_hz=cfg["imu"]["rate_hz"], pps_latency_ns=round(sc["pps_latency_us"] * 1000),
+                            stability_ppm=sc["stability_ppm"], max_slew_ppm=sc["max_slew_ppm"])
+    return PpsClock(settings, monotonic_ns=tb.monotonic_ns, state_path=Path(cfg["logger"]["state_dir"]) / "clock.json",
+                    clock_id=clock_id)
 
 
 def main(argv: list[str]) -> int:
