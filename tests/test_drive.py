@@ -194,7 +194,11 @@ def test_urban_drive_has_what_the_scenario_promises(urban):
 
 def test_urban_weather_and_geoid(urban):
     first, last = urban.state(0.0), urban.state(urban.duration_s)
-    assert last.ambient_degc - first.ambient_degc == pytest.approx(20.0)
+    # A 16-minute drive sees the start of the cabin's 20 degC warming over 4 h; a day's drive sees all of it.
+    expected = 20.0 * 0.5 * (1 - math.cos(math.pi * urban.duration_s / (4 * 3600.0)))
+    assert last.ambient_degc - first.ambient_degc == pytest.approx(expected)
+    long = make_drive("urban", seed=0, duration_s=5 * 3600.0)
+    assert long.state(long.duration_s).ambient_degc - long.state(0.0).ambient_degc == pytest.approx(20.0)
     drift_hpa_per_h = (last.sea_level_pa - first.sea_level_pa) / 100.0 / (urban.duration_s / 3600.0)
     assert 0.5 <= abs(drift_hpa_per_h) <= 1.5
     assert 95000.0 < first.sea_level_pa < 105000.0

@@ -45,7 +45,7 @@ def test_board_time_is_strictly_increasing_and_rate_matches_ppm():
 
 
 def test_temperature_coefficient_follows_the_drive_ambient():
-    drive = make_drive("urban", seed=2)
+    drive = make_drive("urban", seed=2, duration_s=5 * 3600.0)  # long enough for the cabin's whole warming
     osc = Oscillator.for_trajectory(drive, wander_ppm_per_sqrt_s=0.0, seed=2)
     t_end = drive.duration_s
     swing_degc = drive.state(t_end).ambient_degc - drive.state(0.0).ambient_degc

@@ -118,12 +118,14 @@ class DriveSpan:
 class Weather:
     """Surroundings that change slowly over a drive.
 
-    The ambient temperature follows a half cosine from ``ambient_start_degc`` to ``ambient_start_degc +
-    ambient_swing_degc`` over the whole drive, so the board's crystal sees the full swing once.
+    The ambient temperature (at the board, in the cabin) follows a half cosine from ``ambient_start_degc`` to
+    ``ambient_start_degc + ambient_swing_degc`` over ``ambient_swing_s`` or the whole drive, whichever is longer:
+    a cabin warms over hours, so a short drive sees only the start of the swing and a day's drive all of it.
     """
 
     ambient_start_degc: float = 12.0
     ambient_swing_degc: float = 20.0
+    ambient_swing_s: float = 4 * 3600.0
     sea_level_pa: float = 101325.0
     sea_level_rate_pa_per_s: float = 100.0 / 3600.0  # 1 hPa per hour
 
@@ -497,7 +499,8 @@ class Drive:
 
     def ambient_degc(self, t_s: float) -> float:
         w = self.weather
-        x = min(max(t_s, 0.0), self.duration_s) / self.duration_s
+        span = max(self.duration_s, w.ambient_swing_s)
+        x = min(max(t_s, 0.0), span) / span
         return w.ambient_start_degc + w.ambient_swing_degc * 0.5 * (1.0 - math.cos(math.pi * x))
 
     def sea_level_pa(self, t_s: float) -> float:
