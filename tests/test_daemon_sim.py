@@ -179,3 +179,50 @@ def test_sigterm_finishes_the_file_cleanly(tmp_path: Path) -> None:
     assert is_finished(path)
     assert len(read_messages(path)["/imu"]) > 50
     assert not sock.exists()
+
+
+def load_report_tool():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("sync_report", Path(__file__).resolve().parents[1] / "tools" /
+                                                  "sync_report.py")
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_clock_locks_and_stamps_within_microseconds(minute_drive: tuple[Path, dict], tmp_path: Path) -> None:
+    path, msgs = minute_drive
+    tool = load_report_tool()
+    drive = tool.Drive.load([path])
+    out = tool.report(drive)
+    assert out["table6"]["max_count_with_carry"] <= 21  # the paper's Table 6 with PPS present
+    for key, s in out["stamp_error"].items():
+        assert s["bound_covers"] == 1.0, key
+        if key.endswith("locked"):
+            assert s["rmse_us"] <= 20 and s["max_us"] <= 100, (key, s)
+    assert out["table7_synchronised"]["rmse_s"] < 20e-6
+    states = [m["state"] for _, _, m in msgs["/sync"]]
+    assert states[-1] == "locked" and states.count("locked") > 50
+    pngs = tool.plots(drive, tmp_path)
+    assert all(p.stat().st_size > 10_000 for p in pngs)
+
+
+def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_path: Path) -> None:
+    r = run_logger("--sim", "--scenario", "outage-60s", "--duration", "230", "--time-scale", "10", "--out",
+                   str(tmp_path), "--status-socket", str(tmp_path / "status.sock"))
+    assert r.returncode == 0, r.stderr
+    (path,) = sorted(tmp_path.glob("*.mcap"))
+    tool = load_report_tool()
+    out = tool.report(tool.Drive.load([path]))
+    held = {k: s for k, s in out["stamp_error"].items() if k.endswith("holdover")}
+    assert held and all(s["max_us"] <= 200 and s["bound_covers"] == 1.0 for s in held.values()), held
+    assert out["table6"]["longest_without_pps_s"] > 55
+    msgs = read_messages(path)
+    for topic in SENSOR_TOPICS:
+        synced = [m for _, _, m in msgs[topic] if m["sync_state"] != "freerun"]
+        assert len({m["sync_state"] for m in synced}) == 2, topic  # locked, then holdover, then locked again
+        t_sync = [m["t_sync_ns"] for m in synced]
+        assert all(b > a for a, b in itertools.pairwise(t_sync)), topic
