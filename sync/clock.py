@@ -93,6 +93,7 @@ class PpsClock:
         self._saved_at: int | None = None
         self._restored = False
         self._last_offset_ns: int | None = None
+        self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0}
         self._load()
 
@@ -161,6 +162,8 @@ class PpsClock:
             self._slew_ns = step
             self._slew_len_ns = max(1, int(abs(step) / (self.s.max_slew_ppm * 1e-6)))
         self._consecutive += 1
+        if self.on_sample is not None and self._locked_once:
+            self.on_sample(true_board_ns, label_ns)
         if not self._locked_once and len(self._edges) >= self.s.lock_samples:
             self._locked_once = True
             self._slew_from_ns = None

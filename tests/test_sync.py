@@ -235,3 +235,26 @@ def test_any_event_stream_keeps_stamps_monotonic_and_never_raises(events: list[t
         if last is not None and last[1] == s.state != "freerun":
             assert s.t_sync_ns >= last[0]
         last = (s.t_sync_ns, s.state)
+
+
+def test_chrony_sock_samples_reach_a_listening_socket(tmp_path: Path) -> None:
+    import socket
+    import time
+
+    from sync.chrony_sock import SAMPLE, SOCK_MAGIC, ChronySock
+
+    path = str(tmp_path / "chrony.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    server.settimeout(2)
+    client = ChronySock(path)
+    mono = time.monotonic_ns()
+    true = time.time_ns() + 250_000  # the system clock is 250 us behind true time
+    client.send_edge(mono, true)
+    sec, usec, offset, pulse, leap, _, magic = SAMPLE.unpack(server.recv(64))
+    assert magic == SOCK_MAGIC and pulse == 0 and leap == 0
+    assert abs(sec + usec / 1e6 - mono / 1e9 - (time.time() - time.monotonic())) < 0.01
+    assert abs(offset - 250e-6) < 100e-6
+    server.close()
+    client.send_edge(mono, true)  # chronyd gone: counted, not raised
+    assert client.failed == 1 and client.sent == 1
