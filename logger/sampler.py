@@ -104,6 +104,8 @@ class Sampler(threading.Thread):
         # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
         self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
         self._logged: dict[str, float] = {}
+        # Which readings are this sensor's samples for rates and gaps (a receiver also sends time pulses).
+        self._sample_topic: str | None = getattr(source, "sample_topic", None)
         self._suppressed = 0
 
     # The thread body: open, sample until an error, back off, reopen.
@@ -186,7 +188,7 @@ class Sampler(threading.Thread):
         h = self.health
         h.heartbeat_mono_ns = self.tb.monotonic_ns()
         for r in readings:
-            if r.stamped:
+            if r.stamped and (self._sample_topic is None or r.topic == self._sample_topic):
                 last = h.last_sample_mono_ns
                 if last is not None and self._gap_ns and r.t_mono_ns - last > self._gap_ns:
                     h.gaps += 1

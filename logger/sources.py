@@ -203,6 +203,7 @@ class GnssSource:
     """The u-blox receiver: every byte kept for post-processing, each decoded fix and time pulse recorded."""
 
     name = "gnss"
+    sample_topic = "/gnss/fix"
 
     def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase) -> None:
         self.path, self.baud, self.configure, self.tb = path, baud, configure, tb
