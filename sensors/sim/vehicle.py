@@ -120,11 +120,12 @@ class SimVehicle:
 def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float = 1.0,
                   duration_s: float | None = None, imu: bool = True, baro: bool = True, obd: bool = True,
                   gnss: bool = True, pps: bool = True, start_utc: dt.datetime | None = None,
-                  host_monotonic_ns: Any = time.monotonic_ns) -> SimVehicle:
+                  host_monotonic_ns: Any = time.monotonic_ns,
+                  scenario_options: dict[str, Any] | None = None) -> SimVehicle:
     """Build the drive and the models asked for. Board time starts at the host's monotonic clock, so at time
     scale 1 simulated and real devices share one clock; the drive starts at the current UTC second."""
     horizon = duration_s if duration_s is not None else 8 * 3600.0
-    drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0)
+    drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0, **(scenario_options or {}))
     rng = np.random.default_rng([seed, 7])
     oscillator = Oscillator.for_trajectory(drive, horizon_s=horizon + 60.0, board_start_ns=host_monotonic_ns(),
                                            offset_ppm=float(rng.uniform(-40.0, 40.0)), seed=rng)
