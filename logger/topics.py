@@ -179,7 +179,7 @@ _add("/nav/state", "vehicle_logger.NavState", {
     "gyro_bias_rps": ("number[3]?", "estimated gyro offset, vehicle x y z, rad/s"),
     "obd_scale": ("number?", "true speed divided by OBD speed (1 + the scale factor state)"),
     "height_offset_m": ("number?", "ellipsoidal height minus barometric altitude, m"),
-    "p_diag": ("array?", "covariance diagonal in state_names order (m^2, (m/s)^2, rad^2, (m/s^2)^2, (rad/s)^2, 1, m^2)"),
+    "p_diag": ("array?", "covariance diagonal in state_names order: m^2, (m/s)^2, rad^2, (m/s^2)^2, (rad/s)^2, 1, m^2"),
     "state_names": ("array", "names of the error states, in covariance order"),
     "innovations": ("object", "last innovation (predicted minus measured) per update type, SI units of that type"),
     "nis": ("object", "last normalised innovation squared per update type (chi-square distributed when consistent)"),
