@@ -9,6 +9,7 @@ and retries it with a growing back-off while every other thread goes on.
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections import deque
@@ -20,6 +21,7 @@ from logger.timebase import TimeBase
 from sensors.errors import DeviceNotFound, NoData, SensorError
 
 log = logging.getLogger(__name__)
+_DIGITS = re.compile(r"\d+(?:\.\d+)?")
 
 
 @dataclass(slots=True)
@@ -209,13 +211,14 @@ class Sampler(threading.Thread):
     def _log(self, message: str) -> None:
         """Warn once per distinct message per ``LOG_REPEAT_S``: a flapping sensor must not flood the journal."""
         now = time.monotonic()
-        last = self._logged.get(message)
+        key = _DIGITS.sub("#", message)  # "pressure 110129 Pa" and "pressure 110119 Pa" are one problem
+        last = self._logged.get(key)
         if last is not None and now - last < self.LOG_REPEAT_S:
             self._suppressed += 1
             return
         if len(self._logged) > 64:
             self._logged.clear()
-        self._logged[message] = now
+        self._logged[key] = now
         extra = f" ({self._suppressed} repeats not logged)" if self._suppressed else ""
         self._suppressed = 0
         log.warning("%s: %s%s", self.source.name, message, extra)
