@@ -36,6 +36,8 @@ from sync.tempco import TempcoEstimator
 log = logging.getLogger(__name__)
 
 NS = 1_000_000_000
+WALL_TOLERANCE_NS = 500_000_000
+WALL_PATIENCE_NS = 60 * NS
 
 
 @dataclass
@@ -61,8 +63,13 @@ class PpsClock:
 
     def __init__(self, settings: SyncSettings | None = None, monotonic_ns: Callable[[], int] = time.monotonic_ns,
                  wall_ns: Callable[[], int] = time.time_ns, state_path: Path | None = None,
-                 clock_id: str = "") -> None:
+                 clock_id: str = "", wall_trusted: bool = False) -> None:
         self.s = settings or SyncSettings()
+        # A synchronised system clock (NTP) is checked against at the first lock: a chain of edges labelled with
+        # the wrong second (messages that reached us seconds late) is consistent in itself and only this sees it.
+        self.wall_trusted = wall_trusted
+        self._wall = wall_ns
+        self._wall_disagree_since: int | None = None
         self._mono = monotonic_ns
         self._lock = threading.RLock()
         mono = monotonic_ns()
@@ -139,6 +146,13 @@ class PpsClock:
             self._slope_prior = self._current_slope(edge_ns)
             self._edges.clear()
             self._offsets.clear()
+        if not (self._locked_once or self._restored) and self._offsets:
+            dt_s = (true_board_ns - self._edges[-1]) / NS
+            if abs(offset - self._offsets[-1]) > 2_000_000 + 200e-6 * dt_s * NS:
+                # Before the first lock the samples must agree among themselves: a jump means the pairing started
+                # a new chain, and the old samples go with the old chain.
+                self._edges.clear()
+                self._offsets.clear()
         if not self._edges:
             self._base_ns = offset
         self._edges.append(true_board_ns)
@@ -164,12 +178,39 @@ class PpsClock:
         self._consecutive += 1
         if self.on_sample is not None and self._locked_once:
             self.on_sample(true_board_ns, label_ns)
-        if not self._locked_once and len(self._edges) >= self.s.lock_samples:
+        if not self._locked_once and len(self._edges) >= self.s.lock_samples and self._agrees_with_wall(edge_ns):
             self._locked_once = True
             self._slew_from_ns = None
             self._slew_ns = 0.0
             log.info("clock locked to GNSS time (%d PPS edges)", len(self._edges))
         self._maybe_save(edge_ns)
+
+    def _agrees_with_wall(self, edge_ns: int) -> bool:
+        """Before the first lock: GNSS time within half a second of a synchronised wall clock, or no such clock.
+
+        While they disagree the chain is dropped and paired again; if they still disagree after a minute, GNSS
+        wins (the wall clock may claim to be synchronised and be wrong) and that is logged.
+        """
+        if not self.wall_trusted:
+            return True
+        wall_offset = self._wall() - self._mono()
+        gnss_offset = self._offsets[-1]
+        diff = gnss_offset - wall_offset
+        if abs(diff) <= WALL_TOLERANCE_NS:
+            return True
+        if self._wall_disagree_since is None:
+            self._wall_disagree_since = edge_ns
+            log.warning("GNSS time and the synchronised system clock differ by %.3f s: pairing again", diff / NS)
+        elif edge_ns - self._wall_disagree_since > WALL_PATIENCE_NS:
+            log.warning("GNSS time still differs from the system clock by %.3f s after a minute: "
+                        "trusting GNSS", diff / NS)
+            return True
+        self.counts["rejected"] += len(self._edges)
+        self._edges.clear()
+        self._offsets.clear()
+        self._fit = None
+        self.labeller.restart_chain()
+        return False
 
     def _refit(self) -> None:
         x = (np.fromiter(self._edges, dtype=np.float64) - float(self._edges[-1])) / NS
@@ -236,8 +277,8 @@ class PpsClock:
     def _predict_unix_ns(self, t_ns: int) -> int | None:
         """The clock's current idea of GNSS time at a board time, or None before it knows any."""
         with self._lock:
-            if self._fit is None:
-                return None
+            if self._fit is None or not (self._locked_once or self._restored):
+                return None  # before the first lock the pairing checks pairs against each other only
             return t_ns + round(self._offset_at(t_ns))
 
     def _err_at(self, t_ns: int, state: str) -> float:

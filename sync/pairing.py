@@ -80,6 +80,10 @@ class EdgeLabeller:
         qerr_ps = tp.get("qerr_ps") or 0
         return t - round(qerr_ps / 1000)
 
+    def restart_chain(self) -> None:
+        """Forget the last accepted pair: the next pairs must agree among themselves again."""
+        self._last = None
+
     # ---- matching --------------------------------------------------------------------------------------------
     def _match(self, predict: Predict) -> list[tuple[int, int]]:
         out: list[tuple[int, int]] = []

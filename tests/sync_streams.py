@@ -35,7 +35,8 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
                 outages: tuple[tuple[float, float], ...] = (), imu_rate_hz: float = 20.0,
                 latency_mean_us: float = 7.0, latency_sd_us: float = 2.0, timepulse: bool = True,
                 fixes: bool = True, double_edges: tuple[int, ...] = (), spurious: tuple[float, ...] = (),
-                late_fix_at: tuple[int, ...] = (), swing_period_s: float | None = None) -> Stream:
+                late_fix_at: tuple[int, ...] = (), swing_period_s: float | None = None,
+                stall_until_s: float = 0.0, stall_s: float = 0.0) -> Stream:
     """A drive of ``duration_s`` true seconds; PPS (and time messages) missing inside ``outages`` (start, end)."""
     rng = np.random.default_rng(seed)
     period = swing_period_s or 2 * duration_s
@@ -61,16 +62,18 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
         if k in double_edges:
             ev.append((edge + 3_000_000, "/pps", {"seqno": k}))
         utc = START_UTC_NS + k * NS
+        late = int(stall_s * NS) if k < stall_until_s else 0  # the reading thread stalled: messages seen late
         if timepulse and not blocked(k - 1):
             gps = utc - UNIX_AT_GPS + LEAP_S * NS
             week, tow = divmod(gps, 604_800 * NS)
-            ev.append((osc.board_ns(k * NS - 400_000_000), "/gnss/timepulse",
+            ev.append((osc.board_ns(k * NS - 400_000_000 + late), "/gnss/timepulse",
                        {"tow_ms": int(tow // 1_000_000), "tow_sub_ms": 0.0, "week": int(week), "qerr_ps": 0,
                         "time_base": "gnss"}))
         if fixes:
             delay = 1_300_000_000 if k in late_fix_at else int(rng.uniform(40e6, 390e6))
             gps_tow_ms = ((utc - UNIX_AT_GPS + LEAP_S * NS) % (604_800 * NS)) // 1_000_000
-            ev.append((osc.board_ns(k * NS + delay), "/gnss/fix", {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms)}))
+            ev.append((osc.board_ns(k * NS + delay + late), "/gnss/fix",
+                       {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms)}))
     for t in spurious:
         ev.append((osc.board_ns(int(t * NS)), "/pps", {"seqno": -1}))
     n_imu = int(duration_s * imu_rate_hz)

@@ -103,10 +103,12 @@ def covered(r: dict[str, np.ndarray]) -> bool:
 
 
 def run(stream: Stream, settings: SyncSettings | None = None, state_path: Path | None = None,
-        clock_id: str = "") -> tuple[PpsClock, dict[str, np.ndarray]]:
+        clock_id: str = "", wall_error_ns: int | None = None) -> tuple[PpsClock, dict[str, np.ndarray]]:
+    """Feed a stream; with ``wall_error_ns`` the board has an NTP-synchronised wall clock that far from true."""
     now = [0]
-    clock = PpsClock(settings or SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0,
-                     state_path=state_path, clock_id=clock_id)
+    wall = (lambda: 0) if wall_error_ns is None else (lambda: stream.true_unix_ns(now[0]) + wall_error_ns)
+    clock = PpsClock(settings or SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=wall,
+                     state_path=state_path, clock_id=clock_id, wall_trusted=wall_error_ns is not None)
     rows = []
     for board, topic, _ in feed(clock, stream.events):
         now[0] = board
@@ -258,3 +260,16 @@ def test_chrony_sock_samples_reach_a_listening_socket(tmp_path: Path) -> None:
     server.close()
     client.send_edge(mono, true)  # chronyd gone: counted, not raised
     assert client.failed == 1 and client.sent == 1
+
+
+def test_messages_seen_late_at_start_lock_a_second_off_unless_a_synced_wall_clock_says_so() -> None:
+    # The reading thread stalls 1.3 s during the first 40 s: every label in that stretch is one second late,
+    # consistently, so the chain check alone locks one second off and the prediction check then keeps it so.
+    stream = make_stream(300, seed=11, stall_until_s=40, stall_s=1.3)
+    _, blind = run(stream)
+    known = blind["state"] != "freerun"
+    assert np.median(np.abs(blind["err"][known])) > 0.9 * NS
+    _, checked = run(stream, wall_error_ns=30_000_000)  # NTP-synchronised to 30 ms
+    locked = checked["state"] == "locked"
+    assert locked.sum() > 100 and np.abs(checked["err"][locked]).max() <= 100_000
+    assert covered(checked)

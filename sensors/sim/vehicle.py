@@ -35,6 +35,7 @@ MPU6050_ADDRESS = 0x68
 BMP180_ADDRESS = 0x77
 PPS_CHIP_PATH = "/dev/gpiochip-sim"
 PPS_LINE = 28
+WALL_CLOCK_ERROR_NS = 20_000_000
 
 # How far the vehicle's speed sensor reads high in each scenario (OBD speed = factor * true speed).
 OBD_SPEED_FACTOR = {"urban": 1.02, "outage-60s": 1.02, "tunnel-130s": 1.03}
@@ -83,6 +84,10 @@ class SimVehicle:
     def true_unix_ns(self, board_ns: int) -> int:
         """True UTC time (Unix ns) at a board monotonic time: what a perfect stamp would say."""
         return self.timeline.utc_unix_ns(self.timeline.gps_ns(self.oscillator.true_ns(board_ns)))
+
+    def wall_clock_ns(self) -> int:
+        """The simulated board's system clock: NTP-synchronised, 20 ms off true time (an LTE link's worth)."""
+        return self.true_unix_ns(self.clock.monotonic_ns()) + WALL_CLOCK_ERROR_NS
 
     def truth_nav(self, board_ns: int) -> dict[str, Any]:
         true_ns = self.oscillator.true_ns(board_ns)

@@ -1,0 +1,38 @@
+"""Whether the system's wall clock is synchronised (NTP, chrony, a modem), read with adjtimex(2).
+
+A board without RTC boots with a wrong date, so the wall clock is no reference in general. When the kernel says
+it is synchronised, it is good to well under a second, which is enough to catch the one failure the PPS pairing
+cannot see by itself: a whole chain of edges labelled with the wrong second at the first lock.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+
+TIME_ERROR = 5  # clock not synchronised (adjtimex return value)
+
+
+class _Timeval(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_usec", ctypes.c_long)]
+
+
+class _Timex(ctypes.Structure):
+    _fields_ = [("modes", ctypes.c_uint), ("offset", ctypes.c_long), ("freq", ctypes.c_long),
+                ("maxerror", ctypes.c_long), ("esterror", ctypes.c_long), ("status", ctypes.c_int),
+                ("constant", ctypes.c_long), ("precision", ctypes.c_long), ("tolerance", ctypes.c_long),
+                ("time", _Timeval), ("tick", ctypes.c_long), ("ppsfreq", ctypes.c_long),
+                ("jitter", ctypes.c_long), ("shift", ctypes.c_int), ("stabil", ctypes.c_long),
+                ("jitcnt", ctypes.c_long), ("calcnt", ctypes.c_long), ("errcnt", ctypes.c_long),
+                ("stbcnt", ctypes.c_long), ("tai", ctypes.c_int), ("_pad", ctypes.c_int * 11)]
+
+
+def system_clock_synchronized() -> bool:
+    """True when the kernel reports the wall clock synchronised; False when not, or when it cannot tell."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        tx = _Timex()  # modes = 0: read only
+        state = libc.adjtimex(ctypes.byref(tx))
+    except (OSError, AttributeError):
+        return False
+    return 0 <= state != TIME_ERROR
