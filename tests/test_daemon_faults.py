@@ -16,11 +16,17 @@ from logger.run_cmd import build
 from logger.status import fetch
 
 
+def sim_config(tmp_path: Path) -> Any:
+    """Every sensor simulated; files, socket and clock state kept inside the test's folder."""
+    cfg = defaults(sim=True)
+    cfg.values["logger"].update(out_dir=str(tmp_path / "drives"), status_socket=str(tmp_path / "status.sock"),
+                                state_dir=str(tmp_path / "state"))
+    return cfg
+
+
 @pytest.fixture
 def running(tmp_path: Path) -> Iterator[tuple[Any, Any, Path]]:
-    cfg = defaults(sim=True)
-    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
-    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg = sim_config(tmp_path)
     cfg.values["sim"]["time_scale"] = 4.0
     daemon, vehicle = build(cfg, duration_s=3600)
     daemon.start()
@@ -128,9 +134,7 @@ def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running
 
 
 def test_a_sensor_missing_at_start_is_reported_and_the_rest_records(tmp_path: Path) -> None:
-    cfg = defaults(sim=True)
-    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
-    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg = sim_config(tmp_path)
     cfg.values["obd"].update(source="elm327", port=str(tmp_path / "ttyUSB9"))  # not plugged in
     daemon, _ = build(cfg, duration_s=60)
     daemon.start()
@@ -146,9 +150,7 @@ def test_a_sensor_missing_at_start_is_reported_and_the_rest_records(tmp_path: Pa
 
 
 def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
-    cfg = defaults(sim=True)
-    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
-    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    cfg = sim_config(tmp_path)
     cfg.values["imu"]["rate_hz"] = 1000.0
     daemon, _ = build(cfg, duration_s=60)
     daemon.start()
