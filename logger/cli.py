@@ -2,12 +2,19 @@
 
 Each subcommand lives in its own module with a ``main(argv) -> int``; importing it only when it is
 asked for keeps ``logger status`` quick on a slow board.
+
+The name is shared with util-linux's ``/usr/bin/logger``, which shell scripts on the board call
+(``logger -t tag msg``, ``echo msg | logger``). Anything that is not one of our subcommands or ``--help``
+is therefore handed over unchanged to the system's logger: the process is replaced by it (``exec``), so
+it gets the same arguments, stdin, stdout, stderr and environment, and its exit code is the exit code.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
+from collections.abc import Sequence
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "run": ("logger.run_cmd", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
@@ -15,25 +22,87 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "status": ("logger.status", "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
     "config": ("logger.config_cmd", "check a configuration file without starting: logger config check FILE"),
     "info": ("logger.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
+    "replay": ("logger.replay_cmd", "run the navigation filter over recorded drives: trajectory CSV and MCAP"),
     "recover": ("logger.recover_cmd", "make a file cut short by a crash readable and indexed again"),
 }
+
+
+SYSTEM_LOGGER = "/usr/bin/logger"
+HANDOVER_ENV = "VEHICLE_LOGGER_HANDED_OVER"  # set for the system logger: a second hand-over means a loop
 
 
 def usage() -> str:
     lines = ["usage: logger COMMAND [ARGS...]", "", "commands:"]
     lines += [f"  {name:<14}{text}" for name, (_, text) in SUBCOMMANDS.items()]
+    lines += ["", "Anything else (logger -t TAG MESSAGE, echo MESSAGE | logger, ...) goes to the system's logger",
+              f"(util-linux, {SYSTEM_LOGGER}) unchanged."]
     return "\n".join(lines)
 
 
+def _is_ourselves(path: str, own: set[str]) -> bool:
+    """True for this program under any name: the same file, or a script that starts ``logger.cli``."""
+    try:
+        if os.path.realpath(path) in own:
+            return True
+        with open(path, "rb") as f:
+            head = f.read(512)
+    except OSError:
+        return False
+    # A pip console script (venv or /usr/local/bin) is a short Python file importing our entry point.
+    return head.startswith(b"#!") and b"python" in head.split(b"\n", 1)[0] and b"logger.cli" in head
+
+
+def find_system_logger(path_env: str | None, own: Sequence[str]) -> str | None:
+    """The first ``logger`` on ``path_env`` that is not this program, else /usr/bin/logger if it is there."""
+    own_real = {os.path.realpath(p) for p in own if p}
+    for folder in (path_env or "").split(os.pathsep):
+        candidate = os.path.join(folder or ".", "logger")
+        if os.path.isfile(candidate) and os.access(candidate, os.X_OK) and not _is_ourselves(candidate, own_real):
+            return candidate
+    if os.path.isfile(SYSTEM_LOGGER) and os.access(SYSTEM_LOGGER, os.X_OK) \
+            and not _is_ourselves(SYSTEM_LOGGER, own_real):
+        return SYSTEM_LOGGER
+    return None
+
+
+def hand_over(args: list[str]) -> int:
+    """Replace this process by the system's logger with the same arguments; returns only if that fails."""
+    if os.environ.get(HANDOVER_ENV):
+        print("logger: the system logger found on PATH hands back to this program; not looping", file=sys.stderr)
+        return 127
+    target = find_system_logger(os.environ.get("PATH"), [sys.argv[0], __file__])
+    if target is None:
+        print(f"logger: {args[0] if args else 'stdin'}: not a vehicle-logger command, and no system logger "
+              f"(util-linux) was found on PATH or at {SYSTEM_LOGGER}", file=sys.stderr)
+        return 127
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        os.execve(target, ["logger", *args], {**os.environ, HANDOVER_ENV: "1"})
+    except OSError as exc:
+        print(f"logger: cannot run {target}: {exc.strerror or exc}", file=sys.stderr)
+    return 126
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a subcommand; from the command line (``argv`` None), hand anything else to the system's logger.
+
+    Called with an explicit ``argv`` (from Python), an unknown command is an error instead: replacing the
+    calling process would be a surprise there.
+    """
     args = sys.argv[1:] if argv is None else argv
-    if not args or args[0] in ("-h", "--help"):
+    if args and args[0] in ("-h", "--help"):
         print(usage())
         return 0
-    entry = SUBCOMMANDS.get(args[0])
+    entry = SUBCOMMANDS.get(args[0]) if args else None
     if entry is None:
-        print(f"logger: unknown command {args[0]!r}\n{usage()}", file=sys.stderr)
-        return 2
+        if argv is not None:
+            print(f"logger: unknown command {args[0] if args else ''!r}\n{usage()}", file=sys.stderr)
+            return 2
+        if not args and sys.stdin.isatty():
+            print("logger: no command: passing the terminal to the system logger (Ctrl-D ends); "
+                  "`logger --help` lists the vehicle logger's commands", file=sys.stderr)
+        return hand_over(args)  # not ours, including no arguments at all (``echo msg | logger``)
     module = importlib.import_module(entry[0])
     return int(module.main(args[1:]) or 0)
 

@@ -62,6 +62,14 @@ def _imu_rate(v: float) -> str | None:
     return None
 
 
+def _vector3(limit: float) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        if len(v) != 3 or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v):
+            return "must be three numbers [x, y, z]"
+        return None if all(abs(x) <= limit for x in v) else f"must stay within +-{limit:g}"
+    return check
+
+
 def _abs_path(v: str) -> str | None:
     return None if v.startswith("/") else "must be an absolute path"
 
@@ -125,6 +133,40 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pps_latency_us": Key(NUM, 7.0, _range(0, 1000), "mean delay of the PPS interrupt's time stamp"),
         "stability_ppm": Key(NUM, 1.0, _range(0.01, 100), "how far the board clock may wander unseen (holdover)"),
         "max_slew_ppm": Key(NUM, 500.0, _range(1, 10000), "how fast a correction is slewed in after holdover"),
+        "chrony_sock": Key(str, "", lambda v: None if v == "" else _abs_path(v),
+                           "chronyd's SOCK refclock socket to hand PPS samples to; empty: off"),
+    },
+    "nav": {
+        "enabled": Key(bool, True, None, "run the navigation filter live and publish /nav/fix, /nav/state"),
+        "mode": Key(str, "17", _one_of("17", "15", "gnss"), "17 (GNSS, IMU, OBD, baro), 15 (GNSS + IMU), gnss"),
+        "lever_arm_m": Key(list, [0.0, 0.0, 0.0], _vector3(5.0), "GNSS antenna from the IMU, vehicle x y z (FRD), m"),
+        "mounting_rpy_deg": Key(list, [0.0, 0.0, 0.0], _vector3(180.0), "IMU chip axes against the vehicle"),
+        "accel_noise_ug_rthz": Key(NUM, 400.0, _range(1, 100000), "accelerometer noise density (datasheet)"),
+        "gyro_noise_dps_rthz": Key(NUM, 0.005, _range(1e-5, 10), "gyro noise density (datasheet)"),
+        "accel_bias_mg": Key(NUM, 50.0, _range(0.01, 1000), "initial accelerometer offset uncertainty"),
+        "gyro_bias_dps": Key(NUM, 20.0, _range(0.001, 200), "initial gyro offset uncertainty"),
+        "accel_bias_walk_mg_rts": Key(NUM, 0.1, _range(0, 100), "accelerometer offset random walk"),
+        "gyro_bias_walk_dps_rts": Key(NUM, 0.002, _range(0, 10), "gyro offset random walk"),
+        "obd_speed_sigma_mps": Key(NUM, 0.2, _range(0.01, 10), "OBD speed noise (1 km/h steps, timing)"),
+        "obd_scale_sigma": Key(NUM, 0.05, _range(1e-4, 0.5), "initial uncertainty of the OBD scale factor"),
+        "obd_scale_walk_rts": Key(NUM, 1e-5, _range(0, 0.01), "OBD scale factor random walk, 1/sqrt(s)"),
+        "nhc_sigma_mps": Key(NUM, 0.1, _range(0.001, 10), "lateral and vertical body velocity allowed"),
+        "baro_sigma_m": Key(NUM, 0.5, _range(0.01, 100), "barometric altitude noise"),
+        "baro_offset_walk_m_rts": Key(NUM, 0.02, _range(0, 10), "random walk of baro-GNSS height offset"),
+        "gnss_uere_m": Key(NUM, 3.0, _range(0.01, 100), "range error for receivers that give DOP but no accuracy"),
+        "gnss_acc_scale": Key(NUM, 1.0, _range(0.1, 100), "multiply the receiver's own accuracies"),
+        "gnss_min_sv": Key(int, 5, _range(4, 40), "fixes on fewer satellites are not used"),
+        "zupt_sigma_mps": Key(NUM, 0.02, _range(1e-4, 1), "velocity noise of a zero-velocity update"),
+        "zaru_sigma_dps": Key(NUM, 0.01, _range(1e-5, 10), "angular rate noise of a zero-rate update"),
+        "gate_probability": Key(NUM, 0.999, _range(0.5, 0.999999), "chi-square gate of every update"),
+        "heading_source": Key(str, "gnss", _one_of("gnss", "config"), "initial heading from GNSS course or config"),
+        "initial_heading_deg": Key(NUM, 0.0, _range(-360, 360), "used when heading_source = 'config'"),
+        "heading_min_speed_mps": Key(NUM, 3.0, _range(0.5, 50), "GNSS course trusted for heading above this"),
+        "align_min_s": Key(NUM, 2.0, _range(0.1, 600), "standstill needed to level the IMU"),
+        "still_accel_mps2": Key(NUM, 0.05, _range(1e-4, 5), "stop detector's first threshold (then adapted)"),
+        "cov_interval_s": Key(NUM, 0.5, _range(0.01, 2), "covariance propagation interval"),
+        "publish_hz": Key(NUM, 5.0, _range(0.1, 1000), "rate of /nav/fix while running live"),
+        "queue_size": Key(int, 2000, _range(10, 1_000_000), "records waiting for the filter before drops"),
     },
     "sim": {
         "scenario": Key(str, "urban", None, "drive to simulate"),
@@ -151,14 +193,17 @@ class Config:
 
 def defaults(sim: bool = False) -> Config:
     """The configuration with nothing set; with ``sim``, every sensor is simulated (``logger run --sim``)."""
-    values = {sec: {k: key.default for k, key in keys.items()} for sec, keys in SCHEMA.items()}
+    values = {sec: {k: list(key.default) if isinstance(key.default, list) else key.default for k, key in keys.items()}
+              for sec, keys in SCHEMA.items()}
     if sim:
         for sec in ("imu", "baro", "obd", "gnss", "pps"):
             values[sec]["source"] = "sim"
     return Config(values)
 
 
-_TABLE = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\-\" ]+?)\s*\]\s*(#.*)?$")
+MAX_FILE_BYTES = 1 << 20  # a configuration is a few kB; anything this large is the wrong file
+
+_TABLE_NAME = re.compile(r"[A-Za-z0-9_.\-\" ]+")
 _KEY = re.compile(r"^\s*([A-Za-z0-9_\-\"]+(?:\s*\.\s*[A-Za-z0-9_\-\"]+)*)\s*=")
 
 
@@ -167,9 +212,9 @@ def _line_index(text: str) -> dict[str, int]:
     index: dict[str, int] = {}
     table = ""
     for no, line in enumerate(text.splitlines(), 1):
-        m = _TABLE.match(line)
-        if m:
-            table = m.group(1).replace('"', "").replace(" ", "")
+        header = _table_header(line)
+        if header is not None:
+            table = header.replace('"', "").replace(" ", "")
             index.setdefault(table, no)
             continue
         m = _KEY.match(line)
@@ -179,8 +224,32 @@ def _line_index(text: str) -> dict[str, int]:
     return index
 
 
+def _table_header(line: str) -> str | None:
+    """The name in a ``[table]`` header line, else None.
+
+    String operations, not one regular expression: a lazy pattern around blanks backtracks in cubic time, and
+    a line of a few thousand blanks (valid TOML inside a multi-line string) took minutes.
+    """
+    text = line.strip()
+    if not text.startswith("[") or text.startswith("[["):
+        return None
+    end = text.find("]")
+    if end < 0:
+        return None
+    rest = text[end + 1 :].lstrip()
+    if rest and not rest.startswith("#"):
+        return None
+    name = text[1:end].strip()
+    return name if name and _TABLE_NAME.fullmatch(name) else None
+
+
+def _shown(name: str) -> str:
+    """A name from the file as it may be printed: control characters (a newline, a terminal escape) escaped."""
+    return name if name.isprintable() else repr(name)
+
+
 def _type_name(kind: type | tuple[type, ...]) -> str:
-    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    names = {int: "an integer", float: "a number", str: "a string", bool: "true or false", list: "a list"}
     kinds = kind if isinstance(kind, tuple) else (kind,)
     if set(kinds) == {int, float}:
         return "a number"
@@ -215,7 +284,7 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
         keys = SCHEMA.get(section)
         if keys is None:
             hint = difflib.get_close_matches(section, SCHEMA, n=1)
-            problems.append(f"{at(section)}: unknown section [{section}]"
+            problems.append(f"{at(section)}: unknown section [{_shown(section)}]"
                             + (f" (did you mean [{hint[0]}]?)" if hint else ""))
             continue
         if not isinstance(body, dict):
@@ -226,7 +295,7 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
             spec = keys.get(key)
             if spec is None:
                 hint = difflib.get_close_matches(key, keys, n=1)
-                problems.append(f"{at(path)}: unknown key {path}" + (f" (did you mean {section}.{hint[0]}?)"
+                problems.append(f"{at(path)}: unknown key {_shown(path)}" + (f" (did you mean {section}.{hint[0]}?)"
                                                                       if hint else ""))
                 continue
             if not _check_type(value, spec.kind):
@@ -254,16 +323,27 @@ def load(path: str | os.PathLike[str], sim: bool = False) -> Config:
     """Read and validate a file; refuse one that anybody may write, as it steers a root-started service."""
     p = Path(path)
     try:
-        st = p.stat()
-        text = p.read_text(encoding="utf-8")
+        # O_NONBLOCK: a FIFO given by mistake must not block the start; its type is refused right after.
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ConfigError([f"{p}: not a regular file"])
+            if st.st_size > MAX_FILE_BYTES:
+                raise ConfigError([f"{p}: too large for a configuration file ({st.st_size} bytes)"])
+            text = f.read(MAX_FILE_BYTES + 1).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError([f"{p}: no such configuration file"]) from None
     except PermissionError:
         raise ConfigError([f"{p}: not allowed to read the configuration file"]) from None
     except UnicodeDecodeError:
         raise ConfigError([f"{p}: not a text file (TOML must be UTF-8)"]) from None
+    except IsADirectoryError:
+        raise ConfigError([f"{p}: not a regular file"]) from None
     except OSError as exc:
         raise ConfigError([f"{p}: cannot read ({exc.strerror})"]) from None
+    if len(text) > MAX_FILE_BYTES:  # grew while being read
+        raise ConfigError([f"{p}: too large for a configuration file"])
     if st.st_mode & stat.S_IWOTH:
         raise ConfigError([f"{p}: refusing a world-writable configuration file (chmod o-w {p})"])
     cfg = parse(text, str(p), sim=sim)

@@ -10,8 +10,10 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import re
 import signal
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,17 +22,24 @@ from typing import Any
 
 from logger.config import Config
 from logger.mcap_files import McapFileError, is_finished, recover
+from logger.notify import Notifier
 from logger.recorder import Recorder, RecorderSettings
 from logger.sampler import Reading, Sampler
 from logger.sources import Plan
 from logger.timebase import TimeBase, host_timebase
 from logger.topics import TOPICS
-from sync.stamp import FreeRunClock, StampClock
+from sync.stamp import FREERUN, FreeRunClock, StampClock
 
 log = logging.getLogger(__name__)
 
 HEARTBEAT_STALE_S = 10.0
 DROP_WINDOW_NS = 60 * 1_000_000_000
+# systemd's watchdog is pinged only while every thread proved it is alive within this many real seconds. It must
+# exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
+# that waits for the device (receiver setup by ACK, an ELM327 protocol search).
+HEARTBEAT_BOUND_S = 60.0
+READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
+PROBLEM_LOG_REPEAT_S = 60.0  # a problem that comes and goes is logged at most this often
 
 
 @dataclass
@@ -65,7 +74,7 @@ def recover_unfinished(out_dir: Path) -> list[str]:
 class Daemon:
     def __init__(self, cfg: Config, plans: list[Plan], timebase: TimeBase | None = None,
                  clock: StampClock | None = None, extras: Extras | None = None, out_dir: Path | None = None,
-                 status_socket: Path | None = None, mode: str = "") -> None:
+                 status_socket: Path | None = None, mode: str = "", notifier: Notifier | None = None) -> None:
         self.cfg = cfg
         self.tb = timebase or host_timebase()
         self.clock = clock or FreeRunClock(self.tb.monotonic_ns, imu_rate_hz=cfg["imu"]["rate_hz"])
@@ -79,7 +88,7 @@ class Daemon:
             out_dir=self.out_dir, flush_interval_s=rc["flush_interval_s"], rotate_duration_s=rc["rotate_duration_s"],
             rotate_size_bytes=int(rc["rotate_size_mb"] * 2**20), min_free_bytes=int(rc["min_free_mb"] * 2**20),
             compression=rc["compression"], queue_size=rc["queue_size"]), TOPICS, metadata=self.extras.metadata,
-            monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale)
+            monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale, synced_unix_ns=self._synced_unix_ns)
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
@@ -91,6 +100,14 @@ class Daemon:
         self.taps: list[Any] = list(self.extras.taps)
         self._observe: Callable[[str, dict[str, Any], int], None] | None = getattr(self.clock, "observe", None)
         self._drop_history: deque[tuple[int, int]] = deque()
+        # Service manager: READY, WATCHDOG, STATUS, STOPPING (no-ops outside systemd).
+        self.notifier = notifier or Notifier.from_env()
+        self.heartbeat_bound_s = HEARTBEAT_BOUND_S
+        self.ready_timeout_s = READY_TIMEOUT_S
+        self.ready = threading.Event()
+        self.watchdog_pings = 0
+        self._started = threading.Event()
+        self.problem_journal = ProblemJournal()
 
     # ---- the sink every sampler calls: stamp, count, queue ------------------------------------------------
     def sink(self, r: Reading) -> None:
@@ -112,6 +129,7 @@ class Daemon:
 
     # ---- life cycle ---------------------------------------------------------------------------------------
     def start(self) -> None:
+        self._start_thread("service", self._service_loop)  # pings during a long recovery at start, too
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.startup_lines = recover_unfinished(self.out_dir)
         for line in self.startup_lines:
@@ -135,6 +153,7 @@ class Daemon:
         except OSError as exc:
             log.error("status socket %s unavailable (%s); `logger status` will not work", self.status_socket,
                       exc.strerror or exc)
+        self._started.set()
 
     def _start_thread(self, name: str, target: Callable[..., None], *args: Any) -> None:
         t = threading.Thread(target=target, args=args, name=name, daemon=True)
@@ -142,6 +161,7 @@ class Daemon:
         self._threads.append(t)
 
     def stop(self) -> None:
+        self.notifier.stopping("stopping: finishing the file")
         self.stop_event.set()
         for s in self.samplers:
             s.join(5.0)
@@ -238,3 +258,149 @@ class Daemon:
             for r in fn():
                 self.sink(r)
 
+    # ---- the service manager: readiness, watchdog, status line, problems in the journal ---------------------
+    def _synced_unix_ns(self, t_mono_ns: int) -> int | None:
+        """Synchronised Unix time at a monotonic time, or None while the clock free-runs (the time is unknown).
+
+        Names the recorder's files: a board without an RTC must not date them from its wall clock.
+        """
+        stamp = self.clock.stamp(t_mono_ns)
+        return None if stamp.state == FREERUN else stamp.t_sync_ns
+
+    def started_up(self) -> bool:
+        """The first file is started (or refused with a reason) and every sensor's first open has returned."""
+        return (self._started.is_set() and self.recorder.status().state != "starting"
+                and all(s.health.state != "starting" for s in self.samplers))
+
+    def stale_threads(self) -> list[str]:
+        """Threads that died or whose heartbeat is older than ``heartbeat_bound_s`` real seconds: one line each."""
+        now = self.tb.monotonic_ns()
+        bound_ns = self.heartbeat_bound_s * 1e9 * self.tb.scale  # heartbeats are in drive time
+        stale: list[str] = []
+        for s in self.samplers:
+            if not s.is_alive():
+                stale.append(f"{s.name} has ended")
+            elif now - s.health.heartbeat_mono_ns > bound_ns:
+                stale.append(f"{s.name} silent for {(now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale:.0f} s")
+        if not self.recorder.alive:
+            stale.append("recorder has ended")
+        elif now - self.recorder.heartbeat_mono_ns > bound_ns:
+            stale.append(f"recorder silent for {(now - self.recorder.heartbeat_mono_ns) / 1e9 / self.tb.scale:.0f} s")
+        stale += [f"{t.name} has ended" for t in self._threads
+                  if t is not threading.current_thread() and not t.is_alive()]
+        return stale
+
+    def _service_loop(self) -> None:
+        """READY=1 once started up; then WATCHDOG=1 every half timeout, but only while no thread is stale.
+
+        Runs on the host's clock, not the drive's: systemd's watchdog counts real seconds. Until READY the
+        pings go on unconditionally (recovering a large crashed file may take minutes; TimeoutStartSec bounds
+        that phase). A stale thread stops the pings, and systemd restarts the service.
+        """
+        interval = self.notifier.watchdog_interval_s
+        # Once a second of drive, so that the journal sees what `logger status` sees (a simulated drive at 60x
+        # included, within reason: never more often than every 50 ms of the host's time).
+        tick = max(0.05, min(interval or 1.0, 1.0 / self.tb.scale))
+        t0 = time.monotonic()
+        last_ping = -1e18
+        last_status = ""
+        stale_reported: set[str] = set()  # thread names: the lines carry a growing age, logged once per thread
+        while True:
+            now = time.monotonic()
+            if not self.ready.is_set():
+                if self.started_up() or (self._started.is_set() and now - t0 > self.ready_timeout_s):
+                    snap = self.snapshot()
+                    last_status = self._status_line(snap)
+                    self.notifier.ready(last_status)
+                    self.ready.set()
+                    log.info("ready: %s", last_status)
+                healthy = True
+            else:
+                snap = self.snapshot()
+                self._log_problem_changes(snap["problems"], snap["verdict"])
+                line = self._status_line(snap)
+                if line != last_status:
+                    self.notifier.status(line)
+                    last_status = line
+                stale = self.stale_threads()
+                names = {line.split(" ", 1)[0] for line in stale}
+                if names - stale_reported:
+                    log.error("not answering the watchdog: %s", "; ".join(stale))
+                elif stale_reported and not stale:
+                    log.warning("watchdog answered again: every thread is alive")
+                stale_reported = names
+                healthy = not stale
+            if interval and healthy and now - last_ping >= interval:
+                if self.notifier.watchdog():
+                    self.watchdog_pings += 1
+                last_ping = now
+            if self.stop_event.wait(tick):
+                return
+
+    @staticmethod
+    def _status_line(snap: dict[str, Any]) -> str:
+        """One line for ``systemctl status``: the verdict, the sensors, and the first problem."""
+        sensors = snap.get("sensors", [])
+        ok = sum(1 for s in sensors if s["state"] == "ok")
+        rec = snap.get("recorder", {})
+        line = f"{snap['verdict']}: {ok}/{len(sensors)} sensors ok, recorder {rec.get('state', '?')}"
+        problems = snap.get("problems") or []
+        if problems:
+            line += f"; {problems[0]}" + (f" (+{len(problems) - 1} more)" if len(problems) > 1 else "")
+        return line
+
+    def _log_problem_changes(self, problems: list[str], verdict: str) -> None:
+        """Log each problem when it appears and when it clears, so that the journal shows every fault."""
+        for level, line in self.problem_journal.update(problems, time.monotonic()):
+            log.log(logging.ERROR if level == logging.WARNING and verdict == "critical" else level, "%s", line)
+
+
+class ProblemJournal:
+    """Turns the status problems of each second into journal lines: one when a problem appears, one when it clears.
+
+    A problem is keyed by its text with numbers masked ("no sample for 4.2 s" stays one problem while it lasts).
+    Each key may announce itself ``burst`` times, refilled at one per ``refill_s``: a fault every few minutes is
+    logged every time, a sensor flapping every second is logged a few times a minute with a count of the rest.
+    """
+
+    def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5) -> None:
+        self.burst = burst
+        self.refill_s = refill_s
+        self._active: dict[str, tuple[str, bool]] = {}  # key -> (text, announced)
+        self._tokens: dict[str, tuple[float, float]] = {}  # key -> (tokens, when counted)
+        self._unlogged: dict[str, int] = {}
+
+    @staticmethod
+    def key(problem: str) -> str:
+        return re.sub(r"\d+(?:\.\d+)?", "#", problem)
+
+    def update(self, problems: list[str], now_s: float) -> list[tuple[int, str]]:
+        """The lines to log for this second's problems, as (logging level, text)."""
+        out: list[tuple[int, str]] = []
+        current = {self.key(p): p for p in problems}
+        for key, text in current.items():
+            if key in self._active:
+                self._active[key] = (text, self._active[key][1])  # "resolved" tells its last state
+                continue
+            tokens, when = self._tokens.get(key, (float(self.burst), now_s))
+            tokens = min(float(self.burst), tokens + (now_s - when) / self.refill_s)
+            announce = tokens >= 1.0
+            if announce:
+                unlogged = self._unlogged.pop(key, 0)
+                out.append((logging.WARNING, f"problem: {text}"
+                            + (f" (appeared {unlogged} more times, not logged)" if unlogged else "")))
+                tokens -= 1.0
+            else:
+                self._unlogged[key] = self._unlogged.get(key, 0) + 1
+            self._tokens[key] = (tokens, now_s)
+            self._active[key] = (text, announce)
+        for key in [k for k in self._active if k not in current]:
+            text, announced = self._active.pop(key)
+            if announced:
+                out.append((logging.INFO, f"resolved: {text}"))
+        if len(self._tokens) > 256:  # bounded whatever the problems say: forget full buckets
+            self._tokens = {k: v for k, v in self._tokens.items() if k in self._active or v[0] < self.burst}
+            if len(self._tokens) > 256:
+                self._tokens = {k: v for k, v in self._tokens.items() if k in self._active}
+                self._unlogged = {k: v for k, v in self._unlogged.items() if k in self._active}
+        return out

@@ -78,6 +78,28 @@ def default_file_name(prefix: str, now_unix_ns: int | None, sequence: int) -> st
     return f"{prefix}_{stamp}_{sequence:04d}.mcap"
 
 
+def read_boot_id() -> str:
+    """Eight hex digits of the kernel's random boot id: tells this boot's files from every other boot's.
+
+    Falls back to random digits per process where /proc is not there; unique is what matters, not stable.
+    """
+    try:
+        text = Path("/proc/sys/kernel/random/boot_id").read_text(encoding="ascii")
+    except OSError:
+        return os.urandom(4).hex()
+    digits = "".join(c for c in text.lower() if c in "0123456789abcdef")
+    return digits[:8] if len(digits) >= 8 else os.urandom(4).hex()
+
+
+def boot_safe_file_name(prefix: str, boot_id: str, sequence: int) -> str:
+    """A name that needs no wall clock, for files started before time is known (a board without an RTC).
+
+    The boot id keeps boots apart and the sequence orders the files of one boot; the recorder renames the
+    file to a dated name as soon as the clock knows the time (see ``synced_unix_ns``).
+    """
+    return f"{prefix}_boot-{boot_id}_{sequence:04d}.mcap"
+
+
 class Recorder:
     """Writes records to rotating MCAP files from its own thread."""
 
@@ -86,7 +108,8 @@ class Recorder:
     def __init__(self, settings: RecorderSettings, topics: Mapping[str, TopicSpec],
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
                  file_name: Callable[[str, int | None, int], str] = default_file_name,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns, time_scale: float = 1.0) -> None:
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, time_scale: float = 1.0,
+                 synced_unix_ns: Callable[[int], int | None] | None = None) -> None:
         self.settings = settings
         # Flush cadence and retries run on the drive's clock, so a simulated drive at 60x still closes its
         # chunk every drive second: what is lost at a cut is measured in the data's own time.
@@ -95,6 +118,12 @@ class Recorder:
         self.topics = dict(topics)
         self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
         self._file_name = file_name
+        # With ``synced_unix_ns`` (monotonic time -> synchronised Unix time, None while the time is unknown),
+        # names never come from the wall clock: a board without an RTC boots in the past. Files started before
+        # the time is known get a boot-safe name and are renamed once it is; without it, the wall clock names.
+        self._synced_unix_ns = synced_unix_ns
+        self._boot_id = read_boot_id()
+        self._unnamed: list[tuple[Path, int, int]] = []  # (path, start monotonic ns, sequence) awaiting a date
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
         self._lock = threading.Lock()
         self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
@@ -117,6 +146,9 @@ class Recorder:
         self._last_flush = 0.0
         self._next_retry = 0.0
         self.on_file_closed: Callable[[Path], None] | None = None
+        # The writer thread's proof of life, on the drive's monotonic clock: the daemon stops petting systemd's
+        # watchdog when it goes stale (a writer stuck in the kernel on a dying SD card).
+        self.heartbeat_mono_ns = self._mono_ns()
 
     # ---- producer side (any thread) -------------------------------------------------------------------
     def submit(self, topic: str, payload: Mapping[str, Any], log_time_ns: int, publish_time_ns: int) -> bool:
@@ -171,6 +203,7 @@ class Recorder:
     def _run(self) -> None:
         interval = self.settings.flush_interval_s
         while True:
+            self.heartbeat_mono_ns = self._mono_ns()
             wait = max(0.0, self._last_flush + interval - self._now())
             try:
                 item = self._queue.get(timeout=wait / self._scale)
@@ -243,6 +276,8 @@ class Recorder:
 
     def _flush(self) -> None:
         self._last_flush = self._now()
+        if self._unnamed:
+            self._name_files_when_time_known()
         if self._writer is None:
             if self._state in ("disk-full", "failed") and self._now() >= self._next_retry:
                 self._check_space_and_open()
@@ -284,11 +319,12 @@ class Recorder:
             self._next_retry = self._now() + 5.0
             return
         self._sequence += 1
-        name = self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
-        path = self.settings.out_dir / name
+        start_mono = self._mono_ns()
+        start_unix = self._synced_unix_ns(start_mono) if self._synced_unix_ns is not None else None
+        path = self.settings.out_dir / self._name_at_open(start_unix)
         while path.exists():
             self._sequence += 1
-            path = self.settings.out_dir / self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
+            path = self.settings.out_dir / self._name_at_open(start_unix)
         try:
             stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
             writer = Writer(stream, chunk_size=self.settings.chunk_size_bytes, compression=self._compression)
@@ -304,12 +340,51 @@ class Recorder:
             return
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
+        if self._synced_unix_ns is not None and start_unix is None:
+            self._unnamed.append((path, start_mono, self._sequence))
         self._channels.clear()
         self._schemas.clear()
         self._first_log_ns = None
         self._file_started_mono = self._now()
         self._last_flush = self._now()
         self._set_state("recording", f"writing {path.name}")
+
+    # ---- file names on a board that boots without knowing the time ------------------------------------------
+    def _name_at_open(self, start_unix_ns: int | None) -> str:
+        if self._synced_unix_ns is None:
+            return self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
+        if start_unix_ns is None:
+            return boot_safe_file_name(self.settings.prefix, self._boot_id, self._sequence)
+        return self._file_name(self.settings.prefix, start_unix_ns, self._sequence)
+
+    def _name_files_when_time_known(self) -> None:
+        """Rename this run's boot-named files (the open one included) to their start time, once it is known.
+
+        The synchronised time of a file's start comes from its monotonic start, so a name given late is the
+        same as one given at open would have been. Renaming an open file is safe: the writer holds its fd.
+        """
+        assert self._synced_unix_ns is not None
+        still: list[tuple[Path, int, int]] = []
+        for old, start_mono, sequence in self._unnamed:
+            unix_ns = self._synced_unix_ns(start_mono)
+            if unix_ns is None:
+                still.append((old, start_mono, sequence))
+                continue
+            new = old.with_name(self._file_name(self.settings.prefix, unix_ns, sequence))
+            try:
+                if new.exists():
+                    raise FileExistsError(errno.EEXIST, "a file of that name exists", str(new))
+                os.rename(old, new)
+                _fsync_dir(old.parent)
+            except OSError as exc:
+                log.warning("could not rename %s to %s (%s); it keeps its boot-time name", old.name, new.name,
+                            exc.strerror or exc)
+                continue
+            log.info("time known: %s renamed to %s", old.name, new.name)
+            with self._lock:
+                if self._path == old:
+                    self._path = new
+        self._unnamed = still
 
     def _close_file(self) -> None:
         writer, stream, path = self._writer, self._stream, self._path
@@ -354,3 +429,12 @@ class Recorder:
     def _set_state(self, state: str, detail: str) -> None:
         with self._lock:
             self._state, self._detail = state, detail
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename survive a power cut: the directory entry is only durable once the directory is synced."""
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

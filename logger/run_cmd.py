@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -78,8 +80,11 @@ def resolve_config(args: argparse.Namespace) -> Config:
     return cfg
 
 
-def build(cfg: Config, duration_s: float | None) -> tuple[Daemon, Any]:
-    """The daemon and, when any sensor is simulated, the vehicle behind it (already started)."""
+def build(cfg: Config, duration_s: float | None,
+          scenario_options: dict[str, Any] | None = None) -> tuple[Daemon, Any]:
+    """The daemon and, when any sensor is simulated, the vehicle behind it (already started).
+
+    ``scenario_options`` reach the simulated drive (e.g. ``tunnel_s`` of tunnel-130s): for evaluation tools."""
     simulated = {s: cfg[s]["source"] == "sim" for s in SIM_SECTIONS}
     vehicle = None
     tb: TimeBase = host_timebase()
@@ -92,6 +97,7 @@ def build(cfg: Config, duration_s: float | None) -> tuple[Daemon, Any]:
         if sim["scenario"] not in SCENARIOS:
             raise ConfigError([f"unknown scenario {sim['scenario']!r}: choose one of {', '.join(SCENARIOS)}"])
         vehicle = build_vehicle(sim["scenario"], sim["seed"], time_scale=sim["time_scale"], duration_s=duration_s,
+                                scenario_options=scenario_options,
                                 imu=simulated["imu"], baro=simulated["baro"], obd=simulated["obd"],
                                 gnss=simulated["gnss"], pps=simulated["pps"])
         vehicle.start()
@@ -113,13 +119,24 @@ def build(cfg: Config, duration_s: float | None) -> tuple[Daemon, Any]:
         extras.periodic.append((0.1, truth_clock))
         extras.periodic.append((1.0 / cfg["imu"]["rate_hz"], truth_nav))
     extras.metadata["config"] = {f"{s}.{k}": str(v) for s, keys in cfg.values.items() for k, v in keys.items()}
-    clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}" if vehicle
-                       else boot_id())
+    if vehicle is not None and simulated["gnss"]:
+        # The simulated board's system clock is NTP-synchronised (to 20 ms): a check of the clock's first lock.
+        clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}",
+                           wall_ns=vehicle.wall_clock_ns, wall_trusted=True)
+    else:
+        from sync.wallclock import system_clock_synchronized
+
+        clock = make_clock(cfg, tb, boot_id(), wall_trusted=system_clock_synchronized())
     extras.close.append(clock.save)
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
         "partly simulated" if vehicle else "")
+    from logger.nav.live import attach_navigator
+
+    navigator = attach_navigator(cfg["nav"], extras)
     daemon = Daemon(cfg, plans, timebase=tb, clock=clock, extras=extras, mode=mode)
+    if navigator is not None:
+        navigator.bind(daemon)
     return daemon, vehicle
 
 
@@ -131,12 +148,19 @@ def boot_id() -> str:
         return ""
 
 
-def make_clock(cfg: Config, tb: TimeBase, clock_id: str) -> PpsClock:
+def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], int] = time.time_ns,
+               wall_trusted: bool = False) -> PpsClock:
     sc = cfg["sync"]
     settings = SyncSettings(imu_rate_hz=cfg["imu"]["rate_hz"], pps_latency_ns=round(sc["pps_latency_us"] * 1000),
                             stability_ppm=sc["stability_ppm"], max_slew_ppm=sc["max_slew_ppm"])
-    return PpsClock(settings, monotonic_ns=tb.monotonic_ns, state_path=Path(cfg["logger"]["state_dir"]) / "clock.json",
-                    clock_id=clock_id)
+    clock = PpsClock(settings, monotonic_ns=tb.monotonic_ns, wall_ns=wall_ns,
+                     state_path=Path(cfg["logger"]["state_dir"]) / "clock.json", clock_id=clock_id,
+                     wall_trusted=wall_trusted)
+    if sc["chrony_sock"]:
+        from sync.chrony_sock import ChronySock
+
+        clock.on_sample = ChronySock(sc["chrony_sock"]).send_edge
+    return clock
 
 
 def main(argv: list[str]) -> int:

@@ -144,6 +144,9 @@ def render(snap: dict[str, Any]) -> str:
         lines.append(f"  position {nav['lat_deg']:.7f} {nav['lon_deg']:.7f} h {nav['height_m']:.1f} m"
                      + (f"  (sigma {nav['sigma_h_m']:.1f} m)" if nav.get("sigma_h_m") is not None else "")
                      + (f"  {nav['source']}" if nav.get("source") else ""))
+    if nav:
+        for v in nav.get("verdicts") or []:
+            lines.append(f"  nav      {v}")
     rec = snap.get("recorder") or {}
     if rec:
         lines.append("")

@@ -190,5 +190,7 @@ _add("/nav/state", "vehicle_logger.NavState", {
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay"),
     "verdicts": ("array", "plain health verdicts, one sentence each (live only)"),
+    "dropped": ("integer?", "records the live navigator skipped because it was behind (live only)"),
+    "cpu_s": ("number?", "CPU time the live navigator thread has used since the start, s (live only)"),
 }, "navigation filter state once a second: biases, scale factor, height offset, covariance, innovations",
      stamped=False)

@@ -270,16 +270,22 @@ class Elm327:
             raise BusError(f"ELM327 port {self.port} failed on write ({e}): adapter unplugged?") from e
 
     def _read_answer(self, silence_s: float, search_silence_s: float | None = None) -> bytes:
-        """Bytes up to and including the next prompt; what follows it stays for the next answer."""
+        """Bytes up to and including the next prompt; what follows it stays for the next answer.
+
+        The bound counts bytes as they come off the line, NULs included: a line held low (a break, a wrong
+        baud rate) delivers NULs without end, and those are dropped before they reach the buffer.
+        """
         ser = self._require_open()
+        received = 0
+        junk = b""
         while True:
             end = self._rx.find(PROMPT)
             if end >= 0:
                 answer = bytes(self._rx[: end + 1])
                 del self._rx[: end + 1]
                 return answer
-            if len(self._rx) > MAX_ANSWER_BYTES:
-                junk = bytes(self._rx[:24])
+            if len(self._rx) > MAX_ANSWER_BYTES or received > MAX_ANSWER_BYTES:
+                junk = bytes(self._rx[:24]) or junk
                 self._rx.clear()
                 raise ProtocolError(f"ELM327 on {self.port} sends {MAX_ANSWER_BYTES} bytes without a prompt "
                                     f"(starting {junk!r}): wrong baud rate?")
@@ -298,6 +304,8 @@ class Elm327:
                 raise BusError(f"ELM327 port {self.port} failed on read ({e}): adapter unplugged?") from e
             if not chunk:
                 raise _NoPrompt(f"no prompt within {wait:g} s")
+            received += len(chunk)
+            junk = junk or chunk[:24]
             self._rx += chunk.replace(b"\x00", b"")
 
     def _take_unsolicited(self) -> bool:

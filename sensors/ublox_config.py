@@ -42,6 +42,9 @@ for _key, _name in UBX_MSGIDS.items():
 _TIME_REF = {"utc": 0, "gps": 1, "glonass": 2, "beidou": 3, "galileo": 4}
 _UART_PORT_ID = {"UART1": 1, "UART2": 2}
 _BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+# Shortest payload of each reply the set-up reads. pyubx2 decodes a runt with a good checksum into a message
+# without the fields, and reading those would raise out of the set-up instead of waiting for a real reply.
+_MIN_REPLY_PAYLOAD = {"ACK-ACK": 2, "ACK-NAK": 2, "MON-VER": 40}
 
 
 def message_id(name: str) -> tuple[int, int]:
@@ -137,7 +140,9 @@ class _Session:
             return self.port.read(waiting) if waiting else b""
 
         data = self._io(take, "reading")
-        return [f for f in self.framer.feed(data) if f.kind == KIND_UBX and f.message is not None]  # type: ignore[arg-type]
+        return [f for f in self.framer.feed(data)  # type: ignore[arg-type]
+                if f.kind == KIND_UBX and f.message is not None
+                and len(f.raw) - 8 >= _MIN_REPLY_PAYLOAD.get(str(getattr(f.message, "identity", "")), 0)]
 
     def set_host_baud(self, baud: int) -> None:
         self._io(lambda: setattr(self.port, "baudrate", baud), f"switching to {baud} baud")

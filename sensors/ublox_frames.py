@@ -17,10 +17,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from pynmeagps import NMEAReader
 from pynmeagps.nmeahelpers import calc_checksum as nmea_checksum
 from pyubx2 import UBXReader
-from pyubx2.ubxhelpers import calc_checksum as ubx_checksum
 
 UBX_SYNC = b"\xb5\x62"
 UBX_HEADER_LEN = 6
@@ -34,6 +34,13 @@ high-precision and proprietary sentences run a little longer."""
 
 RTCM3_PREAMBLE = 0xD3
 RTCM3_MAX_PAYLOAD = 1023
+RTCM3_CHECK_PER_BYTE = 32
+RTCM3_CHECK_BURST = 64 * 1024
+"""CRC-24Q in Python costs about a millisecond per kilobyte, and every candidate header is checked over the
+length it claims: a stream of forged headers ('D3 03 FF' repeated) would cost 50 us per byte, more than a
+fast line leaves. Checking is therefore paid from a budget that each byte passing through earns
+(``RTCM3_CHECK_PER_BYTE`` bytes of CRC, saved up to ``RTCM3_CHECK_BURST``); real RTCM3 frames never exhaust
+it, and a candidate that finds it empty counts as garbage (``rtcm3_unchecked``)."""
 
 KIND_UBX = "UBX"
 KIND_NMEA = "NMEA"
@@ -68,6 +75,19 @@ def _crc24q_table() -> tuple[int, ...]:
 _CRC24Q = _crc24q_table()
 
 
+def ubx_fletcher(body: bytes) -> bytes:
+    """The UBX checksum (8-bit Fletcher) of class, id, length and payload, computed in numpy.
+
+    Every candidate header in the stream is checked against its checksum, and a forged header claims up to
+    8 kB; a Python loop took a millisecond for that, numpy a few microseconds. CK_A is the byte sum and
+    CK_B the sum of the running CK_A values, both modulo 256.
+    """
+    running = np.cumsum(np.frombuffer(body, dtype=np.uint8), dtype=np.uint64)
+    if running.size == 0:
+        return b"\x00\x00"
+    return bytes((int(running[-1]) & 0xFF, int(running.sum()) & 0xFF))
+
+
 def crc24q(data: bytes) -> int:
     """CRC-24Q (RTCM 10403, Qualcomm polynomial 0x1864CFB) of ``data``."""
     crc = 0
@@ -89,7 +109,8 @@ class UbxNmeaFramer:
     - ``bad_checksum``: UBX, NMEA or RTCM3 frames whose checksum failed (their bytes are then
       rescanned and counted as garbage unless a good frame starts inside them),
     - ``garbage_bytes``: bytes that belong to no good frame,
-    - ``undecoded``: good frames the decoding library could not turn into a message.
+    - ``undecoded``: good frames the decoding library could not turn into a message,
+    - ``rtcm3_unchecked``: RTCM3 candidates skipped unchecked because the check budget was spent.
     """
 
     def __init__(self) -> None:
@@ -98,6 +119,10 @@ class UbxNmeaFramer:
         self.bad_checksum = 0
         self.garbage_bytes = 0
         self.undecoded = 0
+        self.rtcm3_unchecked = 0
+        self._consumed = 0  # bytes of the stream before the buffer
+        self._rtcm3_credit = RTCM3_CHECK_BURST
+        self._rtcm3_credited_at = 0
 
     @property
     def pending(self) -> int:
@@ -139,6 +164,11 @@ class UbxNmeaFramer:
                 self.garbage_bytes += 1
                 pos += 1
                 continue
+            if lead == RTCM3_PREAMBLE and not self._rtcm3_affordable(self._consumed + pos, size):
+                self.rtcm3_unchecked += 1
+                self.garbage_bytes += 1
+                pos += 1
+                continue
             raw = bytes(buf[pos : pos + size])
             frame = self._check(raw)
             if frame is None:
@@ -150,7 +180,21 @@ class UbxNmeaFramer:
             self.frames_ok += 1
             pos += size
         del buf[:pos]
+        self._consumed += pos
         return frames
+
+    def _rtcm3_affordable(self, at: int, size: int) -> bool:
+        """Pay for checking a ``size``-byte RTCM3 candidate at stream offset ``at``; False when broke.
+
+        The credit depends only on the stream's bytes, not on how the port cut them into reads.
+        """
+        earned = (at - self._rtcm3_credited_at) * RTCM3_CHECK_PER_BYTE
+        self._rtcm3_credit = min(RTCM3_CHECK_BURST, self._rtcm3_credit + earned)
+        self._rtcm3_credited_at = at
+        if self._rtcm3_credit < size:
+            return False
+        self._rtcm3_credit -= size
+        return True
 
     @staticmethod
     def _next_sync(buf: bytearray, start: int, end: int) -> int:
@@ -205,7 +249,7 @@ class UbxNmeaFramer:
         """The frame if its checksum is good, else None. Decoding failures leave ``message`` None."""
         lead = raw[0]
         if lead == 0xB5:
-            if ubx_checksum(raw[2:-2]) != raw[-2:]:
+            if ubx_fletcher(raw[2:-2]) != raw[-2:]:
                 return None
             return Frame(KIND_UBX, raw, self._decode_ubx(raw))
         if lead == RTCM3_PREAMBLE:

@@ -19,6 +19,7 @@ import bisect
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -216,6 +217,33 @@ class RouteBuilder:
         self.t += duration
         return duration
 
+    def speed_wander(self, seconds: float, rng: np.random.Generator, spread_mps: float, repeat: int = 1,
+                     hold_s: tuple[float, float] = (4.0, 10.0), ramp_s: tuple[float, float] = (4.0, 8.0)) -> None:
+        """Schedule gentle speed changes around the present speed over the next ``seconds`` (traffic), without
+        advancing time: the motion actions that follow carry the vehicle through, and must last as long.
+
+        The speed is back where it started at the end of each of the ``repeat`` identical periods, so a
+        symmetric manoeuvre laid over them (a tunnel's dip and climb) still ends at the height it started.
+        A real speed sensor's 1 km/h steps then dither, as they do on the road, instead of reading one
+        constant value that a perfectly steady speed would give.
+        """
+        v0, t0 = self.v, self.t
+        steps: list[tuple[float, float, float]] = []  # (offset in the period, duration, delta)
+        t, cur = 0.0, v0
+        while True:
+            hold, ramp = float(rng.uniform(*hold_s)), float(rng.uniform(*ramp_s))
+            if t + hold + 2.0 * ramp > seconds:
+                break
+            target = max(0.5, v0 + float(rng.uniform(-spread_mps, spread_mps)))
+            steps.append((t + hold, ramp, target - cur))
+            t, cur = t + hold + ramp, target
+        if cur != v0:
+            ramp = min(float(rng.uniform(*ramp_s)), max(seconds - t, 1e-3))
+            steps.append((t, ramp, v0 - cur))
+        for k in range(repeat):
+            for off, dur, delta in steps:
+                self.speed.add(t0 + k * seconds + off, dur, delta)
+
     def cruise(self, seconds: float) -> None:
         if seconds < 0.0:
             raise ValueError("cannot cruise for a negative time")
@@ -380,6 +408,10 @@ class Drive:
     grid_dt_s: float = 0.1
     roll_per_lateral_mps2: float = ROLL_PER_LATERAL_ACCEL
     name: str = "drive"
+    # The sky as a GNSS receiver sees it (sensors.sim.gnss_errors.SkyGeometry: constellation, canyon band) and
+    # options of its error model; a drive without them gets the simpler sky-fraction receiver errors.
+    gnss_sky: Any = None
+    gnss_error_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if math.isnan(self.duration_s):

@@ -22,17 +22,25 @@ from typing import Any
 import numpy as np
 
 from sensors.sim.drive import Drive, RouteBuilder, Weather, horizontal_displacement
+from sensors.sim.gnss_errors import SkyGeometry
 
 SCENARIOS = ("urban", "outage-60s", "tunnel-130s")
 
 _DRIVE_OPTIONS = ("start_lat_deg", "start_lon_deg", "start_height_m", "geoid_m", "grid_dt_s")
 _WEATHER_OPTIONS = ("ambient_start_degc", "ambient_swing_degc", "sea_level_pa", "sea_level_rate_pa_per_s")
 _SCENARIO_OPTIONS: dict[str, dict[str, Any]] = {
-    "urban": {"tunnel_s": (40.0, 90.0)},
+    "urban": {"tunnel_s": (10.0, 14.0)},
     "outage-60s": {"outage_s": 60.0, "speed_mps": 15.0},
     "tunnel-130s": {"tunnel_s": 130.0, "speed_mps": 13.9},
 }
 MIN_FILL_M = 60.0  # shortest straight a closing stretch may have
+# Street canyons of the urban lap: the visible sky fraction wanders here, which blocks satellites from 15 deg
+# up to 42..59 deg (sensors.sim.gnss_errors.blocked_band): the paper's simulated urban blockage of 15 to 50 deg.
+CANYON_SKY = (0.40, 0.58)
+# Buildings close in over the approach to each urban tunnel: the sky narrows to nothing over this long, so the
+# receiver works on ever fewer satellites before it loses them (the paper's Table 8: under 5 for about 30 s).
+URBAN_PORTAL_S = 8.0
+TRAFFIC_MPS = 1.0  # how far the speed wanders with the traffic on the urban lap's canyon and tunnel stretches
 HALF_PI = 0.5 * math.pi
 
 
@@ -92,8 +100,11 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
     if duration_s is not None and b.t < duration_s:
         b.stand(duration_s - b.t, "parked")
     plan = b.finish()
-    return Drive(plan, weather=weather, duration_s=duration_s if duration_s is not None else plan.end_s,
-                 name=name, **drive_opts)
+    drive = Drive(plan, weather=weather, duration_s=duration_s if duration_s is not None else plan.end_s,
+                  name=name, **drive_opts)
+    # Where the satellites stand: a seeded time of day, drawn apart so the drive itself does not change.
+    drive.gnss_sky = SkyGeometry(epoch_s=float(np.random.default_rng([seed, 5]).uniform(0.0, 86400.0)))
+    return drive
 
 
 # urban loop ----------------------------------------------------------------------------------------------
@@ -122,6 +133,7 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     """One lap of four blocks with right turns, from a red light heading north back to the same light."""
     rng = np.random.default_rng(words)
     sky = np.random.default_rng([*words, 1])
+    traffic = np.random.default_rng([*words, 2])  # speed wandering with the traffic on fixed-length stretches
     v_n, v_e, v_s, v_w = (float(x) for x in rng.uniform(11.0, 16.4, 4))
     v_turn = float(rng.uniform(4.5, 6.0))
     acc = float(rng.uniform(1.3, 2.1))
@@ -140,7 +152,8 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     b.speed_to(v_n, acc)
     b.cruise_m(120.0)
     t_c = b.t
-    b.canyon(canyon_1, sky, ramp_s=ramp)
+    b.canyon(canyon_1, sky, low=CANYON_SKY[0], high=CANYON_SKY[1], ramp_s=ramp)
+    b.speed_wander(44.0, traffic, TRAFFIC_MPS)  # the S-curves below last 4 x 11 s
     for sign in (1.0, -1.0, -1.0, 1.0):
         b.bend(sign * bend, 7.0)
         b.cruise(4.0)
@@ -156,7 +169,8 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     # Eastbound: the first tunnel, a red light at the junction.
     b.speed_to(v_e, acc)
     b.cruise_m(100.0)
-    b.tunnel(tunnels[0])
+    b.speed_wander(0.5 * (tunnels[0] + URBAN_PORTAL_S), traffic, TRAFFIC_MPS, repeat=2)
+    b.tunnel(tunnels[0], portal_s=URBAN_PORTAL_S)
     b.cruise_m(fill_e + extra_e)
     b.speed_to(0.0, brake)
     b.stand(stops[2], "stop")
@@ -166,12 +180,14 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     b.speed_to(v_s, acc)
     b.cruise_m(100.0)
     t_c = b.t
-    b.canyon(canyon_2, sky, ramp_s=ramp)
+    b.canyon(canyon_2, sky, low=CANYON_SKY[0], high=CANYON_SKY[1], ramp_s=ramp)
     b.cruise(15.0)
     b.speed_to(0.0, brake)
     b.stand(stops[3], "stop")
     b.speed_to(v_s, acc)
-    b.cruise(max(5.0, t_c + canyon_2 + 2.0 * ramp + 1.0 - b.t))
+    rest = max(5.0, t_c + canyon_2 + 2.0 * ramp + 1.0 - b.t)
+    b.speed_wander(rest, traffic, TRAFFIC_MPS)
+    b.cruise(rest)
     b.hill(-grade_2, 60.0, hold_2)
     b.cruise_m(fill_s)
     b.speed_to(v_turn, brake)
@@ -179,7 +195,8 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     # Westbound: the second, curved tunnel, the closing stretch, back north to the start light.
     b.speed_to(v_w, acc)
     b.cruise_m(100.0)
-    b.tunnel(tunnels[1], bend_rad=math.radians(6.0))
+    b.speed_wander(0.5 * (tunnels[1] + URBAN_PORTAL_S), traffic, TRAFFIC_MPS, repeat=2)
+    b.tunnel(tunnels[1], bend_rad=math.radians(6.0), portal_s=URBAN_PORTAL_S)
     b.cruise_m(fill_w)
     b.speed_to(v_turn, brake)
     b.turn(HALF_PI, lateral)
@@ -222,10 +239,18 @@ def _tunnel(rng: np.random.Generator, opts: dict[str, Any]) -> tuple[float, Body
 
     def body(b: RouteBuilder, words: list[int]) -> None:
         r = np.random.default_rng(words)
+        traffic = np.random.default_rng([*words, 1])
+        # Speed wanders with the traffic by up to 1.4 m/s, inside the tunnel too (the same in its dip and its
+        # climb, so the exit is at the entry's height).
+        b.speed_wander(57.0, traffic, 1.4)
         b.cruise(30.0)
         b.bend(math.radians(float(r.uniform(-10.0, 10.0))), 12.0)
         b.cruise(15.0)
-        b.tunnel(dark_s, dip_pitch_rad=float(r.uniform(0.02, 0.04)), bend_rad=math.radians(float(r.uniform(5.0, 10.0))))
+        portal_s = 1.0
+        b.speed_wander(0.5 * (dark_s + portal_s), traffic, 1.4, repeat=2)
+        b.tunnel(dark_s, dip_pitch_rad=float(r.uniform(0.02, 0.04)), bend_rad=math.radians(float(r.uniform(5.0, 10.0))),
+                 portal_s=portal_s)
+        b.speed_wander(45.0, traffic, 1.4)
         b.cruise(45.0)
 
     return float(rng.uniform(0.0, 2.0 * math.pi)), body, speed

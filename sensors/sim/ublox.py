@@ -49,6 +49,7 @@ from sensors.sim.clock import DriveClock
 from sensors.sim.gnss_errors import (
     MAX_SATELLITES,
     EpochError,
+    GeometryErrorModel,
     GnssErrorModel,
     fix_type_for,
     has_time_fix,
@@ -264,6 +265,11 @@ class UbloxReceiverModel:
         self.poll_s = poll_s
         rng_err, rng_lat, rng_cmd, rng_garbage, rng_pulse = _child_rngs(seed, 5)
         self.errors = error_model or GnssErrorModel(rng_err)
+        # A drive that describes its sky (satellite geometry, street canyons) gets errors through that geometry;
+        # a bare trajectory keeps the simpler model driven by the visible sky fraction alone.
+        self.sky = getattr(trajectory, "gnss_sky", None) if error_model is None else None
+        self.geometry_errors = None if self.sky is None else GeometryErrorModel(
+            rng_err, len(self.sky.constellation), **getattr(trajectory, "gnss_error_options", {}))
         self.pulse_quantisation = PulseQuantisation.from_seed(rng_pulse)
         self._rng_latency = rng_lat
         self._rng_command = rng_cmd
@@ -399,7 +405,10 @@ class UbloxReceiverModel:
         behind it and the sky gives it a time solution. The ``has_fix`` a PPS line model wants."""
         if (t_s * NS_PER_S - self._power_on_ns) < self.time_to_first_fix_s * NS_PER_S:
             return False
-        return has_time_fix(self.trajectory.state(min(t_s, self.trajectory.duration_s)), self.max_satellites)
+        state = self.trajectory.state(min(t_s, self.trajectory.duration_s))
+        if self.sky is not None:
+            return fix_type_for(self.sky.num_sv(state)) >= 2
+        return has_time_fix(state, self.max_satellites)
 
     def solution_for_itow(self, itow_ms: int) -> EpochRecord | None:
         for rec in reversed(self.history):
@@ -578,9 +587,16 @@ class UbloxReceiverModel:
         truth = self.trajectory.state(min(t_ns / NS_PER_S, dur))
         dt_s = 1.0 if self._last_solution_ns is None else (t_ns - self._last_solution_ns) / NS_PER_S
         self._last_solution_ns = t_ns
-        num_sv = satellites_tracked(truth.sky_open, self.max_satellites) if self._tracking(t_ns) else 0
+        if self.sky is not None and self.geometry_errors is not None:
+            view = self.sky.view(truth)
+            if not self._tracking(t_ns):
+                view = replace(view, az=view.az[:0], el=view.el[:0], reflected=view.reflected[:0], ids=view.ids[:0])
+            err = self.geometry_errors.step(dt_s, view)
+            num_sv = view.num_sv if math.isfinite(err.h_acc_m) else min(view.num_sv, 2)  # masked: no fix
+        else:
+            num_sv = satellites_tracked(truth.sky_open, self.max_satellites) if self._tracking(t_ns) else 0
+            err = self.errors.step(dt_s, truth.sky_open, num_sv)
         fix_type = fix_type_for(num_sv)
-        err = self.errors.step(dt_s, truth.sky_open, num_sv)
         rn, re = earth.radii(truth.lat_rad)
         last = self._last_fix
         itow_ms = (GnssTimeline.week_tow(gps_ns)[1] + NS_PER_MS // 2) // NS_PER_MS

@@ -1,0 +1,86 @@
+"""Initialisation a real drive needs: levelling and gyro bias at standstill, heading from the GNSS course.
+
+A MEMS gyro cannot find north (the earth's rate is a thousandth of the MPU-6050's offset), so the heading
+comes from the direction of travel the receiver reports once the vehicle moves fast enough for it to mean
+something, or from the configuration. Roll and pitch come from the mean specific force at standstill, and the
+mean gyro output there is the gyro offset. The accelerometer offset cannot be told from a tilt at
+standstill: levelling absorbs its horizontal part, so the initial covariance correlates the two.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from logger.nav import earth
+from logger.nav.rotations import quat_from_euler, quat_from_rotvec, quat_mul
+
+
+class StaticAlignment:
+    """Averages specific force and angular rate while the vehicle stands still."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.n = 0
+        self.t0_ns = 0
+        self.t1_ns = 0
+        self._f = [0.0, 0.0, 0.0]
+        self._w = [0.0, 0.0, 0.0]
+
+    def add(self, t_ns: int, f: tuple[float, float, float], w: tuple[float, float, float]) -> None:
+        if self.n == 0:
+            self.t0_ns = t_ns
+        self.t1_ns = t_ns
+        self.n += 1
+        for i in range(3):
+            self._f[i] += f[i]
+            self._w[i] += w[i]
+
+    @property
+    def duration_s(self) -> float:
+        return (self.t1_ns - self.t0_ns) / 1e9
+
+    def mean_force(self) -> tuple[float, float, float]:
+        return self._f[0] / self.n, self._f[1] / self.n, self._f[2] / self.n
+
+    def level(self) -> tuple[float, float]:
+        """Roll and pitch (rad) from the mean specific force: at rest it is minus gravity in body axes."""
+        fx, fy, fz = self.mean_force()
+        return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
+
+    def gyro_bias(self, lat_rad: float | None = None) -> tuple[float, float, float]:
+        """Mean gyro output less the part of the earth's rate along the local vertical (known without heading)."""
+        wx, wy, wz = (self._w[i] / self.n for i in range(3))
+        if lat_rad is not None:
+            roll, pitch = self.level()
+            down = (-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch))
+            wd = -earth.OMEGA_IE * math.sin(lat_rad)  # earth rate along NED down
+            wx, wy, wz = wx - wd * down[0], wy - wd * down[1], wz - wd * down[2]
+        return wx, wy, wz
+
+
+def attitude(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    return quat_from_euler(roll, pitch, yaw)
+
+
+def rotate_heading(q: tuple[float, float, float, float], dpsi: float) -> tuple[float, float, float, float]:
+    """Turn an attitude about the local vertical by ``dpsi`` (rad): keeps roll and pitch, shifts yaw."""
+    return quat_mul(quat_from_rotvec(0.0, 0.0, dpsi), q)
+
+
+def tilt_bias_covariance(c_bn: np.ndarray, accel_bias_var: float, g: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                        np.ndarray]:
+    """Joint covariance of the horizontal attitude error and the accelerometer bias after levelling.
+
+    Levelling makes the specific force it measured vertical, so f x phi = C dba in the horizontal: with
+    f = (0, 0, -g), g phi_E = (C dba)_N and -g phi_N = (C dba)_E. Returns P_phi (3x3), P_phi_ba (3x3) and
+    P_ba (3x3) for independent bias errors of variance ``accel_bias_var`` per axis.
+    """
+    m = np.zeros((3, 3))
+    m[0] = -c_bn[1] / g
+    m[1] = c_bn[0] / g
+    pba = np.eye(3) * accel_bias_var
+    return m @ pba @ m.T, m @ pba, pba

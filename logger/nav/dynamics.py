@@ -1,0 +1,105 @@
+"""Error dynamics and process noise: the transition matrix F_k and W_k of the paper's Eq. 7.
+
+The INS block follows the psi-angle error model (Titterton & Weston, eq. 12.6 and 12.11) with the error
+convention of :mod:`logger.nav.state` (estimated minus true):
+
+    d(dr)/dt  = dv
+    d(dv)/dt  = [f_n x] phi - C_bn dba - [(2 w_ie + w_en) x] dv + (2 g / R) dr_D e_D
+    d(phi)/dt = -[w_in x] phi + dw_in(dr, dv) + C_bn dbg
+    biases, scale factor and height offset: random walks
+
+Terms of the order of v / R (transport-rate coupling of position errors) are dropped: a land vehicle's
+speed makes them a few parts per million of what is kept. The covariance is propagated at a lower rate than
+the mechanization, with a second-order transition matrix and the trapezoidal discrete process noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from logger.nav import earth
+from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID, NavState
+
+
+@dataclass(frozen=True)
+class ProcessNoise:
+    """Continuous-time noise densities of the state's driving white noise (all SI, per sqrt(s))."""
+
+    accel_vrw: float  # velocity random walk, m/s^2/sqrt(Hz) = m/s/sqrt(s)
+    gyro_arw: float  # angle random walk, rad/s/sqrt(Hz) = rad/sqrt(s)
+    accel_bias_walk: float  # m/s^2/sqrt(s)
+    gyro_bias_walk: float  # rad/s/sqrt(s)
+    scale_walk: float  # 1/sqrt(s)
+    height_offset_walk: float  # m/sqrt(s)
+
+    def diagonal(self, n: int) -> np.ndarray:
+        q = np.zeros(n)
+        q[V_ID:V_ID + 3] = self.accel_vrw**2
+        q[PHI_ID:PHI_ID + 3] = self.gyro_arw**2
+        q[BA_ID:BA_ID + 3] = self.accel_bias_walk**2
+        q[BG_ID:BG_ID + 3] = self.gyro_bias_walk**2
+        if n > SF_ID:
+            q[SF_ID] = self.scale_walk**2
+            q[DH_ID] = self.height_offset_walk**2
+        return q
+
+
+def error_dynamics(s: NavState, c_bn: np.ndarray, f_ned: tuple[float, float, float], n: int) -> np.ndarray:
+    """The continuous-time error dynamics matrix F (n x n) at the nominal state ``s``."""
+    lat, h = s.lat, s.h
+    rm, rn = earth.radii(lat)
+    rmh, rnh = rm + h, rn + h
+    sl, cl = math.sin(lat), math.cos(lat)
+    tl = sl / cl
+    om = earth.OMEGA_IE
+    wie_n, wie_d = om * cl, -om * sl
+    wen_n, wen_e, wen_d = s.ve / rnh, -s.vn / rmh, -s.ve * tl / rnh
+    g = earth.gravity(lat, h)
+    f = np.zeros((n, n))
+    f[P_ID, V_ID] = f[P_ID + 1, V_ID + 1] = f[P_ID + 2, V_ID + 2] = 1.0
+    # -[(2 w_ie + w_en) x] on the velocity error
+    a, b, c = 2.0 * wie_n + wen_n, wen_e, 2.0 * wie_d + wen_d
+    f[V_ID:V_ID + 3, V_ID:V_ID + 3] = ((0.0, c, -b), (-c, 0.0, a), (b, -a, 0.0))
+    fn, fe, fd = f_ned
+    f[V_ID:V_ID + 3, PHI_ID:PHI_ID + 3] = ((0.0, -fd, fe), (fd, 0.0, -fn), (-fe, fn, 0.0))
+    f[V_ID:V_ID + 3, BA_ID:BA_ID + 3] = -c_bn
+    f[V_ID + 2, P_ID + 2] = 2.0 * g / math.sqrt(rmh * rnh)
+    a, b, c = wie_n + wen_n, wen_e, wie_d + wen_d  # -[w_in x] on the attitude error
+    f[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = ((0.0, c, -b), (-c, 0.0, a), (b, -a, 0.0))
+    # d(w_in)/d(dv): the transport rate's dependence on velocity.
+    f[PHI_ID, V_ID + 1] = 1.0 / rnh
+    f[PHI_ID + 1, V_ID] = -1.0 / rmh
+    f[PHI_ID + 2, V_ID + 1] = -tl / rnh
+    # d(w_ie)/d(dr_N): a latitude error turns the earth rate vector.
+    f[PHI_ID, P_ID] = -om * sl / rmh
+    f[PHI_ID + 2, P_ID] = -om * cl / rmh
+    f[PHI_ID:PHI_ID + 3, BG_ID:BG_ID + 3] = c_bn
+    return f
+
+
+def discretize(f: np.ndarray, q_diag: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Transition matrix (second order in F dt) and discrete process noise (trapezoid) over ``dt``."""
+    fdt = f * dt
+    phi = fdt @ fdt
+    phi *= 0.5
+    phi += fdt
+    d = _diag(f.shape[0])
+    phi[d, d] += 1.0
+    qd = (phi * q_diag) @ phi.T
+    qd[d, d] += q_diag
+    qd *= 0.5 * dt
+    return phi, qd
+
+
+_DIAG: dict[int, np.ndarray] = {}
+
+
+def _diag(n: int) -> np.ndarray:
+    """Indices of a diagonal (numpy's own helper costs more than the 17x17 product it serves)."""
+    d = _DIAG.get(n)
+    if d is None:
+        d = _DIAG[n] = np.arange(n)
+    return d

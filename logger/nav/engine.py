@@ -1,0 +1,620 @@
+"""The navigation engine: recorded or live messages in time order in, a navigation solution at the IMU rate out.
+
+One engine serves the live navigator and ``logger replay``, so what the operator sees on the road is what a
+post-processing run computes. Per IMU sample it runs the strapdown mechanization (cheap, plain floats); the
+covariance is propagated at most every ``cov_interval_s`` and always before an update. Measurements are
+applied in the order they arrive, each at its own time: a GNSS fix is evaluated against the solution at its
+epoch (kept in a short history, corrected for every feedback since), the others against the latest one.
+
+Modes: ``17`` the paper's filter (GNSS, OBD with its scale factor, baro with its offset, zero motion at stops,
+non-holonomic constraint), ``15`` the paper's baseline (GNSS position and velocity only), ``gnss`` the
+receiver's own fixes passed through, for comparison on the same data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from logger.nav import earth
+from logger.nav.alignment import StaticAlignment, rotate_heading, tilt_bias_covariance
+from logger.nav.dynamics import ProcessNoise, discretize, error_dynamics
+from logger.nav.ekf import ErrorStateEkf
+from logger.nav.gnss_time import GnssEpochClock
+from logger.nav.measurements import (
+    BaroHeight,
+    GnssPosition,
+    GnssVelocity,
+    NonHolonomic,
+    ObdVelocity,
+    Observation,
+    ZeroMotion,
+)
+from logger.nav.params import MODES, NavParams
+from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler, quat_from_rotvec, quat_mul
+from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, SF_ID, V_ID, NavState
+from logger.nav.stops import StopDetector
+from logger.nav.strapdown import Strapdown
+
+NS = 1_000_000_000
+IMU_GAP_S = 0.5  # samples further apart than this are a gap: counted, and still integrated across
+MAX_IMU_GAP_S = 5.0  # beyond this the rates at both ends say nothing about the gap: coast on the velocity
+UPDATE_STALE_S = 0.2  # an update uses the covariance as last propagated if that is less than this old
+CONING_MAX_DT_S = 0.0105  # mean sample interval below which coning/sculling corrections are applied
+OBD_FRESH_NS = int(1.2 * NS)
+OBD_MIN_SPEED_MPS = 0.5  # below this the 1 km/h steps of PID 0x0D say little
+NHC_MIN_SPEED_MPS = 1.0
+NHC_INTERVAL_NS = NS // 2
+DIVERGENCE_REJECTS = 10  # consecutive rejected GNSS fixes with a good receiver accuracy...
+DIVERGENCE_SPAN_NS = 8 * NS  # ... spanning this long: the filter has lost itself, start again from GNSS
+DIVERGENCE_SIGMA_M = 1000.0
+UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
+
+
+@dataclass
+class Epoch:
+    """A covariance time step, kept for the backward smoother."""
+
+    t_ns: int
+    phi: np.ndarray | None  # transition from the previous epoch
+    p_minus: np.ndarray
+    p_plus: np.ndarray | None = None
+    dx: np.ndarray | None = None  # sum of the corrections fed back at this epoch
+
+
+@dataclass
+class EngineCounters:
+    imu: int = 0
+    imu_gaps: int = 0
+    imu_out_of_order: int = 0
+    gnss_fixes: int = 0
+    gnss_no_fix: int = 0
+    gnss_few_sv: int = 0  # fixes left out for too few satellites
+    gnss_skipped: int = 0  # GNSS rows (axes) that would add almost nothing but their bias
+    obd: int = 0
+    baro: int = 0
+    zupt: int = 0
+    resets: int = 0
+    initialised_ns: int | None = None
+    init_method: str = ""
+
+
+@dataclass
+class Solution:
+    """The latest output, for the live navigator and tests."""
+
+    t_ns: int
+    t_mono_ns: int
+    lat_rad: float
+    lon_rad: float
+    h_m: float
+    vel_ned: tuple[float, float, float]
+    rpy_rad: tuple[float, float, float]
+    sigma_ned: tuple[float, float, float]
+    source: str
+
+
+@dataclass
+class _Fix:
+    t_ns: int
+    t_mono_ns: int
+    lat: float
+    lon: float
+    h: float
+    vel: np.ndarray | None
+    sigma: tuple[float, float, float]
+    s_vel: float
+    fix_3d: bool
+    h_acc: float
+
+
+@dataclass
+class NavEngine:
+    params: NavParams = field(default_factory=NavParams)
+    record: bool = False  # keep rows and covariance epochs (replay and the smoother)
+
+    def __post_init__(self) -> None:
+        p = self.params
+        if p.mode not in MODES:
+            raise ValueError(f"unknown navigation mode {p.mode!r}: choose one of {', '.join(MODES)}")
+        self.mode = p.mode
+        self.n = N_FULL if p.mode == "17" else N_INS
+        m = dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg))
+        self._mount = None if np.allclose(m, np.eye(3)) else tuple(tuple(float(v) for v in row) for row in m)
+        self.lever = np.array(p.lever_arm_m, float)
+        self.mech = Strapdown(coning=False)
+        self.stops = StopDetector(p.still_accel_mps2)
+        self.align = StaticAlignment()
+        self.epoch_clock = GnssEpochClock()
+        self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
+                                  p.baro_offset_walk_m_rts)
+        self.q_diag = self.noise.diagonal(self.n)
+        self.state: NavState | None = None
+        self.ekf: ErrorStateEkf | None = None
+        self.counters = EngineCounters()
+        self.rows: list[tuple[Any, ...]] = []
+        self.epochs: list[Epoch] = []
+        self.solution: Solution | None = None
+        self._t_last: int | None = None
+        self._dt_mean = 0.05
+        self._t_mono_last = 0
+        self._w_last = (0.0, 0.0, 0.0)  # last bias-corrected rate, body
+        self._gyro_raw = (0.0, 0.0, 0.0)  # last raw rate, body
+        self._raw: tuple[tuple[float, float, float], tuple[float, float, float]] = ((0.0, 0.0, -earth.G0),
+                                                                                    (0.0, 0.0, 0.0))
+        self._f_last = (0.0, 0.0, 0.0)
+        self._hist: deque[tuple[Any, ...]] = deque(maxlen=4096)  # 4 s at 1 kHz: late fixes arrive within 1 s
+        self._corr: tuple[float, ...] = (0.0,) * 6  # position (NED m) and velocity fed back so far
+        self._cov_dt = 0.0
+        self._f_acc = [0.0, 0.0, 0.0]
+        self._sig = (math.inf, math.inf, math.inf)
+        self._prov_q: tuple[float, float, float, float] | None = None  # attitude before the heading is known
+        self._prov_hist: deque[tuple[int, tuple[float, float, float, float]]] = deque(maxlen=4096)
+        self._levelled: tuple[float, float, tuple[float, float, float], tuple[float, float, float]] | None = None
+        self._last_fix: _Fix | None = None
+        self._baro_last: tuple[int, float] | None = None
+        self._prov_w: tuple[float, float, float] | None = None
+        self._obd: tuple[int, float] | None = None  # (t_ns, speed) of the last OBD reading
+        self._w_stop = [0.0, 0.0, 0.0, 0]  # gyro sum and count since the last zero-motion update
+        self._w_stop_t0 = 0
+        self._next_idle_check_ns = 0
+        self._last_nhc_ns = 0
+        self._rejects: list[tuple[int, float, float]] = []  # consecutive refused fixes: time, N and E innovation
+        self.stopped = False
+        self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
+
+    # ---- dispatch ---------------------------------------------------------------------------------------
+    def feed(self, topic: str, msg: dict[str, Any]) -> None:
+        """One recorded or live message; topics the filter does not use are ignored."""
+        if topic == "/imu":
+            a, g = msg["accel_mps2"], msg["gyro_rps"]
+            self.imu(msg["t_sync_ns"], msg["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]))
+        elif topic == "/gnss/fix":
+            self.gnss(msg)
+        elif topic == "/obd/speed":
+            self.obd(msg["t_sync_ns"], float(msg["speed_mps"]))
+        elif topic == "/baro":
+            self.baro(msg["t_sync_ns"], float(msg["altitude_m"]))
+        elif topic == "/pps":
+            self.epoch_clock.pps(msg["t_sync_ns"])
+
+    # ---- IMU ---------------------------------------------------------------------------------------------
+    def imu(self, t_ns: int, t_mono_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float]) -> None:
+        if self.mode == "gnss":
+            return
+        mt = self._mount
+        if mt is not None:
+            acc = (mt[0][0] * acc[0] + mt[0][1] * acc[1] + mt[0][2] * acc[2],
+                   mt[1][0] * acc[0] + mt[1][1] * acc[1] + mt[1][2] * acc[2],
+                   mt[2][0] * acc[0] + mt[2][1] * acc[1] + mt[2][2] * acc[2])
+            gyro = (mt[0][0] * gyro[0] + mt[0][1] * gyro[1] + mt[0][2] * gyro[2],
+                    mt[1][0] * gyro[0] + mt[1][1] * gyro[1] + mt[1][2] * gyro[2],
+                    mt[2][0] * gyro[0] + mt[2][1] * gyro[1] + mt[2][2] * gyro[2])
+        c = self.counters
+        t_last = self._t_last
+        if t_last is not None and t_ns <= t_last:
+            c.imu_out_of_order += 1
+            return
+        c.imu += 1
+        self._raw = (acc, gyro)
+        self.stops.add(t_ns, acc, gyro)
+        dt = 0.0 if t_last is None else (t_ns - t_last) / NS
+        if 0.0 < dt < IMU_GAP_S:
+            # Coning and sculling corrections pay off once the IMU runs fast (100 Hz and up, FIFO reads): they
+            # need consecutive increments of one sampling clock, which a slow polled IMU does not give.
+            self._dt_mean += 0.02 * (dt - self._dt_mean)
+            self.mech.coning = self._dt_mean < CONING_MAX_DT_S
+        self._t_last = t_ns
+        self._t_mono_last = t_mono_ns
+        if dt > IMU_GAP_S:
+            c.imu_gaps += 1
+        if dt > MAX_IMU_GAP_S:
+            self.mech.reset()
+        s = self.state
+        if s is None:
+            self._pre_init(t_ns, acc, gyro, dt)
+            return
+        ba, bg = s.ba, s.bg
+        f = (acc[0] - ba[0], acc[1] - ba[1], acc[2] - ba[2])
+        w = (gyro[0] - bg[0], gyro[1] - bg[1], gyro[2] - bg[2])
+        self._f_last, self._w_last, self._gyro_raw = f, w, gyro
+        if dt <= MAX_IMU_GAP_S:
+            # A late sample (a loaded host, a slow bus) still closes its interval: the vehicle moved meanwhile.
+            self.mech.step(s, w, f, dt)
+        else:
+            s.lat, s.lon, s.h = earth.offset_llh(s.lat, s.lon, s.h, s.vn * dt, s.ve * dt, s.vd * dt)
+            self.mech.prime(w, f)
+        fn = self.mech.f_ned
+        self._cov_dt += dt
+        acc_ = self._f_acc
+        acc_[0] += fn[0] * dt
+        acc_[1] += fn[1] * dt
+        acc_[2] += fn[2] * dt
+        if self.stopped:
+            ws = self._w_stop
+            ws[0] += gyro[0]
+            ws[1] += gyro[1]
+            ws[2] += gyro[2]
+            ws[3] += 1
+        if self.mode == "17" and t_ns >= self._next_idle_check_ns and (
+                self._obd is None or t_ns - self._obd[0] > OBD_FRESH_NS):
+            # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
+            # and a solution that already stands, so a parked car does not drift on its IMU alone.
+            self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
+            self._stop_update(self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5)
+        self._hist.append((t_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, self._corr))
+        if self.record:
+            self.rows.append((t_ns, t_mono_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, self._sig,
+                              len(self.epochs) - 1))
+        if self._cov_dt >= self.params.cov_interval_s:
+            self._propagate()
+
+    def _pre_init(self, t_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
+                  dt: float) -> None:
+        """Before the heading is known: level while still, then carry the attitude on the gyro alone."""
+        still = self.stops.still and (self._obd is None or self._obd[1] == 0.0)
+        fix = self._last_fix
+        if fix is not None and fix.vel is not None and math.hypot(fix.vel[0], fix.vel[1]) > 1.0:
+            still = False
+        if still and self._prov_q is None:
+            self.align.add(t_ns, acc, gyro)
+            return
+        if self._prov_q is None:
+            if self.align.n == 0 or self.align.duration_s < self.params.align_min_s:
+                self.align.reset()
+                return
+            lat = fix.lat if fix is not None else None
+            roll, pitch = self.align.level()
+            bg = self.align.gyro_bias(lat)
+            self._levelled = (roll, pitch, bg, self.align.mean_force())
+            self._prov_q = quat_from_euler(roll, pitch, 0.0)
+            self._prov_w = None
+            if self.params.heading_source == "config" and fix is not None:
+                self._initialise(t_ns, math.radians(self.params.initial_heading_deg), "config heading", fix)
+                return
+        bg = self._levelled[2] if self._levelled else (0.0, 0.0, 0.0)
+        w = (gyro[0] - bg[0], gyro[1] - bg[1], gyro[2] - bg[2])
+        if 0.0 < dt <= MAX_IMU_GAP_S:
+            pw = self._prov_w or w
+            self._prov_q = quat_mul(self._prov_q, quat_from_rotvec(0.5 * (pw[0] + w[0]) * dt,
+                                                                   0.5 * (pw[1] + w[1]) * dt,
+                                                                   0.5 * (pw[2] + w[2]) * dt))
+        self._prov_w = w
+        self._prov_hist.append((t_ns, self._prov_q))
+
+    def _initialise(self, t_ns: int, yaw_or_none: float | None, method: str, fix: _Fix,
+                    heading_var: float = math.radians(2.0) ** 2) -> None:
+        """Start the filter: levelled attitude turned to the heading, position and velocity from the fix."""
+        p = self.params
+        if self._levelled is not None and self._prov_q is not None:
+            roll, pitch, bg, _ = self._levelled
+            q = self._prov_q
+            if yaw_or_none is not None and method == "config heading":
+                q = quat_from_euler(roll, pitch, yaw_or_none)
+            att_var = math.radians(0.3) ** 2
+            bg_var = (earth.OMEGA_IE**2) + (math.radians(0.05)) ** 2
+        else:  # moving from the start: no levelling, no gyro calibration
+            bg = (0.0, 0.0, 0.0)
+            q = quat_from_euler(0.0, 0.0, yaw_or_none or 0.0)
+            att_var = math.radians(3.0) ** 2
+            bg_var = p.gyro_bias_sigma**2
+        dt_e = (t_ns - fix.t_ns) / NS
+        vel = fix.vel if fix.vel is not None else np.zeros(3)
+        lat, lon, h = earth.offset_llh(fix.lat, fix.lon, fix.h, vel[0] * dt_e, vel[1] * dt_e, vel[2] * dt_e)
+        s = NavState(lat, lon, h, float(vel[0]), float(vel[1]), float(vel[2]), q, (0.0, 0.0, 0.0), bg)
+        c_bn = s.dcm()
+        arm = c_bn @ self.lever
+        s.lat, s.lon, s.h = earth.offset_llh(s.lat, s.lon, s.h, -arm[0], -arm[1], -arm[2])
+        if self.n > SF_ID:
+            s.dh = self._baro_offset_guess(s.h)
+        self.state = s
+        n = self.n
+        p0 = np.zeros((n, n))
+        for i in range(3):
+            p0[P_ID + i, P_ID + i] = fix.sigma[i] ** 2 + (abs(vel[i]) * 0.05) ** 2
+            p0[V_ID + i, V_ID + i] = max(fix.s_vel, 0.1) ** 2 + 0.1
+            p0[BG_ID + i, BG_ID + i] = bg_var
+        pphi, pphiba, pba = tilt_bias_covariance(c_bn, p.accel_bias_sigma**2, earth.G0)
+        p0[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + np.diag((att_var, att_var, heading_var))
+        p0[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
+        p0[BA_ID:BA_ID + 3, PHI_ID:PHI_ID + 3] = pphiba.T
+        p0[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba
+        if n > SF_ID:
+            p0[SF_ID, SF_ID] = p.obd_scale_sigma**2
+            p0[DH_ID, DH_ID] = fix.sigma[2] ** 2 + p.baro_sigma_m**2 + 1.0
+        self.ekf = ErrorStateEkf(np.ones(n), p.gate_probability)
+        self.ekf.p = p0
+        self._sig = tuple(math.sqrt(p0[P_ID + i, P_ID + i]) for i in range(3))
+        self.mech.reset()
+        acc, gyro = self._raw  # the latest sample starts the integration, corrected as the state now says
+        self.mech.prime((gyro[0] - bg[0], gyro[1] - bg[1], gyro[2] - bg[2]), acc)
+        self._hist.clear()
+        self._corr = (0.0,) * 6
+        self.counters.initialised_ns = t_ns
+        self.counters.init_method = method
+        if self.record:
+            self.epochs.append(Epoch(t_ns, None, p0.copy(), dx=np.zeros(n)))
+
+    def _baro_offset_guess(self, h: float) -> float:
+        return 0.0 if self._baro_last is None else h - self._baro_last[1]
+
+    # ---- covariance ------------------------------------------------------------------------------------
+    def _propagate(self) -> None:
+        dt = self._cov_dt
+        if dt <= 0.0 or self.ekf is None or self.state is None:
+            return
+        s = self.state
+        fa = self._f_acc
+        f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
+        phi, qd = discretize(error_dynamics(s, s.dcm(), f_mean, self.n), self.q_diag, dt)
+        if self.record:
+            self.epochs[-1].p_plus = self.ekf.p.copy()
+        self.ekf.propagate(phi, qd)
+        if self.record:
+            self.epochs.append(Epoch(self._t_last or 0, phi.astype(np.float32), self.ekf.p.copy(), dx=np.zeros(self.n)))
+        self._cov_dt = 0.0
+        self._f_acc = [0.0, 0.0, 0.0]
+        self._refresh_sigma()
+
+    def _refresh_sigma(self) -> None:
+        p = self.ekf.p if self.ekf is not None else None
+        if p is not None:
+            self._sig = (math.sqrt(max(p[0, 0], 0.0)), math.sqrt(max(p[1, 1], 0.0)), math.sqrt(max(p[2, 2], 0.0)))
+
+    def _apply(self, obs: Observation, gated: bool = True) -> bool:
+        """Bring the covariance to now, update, and feed the estimate back into the nominal state."""
+        if self.ekf is None or self.state is None:
+            return False
+        if self._cov_dt >= UPDATE_STALE_S:
+            self._propagate()  # a covariance a few IMU samples old serves the update as well, and costs nothing
+        dx = self.ekf.update(obs, gated)
+        if dx is None:
+            return False
+        self._feedback(dx)
+        return True
+
+    def _feedback(self, dx: np.ndarray) -> None:
+        assert self.state is not None
+        self.state.correct(dx)
+        c = self._corr
+        self._corr = (c[0] + dx[0], c[1] + dx[1], c[2] + dx[2], c[3] + dx[3], c[4] + dx[4], c[5] + dx[5])
+        if self.record and self.epochs:
+            ep = self.epochs[-1]
+            ep.dx = dx if ep.dx is None else ep.dx + dx
+        self._refresh_sigma()
+
+    # ---- the solution at a past instant (for a fix that arrives late) ------------------------------------
+    def _state_at(self, t_ns: int) -> NavState:
+        s = self.state
+        assert s is not None
+        entry = None
+        for e in reversed(self._hist):
+            if e[0] <= t_ns:
+                entry = e
+                break
+        if entry is None:
+            entry = self._hist[0] if self._hist else None
+        out = s.copy()
+        if entry is None:
+            return out
+        t_e, lat, lon, h, vn, ve, vd, q, corr = entry
+        c = self._corr
+        d = [c[i] - corr[i] for i in range(6)]
+        vn, ve, vd = vn - d[3], ve - d[4], vd - d[5]
+        dt = (t_ns - t_e) / NS
+        lat, lon, h = earth.offset_llh(lat, lon, h, -d[0] + vn * dt, -d[1] + ve * dt, -d[2] + vd * dt)
+        out.lat, out.lon, out.h, out.vn, out.ve, out.vd, out.q = lat, lon, h, vn, ve, vd, q
+        return out
+
+    # ---- GNSS --------------------------------------------------------------------------------------------
+    def gnss(self, msg: dict[str, Any]) -> None:
+        c = self.counters
+        if not msg.get("fix_ok") or (msg.get("fix_mode") or 1) < 2:
+            c.gnss_no_fix += 1
+            return
+        c.gnss_fixes += 1
+        p = self.params
+        t_sync = int(msg["t_sync_ns"])
+        t_e = self.epoch_clock.epoch_time(t_sync, msg.get("gnss_time_ns"), msg.get("sync_state", ""))
+        h_acc, v_acc = msg.get("h_acc_m"), msg.get("v_acc_m")
+        if h_acc is None or v_acc is None:
+            pdop = msg.get("pdop") or 99.0
+            h_acc = p.gnss_uere_m * pdop * 0.6 * math.sqrt(2.0)
+            v_acc = p.gnss_uere_m * pdop * 0.8
+        k = p.gnss_acc_scale
+        sig_h = max(0.1, k * h_acc / math.sqrt(2.0))
+        sig_v = max(0.2, k * v_acc)
+        vel = msg.get("vel_ned_mps")
+        vel_arr = None if vel is None or any(v is None for v in vel) else np.array(vel, float)
+        s_acc = msg.get("s_acc_mps")
+        s_vel = max(0.03, k * (s_acc if s_acc is not None else 0.5))
+        fix_3d = (msg.get("fix_mode") or 0) >= 3
+        fix = _Fix(t_e, int(msg["t_mono_ns"]) + (t_e - t_sync), math.radians(msg["latitude"]),
+                   math.radians(msg["longitude"]), float(msg["altitude"]), vel_arr, (sig_h, sig_h, sig_v), s_vel,
+                   fix_3d, float(h_acc))
+        self._last_fix = fix
+        if self.mode == "gnss":
+            self._gnss_row(fix)
+            return
+        if self.state is None:
+            self._try_heading_init(fix)
+            return
+        num_sv = msg.get("num_sv")
+        if num_sv is not None and num_sv < p.gnss_min_sv:
+            # Four or five satellites leave the receiver nothing to check its solution against: a reflection
+            # shifts the fix by tens of metres while its accuracy figure stays small. Counted, not used.
+            c.gnss_few_sv += 1
+            return
+        # Rows of a fix far worse than what the filter already knows would move it by a few percent per epoch,
+        # and a receiver's errors in a street canyon persist for many epochs: those percents add up to its
+        # bias, not to information. Such rows are left out (counted); the others go in.
+        snap = self._state_at(t_e)
+        obs = self._informative(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix_3d)
+                                .observe(snap, snap.dcm(), self.n), P_ID)
+        ok = True if obs is None else self._apply(obs)
+        if vel_arr is not None:
+            snap = self._state_at(t_e)
+            obs = self._informative(GnssVelocity(vel_arr, s_vel, self.lever, np.array(self._gyro_raw), not fix_3d)
+                                    .observe(snap, snap.dcm(), self.n), V_ID)
+            if obs is not None:
+                self._apply(obs)
+        self._divergence_check(ok, fix)
+
+    def _informative(self, obs: Observation, block: int) -> Observation | None:
+        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO."""
+        assert self.ekf is not None
+        p = self.ekf.p
+        keep = [i for i in range(min(2, len(obs.z)))
+                if obs.r[i] <= UNINFORMATIVE_RATIO * float(p[block + i, block + i])]
+        # The height row stays while the fix is any good horizontally: the barometer's offset is learnt from the
+        # GNSS height over minutes. A fix useless horizontally is a canyon's, and its height goes with it.
+        if len(obs.z) > 2 and keep:
+            keep.append(2)
+        if len(keep) < len(obs.z):
+            self.counters.gnss_skipped += len(obs.z) - len(keep)
+            if not keep:
+                return None
+            obs = Observation(obs.name, obs.z[keep], obs.h[keep], obs.r[keep])
+        return obs
+
+    def _gnss_row(self, fix: _Fix) -> None:
+        v = fix.vel if fix.vel is not None else np.zeros(3)
+        yaw = math.atan2(v[1], v[0])
+        self.solution = Solution(fix.t_ns, fix.t_mono_ns, fix.lat, fix.lon, fix.h, (float(v[0]), float(v[1]),
+                                 float(v[2])), (0.0, 0.0, yaw), fix.sigma, "gnss")
+        if self.record:
+            self.rows.append((fix.t_ns, fix.t_mono_ns, fix.lat, fix.lon, fix.h, float(v[0]), float(v[1]), float(v[2]),
+                              quat_from_euler(0.0, 0.0, yaw), fix.sigma, -1))
+
+    def _try_heading_init(self, fix: _Fix) -> None:
+        p = self.params
+        if fix.vel is None or not fix.fix_3d:
+            return
+        speed = math.hypot(fix.vel[0], fix.vel[1])
+        if speed < p.heading_min_speed_mps or fix.s_vel > 0.2 * speed:
+            return
+        course = math.atan2(fix.vel[1], fix.vel[0])
+        heading_var = (fix.s_vel / speed) ** 2 + math.radians(1.5) ** 2
+        if self._prov_q is not None and self._levelled is not None:
+            q_then = self._prov_q
+            for t, q in reversed(self._prov_hist):
+                if t <= fix.t_ns:
+                    q_then = q
+                    break
+            _, _, yaw_then = euler_from_dcm(_dcm(q_then))
+            self._prov_q = rotate_heading(self._prov_q, course - yaw_then)
+            self._initialise(self._t_last or fix.t_ns, None, "gnss course", fix, heading_var)
+        else:
+            self._initialise(self._t_last or fix.t_ns, course, "gnss course, no levelling", fix,
+                             heading_var + math.radians(3.0) ** 2)
+
+    def _divergence_check(self, accepted: bool, fix: _Fix) -> None:
+        """Good fixes refused again and again that agree among themselves (the filter, not the receiver, is
+        off), or a covariance gone wild: start again from the receiver. A street canyon's fixes are refused
+        too, but they scatter: they do not trigger it."""
+        assert self.ekf is not None and self.state is not None
+        st = self.ekf.stats.get("gnss_pos")
+        if accepted:
+            self._rejects.clear()
+        elif fix.h_acc < 10.0 and st is not None and len(st.last_innovation) >= 2:
+            self._rejects.append((fix.t_ns, st.last_innovation[0], st.last_innovation[1]))
+        sig = max(self._sig)
+        lost = False
+        rj = self._rejects
+        if len(rj) >= DIVERGENCE_REJECTS and rj[-1][0] - rj[0][0] >= DIVERGENCE_SPAN_NS:
+            inno = np.array([(r[1], r[2]) for r in self._rejects[-DIVERGENCE_REJECTS:]])
+            mean = inno.mean(axis=0)
+            lost = float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
+        if not (lost or not math.isfinite(sig) or sig > DIVERGENCE_SIGMA_M):
+            return
+        s = self.state
+        snap = self._state_at(fix.t_ns)
+        dn, de, dd = earth.ned_offset_m(fix.lat, fix.lon, fix.h, snap.lat, snap.lon, snap.h)
+        dx = np.zeros(self.n)
+        dx[P_ID:P_ID + 3] = (dn, de, dd)
+        if fix.vel is not None:
+            dx[V_ID:V_ID + 3] = (s.vn - fix.vel[0], s.ve - fix.vel[1], s.vd - fix.vel[2])
+        self._feedback(dx)
+        self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, fix.sigma[2] ** 2,
+                                                  fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
+        self.ekf.p[PHI_ID + 2, PHI_ID + 2] += math.radians(5.0) ** 2
+        self.counters.resets += 1
+        self._rejects.clear()
+        self._refresh_sigma()
+
+    # ---- OBD, baro, stops --------------------------------------------------------------------------------
+    def obd(self, t_ns: int, speed_mps: float) -> None:
+        if self.mode != "17":  # the baseline and GNSS-only modes know nothing of the vehicle's speed sensor
+            return
+        self.counters.obd += 1
+        self._obd = (t_ns, speed_mps)
+        if self.state is None:
+            return
+        p = self.params
+        s = self.state
+        if self._stop_update(speed_mps == 0.0 and self.stops.still, learn=True):
+            return
+        if speed_mps < OBD_MIN_SPEED_MPS:
+            return
+        c_bn = s.dcm()
+        obs = ObdVelocity(speed_mps, p.obd_speed_sigma_mps, p.nhc_sigma_mps).observe(s, c_bn, self.n)
+        if self._apply(obs):
+            self._last_nhc_ns = t_ns
+            if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
+                self.mount_yaw_stat[0] += float(obs.z[1]) / speed_mps
+                self.mount_yaw_stat[1] += 1.0
+
+    def _stop_update(self, stopped_now: bool, learn: bool = False) -> bool:
+        """Zero velocity and zero rate (Eq. 12) over the stop so far; returns whether the vehicle stands."""
+        assert self.state is not None
+        p, s = self.params, self.state
+        was = self.stopped
+        self.stopped = stopped_now
+        ws = self._w_stop
+        if stopped_now:
+            if learn:
+                self.stops.learn()
+            span_s = ((self._t_last or 0) - self._w_stop_t0) / NS
+            if was and ws[3] > 0 and span_s > 0.0:
+                w_mean = np.array((ws[0] / ws[3], ws[1] / ws[3], ws[2] / ws[3]))
+                # The mean over the window: the gyro's white noise averages down with its length.
+                sigma_w = max(math.radians(p.zaru_sigma_dps), p.gyro_arw) / math.sqrt(span_s)
+                self._apply(ZeroMotion(w_mean, p.zupt_sigma_mps, sigma_w).observe(s, s.dcm(), self.n))
+                self.counters.zupt += 1
+        self._w_stop = [0.0, 0.0, 0.0, 0]
+        self._w_stop_t0 = self._t_last or 0
+        return stopped_now
+
+    def baro(self, t_ns: int, altitude_m: float) -> None:
+        if self.mode != "17":
+            return
+        self.counters.baro += 1
+        self._baro_last = (t_ns, altitude_m)
+        if self.state is None:
+            return
+        s = self.state
+        self._apply(BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), self.n))
+        # No fresh OBD speed: the vehicle still cannot slide sideways or lift off.
+        if (self.stopped is False and self._obd is not None and t_ns - self._obd[0] > OBD_FRESH_NS
+                and t_ns - self._last_nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
+                and self._apply(NonHolonomic(self.params.nhc_sigma_mps).observe(s, s.dcm(), self.n))):
+            self._last_nhc_ns = t_ns
+
+    # ---- output ------------------------------------------------------------------------------------------
+    def current(self) -> Solution | None:
+        s = self.state
+        if self.mode == "gnss" or s is None:
+            return self.solution
+        roll, pitch, yaw = euler_from_dcm(s.dcm())
+        return Solution(self._t_last or 0, self._t_mono_last, s.lat, s.lon, s.h, (s.vn, s.ve, s.vd),
+                        (roll, pitch, yaw), self._sig, f"ins {self.mode}-state")
+
+
+def _dcm(q: tuple[float, float, float, float]) -> np.ndarray:
+    from logger.nav.rotations import dcm_from_quat
+
+    return dcm_from_quat(q)

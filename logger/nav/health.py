@@ -1,0 +1,110 @@
+"""Plain verdicts for ``logger status``, drawn from the filter: what an operator at a red light can act on.
+
+Each verdict is one sentence with its figure: whether GNSS agrees with the IMU, how far the OBD speed reads
+off, whether the barometer's offset holds, whether the IMU offsets are within the datasheet, and whether the
+IMU is mounted the way the configuration says.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+from logger.nav.earth import G0
+from logger.nav.state import DH_ID, SF_ID
+
+ACCEL_LIMIT_MG = (50.0, 50.0, 80.0)  # MPU-6050 zero-g output tolerance, x y z
+GYRO_LIMIT_DPS = 20.0  # MPU-6050 zero-rate output tolerance
+BARO_DRIFT_M_PER_MIN = 0.5  # a front passing moves pressure ~1 hPa/h (0.14 m/min); more is the sensor or its vent
+MOUNT_TILT_LIMIT_DEG = 10.0
+MOUNT_SLIP_LIMIT_DEG = 2.0
+
+
+class HealthJudge:
+    """Keeps the little history the verdicts need (GNSS acceptance, baro offset over minutes)."""
+
+    def __init__(self) -> None:
+        self._gnss: deque[bool] = deque(maxlen=60)
+        self._seen_gnss = (0, 0)
+        self._offset: deque[tuple[float, float]] = deque(maxlen=600)  # (t_s, offset m), one per call
+
+    def verdicts(self, engine: Any, t_s: float) -> list[str]:
+        out: list[str] = []
+        ekf, s = engine.ekf, engine.state
+        if s is None or ekf is None:
+            if engine.mode == "gnss":
+                return ["GNSS-only mode: no filter, the receiver's fixes are passed through"]
+            why = "waiting for a standstill to level the IMU" if engine._prov_q is None else \
+                f"levelled; waiting for GNSS course at {engine.params.heading_min_speed_mps:g} m/s or more"
+            return [f"initialising: {why}"]
+        st = ekf.stats.get("gnss_pos")
+        if st is not None:
+            acc, rej = st.accepted, st.rejected
+            d_acc, d_rej = acc - self._seen_gnss[0], rej - self._seen_gnss[1]
+            self._seen_gnss = (acc, rej)
+            self._gnss.extend([True] * min(d_acc, 60) + [False] * min(d_rej, 60))
+        n = len(self._gnss)
+        refused = n - sum(self._gnss)
+        fix = engine._last_fix
+        age = (engine._t_last - fix.t_ns) / 1e9 if fix is not None and engine._t_last else math.inf
+        if age > 5.0:
+            out.append(f"no GNSS fix for {age:.0f} s: dead reckoning" + (" on IMU, OBD and baro"
+                                                                        if engine.mode == "17" else " on the IMU"))
+        elif n and refused > n // 5:
+            out.append(f"GNSS disagrees with the IMU: {refused} of the last {n} fixes refused")
+        elif n:
+            out.append(f"GNSS consistent with the IMU ({n - refused} of the last {n} fixes accepted)")
+        if engine.n > SF_ID:
+            sf_sigma = ekf.sigma(SF_ID)
+            if sf_sigma < 0.01:
+                high = (1.0 / (1.0 + s.sf) - 1.0) * 100.0
+                word = "high" if high >= 0 else "low"
+                out.append(f"OBD speed reads {abs(high):.1f} % {word} (+-{sf_sigma * 100:.1f} %)")
+            else:
+                out.append("OBD speed scale still being learned (needs GNSS velocity while driving)")
+            self._offset.append((t_s, s.dh))
+            old = [(t, d) for t, d in self._offset if t_s - t >= 60.0]
+            if old:
+                t0, d0 = old[-1]
+                rate = (s.dh - d0) / (t_s - t0) * 60.0
+                state = "drifting" if abs(rate) > BARO_DRIFT_M_PER_MIN else "stable"
+                out.append(f"barometer offset {state}: {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), "
+                           f"{rate:+.2f} m/min")
+            else:
+                out.append(f"barometer offset {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), trend after a minute")
+        ba_mg = [abs(b) / G0 * 1e3 for b in s.ba]
+        bg_dps = [abs(math.degrees(b)) for b in s.bg]
+        bad = [f"accelerometer {'xyz'[i]} offset {ba_mg[i]:.0f} mg beyond the datasheet's {ACCEL_LIMIT_MG[i]:.0f}"
+               for i in range(3) if ba_mg[i] > ACCEL_LIMIT_MG[i]]
+        bad += [f"gyro {'xyz'[i]} offset {bg_dps[i]:.1f} deg/s beyond the datasheet's {GYRO_LIMIT_DPS:.0f}"
+                for i in range(3) if bg_dps[i] > GYRO_LIMIT_DPS]
+        if bad:
+            out.append("IMU biases out of limits: " + "; ".join(bad))
+        else:
+            out.append(f"IMU biases within datasheet limits (accel up to {max(ba_mg):.0f} mg, "
+                       f"gyro up to {max(bg_dps):.2f} deg/s)")
+        out.append(mounting_verdict(engine))
+        if engine.counters.resets:
+            out.append(f"filter restarted from GNSS {engine.counters.resets} times (lost itself)")
+        return out
+
+
+def mounting_verdict(engine: Any) -> str:
+    lev = engine._levelled
+    slip_sum, slip_n = engine.mount_yaw_stat
+    parts = []
+    problems = []
+    if lev is not None:
+        roll, pitch = math.degrees(lev[0]), math.degrees(lev[1])
+        parts.append(f"levelled at roll {roll:+.1f} deg, pitch {pitch:+.1f} deg")
+        if max(abs(roll), abs(pitch)) > MOUNT_TILT_LIMIT_DEG:
+            problems.append(f"the IMU stands tilted {max(abs(roll), abs(pitch)):.0f} deg at standstill")
+    if slip_n >= 20:
+        slip = math.degrees(slip_sum / slip_n)
+        parts.append(f"mean side slip {slip:+.1f} deg")
+        if abs(slip) > MOUNT_SLIP_LIMIT_DEG:
+            problems.append(f"the vehicle seems to slide sideways {slip:+.1f} deg: IMU turned about the vertical")
+    if problems:
+        return "IMU mounting implausible: " + "; ".join(problems) + " (check nav.mounting_rpy_deg)"
+    return "IMU mounting plausible" + (f" ({', '.join(parts)})" if parts else "")

@@ -1,0 +1,204 @@
+"""The navigator thread of the daemon: the filter at the IMU rate, never in the way of the recording.
+
+The daemon offers it every stamped record through ``offer`` (a tap), which only puts the record into a
+bounded queue and counts a drop when the queue is full: the sampler threads and the recorder never wait for
+the filter. The thread wakes a few times a second, runs the engine over what has arrived, and publishes
+``/nav/fix`` at ``publish_hz`` and ``/nav/state`` once a second through the daemon's sink. It measures its own
+CPU time, so ``logger status`` can show what the filter costs on the board.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from logger.nav.engine import NavEngine
+from logger.nav.health import HealthJudge
+from logger.nav.params import NavParams
+from logger.nav.state import N_FULL, STATE_NAMES
+from logger.sampler import Reading
+
+log = logging.getLogger(__name__)
+
+INPUT_TOPICS = frozenset(("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps"))
+WAKE_S = 0.2
+
+
+def fix_message(t_ns: int, t_mono_ns: int, lat: float, lon: float, h: float, vel: tuple[float, float, float],
+                rpy: tuple[float, float, float], sigma: tuple[float, float, float], source: str,
+                mode: str) -> dict[str, Any]:
+    """A ``/nav/fix`` record: foxglove.LocationFix (ENU covariance) plus velocity, attitude and sigmas."""
+    sn, se, sd = (s if math.isfinite(s) else 1e6 for s in sigma)
+    return {
+        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns),
+        "timestamp": {"sec": int(t_ns) // 1_000_000_000, "nsec": int(t_ns) % 1_000_000_000},
+        "frame_id": "nav", "latitude": math.degrees(lat), "longitude": math.degrees(lon), "altitude": h,
+        "position_covariance": [se * se, 0.0, 0.0, 0.0, sn * sn, 0.0, 0.0, 0.0, sd * sd],
+        "position_covariance_type": 2,
+        "vel_ned_mps": [float(v) for v in vel], "rpy_deg": [math.degrees(a) for a in rpy],
+        "sigma_ned_m": [sn, se, sd], "source": source, "mode": mode,
+    }
+
+
+def state_message(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: list[str] | None = None,
+                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A ``/nav/state`` record: what the filter believes about the sensors, and how its updates fare."""
+    s, ekf = engine.state, engine.ekf
+    c = engine.counters
+    msg: dict[str, Any] = {
+        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns), "mode": engine.mode,
+        "status": "navigating" if s is not None else ("gnss only" if engine.mode == "gnss" else "initialising"),
+        "accel_bias_mps2": [float(b) for b in s.ba] if s else None,
+        "gyro_bias_rps": [float(b) for b in s.bg] if s else None,
+        "obd_scale": 1.0 + s.sf if s and engine.n == N_FULL else None,
+        "height_offset_m": s.dh if s and engine.n == N_FULL else None,
+        "p_diag": [float(v) for v in ekf.p.diagonal()] if ekf else None,
+        "state_names": list(STATE_NAMES[: engine.n]),
+        "innovations": {k: v.last_innovation for k, v in ekf.stats.items()} if ekf else {},
+        "nis": {k: v.last_nis for k, v in ekf.stats.items()} if ekf else {},
+        "updates": {k: v.accepted for k, v in ekf.stats.items()} if ekf else {},
+        "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
+        "resets": c.resets, "repairs": ekf.repairs if ekf else 0, "stopped": engine.stopped,
+        "gnss_time": engine.epoch_clock.method,
+        "verdicts": verdicts or [],
+    }
+    if extra:
+        msg.update(extra)
+    return msg
+
+
+class Navigator:
+    """A daemon tap running :class:`NavEngine` on its own thread."""
+
+    def __init__(self, params: NavParams, publish: Callable[[Reading], None] | None = None,
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
+        self.params = params
+        self.engine = NavEngine(params)
+        self.publish = publish
+        self.monotonic_ns = monotonic_ns
+        self.judge = HealthJudge()
+        self._q: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue(maxsize=params.queue_size)
+        self.dropped = 0
+        self.processed = 0
+        self.cpu_s = 0.0
+        self._halt = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._next_fix_ns = 0
+        self._next_state_ns = 0
+        self._verdicts: list[str] = []
+        self.error: str = ""
+
+    # ---- the tap: never blocks ------------------------------------------------------------------------
+    def offer(self, topic: str, payload: dict[str, Any]) -> None:
+        if topic not in INPUT_TOPICS:
+            return
+        try:
+            self._q.put_nowait((topic, payload))
+        except queue.Full:
+            self.dropped += 1
+
+    # ---- life cycle ---------------------------------------------------------------------------------------
+    def bind(self, daemon: Any) -> None:
+        """Publish through the daemon's sink (until it stops: its recorder then closes the file) and start."""
+        stopping = daemon.stop_event
+
+        def publish(r: Reading) -> None:
+            if not stopping.is_set():
+                daemon.sink(r)
+
+        self.publish = publish
+        self.start()
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="navigator", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+
+    def _run(self) -> None:
+        cpu0 = time.thread_time()
+        while not self._halt.is_set():
+            try:
+                item = self._q.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            batch = [item]
+            while True:
+                try:
+                    batch.append(self._q.get_nowait())
+                except queue.Empty:
+                    break
+            try:
+                with self._lock:
+                    for topic, payload in batch:
+                        self.engine.feed(topic, payload)
+                        if topic == "/imu":
+                            self._maybe_publish()
+                    self.processed += len(batch)
+            except Exception as exc:  # a bug in the filter must not take the logger down: report, restart it
+                log.exception("navigation filter failed; restarting it")
+                self.error = f"{type(exc).__name__}: {exc}"
+                with self._lock:
+                    self.engine = NavEngine(self.params)
+            self.cpu_s = time.thread_time() - cpu0
+            self._halt.wait(WAKE_S)
+
+    def _maybe_publish(self) -> None:
+        t_last = self.engine._t_last
+        if self.publish is None or t_last is None or (t_last < self._next_fix_ns and t_last < self._next_state_ns):
+            return
+        sol = self.engine.current()
+        if sol is None:
+            return
+        t = sol.t_ns
+        if t >= self._next_fix_ns:
+            self._next_fix_ns = t + int(1e9 / max(self.params.publish_hz, 0.1))
+            msg = fix_message(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
+                              sol.sigma_ned, sol.source, self.engine.mode)
+            self.publish(Reading("/nav/fix", msg, sol.t_mono_ns, stamped=False))
+        if t >= self._next_state_ns:
+            self._next_state_ns = t + 1_000_000_000
+            self._verdicts = self.judge.verdicts(self.engine, t / 1e9)
+            msg = state_message(self.engine, t, sol.t_mono_ns, self._verdicts,
+                                {"dropped": self.dropped, "cpu_s": round(self.cpu_s, 4)})
+            self.publish(Reading("/nav/state", msg, sol.t_mono_ns, stamped=False))
+
+    # ---- status -------------------------------------------------------------------------------------------
+    def section(self) -> dict[str, Any]:
+        """The ``nav`` section of ``logger status``."""
+        with self._lock:
+            sol = self.engine.current()
+            out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
+                                   "source": "", "mode": self.engine.mode, "verdicts": list(self._verdicts),
+                                   "dropped": self.dropped, "processed": self.processed,
+                                   "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets}
+            if self.error:
+                out["verdicts"].append(f"filter restarted after an error: {self.error}")
+            if sol is not None:
+                out.update(lat_deg=math.degrees(sol.lat_rad), lon_deg=math.degrees(sol.lon_rad), height_m=sol.h_m,
+                           sigma_h_m=math.hypot(sol.sigma_ned[0], sol.sigma_ned[1])
+                           if math.isfinite(sol.sigma_ned[0]) else None, source=sol.source)
+            if self.dropped:
+                out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
+            return out
+
+
+def attach_navigator(section: dict[str, Any], extras: Any) -> Navigator | None:
+    """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
+    to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists."""
+    if not section.get("enabled", True):
+        return None
+    nav = Navigator(NavParams.from_config(section))
+    extras.taps.append(nav)
+    extras.sections["nav"] = nav.section
+    extras.close.append(nav.stop)
+    return nav

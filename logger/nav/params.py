@@ -1,0 +1,96 @@
+"""The filter's tuning: sensor noise from datasheets, mounting from the installation, all overridable in ``[nav]``.
+
+Nothing here is read from the simulator: the defaults are the MPU-6050 datasheet (PS-MPU-6000A rev. 3.4:
+400 ug/sqrt(Hz) accelerometer and 0.005 deg/s/sqrt(Hz) gyro noise density, +-50 mg and +-20 deg/s initial
+offsets), the BMP180 datasheet (0.03 hPa RMS noise in ultra-high-resolution mode, about 0.25 m), the OBD-II
+speed resolution (1 km/h) and what u-blox receivers report as their own accuracy. A real drive adds
+vibration the datasheets do not know; the noise densities can be raised in the configuration for that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from logger.nav.earth import G0
+
+MODES = ("17", "15", "gnss")
+
+
+@dataclass
+class NavParams:
+    mode: str = "17"
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU to GNSS antenna, vehicle FRD, m
+    mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU chip axes relative to vehicle FRD
+    accel_noise_ug_rthz: float = 400.0
+    gyro_noise_dps_rthz: float = 0.005
+    accel_bias_mg: float = 50.0  # initial uncertainty of the accelerometer offset
+    gyro_bias_dps: float = 20.0  # initial uncertainty of the gyro offset, before the standstill calibration
+    accel_bias_walk_mg_rts: float = 0.1
+    gyro_bias_walk_dps_rts: float = 0.002
+    obd_speed_sigma_mps: float = 0.2
+    obd_scale_sigma: float = 0.05
+    obd_scale_walk_rts: float = 1.0e-5
+    nhc_sigma_mps: float = 0.1
+    baro_sigma_m: float = 0.5
+    baro_offset_walk_m_rts: float = 0.02
+    gnss_uere_m: float = 3.0  # for receivers that report a DOP but no accuracy
+    gnss_acc_scale: float = 1.0
+    gnss_min_sv: int = 5  # fewer satellites: the fix's own accuracy figure cannot be trusted (no redundancy)
+    zupt_sigma_mps: float = 0.02
+    zaru_sigma_dps: float = 0.01
+    gate_probability: float = 0.999
+    heading_source: str = "gnss"  # or "config": use initial_heading_deg
+    initial_heading_deg: float = 0.0
+    heading_min_speed_mps: float = 3.0
+    align_min_s: float = 2.0
+    still_accel_mps2: float = 0.05  # starting threshold of the stop detector (adapted at OBD-confirmed stops)
+    cov_interval_s: float = 0.5
+    publish_hz: float = 5.0
+    queue_size: int = 2000
+    enabled: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    # ---- SI views -------------------------------------------------------------------------------
+    @property
+    def accel_vrw(self) -> float:
+        return self.accel_noise_ug_rthz * 1e-6 * G0
+
+    @property
+    def gyro_arw(self) -> float:
+        return math.radians(self.gyro_noise_dps_rthz)
+
+    @property
+    def accel_bias_sigma(self) -> float:
+        return self.accel_bias_mg * 1e-3 * G0
+
+    @property
+    def gyro_bias_sigma(self) -> float:
+        return math.radians(self.gyro_bias_dps)
+
+    @property
+    def accel_bias_walk(self) -> float:
+        return self.accel_bias_walk_mg_rts * 1e-3 * G0
+
+    @property
+    def gyro_bias_walk(self) -> float:
+        return math.radians(self.gyro_bias_walk_dps_rts)
+
+    def scaled_imu(self, factor: float) -> NavParams:
+        """The same tuning with every IMU error figure multiplied by ``factor`` (for consistency checks)."""
+        p = NavParams(**{f.name: getattr(self, f.name) for f in fields(self)})
+        for name in ("accel_noise_ug_rthz", "gyro_noise_dps_rthz", "accel_bias_mg", "gyro_bias_dps",
+                     "accel_bias_walk_mg_rts", "gyro_bias_walk_dps_rts"):
+            setattr(p, name, getattr(p, name) * factor)
+        return p
+
+    @classmethod
+    def from_config(cls, section: dict[str, Any]) -> NavParams:
+        """From the validated ``[nav]`` section (keys as in :data:`logger.config.SCHEMA`)."""
+        names = {f.name for f in fields(cls)}
+        kw: dict[str, Any] = {}
+        for k, v in section.items():
+            if k in names:
+                kw[k] = tuple(float(x) for x in v) if isinstance(v, list) else v
+        return cls(**kw)

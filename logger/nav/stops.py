@@ -1,0 +1,122 @@
+"""Stop detection: the IMU is still (small variance of specific force and angular rate over the last second)
+and, where the vehicle gives one, the OBD speed reads zero.
+
+The variance thresholds adapt to the installation: a car's idling engine shakes the IMU more than the
+datasheet noise, and differently in every car. Each stop that the OBD speed confirms teaches the detector
+the variance of standing still here (a slow running mean of its logarithm, so one long stop does not
+dominate), and the threshold is a fixed factor above it, bounded on both sides.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+WINDOW_S = 1.0
+WINDOW_NS = int(WINDOW_S * 1e9)
+THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
+LEARN_RATE = 0.05
+RESUM_EVERY = 4096
+
+
+class StopDetector:
+    def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
+        self.thr_a = still_accel_mps2**2
+        self.thr_w = still_gyro_rps**2
+        self._ceil_a, self._ceil_w = 4.0 * self.thr_a, 4.0 * self.thr_w
+        self._floor_a, self._floor_w = 1e-8, 1e-12
+        self._win: deque[tuple[int, float, float, float, float, float, float]] = deque()
+        self._s = [0.0] * 6
+        self._s2 = [0.0] * 6
+        self._var_a = math.inf
+        self._var_w = math.inf
+        self._dirty = False
+        self._adds = 0
+        self._log_a: float | None = None
+        self._log_w: float | None = None
+        self.learned = 0
+
+    def add(self, t_ns: int, f: tuple[float, float, float], w: tuple[float, float, float]) -> None:
+        """One sample into the one-second window (running sums: the variances are computed when asked)."""
+        fx, fy, fz = f
+        wx, wy, wz = w
+        win = self._win
+        win.append((t_ns, fx, fy, fz, wx, wy, wz))
+        s, s2 = self._s, self._s2
+        s[0] += fx
+        s[1] += fy
+        s[2] += fz
+        s[3] += wx
+        s[4] += wy
+        s[5] += wz
+        s2[0] += fx * fx
+        s2[1] += fy * fy
+        s2[2] += fz * fz
+        s2[3] += wx * wx
+        s2[4] += wy * wy
+        s2[5] += wz * wz
+        limit = t_ns - WINDOW_NS
+        while win[0][0] < limit:
+            _, ox, oy, oz, ux, uy, uz = win.popleft()
+            s[0] -= ox
+            s[1] -= oy
+            s[2] -= oz
+            s[3] -= ux
+            s[4] -= uy
+            s[5] -= uz
+            s2[0] -= ox * ox
+            s2[1] -= oy * oy
+            s2[2] -= oz * oz
+            s2[3] -= ux * ux
+            s2[4] -= uy * uy
+            s2[5] -= uz * uz
+        self._dirty = True
+        self._adds += 1
+        if self._adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
+            self._adds = 0
+            for i in range(6):
+                s[i] = sum(r[i + 1] for r in win)
+                s2[i] = sum(r[i + 1] * r[i + 1] for r in win)
+
+    def _variances(self) -> None:
+        if not self._dirty:
+            return
+        self._dirty = False
+        n = len(self._win)
+        if n < 4:
+            self._var_a = self._var_w = math.inf
+            return
+        s, s2 = self._s, self._s2
+        var = [max(0.0, s2[i] / n - (s[i] / n) ** 2) for i in range(6)]
+        self._var_a = var[0] + var[1] + var[2]
+        self._var_w = var[3] + var[4] + var[5]
+
+    @property
+    def var_a(self) -> float:
+        """Sum of the three accelerometer axes' variances over the window, (m/s^2)^2."""
+        self._variances()
+        return self._var_a
+
+    @property
+    def var_w(self) -> float:
+        """Sum of the three gyro axes' variances over the window, (rad/s)^2."""
+        self._variances()
+        return self._var_w
+
+    @property
+    def still(self) -> bool:
+        return self.var_a < self.thr_a and self.var_w < self.thr_w
+
+    def learn(self) -> None:
+        """Called while the OBD speed confirms a stop: adapt the thresholds to this vehicle's standstill."""
+        if not (0.0 < self.var_a < math.inf and 0.0 < self.var_w < math.inf):
+            return
+        la, lw = math.log(self.var_a), math.log(self.var_w)
+        if self._log_a is None or self._log_w is None:
+            self._log_a, self._log_w = la, lw
+        else:
+            self._log_a += LEARN_RATE * (la - self._log_a)
+            self._log_w += LEARN_RATE * (lw - self._log_w)
+        self.learned += 1
+        self.thr_a = min(self._ceil_a, max(self._floor_a, THRESHOLD_FACTOR * math.exp(self._log_a)))
+        self.thr_w = min(self._ceil_w, max(self._floor_w, THRESHOLD_FACTOR * math.exp(self._log_w)))

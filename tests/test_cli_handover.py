@@ -1,0 +1,177 @@
+"""Our ``logger`` shares its name with util-linux's: scripts that call the system logger must keep working.
+
+Everything that is not one of our subcommands (or --help) is handed to the system's logger with the same
+arguments, stdin and exit code. Checked with a stand-in system logger on PATH, and with the real util-linux
+logger where it is installed (``--no-act --stderr`` makes it print instead of writing to the journal).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from logger.cli import SUBCOMMANDS, find_system_logger
+
+ROOT = Path(__file__).resolve().parents[1]
+OUR_SCRIPT = Path(sys.executable).parent / "logger"  # the console script pip installed next to this Python
+
+STAND_IN = """#!/bin/sh
+# a stand-in for util-linux logger: records what it got, answers with a telling exit code
+printf '%s\\n' "$@" > "$RECORD.args"
+cat > "$RECORD.stdin"
+echo "stand-in says hi" >&2
+exit 7
+"""
+
+
+@pytest.fixture
+def stand_in(tmp_path: Path) -> tuple[dict[str, str], Path]:
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    script = bin_dir / "logger"
+    script.write_text(STAND_IN)
+    script.chmod(0o755)
+    env = {**os.environ, "PATH": f"{OUR_SCRIPT.parent}{os.pathsep}{bin_dir}{os.pathsep}/usr/bin:/bin",
+           "RECORD": str(tmp_path / "got")}
+    env.pop("VEHICLE_LOGGER_HANDED_OVER", None)
+    return env, tmp_path / "got"
+
+
+def run(cmd: list[str], env: dict[str, str], stdin: str = "",
+        executable: str | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(cmd, input=stdin, capture_output=True, text=True, env=env, timeout=60, cwd=ROOT,
+                          executable=executable)
+
+
+needs_script = pytest.mark.skipif(not OUR_SCRIPT.exists(), reason=f"no console script at {OUR_SCRIPT} (pip -e .)")
+
+
+@needs_script
+def test_foreign_arguments_and_stdin_reach_the_system_logger(stand_in: tuple[dict[str, str], Path]) -> None:
+    env, got = stand_in
+    r = run([str(OUR_SCRIPT), "-t", "backup", "-p", "user.err", "disk 93% full"], env, stdin="line one\nline two\n")
+    assert r.returncode == 7, r.stderr  # the system logger's exit code
+    assert Path(f"{got}.args").read_text().splitlines() == ["-t", "backup", "-p", "user.err", "disk 93% full"]
+    assert Path(f"{got}.stdin").read_text() == "line one\nline two\n"
+    assert r.stderr == "stand-in says hi\n"  # nothing of ours in between
+
+
+@needs_script
+def test_a_pipe_without_arguments_is_handed_over(stand_in: tuple[dict[str, str], Path]) -> None:
+    env, got = stand_in
+    r = run([str(OUR_SCRIPT)], env, stdin="echoed message\n")  # echo msg | logger
+    assert r.returncode == 7
+    assert Path(f"{got}.args").read_text() == "\n"  # printf with no arguments prints one empty line
+    assert Path(f"{got}.stdin").read_text() == "echoed message\n"
+
+
+def test_started_as_a_module_it_still_skips_itself(stand_in: tuple[dict[str, str], Path]) -> None:
+    env, got = stand_in
+    r = run([sys.executable, "-m", "logger.cli", "--id=42", "hello"], env)
+    assert r.returncode == 7
+    assert Path(f"{got}.args").read_text().splitlines() == ["--id=42", "hello"]
+
+
+@needs_script
+def test_our_commands_and_help_stay_ours(stand_in: tuple[dict[str, str], Path], tmp_path: Path) -> None:
+    env, got = stand_in
+    r = run([str(OUR_SCRIPT), "--help"], env)
+    assert r.returncode == 0 and all(name in r.stdout for name in SUBCOMMANDS)
+    r = run([str(OUR_SCRIPT), "status", "--socket", str(tmp_path / "none.sock")], env)
+    assert r.returncode == 3 and "not running" in r.stderr
+    assert not Path(f"{got}.args").exists()
+
+
+@needs_script
+def test_a_system_logger_that_hands_back_is_a_loop_not_a_hang(tmp_path: Path) -> None:
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    bounce = bin_dir / "logger"
+    bounce.write_text(f'#!/bin/sh\nexec "{OUR_SCRIPT}" "$@"\n')
+    bounce.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{OUR_SCRIPT.parent}"}
+    env.pop("VEHICLE_LOGGER_HANDED_OVER", None)
+    r = run([str(OUR_SCRIPT), "-t", "x", "y"], env)
+    assert r.returncode == 127 and "not looping" in r.stderr
+
+
+def test_finding_the_system_logger(tmp_path: Path) -> None:
+    ours = tmp_path / "venv" / "bin"
+    ours.mkdir(parents=True)
+    (ours / "logger").write_text("#!/opt/vehicle-logger/venv/bin/python3\nimport sys\nfrom logger.cli import main\n")
+    (ours / "logger").chmod(0o755)
+    other = tmp_path / "usr" / "bin"
+    other.mkdir(parents=True)
+    (other / "logger").write_bytes(b"\x7fELF not really")
+    (other / "logger").chmod(0o755)
+    not_exec = tmp_path / "noexec"
+    not_exec.mkdir()
+    (not_exec / "logger").write_text("#!/bin/sh\n")
+    path = os.pathsep.join([str(not_exec), str(ours), str(other)])
+    assert find_system_logger(path, [str(ours / "logger")]) == str(other / "logger")
+    # A copy of our console script elsewhere is recognised by what it runs, not by where it is.
+    assert find_system_logger(os.pathsep.join([str(ours), str(other)]), []) == str(other / "logger")
+    fallback = find_system_logger(str(ours), [])
+    assert fallback == ("/usr/bin/logger" if os.access("/usr/bin/logger", os.X_OK) else None)
+
+
+UTIL_LINUX = shutil.which("logger", path="/usr/bin:/bin")
+
+
+def _normalise(text: str) -> str:
+    # <13>Nov 22 16:50:01 tag: message -> <13>TIME tag: message (the two runs may straddle a second)
+    return re.sub(r"[A-Z][a-z]{2} [ \d]\d \d\d:\d\d:\d\d", "TIME", text)
+
+
+@pytest.fixture
+def syslog(tmp_path: Path) -> Iterator[tuple[str, socket.socket]]:
+    """A datagram socket standing in for /dev/log, so that the real logger has somewhere to write."""
+    path = str(tmp_path / "log.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(5)
+    yield path, sock
+    sock.close()
+
+
+@pytest.mark.skipif(UTIL_LINUX is None, reason="util-linux logger is not installed here")
+@needs_script
+@pytest.mark.parametrize(("argv", "stdin"), [
+    (["--stderr", "-t", "vl-test", "hello from a script"], ""),
+    (["--stderr", "-t", "vl-test"], "piped line\n"),
+    (["--stderr", "--priority", "daemon.warning", "-t", "vl-test", "warned"], ""),
+])
+def test_same_message_as_the_real_util_linux_logger(argv: list[str], stdin: str,
+                                                     syslog: tuple[str, socket.socket]) -> None:
+    path, sock = syslog
+    env = {**os.environ, "PATH": f"{OUR_SCRIPT.parent}{os.pathsep}/usr/bin:/bin"}
+    env.pop("VEHICLE_LOGGER_HANDED_OVER", None)
+    argv = ["--socket", path, *argv]
+    ours = run([str(OUR_SCRIPT), *argv], env, stdin)
+    got_ours = sock.recv(4096).decode()
+    theirs = run([str(UTIL_LINUX), *argv], env, stdin)
+    got_theirs = sock.recv(4096).decode()
+    assert ours.returncode == theirs.returncode == 0, (ours.stderr, theirs.stderr)
+    assert _normalise(got_ours) == _normalise(got_theirs) and "vl-test" in got_ours
+    assert _normalise(ours.stderr) == _normalise(theirs.stderr)
+
+
+@pytest.mark.skipif(UTIL_LINUX is None, reason="util-linux logger is not installed here")
+@needs_script
+def test_the_real_logger_s_errors_and_exit_code_come_through() -> None:
+    env = {**os.environ, "PATH": f"{OUR_SCRIPT.parent}{os.pathsep}/usr/bin:/bin"}
+    env.pop("VEHICLE_LOGGER_HANDED_OVER", None)
+    no_socket = ["--socket-errors=on", "--socket", "/nonexistent/log.sock", "-t", "x", "y"]
+    for argv in (["--definitely-not-an-option"], no_socket):
+        ours = run([str(OUR_SCRIPT), *argv], env)
+        theirs = run(["logger", *argv], env, executable=UTIL_LINUX)  # as a script calling `logger` runs it
+        assert ours.returncode == theirs.returncode != 0
+        assert ours.stderr == theirs.stderr and ours.stderr

@@ -1,0 +1,212 @@
+"""The filter on synthetic drives: outages, scale factor, gating, resets, mounting, lever arm, smoother, modes.
+
+Each drive is a scenario's truth sampled with simple errors chosen here (tests/test_nav_synth.py), not the
+simulator's device models, so these also check that the filter holds on data the simulator did not make.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_nav_synth import T0_NS, SynthErrors, records
+
+from logger.nav import earth
+from logger.nav.engine import NavEngine
+from logger.nav.params import NavParams
+from logger.nav.rotations import dcm_from_euler
+from logger.nav.smoother import smooth_rows
+from sensors.sim.scenarios import make_drive
+
+
+def run(recs, **params) -> NavEngine:
+    engine = NavEngine(NavParams(**params), record=True)
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+    return engine
+
+
+def errors(drive, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Times (s), NED errors and sigmas of trajectory rows against the drive's truth."""
+    t, err, sig = [], [], []
+    for row in rows:
+        ts = (row[0] - T0_NS) / 1e9
+        s = drive.state(ts)
+        t.append(ts)
+        err.append(earth.ned_offset_m(s.lat_rad, s.lon_rad, s.height_m, row[2], row[3], row[4]))
+        sig.append(row[9])
+    return np.array(t), np.array(err), np.array(sig)
+
+
+@pytest.fixture(scope="module")
+def outage():
+    drive = make_drive("outage-60s", seed=1, duration_s=270.0)
+    (span,) = drive.spans_of("outage")
+    recs = records(drive, 270.0, seed=2, gnss_off=[(span.start_s, span.end_s)],
+                   errors=SynthErrors(obd_factor=1.02))
+    return drive, span, recs
+
+
+def test_a_minute_without_gnss_is_bridged_by_obd_and_baro_and_not_by_the_imu_alone(outage):
+    drive, span, recs = outage
+    full, base = run(recs), run(recs, mode="15")
+    for engine in (full, base):
+        assert engine.counters.init_method == "gnss course" and engine.counters.resets == 0
+    t, e17, _ = errors(drive, full.rows)
+    _, e15, _ = errors(drive, base.rows)
+    inside = (t >= span.start_s) & (t <= span.end_s)
+    h17 = np.hypot(e17[inside, 0], e17[inside, 1]).max()
+    h15 = np.hypot(e15[inside, 0], e15[inside, 1]).max()
+    assert h17 < 5.0
+    assert h15 > 3.0 * h17
+    assert np.abs(e17[inside, 2]).max() < 2.0  # the barometer holds the height
+    assert {"gnss_pos", "gnss_vel", "obd", "baro"} <= set(full.ekf.stats)
+    assert set(base.ekf.stats) == {"gnss_pos", "gnss_vel"}  # the baseline knows nothing of OBD or baro
+
+
+def test_smoothing_shrinks_the_outage_error(outage):
+    drive, span, recs = outage
+    engine = run(recs)
+    engine._propagate()
+    engine.epochs[-1].p_plus = engine.ekf.p.copy()
+    smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p)
+    t, ef, sf = errors(drive, engine.rows)
+    _, es, ss = errors(drive, smoothed)
+    inside = (t >= span.start_s) & (t <= span.end_s)
+    assert np.hypot(es[inside, 0], es[inside, 1]).max() < 0.5 * np.hypot(ef[inside, 0], ef[inside, 1]).max()
+    assert np.all(ss[inside, 0] <= sf[inside, 0] + 1e-9)  # the smoother knows more, never less
+
+
+def test_obd_scale_factor_is_learnt_before_a_tunnel():
+    drive = make_drive("tunnel-130s", seed=1, duration_s=240.0)
+    (tunnel,) = drive.spans_of("tunnel")
+    recs = records(drive, tunnel.start_s, seed=3, errors=SynthErrors(obd_factor=1.03))
+    engine = run(recs)
+    reads_high = 1.0 / (1.0 + engine.state.sf) - 1.0
+    assert reads_high == pytest.approx(0.03, abs=0.005)
+    assert engine.ekf.sigma(15) < 0.005
+
+
+def test_a_multipath_jump_is_refused_counted_and_harmless():
+    drive = make_drive("outage-60s", seed=2, duration_s=140.0)
+
+    def jump(m: dict) -> dict:  # 40 m north for five epochs, the reported accuracy unchanged
+        return {**m, "latitude": m["latitude"] + 40.0 / 111_000}
+
+    recs = [(ts, tp, jump(m) if tp == "/gnss/fix" and 100 <= (m["gnss_time_ns"] - T0_NS) / 1e9 < 105 else m)
+            for ts, tp, m in records(drive, 140.0, seed=4)]
+    engine = run(recs)
+    assert engine.ekf.stats["gnss_pos"].rejected == 5
+    t, e, _ = errors(drive, engine.rows)
+    after = t > 100
+    assert np.hypot(e[after, 0], e[after, 1]).max() < 2.0
+
+
+def test_a_lost_filter_restarts_from_gnss_and_says_so():
+    drive = make_drive("outage-60s", seed=3, duration_s=160.0)
+    recs = records(drive, 160.0, seed=5)
+    engine = NavEngine(NavParams(), record=True)
+    teleported = False
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+        if not teleported and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
+            engine.state.lat += 300.0 / 6.36e6  # 300 m off, with the covariance still confident
+            teleported = True
+    assert teleported and engine.counters.resets == 1
+    _, e, _ = errors(drive, engine.rows)
+    assert np.hypot(e[-1, 0], e[-1, 1]) < 2.0
+
+
+def test_mounting_rotation_from_the_configuration():
+    drive = make_drive("outage-60s", seed=4, duration_s=150.0)
+    recs = records(drive, 150.0, seed=6)
+    # The chip lies turned 90 deg about the vertical and 180 deg about x (face up): chip = R^T vehicle.
+    rpy = (180.0, 0.0, 90.0)
+    r = dcm_from_euler(*(math.radians(a) for a in rpy))
+    turned = [(ts, tp, {**m, "accel_mps2": (r.T @ np.array(m["accel_mps2"])).tolist(),
+                        "gyro_rps": (r.T @ np.array(m["gyro_rps"])).tolist()}) if tp == "/imu" else (ts, tp, m)
+              for ts, tp, m in recs]
+    straight, mounted = run(recs), run(turned, mounting_rpy_deg=rpy)
+    _, e1, _ = errors(drive, straight.rows)
+    _, e2, _ = errors(drive, mounted.rows)
+    assert np.sqrt(np.mean(e2**2)) == pytest.approx(np.sqrt(np.mean(e1**2)), rel=0.05, abs=0.02)
+    from logger.nav.health import mounting_verdict
+
+    assert mounting_verdict(mounted).startswith("IMU mounting plausible")
+    wrong = run(turned)  # the same data with the mounting left out of the configuration
+    assert wrong.state is None or mounting_verdict(wrong).startswith("IMU mounting implausible")
+
+
+def test_antenna_lever_arm_from_the_configuration():
+    drive = make_drive("outage-60s", seed=5, duration_s=150.0)
+    arm = np.array([1.5, 0.4, -1.3])  # antenna forward, right and above the IMU
+    recs = records(drive, 150.0, seed=7, errors=SynthErrors(gnss_h_sigma=0.1, gnss_v_sigma=0.1))
+    moved = []
+    for ts, tp, m in recs:
+        if tp == "/gnss/fix" and m["fix_ok"]:
+            s = drive.state((m["gnss_time_ns"] - T0_NS) / 1e9)
+            dn, de, dd = dcm_from_euler(*s.rpy_rad) @ arm
+            lat, lon, h = earth.offset_llh(math.radians(m["latitude"]), math.radians(m["longitude"]), m["altitude"],
+                                           dn, de, dd)
+            m = {**m, "latitude": math.degrees(lat), "longitude": math.degrees(lon), "altitude": h}
+        moved.append((ts, tp, m))
+    with_arm, without = run(moved, lever_arm_m=tuple(arm)), run(moved)
+    _, e1, _ = errors(drive, with_arm.rows)
+    _, e2, _ = errors(drive, without.rows)
+    assert np.sqrt(np.mean(np.sum(e1**2, axis=1))) < 0.4
+    assert np.sqrt(np.mean(np.sum(e2**2, axis=1))) > 1.0
+
+
+def test_heading_from_the_configuration_starts_at_standstill():
+    drive = make_drive("outage-60s", seed=6, duration_s=60.0)
+    recs = records(drive, 60.0, seed=8)
+    heading = math.degrees(drive.state(0.0).rpy_rad[2])
+    engine = run(recs, heading_source="config", initial_heading_deg=heading)
+    assert engine.counters.init_method == "config heading"
+    # Levelled over the 30 s of idling, started as soon as the vehicle moves (OBD speed above 0.5 km/h).
+    assert 30.0 < (engine.counters.initialised_ns - T0_NS) / 1e9 < 34.0
+    assert abs(math.degrees(math.remainder(engine.state.rpy()[2] - drive.state(60.0).rpy_rad[2], 2 * math.pi))) < 1.0
+
+
+def test_gnss_only_mode_passes_the_fixes_through(outage):
+    recs = outage[2]
+    engine = run(recs, mode="gnss")
+    fixes = [m for _, tp, m in recs if tp == "/gnss/fix" and m["fix_ok"]]
+    assert len(engine.rows) == len(fixes) and engine.ekf is None
+    assert math.degrees(engine.rows[10][2]) == pytest.approx(fixes[10]["latitude"], abs=1e-12)
+
+
+def test_imu_errors_twice_what_the_configuration_assumes_keep_the_filter_consistent(outage):
+    drive, span, _ = outage
+    p = NavParams()
+    worse = SynthErrors(accel_noise=2 * SynthErrors.accel_noise, gyro_noise=2 * SynthErrors.gyro_noise,
+                        obd_factor=1.02)
+    noisy = records(drive, 270.0, seed=9, gnss_off=[(span.start_s, span.end_s)], errors=worse)
+    engine = run(noisy, **{k: v for k, v in p.__dict__.items() if k != "extra"})
+    assert engine.counters.resets == 0 and engine.ekf.repairs == 0
+    _, e, s = errors(drive, engine.rows)
+    assert np.mean(np.abs(e) <= 3.0 * s) > 0.9
+
+
+def test_a_parked_car_without_speed_or_gnss_does_not_drift():
+    """Engine off at the end of a drive: no OBD answer, and here no GNSS either. A quiet IMU and a solution that
+    already stands keep the zero-velocity updates going."""
+    drive = make_drive("outage-60s", seed=7)
+    (parked,) = drive.spans_of("parked")
+    recs = [(ts, tp, m) for ts, tp, m in records(drive, drive.duration_s, seed=10)
+            if not ((ts - T0_NS) / 1e9 >= parked.start_s and tp in ("/obd/speed", "/gnss/fix"))]
+    engine = run(recs)
+    t, e, _ = errors(drive, engine.rows)
+    at_park = np.argmin(np.abs(t - parked.start_s))
+    drift = np.hypot(*(e[-1, :2] - e[at_park, :2]))
+    assert drift < 0.3
+    assert engine.counters.zupt > 30
+
+
+def test_coning_and_sculling_switch_on_with_a_fast_imu():
+    drive = make_drive("outage-60s", seed=8, duration_s=45.0)
+    slow = run(records(drive, 45.0, seed=11, imu_hz=20.0))
+    fast = run(records(drive, 45.0, seed=11, imu_hz=100.0))
+    assert not slow.mech.coning and fast.mech.coning
+    assert fast.state is not None and fast.counters.imu > 4000

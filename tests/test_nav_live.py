@@ -1,0 +1,186 @@
+"""The navigator in the daemon, its configuration and status lines, and `logger replay` on a recorded drive."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from test_nav_synth import records
+
+from logger.config import ConfigError, parse
+from logger.daemon import Extras
+from logger.nav.live import Navigator, attach_navigator
+from logger.nav.params import NavParams
+from logger.sampler import Reading
+from logger.status import render
+from sensors.sim.scenarios import make_drive
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_offer_never_blocks_and_counts_what_it_drops():
+    nav = Navigator(NavParams(queue_size=10))  # no thread started: nothing drains the queue
+    msg = {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0, -9.8], "gyro_rps": [0, 0, 0]}
+    t0 = time.perf_counter()
+    for _ in range(1000):
+        nav.offer("/imu", msg)
+    assert time.perf_counter() - t0 < 1.0
+    assert nav.dropped == 990
+    nav.offer("/truth/nav", msg)  # topics the filter does not use are not even queued
+    nav.offer("/nav/fix", msg)  # nor its own output coming back through the daemon's sink
+    assert nav.dropped == 990 and nav._q.qsize() == 10
+    assert "navigator behind: 990 records skipped" in nav.section()["verdicts"]
+
+
+def test_navigator_thread_publishes_fixes_state_and_status():
+    drive = make_drive("outage-60s", seed=1, duration_s=80.0)
+    published: list[Reading] = []
+    lock = threading.Lock()
+
+    def publish(r: Reading) -> None:
+        with lock:
+            published.append(r)
+
+    nav = Navigator(NavParams(publish_hz=2.0), publish=publish)
+    nav.start()
+    try:
+        for _, topic, msg in records(drive, 80.0, seed=1):
+            nav.offer(topic, msg)
+        deadline = time.monotonic() + 20.0
+        while nav._q.qsize() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+    finally:
+        nav.stop()
+    fixes = [r for r in published if r.topic == "/nav/fix"]
+    states = [r for r in published if r.topic == "/nav/state"]
+    assert fixes and states and nav.dropped == 0
+    assert all(not r.stamped for r in published)
+    last = fixes[-1].payload
+    assert last["frame_id"] == "nav" and last["source"] == "ins 17-state"
+    truth = drive.state(80.0)
+    assert abs(last["latitude"] - truth.lat_rad * 57.29577951308232) * 111_000 < 3.0
+    # Published at about publish_hz of drive time, not per IMU sample.
+    span_s = (fixes[-1].payload["t_sync_ns"] - fixes[0].payload["t_sync_ns"]) / 1e9
+    assert len(fixes) <= 2.0 * span_s + 2
+    sec = nav.section()
+    assert sec["lat_deg"] is not None and sec["sigma_h_m"] < 5.0 and sec["cpu_s"] > 0.0
+    assert any(v.startswith("GNSS consistent with the IMU") for v in sec["verdicts"])
+    assert any(v.startswith("OBD speed reads") for v in sec["verdicts"])
+    text = render({"verdict": "ok", "nav": sec})
+    assert "position " in text and "  nav      GNSS consistent with the IMU" in text
+
+
+def test_nav_configuration_is_checked_and_reaches_the_filter():
+    cfg = parse("[nav]\nmode = '15'\nlever_arm_m = [0.3, 0, -1.1]\nmounting_rpy_deg = [180, 0, 90]\n"
+                "accel_noise_ug_rthz = 800\n", "logger.toml", sim=True)
+    p = NavParams.from_config(cfg["nav"])
+    assert p.mode == "15" and p.lever_arm_m == (0.3, 0.0, -1.1) and p.mounting_rpy_deg == (180.0, 0.0, 90.0)
+    assert p.accel_noise_ug_rthz == 800.0 and p.gyro_noise_dps_rthz == 0.005
+    with pytest.raises(ConfigError) as e:
+        parse("[nav]\nmode = '16'\nlever_arm_m = [1, 2]\nmounting_rpy_deg = 'flat'\n", "logger.toml", sim=True)
+    assert e.value.problems == [
+        "logger.toml:2: nav.mode = '16' must be one of '17', '15', 'gnss'",
+        "logger.toml:3: nav.lever_arm_m = [1, 2] must be three numbers [x, y, z]",
+        "logger.toml:4: nav.mounting_rpy_deg must be a list, not 'flat'",
+    ]
+    extras = Extras()
+    assert attach_navigator(parse("[nav]\nenabled = false\n", "x", sim=True)["nav"], extras) is None
+    assert not extras.taps
+    nav = attach_navigator(cfg["nav"], extras)
+    assert extras.taps == [nav] and extras.sections["nav"] == nav.section and nav.stop in extras.close
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A short simulated drive through the real daemon: idling, levelling, pulling away."""
+    out = tmp_path_factory.mktemp("drive")
+    r = subprocess.run([sys.executable, "-m", "logger.cli", "run", "--sim", "--scenario", "outage-60s",
+                        "--duration", "70", "--time-scale", "5", "--out", str(out), "--status-socket",
+                        str(out / "status.sock")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def _replay(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "logger.cli", "replay", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_the_daemon_records_the_live_solution(recorded: Path):
+    from logger.nav.recording import read_messages
+
+    msgs = list(read_messages(sorted(recorded.glob("*.mcap")), ("/nav/fix", "/nav/state")))
+    fixes = [m for t, m in msgs if t == "/nav/fix"]
+    states = [m for t, m in msgs if t == "/nav/state"]
+    assert len(fixes) > 20 and len(states) > 5
+    assert fixes[-1]["t_sync_ns"] - fixes[0]["t_sync_ns"] > 20e9
+    assert {"latitude", "longitude", "altitude", "position_covariance", "sigma_ned_m"} <= set(fixes[-1])
+    assert states[-1]["status"] == "navigating" and len(states[-1]["p_diag"]) == 17
+
+
+def test_replay_writes_the_trajectory_in_every_mode(recorded: Path, tmp_path: Path):
+    files = [str(p) for p in sorted(recorded.glob("*.mcap"))]
+    for mode, smooth in (("17", False), ("17", True), ("15", False), ("gnss", False)):
+        out = tmp_path / f"{mode}{'s' if smooth else ''}"
+        r = _replay(*files, "--out", str(out), "--mode", mode, *(["--smooth"] if smooth else []))
+        assert r.returncode == 0, r.stderr
+        with open(out / "trajectory.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert {"t_sync_ns", "lat_deg", "lon_deg", "height_m", "vn_mps", "ve_mps", "vd_mps", "roll_deg", "pitch_deg",
+                "yaw_deg", "sn_m", "se_m", "sd_m"} <= set(rows[0])
+        assert len(rows) > (30 if mode == "gnss" else 300)
+        assert (out / "trajectory.mcap").stat().st_size > 0
+    score = subprocess.run([sys.executable, "tools/nav_score.py", str(tmp_path / "17" / "trajectory.csv"), *files,
+                            "--json"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert score.returncode == 0, score.stderr
+    import json
+
+    rmse = json.loads(score.stdout)["17"]["rmse"]
+    assert max(rmse) < 3.0
+
+
+def test_replay_refuses_what_it_cannot_read(tmp_path: Path):
+    r = _replay(str(tmp_path / "none.mcap"), "--out", str(tmp_path))
+    assert r.returncode == 2 and "no such file" in r.stderr
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(b"\x89MCAP0\r\n" + b"\x01" * 50)
+    r = _replay(str(cut), "--out", str(tmp_path))
+    assert r.returncode == 2 and "logger recover" in r.stderr
+
+
+def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path):
+    """The struct-level reader (and its IMU shortcut, for compact and spaced JSON alike) gives what mcap gives."""
+    import json as _json
+
+    from mcap.writer import Writer
+
+    from logger.nav.recording import _slow, read_messages
+
+    files = sorted(recorded.glob("*.mcap"))
+    topics = ("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps")
+    fast = list(read_messages(files, topics))
+    slow = sorted(r for f in files for r in _slow(f, set(topics)))
+    assert len(fast) == len(slow) > 100
+    for (topic, msg), (_, _, topic2, data) in zip(fast, slow, strict=True):
+        full = _json.loads(data)
+        assert topic == topic2 and all(full[k] == v for k, v in msg.items())
+    spaced = tmp_path / "spaced.mcap"  # the same records written with json.dumps' default separators
+    with open(spaced, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel("/imu", "json", sid)
+        for topic, msg in fast[:50]:
+            if topic == "/imu":
+                w.add_message(cid, log_time=msg["t_sync_ns"], publish_time=0, data=_json.dumps(
+                    {"t_mono_ns": msg["t_mono_ns"], "t_sync_ns": msg["t_sync_ns"], "sync_state": "locked",
+                     "accel_mps2": msg["accel_mps2"], "gyro_rps": msg["gyro_rps"], "temp_degc": 20.0}).encode())
+        w.finish()
+    again = [m for _, m in read_messages([spaced], ("/imu",))]
+    assert again and all(set(m) == {"t_mono_ns", "t_sync_ns", "accel_mps2", "gyro_rps"} for m in again)

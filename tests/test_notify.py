@@ -1,0 +1,246 @@
+"""sd_notify spoken to a real AF_UNIX datagram socket standing in for systemd, and the daemon's use of it:
+READY once started up, WATCHDOG only while every thread's heartbeat is fresh, STOPPING at the end."""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from logger.config import defaults
+from logger.daemon import Daemon, ProblemJournal
+from logger.notify import Notifier
+from logger.sampler import Reading
+from logger.sources import Plan
+from sensors.errors import BusError
+
+
+class FakeSystemd:
+    """The manager's end of NOTIFY_SOCKET: collects every datagram with its arrival time."""
+
+    def __init__(self, address: str | bytes) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(address)
+        self.sock.settimeout(0.05)
+        self.messages: list[tuple[float, dict[str, str]]] = []
+        self._halt = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._halt.is_set():
+            try:
+                data = self.sock.recv(4096)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            fields = dict(line.split("=", 1) for line in data.decode().split("\n"))
+            self.messages.append((time.monotonic(), fields))
+
+    def wait_for(self, key: str, timeout_s: float = 20.0) -> dict[str, str]:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            for _, m in list(self.messages):
+                if key in m:
+                    return m
+            time.sleep(0.01)
+        raise AssertionError(f"no {key} within {timeout_s} s: {self.messages}")
+
+    def pings_between(self, t0: float, t1: float) -> int:
+        return sum(1 for t, m in list(self.messages) if "WATCHDOG" in m and t0 <= t <= t1)
+
+    def close(self) -> None:
+        self._halt.set()
+        self._thread.join(2)
+        self.sock.close()
+
+
+@pytest.fixture
+def systemd(tmp_path: Path) -> Iterator[tuple[FakeSystemd, str]]:
+    path = str(tmp_path / "notify.sock")
+    fake = FakeSystemd(path)
+    yield fake, path
+    fake.close()
+
+
+# ---- the protocol ----------------------------------------------------------------------------------------------
+
+def test_ready_status_and_watchdog_reach_a_path_socket(systemd: tuple[FakeSystemd, str]) -> None:
+    fake, path = systemd
+    n = Notifier.from_env({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "3000000"}, pid=os.getpid())
+    assert n.enabled and n.watchdog_interval_s == 1.5
+    assert n.ready("recording\nto x")
+    assert n.watchdog()
+    assert n.stopping()
+    fake.wait_for("STOPPING")
+    got = [m for _, m in fake.messages]
+    assert got[0] == {"READY": "1", "STATUS": "recording to x"}  # a newline would start a new assignment
+    assert got[1:] == [{"WATCHDOG": "1"}, {"STOPPING": "1"}]
+
+
+def test_abstract_namespace_socket() -> None:
+    name = f"vehicle-logger-test-{uuid.uuid4().hex}"
+    fake = FakeSystemd(b"\0" + name.encode())
+    try:
+        n = Notifier.from_env({"NOTIFY_SOCKET": "@" + name})
+        assert n.status("all well")
+        assert fake.wait_for("STATUS") == {"STATUS": "all well"}
+    finally:
+        fake.close()
+
+
+def test_watchdog_belongs_to_the_pid_systemd_named() -> None:
+    env = {"NOTIFY_SOCKET": "/run/x", "WATCHDOG_USEC": "20000000", "WATCHDOG_PID": "1"}
+    assert Notifier.from_env(env, pid=4242).watchdog_interval_s is None
+    assert Notifier.from_env(env, pid=1).watchdog_interval_s == 10.0
+    assert Notifier.from_env({"WATCHDOG_USEC": "abc", "NOTIFY_SOCKET": "/run/x"}).watchdog_interval_s is None
+
+
+def test_without_systemd_everything_is_a_quiet_no_op(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    assert not Notifier.from_env({}).enabled
+    assert Notifier.from_env({}).ready() is False
+    assert not Notifier.from_env({"NOTIFY_SOCKET": "vsock:2:1234"}).enabled
+    # A socket nobody listens on: False, one warning, never an exception (logging goes on regardless).
+    n = Notifier.from_env({"NOTIFY_SOCKET": str(tmp_path / "gone.sock")})
+    with caplog.at_level(logging.WARNING):
+        assert n.watchdog() is False
+        assert n.watchdog() is False
+    assert len([r for r in caplog.records if "cannot notify" in r.getMessage()]) == 1
+
+
+def test_status_is_cut_to_one_bounded_line(systemd: tuple[FakeSystemd, str]) -> None:
+    fake, path = systemd
+    Notifier(path).status("x" * 5000)
+    assert len(fake.wait_for("STATUS")["STATUS"]) == 1024
+
+
+# ---- the daemon under a manager --------------------------------------------------------------------------------
+
+class TickSource:
+    """A periodic sensor whose read can be made to hang (a driver stuck in a kernel call) or its open to block."""
+
+    def __init__(self, name: str, block_open: bool = False) -> None:
+        self.name = name
+        self.hang = threading.Event()
+        self.release = threading.Event()
+        self.open_gate = threading.Event()
+        if not block_open:
+            self.open_gate.set()
+
+    def open(self) -> None:
+        if not self.open_gate.wait(30):
+            raise BusError("gate never opened")
+
+    def read(self) -> list[Reading]:
+        if self.hang.is_set():
+            self.release.wait(30)
+        return [Reading(f"/test/{self.name}", {"v": 1}, time.monotonic_ns())]
+
+    def close(self) -> None:
+        pass
+
+
+def make_daemon(tmp_path: Path, sources: list[TickSource], notify_path: str, watchdog_usec: int = 200_000) -> Daemon:
+    cfg = defaults(sim=True)
+    cfg.values["logger"]["out_dir"] = str(tmp_path / "drives")
+    cfg.values["logger"]["status_socket"] = str(tmp_path / "status.sock")
+    plans = [Plan(s, 20.0, 20.0) for s in sources]
+    notifier = Notifier.from_env({"NOTIFY_SOCKET": notify_path, "WATCHDOG_USEC": str(watchdog_usec)})
+    d = Daemon(cfg, plans, notifier=notifier)
+    d.heartbeat_bound_s = 1.0
+    return d
+
+
+def test_ready_after_start_then_pings_stop_while_a_sensor_thread_hangs(
+        tmp_path: Path, systemd: tuple[FakeSystemd, str], caplog: pytest.LogCaptureFixture) -> None:
+    fake, path = systemd
+    steady, stuck = TickSource("steady"), TickSource("stuck")
+    d = make_daemon(tmp_path, [steady, stuck], path)
+    caplog.set_level(logging.INFO)
+    d.start()
+    try:
+        ready = fake.wait_for("READY")
+        assert "recorder recording" in ready["STATUS"]
+        assert list((tmp_path / "drives").glob("*.mcap")), "READY before the first file was started"
+        time.sleep(1.0)
+        t = time.monotonic()
+        assert fake.pings_between(t - 1.0, t) >= 5  # every 0.1 s (half of WATCHDOG_USEC)
+
+        stuck.hang.set()
+        time.sleep(2.0)  # heartbeat bound 1 s, then silence
+        t = time.monotonic()
+        assert fake.pings_between(t - 0.6, t) == 0
+        assert any("not answering the watchdog: sampler-stuck silent" in r.getMessage() for r in caplog.records)
+        assert steady.name and d.stale_threads() and all("stuck" in s for s in d.stale_threads())
+
+        stuck.release.set()  # the thread comes back: pings resume
+        time.sleep(1.0)
+        t = time.monotonic()
+        assert fake.pings_between(t - 0.5, t) >= 2
+    finally:
+        stuck.release.set()
+        d.stop()
+    assert fake.wait_for("STOPPING")["STOPPING"] == "1"
+
+
+def test_ready_waits_for_the_first_open_but_not_forever(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    fake, path = systemd
+    slow = TickSource("slow", block_open=True)
+    d = make_daemon(tmp_path, [slow], path)
+    d.ready_timeout_s = 1.5
+    t0 = time.monotonic()
+    d.start()
+    try:
+        time.sleep(0.5)
+        assert not any("READY" in m for _, m in fake.messages)  # the sensor is still opening
+        assert fake.pings_between(t0, time.monotonic()) >= 2  # start-up is not a hang
+        fake.wait_for("READY", timeout_s=5)
+        assert time.monotonic() - t0 >= 1.5
+        assert d.samplers[0].health.state == "starting"
+    finally:
+        slow.open_gate.set()
+        d.stop()
+
+
+def test_a_dead_recorder_stops_the_pings(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    fake, path = systemd
+    d = make_daemon(tmp_path, [TickSource("a")], path)
+    d.start()
+    try:
+        fake.wait_for("READY")
+        d.recorder.stop()  # the writer thread ends while the sensors go on
+        time.sleep(0.5)
+        t = time.monotonic()
+        assert fake.pings_between(t - 0.3, t) == 0
+        assert "recorder has ended" in d.stale_threads()
+    finally:
+        d.stop()
+
+
+# ---- problems into the journal ---------------------------------------------------------------------------------
+
+def test_each_problem_is_logged_when_it_appears_and_clears() -> None:
+    j = ProblemJournal(burst=3, refill_s=10.0)
+    assert j.update(["pps: no sample for 4.1 s"], 0.0) == [(logging.WARNING, "problem: pps: no sample for 4.1 s")]
+    assert j.update(["pps: no sample for 5.1 s"], 1.0) == []  # the same problem while it lasts
+    assert j.update([], 2.0) == [(logging.INFO, "resolved: pps: no sample for 5.1 s")]
+
+
+def test_a_flapping_sensor_is_rate_limited_and_counted() -> None:
+    j = ProblemJournal(burst=3, refill_s=10.0)
+    lines = []
+    for second in range(20):  # appears and clears every other second
+        lines += j.update(["imu: retrying: no answer"] if second % 2 == 0 else [], float(second))
+    problems = [text for _, text in lines if text.startswith("problem")]
+    # 3 from the burst, one more once a token refilled (telling how many were not logged), then silence.
+    assert len(problems) == 4, lines
+    assert "appeared 2 more times, not logged" in problems[3]
+    assert len([t for _, t in lines if t.startswith("resolved")]) == 4

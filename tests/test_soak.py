@@ -1,0 +1,36 @@
+"""A short soak (a few minutes of drive at 60x): three daemons in turn on one folder, ended by SIGTERM, kill -9 and
+their duration, with faults injected in between; nothing lost, everything recovered, every fault seen."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+# Faults whose every occurrence changes what `logger status` shows (garbage on the receiver's line is skipped
+# by the framer without a trace there, so the long soak reports it rather than this test asserting it).
+FAULTS = "imu_unplugged,elm327_can_error,pps_outage,disk_nearly_full"
+
+
+def test_short_soak(tmp_path: Path) -> None:
+    out = tmp_path / "soak"
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "soak.py"), "--hours", "0.2", "--time-scale", "60",
+                        "--mean-fault-gap-s", "20", "--faults", FAULTS, "--seed", "3", "--sample-real-s", "0.5",
+                        "--out", str(out)],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    report = json.loads((out / "soak-report.json").read_text())
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert [s["ended_by"] for s in report["segments"]] == ["sigterm", "kill9", "duration"]
+    for seg in report["segments"]:
+        assert seg["threads_missing_at_end"] == [] and seg["stale_threads_seen"] == []
+        assert seg["records_lost_outside_faults"] == {} and seg["gaps_outside_faults_uncounted"] == {}
+        assert all(n > 0 for n in seg["records"].values()), seg["records"]
+        assert seg["stopped_cleanly"] in (True, None)
+    assert report["segments"][2]["recovered_lines"], "the file cut by kill -9 was not recovered at the next start"
+    assert report["files"]["unfinished"] == [] and report["kill9_files_recovered"]
+    whole = [f for f in report["faults"] if not f["cut_short_by_the_stop"]]
+    assert whole, "no fault was injected"
+    for fault in whole:
+        assert fault["status"] and fault["log"], fault

@@ -1,0 +1,92 @@
+"""Speed of the navigation filter: replay throughput and the live navigator's share of one core.
+
+    python tools/nav_bench.py DRIVE.mcap... [--live-s 60]
+
+Replay: the whole ``logger replay`` pipeline (read, decode, filter, no output files) over the drive, timed as
+process CPU time and as wall time, per IMU sample and as a multiple of real time. Live: the drive's records
+are offered to a running :class:`~logger.nav.live.Navigator` paced at the drive's own rate for ``--live-s``
+seconds of real time, and the CPU time of the navigator thread plus that of every ``offer`` call (the part
+the sampler threads pay) is divided by the elapsed time. Figures go to stdout; no test asserts on them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from logger.nav.live import INPUT_TOPICS, Navigator
+from logger.nav.params import MODES, NavParams
+from logger.nav.recording import read_messages
+from logger.replay_cmd import run_filter
+
+
+def bench_replay(files: list[Path], mode: str, smooth: bool) -> None:
+    p = NavParams(mode=mode)
+    c0, w0 = time.process_time(), time.perf_counter()
+    engine, rows = run_filter(files, p, smooth)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    n = engine.counters.imu or len(rows)
+    span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
+    print(f"replay mode {mode}{' + smoother' if smooth else ''}: {n} IMU samples, {span:.0f} s of drive: "
+          f"CPU {cpu:.2f} s ({cpu / max(n, 1) * 1e6:.1f} us per sample, {span / max(cpu, 1e-9):.0f}x real time), "
+          f"wall {wall:.2f} s ({wall / max(n, 1) * 1e6:.1f} us per sample)")
+
+
+def bench_live(files: list[Path], seconds: float, start_s: float) -> None:
+    msgs = [(m["t_sync_ns"], t, m) for t, m in read_messages(files, tuple(INPUT_TOPICS))]
+    nav = Navigator(NavParams(), publish=lambda r: None)
+    # Everything before start_s goes in at once (levelling, heading), then the paced part is measured.
+    skip = msgs[0][0] + int(start_s * 1e9)
+    head = [m for m in msgs if m[0] < skip]
+    msgs = msgs[len(head):]
+    for _, topic, m in head:
+        nav.engine.feed(topic, m)
+    nav.start()
+    offer_cpu = 0.0
+    t_first = msgs[0][0]
+    start = time.perf_counter()
+    i = 0
+    try:
+        while i < len(msgs):
+            elapsed = time.perf_counter() - start
+            if elapsed >= seconds:
+                break
+            due = t_first + elapsed * 1e9
+            c0 = time.thread_time()
+            while i < len(msgs) and msgs[i][0] <= due:
+                nav.offer(msgs[i][1], msgs[i][2])
+                i += 1
+            offer_cpu += time.thread_time() - c0
+            time.sleep(0.005)
+        wall = time.perf_counter() - start
+        time.sleep(0.5)  # let the navigator finish its last batch before reading its CPU time
+    finally:
+        nav.stop()
+    drive_s = (msgs[i - 1][0] - t_first) / 1e9
+    total = nav.cpu_s + offer_cpu
+    print(f"live navigator, from {start_s:g} s: {drive_s:.0f} s of drive at real time "
+          f"({nav.processed} records, {nav.dropped} dropped): thread {nav.cpu_s * 1e3:.0f} ms + offer "
+          f"{offer_cpu * 1e3:.0f} ms of CPU in {wall:.0f} s = {total / wall * 100:.3f} % of one core")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("files", type=Path, nargs="+")
+    ap.add_argument("--live-s", type=float, default=60.0, help="real seconds of the paced live run (0: skip)")
+    ap.add_argument("--live-from", type=float, default=60.0, help="drive second where the paced run starts")
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    args = ap.parse_args(argv)
+    for mode in args.modes:
+        bench_replay(args.files, mode, False)
+    bench_replay(args.files, "17", True)
+    if args.live_s > 0:
+        bench_live(args.files, args.live_s, args.live_from)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
