@@ -113,7 +113,7 @@ def test_a_lost_filter_restarts_from_gnss_and_says_so():
         if not teleported and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
             engine.state.lat += 300.0 / 6.36e6  # 300 m off, with the covariance still confident
             teleported = True
-    assert teleported and engine.counters.resets == 1
+    assert teleported and engine.counters.resets == 1 and engine.counters.reanchors == 0
     _, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[-1, 0], e[-1, 1]) < 2.0
 
@@ -210,3 +210,19 @@ def test_coning_and_sculling_switch_on_with_a_fast_imu():
     fast = run(records(drive, 45.0, seed=11, imu_hz=100.0))
     assert not slow.mech.coning and fast.mech.coning
     assert fast.state is not None and fast.counters.imu > 4000
+
+
+def test_good_fixes_after_an_outage_that_all_disagree_the_same_way_widen_the_position(outage):
+    """Out of a tunnel with the solution further off than its covariance admits, the first good fixes agree with
+    each other and not with it: after three the position uncertainty is widened and they pull it back."""
+    drive, span, recs = outage
+    engine = NavEngine(NavParams(), record=True)
+    moved = False
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+        if not moved and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > span.start_s + 5.0:
+            engine.state.lon += 25.0 / 5.0e6  # 25 m east, unknown to the covariance
+            moved = True
+    assert moved and engine.counters.reanchors == 1 and engine.counters.resets == 0
+    t, e, _ = errors(drive, engine.rows)
+    assert np.hypot(e[t > span.end_s + 8.0, 0], e[t > span.end_s + 8.0, 1]).max() < 1.5

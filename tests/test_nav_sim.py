@@ -98,3 +98,16 @@ def test_traffic_makes_the_speed_wander_and_keeps_tunnels_level():
     assert np.ptp(speeds) > 1.0 and 11.0 < np.mean(speeds) < 17.0
     before, after = drive.state(tunnel.start_s - 2.0), drive.state(tunnel.end_s + 2.0)
     assert after.height_m == pytest.approx(before.height_m, abs=1e-6)
+
+
+def test_reported_dops_fit_the_receivers_message_fields():
+    """A degenerate geometry (few satellites in a line at a tunnel's mouth) must not overflow NAV-PVT's pDOP:
+    the receiver model would die on it and the drive lose its GNSS for good."""
+    from pyubx2 import GET, UBXMessage
+
+    drive = make_drive("urban", seed=2, duration_s=1800.0)
+    sky = drive.gnss_sky
+    model = GeometryErrorModel(np.random.default_rng(1), len(sky.constellation))
+    worst = max(model.step(1.0, sky.view(drive.state(float(t)))).dops.pdop for t in range(1300, 1500))
+    assert worst <= 99.99
+    UBXMessage("NAV", "NAV-PVT", GET, pDOP=worst).serialize()

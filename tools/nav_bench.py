@@ -31,7 +31,8 @@ def bench_replay(files: list[Path], mode: str, smooth: bool) -> None:
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     n = engine.counters.imu or len(rows)
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
-    print(f"replay mode {mode}{' + smoother' if smooth else ''}: {n} IMU samples, {span:.0f} s of drive: "
+    what = "fixes" if mode == "gnss" else "IMU samples"
+    print(f"replay mode {mode}{' + smoother' if smooth else ''}: {n} {what}, {span:.0f} s of drive: "
           f"CPU {cpu:.2f} s ({cpu / max(n, 1) * 1e6:.1f} us per sample, {span / max(cpu, 1e-9):.0f}x real time), "
           f"wall {wall:.2f} s ({wall / max(n, 1) * 1e6:.1f} us per sample)")
 

@@ -192,7 +192,7 @@ def consistency(files: list[Path]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--drives", type=Path, default=Path("/tmp/nav-eval2"), help="where drives are kept and reused")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[1], help="seeds of the outage and tunnel drives")
+    ap.add_argument("--seeds", type=int, nargs="*", default=[1], help="seeds of the outage and tunnel drives")
     ap.add_argument("--urban-seeds", type=int, nargs="*", help="seeds of the urban drives (default: --seeds)")
     ap.add_argument("--time-scale", type=float, default=4.0,
                     help="recording speed; faster starves the simulated sensors on a loaded 2-core host")

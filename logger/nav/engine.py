@@ -52,6 +52,9 @@ NHC_INTERVAL_NS = NS // 2
 DIVERGENCE_REJECTS = 10  # consecutive rejected GNSS fixes with a good receiver accuracy...
 DIVERGENCE_SPAN_NS = 8 * NS  # ... spanning this long: the filter has lost itself, start again from GNSS
 DIVERGENCE_SIGMA_M = 1000.0
+REANCHOR_REJECTS = 3  # consecutive refused fixes that agree, from a receiver this sure of itself...
+REANCHOR_H_ACC_M = 2.0  # ...make the filter admit its position is less certain than it thought, when they
+REANCHOR_AFTER_NS = 5 * NS  # come after this long without an accepted fix (a tunnel) or after worse ones only
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
 
 
@@ -79,6 +82,7 @@ class EngineCounters:
     baro: int = 0
     zupt: int = 0
     resets: int = 0
+    reanchors: int = 0  # times good fixes, refused in a row, made the filter widen its position uncertainty
     initialised_ns: int | None = None
     init_method: str = ""
 
@@ -163,6 +167,7 @@ class NavEngine:
         self._w_stop_t0 = 0
         self._next_idle_check_ns = 0
         self._last_nhc_ns = 0
+        self._last_pos_ok = (0, math.inf)  # time and accuracy of the last fix whose position went in
         self._rejects: list[tuple[int, float, float]] = []  # consecutive refused fixes: time, N and E innovation
         self.stopped = False
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
@@ -456,6 +461,8 @@ class NavEngine:
         obs = self._informative(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix_3d)
                                 .observe(snap, snap.dcm(), self.n), P_ID)
         ok = True if obs is None else self._apply(obs)
+        if obs is not None and ok:
+            self._last_pos_ok = (t_e, fix.h_acc)
         if vel_arr is not None:
             snap = self._state_at(t_e)
             obs = self._informative(GnssVelocity(vel_arr, s_vel, self.lever, np.array(self._gyro_raw), not fix_3d)
@@ -525,10 +532,25 @@ class NavEngine:
         sig = max(self._sig)
         lost = False
         rj = self._rejects
+        last_t, last_acc = self._last_pos_ok
+        if (not accepted and REANCHOR_REJECTS <= len(rj) < DIVERGENCE_REJECTS and fix.h_acc <= REANCHOR_H_ACC_M
+                and (rj[0][0] - last_t >= REANCHOR_AFTER_NS or last_acc > 2.0 * fix.h_acc)
+                and self._agree(rj[-REANCHOR_REJECTS:])):
+            # Good fixes after a spell without any (or with worse ones only), all off by the same few metres: the
+            # solution drifted further than its covariance says
+            # (a long dead reckoning on a speed sensor whose steps do not average out). Admit the uncertainty of
+            # the position, counted, and let this fix in; velocity and attitude are kept.
+            inno = np.array((*rj[-1][1:], 0.0))
+            self.ekf.inflate(slice(P_ID, P_ID + 3), [float(self.ekf.p[P_ID + i, P_ID + i]) + inno[i] ** 2
+                                                      + fix.sigma[i] ** 2 for i in range(3)])
+            self.counters.reanchors += 1
+            snap = self._state_at(fix.t_ns)
+            if self._apply(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix.fix_3d)
+                           .observe(snap, snap.dcm(), self.n)):
+                self._rejects.clear()
+            return
         if len(rj) >= DIVERGENCE_REJECTS and rj[-1][0] - rj[0][0] >= DIVERGENCE_SPAN_NS:
-            inno = np.array([(r[1], r[2]) for r in self._rejects[-DIVERGENCE_REJECTS:]])
-            mean = inno.mean(axis=0)
-            lost = float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
+            lost = self._agree(rj[-DIVERGENCE_REJECTS:])
         if not (lost or not math.isfinite(sig) or sig > DIVERGENCE_SIGMA_M):
             return
         s = self.state
@@ -546,6 +568,22 @@ class NavEngine:
         self._rejects.clear()
         self._refresh_sigma()
 
+    @staticmethod
+    def _agree(refused: list[tuple[int, float, float]]) -> bool:
+        """Refused fixes whose horizontal innovations agree within a quarter of their mean: a shifted solution,
+        not a scattering receiver."""
+        inno = np.array([(r[1], r[2]) for r in refused])
+        mean = inno.mean(axis=0)
+        return float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
+
+    @staticmethod
+    def _agree(refused: list[tuple[int, float, float]]) -> bool:
+        """Refused fixes whose horizontal innovations agree within a quarter of their mean: a shifted solution,
+        not a scattering receiver."""
+        inno = np.array([(r[1], r[2]) for r in refused])
+        mean = inno.mean(axis=0)
+        return float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
+
     # ---- OBD, baro, stops --------------------------------------------------------------------------------
     def obd(self, t_ns: int, speed_mps: float) -> None:
         if self.mode != "17":  # the baseline and GNSS-only modes know nothing of the vehicle's speed sensor
@@ -555,13 +593,13 @@ class NavEngine:
         if self.state is None:
             return
         p = self.params
-        s = self.state
         if self._stop_update(speed_mps == 0.0 and self.stops.still, learn=True):
             return
         if speed_mps < OBD_MIN_SPEED_MPS:
             return
-        c_bn = s.dcm()
-        obs = ObdVelocity(speed_mps, p.obd_speed_sigma_mps, p.nhc_sigma_mps).observe(s, c_bn, self.n)
+        # The speed the ECU reported belongs to its own instant: evaluated against the solution then.
+        snap = self._state_at(t_ns)
+        obs = ObdVelocity(speed_mps, p.obd_speed_sigma_mps, p.nhc_sigma_mps).observe(snap, snap.dcm(), self.n)
         if self._apply(obs):
             self._last_nhc_ns = t_ns
             if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
