@@ -186,6 +186,7 @@ _add("/nav/state", "vehicle_logger.NavState", {
     "updates": ("object", "accepted updates per type since the start"),
     "rejections": ("object", "updates refused by the chi-square gate per type since the start"),
     "resets": ("integer", "times the filter lost itself and restarted from GNSS"),
+    "reanchors": ("integer", "times agreeing good fixes after an outage made the filter widen its position sigma"),
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay"),

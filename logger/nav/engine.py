@@ -537,9 +537,9 @@ class NavEngine:
                 and (rj[0][0] - last_t >= REANCHOR_AFTER_NS or last_acc > 2.0 * fix.h_acc)
                 and self._agree(rj[-REANCHOR_REJECTS:])):
             # Good fixes after a spell without any (or with worse ones only), all off by the same few metres: the
-            # solution drifted further than its covariance says
-            # (a long dead reckoning on a speed sensor whose steps do not average out). Admit the uncertainty of
-            # the position, counted, and let this fix in; velocity and attitude are kept.
+            # solution drifted further than its covariance says (a long dead reckoning on a speed sensor whose
+            # steps do not average out). Admit the uncertainty of the position, counted, and let this fix in;
+            # velocity and attitude are kept.
             inno = np.array((*rj[-1][1:], 0.0))
             self.ekf.inflate(slice(P_ID, P_ID + 3), [float(self.ekf.p[P_ID + i, P_ID + i]) + inno[i] ** 2
                                                       + fix.sigma[i] ** 2 for i in range(3)])
