@@ -576,14 +576,6 @@ class NavEngine:
         mean = inno.mean(axis=0)
         return float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
 
-    @staticmethod
-    def _agree(refused: list[tuple[int, float, float]]) -> bool:
-        """Refused fixes whose horizontal innovations agree within a quarter of their mean: a shifted solution,
-        not a scattering receiver."""
-        inno = np.array([(r[1], r[2]) for r in refused])
-        mean = inno.mean(axis=0)
-        return float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
-
     # ---- OBD, baro, stops --------------------------------------------------------------------------------
     def obd(self, t_ns: int, speed_mps: float) -> None:
         if self.mode != "17":  # the baseline and GNSS-only modes know nothing of the vehicle's speed sensor
