@@ -38,6 +38,11 @@ class Key:
     help: str = ""
 
 
+# The mcap writer keeps every chunk's index (about 2 kB with this logger's topics) until the file is closed:
+# 14400 chunks, 4 h at the default 1 s flush, hold about 30 MB of a 512 MB board.
+MAX_CHUNKS_PER_FILE = 14400
+
+
 def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
     return lambda v: None if lo <= v <= hi else f"must be between {lo:g} and {hi:g}"
 
@@ -314,6 +319,12 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
                 if cfg.values[section][key] is None:
                     problems.append(f"{at(section + '.source')}: {section}.{key} is required when "
                                     f"{section}.source = {source!r}")
+    rec = cfg.values["recorder"]
+    chunks = rec["rotate_duration_s"] / rec["flush_interval_s"]
+    if chunks > MAX_CHUNKS_PER_FILE:
+        problems.append(f"{at('recorder.rotate_duration_s')}: recorder.rotate_duration_s / flush_interval_s makes "
+                        f"{chunks:.0f} chunks per file, more than {MAX_CHUNKS_PER_FILE} (each chunk's index stays in "
+                        f"memory until the file is closed): rotate sooner or flush less often")
     if problems:
         raise ConfigError(problems)
     return cfg

@@ -214,6 +214,9 @@ class Daemon:
             elif snap["rate_hz"] and snap["last_sample_age_s"] is not None and \
                     snap["last_sample_age_s"] > 3.0 / snap["rate_hz"] + 1.0:
                 problems.append(f"{snap['name']}: no sample for {snap['last_sample_age_s']:.1f} s")
+            incident = s.health.recent_incident(now)
+            if incident is not None:
+                problems.append(f"{snap['name']}: {incident}")
         if self.samplers and all(s["state"] != "ok" for s in sensors):
             critical = True
         dropped = sum(rec.dropped.values())

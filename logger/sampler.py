@@ -50,6 +50,19 @@ class Source(Protocol):
         ...
 
 
+class ReportsIncidents(Protocol):
+    """A source whose device can misbehave without failing a read: an adapter that reset itself and was set up
+    again, bytes on a serial line that framed as nothing. ``incidents`` returns cumulative counts for the device
+    opened now, by what a person would call them ("ELM327 resets"); the sampler turns increases into journal
+    lines and a status problem, so the fault is seen while it lasts although every read succeeded."""
+
+    def incidents(self) -> dict[str, int]:
+        ...
+
+
+INCIDENT_SHOW_S = 30.0  # how long an incident stays among the status problems after it last grew
+
+
 Sink = Callable[[Reading], None]
 
 
@@ -69,6 +82,9 @@ class SensorHealth:
     last_error: str = ""
     last_sample_mono_ns: int | None = None
     heartbeat_mono_ns: int = 0
+    incidents: dict[str, int] = field(default_factory=dict)  # totals since start, by kind
+    last_incident: str = ""
+    last_incident_mono_ns: int | None = None
     _recent: deque[int] = field(default_factory=lambda: deque(maxlen=2048))
 
     def measured_rate_hz(self, now_ns: int, window_s: float = 10.0) -> float:
@@ -83,7 +99,16 @@ class SensorHealth:
         return {"name": self.name, "state": self.state, "rate_hz": self.rate_hz,
                 "measured_rate_hz": round(self.measured_rate_hz(now_ns), 3), "last_sample_age_s": age,
                 "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
-                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error}
+                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error,
+                "incidents": dict(self.incidents), "last_incident": self.last_incident,
+                "last_incident_age_s": (now_ns - self.last_incident_mono_ns) / 1e9
+                if self.last_incident_mono_ns is not None else None}
+
+    def recent_incident(self, now_ns: int) -> str | None:
+        """The last incident while it is fresh enough to be a present problem."""
+        if self.last_incident_mono_ns is None or now_ns - self.last_incident_mono_ns > INCIDENT_SHOW_S * 1e9:
+            return None
+        return self.last_incident
 
 
 class Sampler(threading.Thread):
@@ -109,6 +134,7 @@ class Sampler(threading.Thread):
         # Which readings are this sensor's samples for rates and gaps (a receiver also sends time pulses).
         self._sample_topic: str | None = getattr(source, "sample_topic", None)
         self._suppressed = 0
+        self._incident_base: dict[str, int] | None = None  # counts of the device opened now, at its first read
 
     # The thread body: open, sample until an error, back off, reopen.
     def run(self) -> None:
@@ -118,7 +144,11 @@ class Sampler(threading.Thread):
             self.health.heartbeat_mono_ns = self.tb.monotonic_ns()
             try:
                 self.source.open()
-            except SensorError as exc:
+            except Exception as exc:  # drivers raise SensorError; anything else must not end the thread either
+                if not isinstance(exc, SensorError):
+                    log.debug("%s: unexpected error while opening", self.source.name, exc_info=True)
+                    exc = SensorError(f"cannot open: {type(exc).__name__}: {exc}")
+                self._close()
                 self._failed(exc, missing=not opened_once or isinstance(exc, DeviceNotFound))
                 if self.tb.wait(self.stop_event, backoff):
                     break
@@ -128,6 +158,7 @@ class Sampler(threading.Thread):
                 self.health.reconnects += 1
                 self._log(f"back after: {self.health.last_error or 'an error'}")
             opened_once = True
+            self._incident_base = None
             self.health.state = "ok"
             backoff = self.BACKOFF_START_S
             try:
@@ -181,7 +212,9 @@ class Sampler(threading.Thread):
             readings = self.source.read()
         except NoData as exc:
             self._failed(exc, missing=False, state="no-data")
+            self._check_incidents()
             return
+        self._check_incidents()
         if self.health.state != "ok":
             self.health.state = "ok"
         self._deliver(readings)
@@ -198,6 +231,27 @@ class Sampler(threading.Thread):
                 h._recent.append(r.t_mono_ns)
                 h.samples += 1
             self.sink(r)
+
+    def _check_incidents(self) -> None:
+        """Count what the device recovered from by itself; the first read after an open sets the base, since
+        a line opened mid-frame or an adapter's start-up is not a fault."""
+        counts_of = getattr(self.source, "incidents", None)
+        if counts_of is None:
+            return
+        counts = counts_of()
+        base = self._incident_base
+        self._incident_base = dict(counts)
+        if base is None:
+            return
+        h = self.health
+        for kind, count in counts.items():
+            new = count - base.get(kind, 0)
+            if new <= 0:
+                continue
+            total = h.incidents[kind] = h.incidents.get(kind, 0) + new
+            h.last_incident = f"{kind}: {new} more ({total} since start)"
+            h.last_incident_mono_ns = self.tb.monotonic_ns()
+            self._log(h.last_incident)
 
     def _failed(self, exc: SensorError, missing: bool, state: str | None = None) -> None:
         h = self.health

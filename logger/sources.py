@@ -167,6 +167,10 @@ class ObdSource:
         return [Reading("/obd/speed", {"speed_kmh": s.speed_kmh, "speed_mps": round(s.speed_mps, 4), "ecu": ecu,
                                        "interface": self.interface}, (t0 + t1) // 2)]
 
+    def incidents(self) -> dict[str, int]:
+        resets = getattr(self.driver, "resets_seen", None)
+        return {} if resets is None else {"ELM327 reset itself and was set up again": resets}
+
     def close(self) -> None:
         _close_quietly(self.driver)
         self.driver = None
@@ -242,6 +246,13 @@ class GnssSource:
                                                        "week": item.week, "qerr_ps": item.qerr_ps,
                                                        "time_base": item.time_base}, t))
         return out
+
+    def incidents(self) -> dict[str, int]:
+        framer = getattr(self.receiver, "framer", None)
+        if framer is None:
+            return {}
+        return {"bytes of garbage on the serial line": framer.garbage_bytes,
+                "frames with a bad checksum": framer.bad_checksum}
 
     def close(self) -> None:
         _close_quietly(self.receiver)

@@ -132,6 +132,9 @@ def render(snap: dict[str, Any]) -> str:
         rate = f"{h['measured_rate_hz']:.1f}/{h['rate_hz']:g}" if h.get("rate_hz") else f"{h['measured_rate_hz']:.1f}"
         lines.append(f"  {h['name']:<8} {h['state']:<9} {rate:>12} {_age(h['last_sample_age_s']):>7} "
                      f"{h['errors']:>6} {h['gaps']:>5} {h['late']:>5} {h['reconnects']:>6}  {h['last_error']}")
+    for h in snap.get("sensors", []):
+        for kind, count in (h.get("incidents") or {}).items():
+            lines.append(f"  {h['name']:<8} {kind}: {count} since start")
     sync = snap.get("sync")
     if sync:
         lines.append("")

@@ -170,7 +170,9 @@ class PpsClock:
             step = predicted - new
             if state_before == HOLDOVER:
                 self.counts["relocks"] += 1
-                log.info("PPS back after %.1f s: holdover was %+.1f us off", gap_s, step / 1e3)
+                # Short dropouts (a shaded antenna, a bridge) are routine in a car: the journal keeps the long ones.
+                log.log(logging.INFO if gap_s >= 60.0 else logging.DEBUG,
+                        "PPS back after %.1f s: holdover was %+.1f us off", gap_s, step / 1e3)
             # Whatever the new fit says, published time moves on continuously: slew the difference out.
             self._slew_from_ns = edge_ns
             self._slew_ns = step

@@ -136,3 +136,13 @@ def test_time_scale_needs_every_sensor_simulated(tmp_path: Path, capsys) -> None
     p.write_text(GOOD + "\n[sim]\ntime_scale = 10\n")
     assert main(["run", "--config", str(p)]) == 2
     assert "needs every sensor simulated" in capsys.readouterr().err
+
+
+def test_files_too_long_for_the_boards_memory_are_refused() -> None:
+    # A day per file at the default 1 s flush: 86400 chunk indexes held in memory until the file closes.
+    with pytest.raises(ConfigError) as err:
+        parse("[recorder]\nrotate_duration_s = 86400\n", "logger.toml", sim=True)
+    (msg,) = err.value.problems
+    assert msg.startswith("logger.toml:2: recorder.rotate_duration_s / flush_interval_s makes 86400 chunks per file")
+    cfg = parse("[recorder]\nrotate_duration_s = 86400\nflush_interval_s = 10\n", "logger.toml", sim=True)
+    assert cfg["recorder"]["rotate_duration_s"] == 86400

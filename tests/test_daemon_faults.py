@@ -106,12 +106,16 @@ def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running
     for _ in range(3):
         vehicle.gnss.inject_garbage(400)
     wait_for("fixes through garbage", lambda: daemon.recorder.status().written.get("/gnss/fix", 0) > fixes_before + 3)
+    wait_for("garbage reported", lambda: any(p.startswith("gnss: bytes of garbage") for p in fetch(sock)["problems"]))
+    assert sensor(fetch(sock), "gnss")["incidents"]["bytes of garbage on the serial line"] >= 400
 
     # 5. The ELM327 resets mid-drive (a voltage dip): the driver sets it up again and speed keeps coming.
     obd_before = samples(daemon)["obd"]
     vehicle.elm327.reset()
     wait_for("speed after reset", lambda: samples(daemon)["obd"] > obd_before + 6)
     assert sensor(fetch(sock), "obd")["state"] == "ok"
+    wait_for("reset reported", lambda: any(p.startswith("obd: ELM327 reset itself") for p in fetch(sock)["problems"]))
+    assert sensor(fetch(sock), "obd")["incidents"] == {"ELM327 reset itself and was set up again": 1}
 
     # 6. The disk fills up: recording stops with a clear, critical status; the sensors keep sampling; when
     #    space is back, a new file starts. The file that was open is finished, not corrupted.

@@ -135,3 +135,54 @@ def test_no_data_keeps_the_device_open_and_the_schedule() -> None:
     assert len(out) == 30 and s.health.gaps == 1
     t = [r.t_mono_ns for r in out]
     assert all((b - t[0]) % 500_000_000 == 0 for b in t)  # still on the 2 Hz grid
+
+
+class Resetting(Scripted):
+    """An adapter that resets itself now and then and is set up again inside the read: every read succeeds."""
+
+    def __init__(self, tb: VirtualTime, resets_at: dict[int, int], **kw: object) -> None:
+        super().__init__(tb, **kw)  # type: ignore[arg-type]
+        self.resets_at = resets_at
+        self.resets = 0
+
+    def open(self) -> None:
+        super().open()
+        self.resets = 2  # counted while the device was being opened: start-up, not a fault
+
+    def read(self) -> list[Reading]:
+        self.resets += self.resets_at.get(self.n, 0)
+        return super().read()
+
+    def incidents(self) -> dict[str, int]:
+        return {"adapter resets": self.resets}
+
+
+def test_incidents_inside_successful_reads_are_counted_and_shown_while_fresh() -> None:
+    tb = VirtualTime()
+    src = Resetting(tb, resets_at={10: 1, 30: 2}, fail_at={20}, limit=50)
+    s, _ = _run(src, 2.0)
+    h = s.health
+    # 1 at read 10, 2 at read 30; the counts present at each (re)open are not faults.
+    assert h.incidents == {"adapter resets": 3}
+    assert h.last_incident == "adapter resets: 2 more (3 since start)"
+    assert h.recent_incident(h.last_incident_mono_ns) == h.last_incident
+    later = h.last_incident_mono_ns + int(31e9)
+    assert h.recent_incident(later) is None
+    assert h.snapshot(later)["incidents"] == {"adapter resets": 3}
+
+
+class BrokenOpen(Scripted):
+    """A driver whose open fails with something other than a SensorError (a library's own exception)."""
+
+    def open(self) -> None:
+        super().open()
+        if self.opens <= 2:
+            raise ValueError("unexpected reply 0xFF")
+
+
+def test_an_unexpected_error_while_opening_is_retried_not_fatal() -> None:
+    tb = VirtualTime()
+    src = BrokenOpen(tb, limit=5)
+    s, out = _run(src, 2.0)
+    assert src.opens == 3 and len(out) == 5
+    assert s.health.errors == 2 and "ValueError: unexpected reply 0xFF" in s.health.last_error
