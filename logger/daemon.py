@@ -209,7 +209,7 @@ class Daemon:
         for s, snap in zip(self.samplers, sensors, strict=True):
             if snap["state"] != "ok":
                 problems.append(f"{snap['name']}: {snap['state']}: {snap['last_error']}")
-            elif (now - s.health.heartbeat_mono_ns) / 1e9 > HEARTBEAT_STALE_S:
+            elif (now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale > HEARTBEAT_STALE_S:  # real seconds
                 problems.append(f"{snap['name']}: thread not responding")
             elif snap["rate_hz"] and snap["last_sample_age_s"] is not None and \
                     snap["last_sample_age_s"] > 3.0 / snap["rate_hz"] + 1.0:

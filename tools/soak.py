@@ -224,7 +224,9 @@ class Injector:
             for _ in range(3):
                 self.v.gnss.inject_garbage(400)
 
-        self._fault("gnss_garbage", burst, None, 5.0, lambda s: self.problem(s, "gnss:"))
+        # The bytes wait in the line until the receiver's thread reads them: the fault lasts until then.
+        self._fault("gnss_garbage", burst, None, 5.0, lambda s: self.problem(s, "gnss:"),
+                    lambda s: self.problem(s, "gnss:") is not None)
 
     def elm327_reset(self) -> None:
         self._fault("elm327_reset", self.v.elm327.reset, None, 5.0, lambda s: self.problem(s, "obd:"),
