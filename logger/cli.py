@@ -24,6 +24,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("logger.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
     "replay": ("logger.replay_cmd", "run the navigation filter over recorded drives: trajectory CSV and MCAP"),
     "recover": ("logger.recover_cmd", "make a file cut short by a crash readable and indexed again"),
+    "export": ("logger.export_cmd", "a drive's /gnss/fix and /nav/fix as GPX, KML and CSV"),
+    "plot": ("logger.plot_cmd", "PNG plots of a drive: map, sensor rates and gaps, clock sync state"),
 }
 
 

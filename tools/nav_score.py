@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -171,25 +170,20 @@ def format_score(name: str, s: Score) -> str:
 
 
 def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], truth: Truth) -> list[Path]:
-    try:
-        import matplotlib
+    from logger.plotting import PlotsUnavailable, local_en, pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("matplotlib is not installed (pip install -e '.[plots]'): no plots", file=sys.stderr)
+    try:
+        plt = pyplot()
+    except PlotsUnavailable as exc:
+        print(f"{exc}: no plots", file=sys.stderr)
         return []
     out_dir.mkdir(parents=True, exist_ok=True)
     lat0, lon0, h0 = float(truth.lat[0]), float(truth.lon[0]), float(truth.h[0])
-    rm, rn = earth.radii(lat0)
     written = []
     fig, ax = plt.subplots(figsize=(8, 8))
-    ax.plot((truth.lon - lon0) * (rn + h0) * math.cos(lat0), (truth.lat - lat0) * (rm + h0), "k-", lw=2.5,
-            alpha=0.35, label="truth")
+    ax.plot(*local_en(truth.lat, truth.lon, lat0, lon0, h0), "k-", lw=2.5, alpha=0.35, label="truth")
     for name, (traj, _) in named.items():
-        lat = np.radians(traj["lat_deg"])
-        lon = np.radians(traj["lon_deg"])
-        ax.plot((lon - lon0) * (rn + h0) * math.cos(lat0), (lat - lat0) * (rm + h0),
+        ax.plot(*local_en(np.radians(traj["lat_deg"]), np.radians(traj["lon_deg"]), lat0, lon0, h0),
                 "." if name.startswith("gnss") else "-", ms=2, lw=0.8, label=name)
     ax.set_xlabel("east, m")
     ax.set_ylabel("north, m")

@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # logger.plotting, without installing the tree
+
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
 NS = 1_000_000_000
 
@@ -173,11 +175,9 @@ def render(out: dict) -> str:
 
 
 def plots(drive: Drive, out_dir: Path) -> list[Path]:
-    import matplotlib
+    from logger.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
     imu = drive.topics.get("/imu", [])
     t0 = imu[0]["t_mono_ns"] if imu else 0
@@ -226,12 +226,13 @@ def main(argv: list[str] | None = None) -> int:
     out = report(drive)
     print(json.dumps(out, indent=1) if args.json else render(out))
     if args.png_dir:
+        from logger.plotting import PlotsUnavailable
+
         try:
             for p in plots(drive, args.png_dir):
                 print(f"wrote {p}")
-        except ImportError:
-            print("matplotlib is not installed: pip install matplotlib (or apt install python3-matplotlib)",
-                  file=sys.stderr)
+        except PlotsUnavailable as exc:
+            print(exc, file=sys.stderr)
             return 1
     return 0
 

@@ -1,0 +1,138 @@
+"""``logger export FILE... --out DIR``: a drive's positions as GPX, KML and CSV, for maps and spreadsheets.
+
+Takes the files of one drive (rotated files in any order, a last file cut short by a power failure) and the
+``trajectory.mcap`` of ``logger replay``; exports the receiver's ``/gnss/fix``, the live ``/nav/fix`` the daemon
+recorded, and each replayed ``/nav/fix`` as tracks of their own. Only valid positions are written, and a
+track is split wherever fixes were missing or invalid (see :mod:`logger.tracks`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+from logger.drive_reader import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
+from logger.export_formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
+from logger.tracks import EXPORT_TOPICS, Track, build_tracks
+
+FORMATS = ("gpx", "kml", "csv")
+
+
+class UsageError(Exception):
+    """Bad arguments: one line for the user."""
+
+
+def drive_name(paths: list[Path]) -> str:
+    """The name of the outputs: the first file's stem without the rotation number (``drive_..._0001``)."""
+    return re.sub(r"_\d{4}$", "", paths[0].stem) or "drive"
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="logger export", description="export a drive's positions to GPX, KML and CSV")
+    p.add_argument("files", nargs="+", type=Path, metavar="FILE",
+                   help="MCAP files of one drive (rotated files, a cut file) and/or logger replay's trajectory.mcap")
+    p.add_argument("--out", required=True, type=Path, help="folder for the exported files")
+    p.add_argument("--format", default="gpx,kml,csv", help="comma-separated: gpx, kml, csv (default: all three)")
+    p.add_argument("--topic", action="append", dest="topics", metavar="TOPIC",
+                   help="/gnss/fix or /nav/fix; repeat for both (default: both)")
+    p.add_argument("--height", choices=HEIGHTS, default="ellipsoid",
+                   help="GPX <ele> and KML altitude: ellipsoid (as recorded, default) or msl (through the "
+                        "receiver's geoid separation)")
+    p.add_argument("--gap", type=float, default=3.0, metavar="S",
+                   help="start a new segment after this many seconds without a position (default 3)")
+    p.add_argument("--every", type=float, default=0.0, metavar="S",
+                   help="keep at most one point per S seconds of each track (default: every point)")
+    p.add_argument("--gap-marks", action="store_true", help="KML: a placemark where each gap starts")
+    return p.parse_args(argv)
+
+
+def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    formats = [f.strip().lower() for f in args.format.split(",") if f.strip()]
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise UsageError(f"--format {args.format!r}: choose from {', '.join(FORMATS)} (comma-separated)")
+    topics = args.topics or list(EXPORT_TOPICS)
+    bad = [t for t in topics if t not in EXPORT_TOPICS]
+    if bad:
+        raise UsageError(f"--topic {bad[0]}: only {' and '.join(EXPORT_TOPICS)} hold positions")
+    if not 0 < args.gap < 1e6:
+        raise UsageError(f"--gap {args.gap:g}: must be a positive number of seconds")
+    if not 0 <= args.every < 1e6:
+        raise UsageError(f"--every {args.every:g}: must be zero or a positive number of seconds")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    return formats, topics
+
+
+def plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def summary(t: Track) -> str:
+    longest = max((g.duration_s for g in t.gaps), default=0.0)
+    skipped = ", ".join(f"{reason} {n}" for reason, n in t.skipped.most_common())
+    return (f"{t.label}: {plural(t.n_points, 'point')} in {plural(len(t.segments), 'segment')} from "
+            f"{plural(t.messages, 'message')}"
+            + (f", {plural(len(t.gaps), 'gap')} (longest {longest:.1f} s)" if t.gaps else "")
+            + (f"; skipped: {skipped}" if skipped else ""))
+
+
+def export(files: list[DriveFile], out: Path, formats: list[str], topics: list[str], height: str,
+           gap_s: float, every_s: float, gap_marks: bool) -> tuple[list[Track], list[Path]]:
+    """Read, build and write; returns the tracks written and the files made."""
+    tracks = build_tracks(iter_messages(files, EXPORT_TOPICS), files, gap_s, every_s)
+    chosen = [t for t in tracks if t.topic in topics and t.n_points]
+    if not chosen:
+        return [t for t in tracks if t.topic in topics], []
+    out.mkdir(parents=True, exist_ok=True)
+    name = drive_name([f.path for f in files])
+    written = []
+    if "gpx" in formats:
+        written.append(out / f"{name}.gpx")
+        write_gpx(written[-1], chosen, height, name)
+    if "kml" in formats:
+        written.append(out / f"{name}.kml")
+        write_kml(written[-1], chosen, height, name, gap_marks)
+    if "csv" in formats:
+        for t in chosen:
+            written.append(out / f"{name}_{t.key}.csv")
+            write_csv(written[-1], t)
+    return chosen, written
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    try:
+        formats, topics = check_args(args)
+        files = open_drive(args.files)
+    except (UsageError, DriveFileError) as exc:
+        print(f"logger export: {exc}", file=sys.stderr)
+        return 2
+    for line in cut_notes(files):
+        print(f"logger export: {line}", file=sys.stderr)
+    try:
+        chosen, written = export(files, args.out, formats, topics, args.height, args.gap, args.every, args.gap_marks)
+    except DriveFileError as exc:
+        print(f"logger export: {exc}", file=sys.stderr)
+        return 2
+    names = ", ".join(str(f) for f in args.files)
+    if not written:
+        if not chosen:
+            print(f"logger export: no {' or '.join(topics)} messages in {names}", file=sys.stderr)
+        else:
+            print(f"logger export: no valid position to export in {names} ("
+                  + "; ".join(summary(t) for t in chosen) + ")", file=sys.stderr)
+        return 2
+    for topic in topics:
+        if not any(t.topic == topic for t in chosen):
+            print(f"logger export: note: no valid {topic} in these files", file=sys.stderr)
+    for t in chosen:
+        print(summary(t))
+    if args.height == "msl" and any(p.h_msl_m is None for t in chosen for p in t.points):
+        print(f"logger export: note: some points have no {HEIGHT_TEXT['msl']} (no receiver fix to take the geoid "
+              "from): written without a height", file=sys.stderr)
+    for p in written:
+        print(f"wrote {p}")
+    return 0

@@ -1,0 +1,184 @@
+"""``logger plot FILE... --out DIR``: a drive at a glance as PNG files.
+
+- ``NAME_map.png``: the receiver's valid fixes against the filter's ``/nav/fix`` (live, and any replay given),
+  in equal-aspect metres east and north of the first position, each track broken where it has gaps.
+- ``NAME_rates.png``: per sensor topic, the message rate over time, messages lost (``seq`` jumps) and gaps in
+  the acquisition stamps.
+- ``NAME_sync.png``: the clock's state and error bound over time, from ``/sync`` and from the sync fields
+  every stamped message carries, and the offset measured at each PPS edge.
+
+Needs matplotlib (the ``plots`` extra); without it the command says how to install it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from logger.drive_reader import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
+from logger.export_cmd import drive_name, plural
+from logger.export_formats import utc_iso
+from logger.plotting import PlotsUnavailable, local_en, pyplot
+from logger.topic_timing import STAMPED_TOPICS, TopicTiming, timings
+from logger.tracks import EXPORT_TOPICS, Track, build_tracks
+
+STATES = ("freerun", "holdover", "locked")
+DPI = 110
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="logger plot", description="PNG plots of a drive: map, rates and gaps, sync")
+    p.add_argument("files", nargs="+", type=Path, metavar="FILE",
+                   help="MCAP files of one drive (rotated files, a cut file) and/or logger replay's trajectory.mcap")
+    p.add_argument("--out", required=True, type=Path, help="folder for the PNG files")
+    return p.parse_args(argv)
+
+
+def _seconds(log_ns: np.ndarray | list[int], t0_ns: int) -> np.ndarray:
+    return (np.asarray(log_ns, dtype=np.int64) - t0_ns) / 1e9
+
+
+def nice_step(x: float) -> float:
+    """The smallest 1, 2 or 5 times a power of ten that is at least ``x``."""
+    power = 10.0 ** math.floor(math.log10(x))
+    return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= x * (1 - 1e-9))
+
+
+def draw_map(plt: Any, tracks: list[Track], path: Path) -> Path | None:
+    pts = [p for t in tracks for p in t.points]
+    if not pts:
+        return None
+    lat0, lon0 = math.radians(pts[0].lat_deg), math.radians(pts[0].lon_deg)
+    fig, ax = plt.subplots(figsize=(8, 8))
+    for i, t in enumerate(tracks):
+        colour = f"C{i}"
+        for k, seg in enumerate(t.segments):
+            east, north = local_en(np.radians([p.lat_deg for p in seg]), np.radians([p.lon_deg for p in seg]),
+                                   lat0, lon0)
+            label = f"{t.label}: {plural(t.n_points, 'point')}, {plural(len(t.gaps), 'gap')}" if k == 0 else None
+            if t.topic == "/gnss/fix":
+                ax.plot(east, north, ".", ms=3, color=colour, label=label)
+            else:
+                ax.plot(east, north, "-", lw=1.0, color=colour, label=label)
+        for g in t.gaps:
+            east, north = local_en(np.radians([g.before.lat_deg, g.after.lat_deg]),
+                                   np.radians([g.before.lon_deg, g.after.lon_deg]), lat0, lon0)
+            ax.plot(east, north, ":", lw=0.8, color=colour)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east, m")
+    ax.set_ylabel("north, m")
+    ax.set_title(f"drive from {pts[0].lat_deg:.6f}, {pts[0].lon_deg:.6f} (dotted: gaps, not driven as drawn)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def draw_rates(plt: Any, tim: dict[str, TopicTiming], t0_ns: int, span_s: float, path: Path) -> Path:
+    base_bin_s = max(1.0, span_s / 400.0)
+    fig, axes = plt.subplots(len(tim), 1, figsize=(11, 1.9 * len(tim) + 0.8), sharex=True, squeeze=False)
+    for ax, tt in zip(axes[:, 0], tim.values(), strict=True):
+        bin_s = nice_step(max(base_bin_s, 5.0 * tt.median_interval_s))  # several messages a bin, not jitter
+        x, rate = tt.rate(t0_ns, bin_s)
+        ax.step(x, rate, where="mid", lw=0.9, color="C0")
+        for g in tt.gaps:
+            ax.axvspan((g.before_ns - t0_ns) / 1e9, (g.after_ns - t0_ns) / 1e9, color="C1", alpha=0.35, lw=0)
+        if tt.lost:
+            xs = _seconds([t for t, _ in tt.lost], t0_ns)
+            top = float(rate.max()) if len(rate) else 1.0
+            ax.plot(xs, np.full(len(xs), top), "v", color="C3", ms=6)
+            for x_lost, (_, n) in zip(xs, tt.lost, strict=True):
+                ax.annotate(f"-{n}", (x_lost, top), textcoords="offset points", xytext=(3, -10), fontsize=7,
+                            color="C3")
+        for r in tt.restarts:
+            ax.axvline((r - t0_ns) / 1e9, color="k", lw=0.8, ls="--")
+        ax.set_ylabel(f"Hz ({bin_s:g} s bins)")
+        ax.set_title(tt.summary(), fontsize=8, loc="left")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel(f"s since {utc_iso(t0_ns)} (orange: gaps in the stamps, red: messages lost by seq, "
+                           "dashed: restart)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t0_ns: int, path: Path) -> Path:
+    fig, (ax_state, ax_err, ax_off) = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    level = {s: i for i, s in enumerate(STATES)}
+    if sync:
+        xs = _seconds([m.log_time for m in sync], t0_ns)
+        ax_state.step(xs, [level.get(m.msg.get("state"), -1) for m in sync], where="post", lw=1.5, color="k",
+                      label="/sync state")
+        err_us = np.array([m.msg.get("err_ns", 0) for m in sync], dtype=float) / 1e3
+        ax_err.plot(xs, np.maximum(err_us, 1e-3), "k-", lw=1.5, label="/sync err_ns")
+        # offset_ns is the last edge's: a report more than a second after its edge repeats an old value
+        off = [(x, m.msg["offset_ns"] / 1e3) for x, m in zip(xs, sync, strict=True)
+               if m.msg.get("offset_ns") is not None and (m.msg.get("since_edge_s") or 0.0) <= 1.0]
+        if off:
+            ax_off.plot([o[0] for o in off], [o[1] for o in off], ".-", ms=3, lw=0.6, color="k")
+    for i, tt in enumerate(tim.values()):
+        xs = _seconds(tt.log_ns, t0_ns)
+        ax_state.plot(xs, [level.get(s, -1) + 0.06 * (i + 1) for s in tt.sync_state], ".", ms=1.5,
+                      color=f"C{i}", label=f"{tt.topic} sync_state")
+        ax_err.plot(xs, np.maximum(tt.sync_err_ns / 1e3, 1e-3), ".", ms=1.5, color=f"C{i}",
+                    label=f"{tt.topic} sync_err_ns")
+    ax_state.set_yticks(range(len(STATES)), STATES)
+    ax_state.set_ylim(-0.5, len(STATES) - 0.1)
+    ax_state.set_title("clock state (per-message states drawn a little above their level)", fontsize=9, loc="left")
+    ax_state.legend(fontsize=7, ncol=4, loc="lower right", markerscale=4)
+    ax_err.set_yscale("log")
+    ax_err.set_ylabel("error bound, us")
+    ax_err.legend(fontsize=7, ncol=4, loc="upper right", markerscale=4)
+    ax_off.set_ylabel("offset at PPS edge, us")
+    ax_off.set_xlabel(f"s since {utc_iso(t0_ns)}")
+    for ax in (ax_state, ax_err, ax_off):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    try:
+        plt = pyplot()
+        files = open_drive(args.files)
+        if args.out.exists() and not args.out.is_dir():
+            raise DriveFileError(f"--out {args.out}: exists and is not a folder")
+        messages = list(iter_messages(files, (*STAMPED_TOPICS, "/sync", *EXPORT_TOPICS)))
+    except (PlotsUnavailable, DriveFileError) as exc:
+        print(f"logger plot: {exc}", file=sys.stderr)
+        return 2
+    for line in cut_notes(files):
+        print(f"logger plot: {line}", file=sys.stderr)
+    if not messages:
+        print(f"logger plot: nothing to plot in {', '.join(map(str, args.files))}: no sensor, /sync or position "
+              "topics", file=sys.stderr)
+        return 2
+    tracks = build_tracks(messages, files)
+    tim = timings(messages)
+    sync = [m for m in messages if m.topic == "/sync"]
+    t0 = messages[0].log_time
+    span_s = (messages[-1].log_time - t0) / 1e9
+    args.out.mkdir(parents=True, exist_ok=True)
+    name = drive_name([f.path for f in files])
+    written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
+    if tim:
+        written.append(draw_rates(plt, tim, t0, span_s, args.out / f"{name}_rates.png"))
+    if tim or sync:
+        written.append(draw_sync(plt, sync, tim, t0, args.out / f"{name}_sync.png"))
+    for tt in tim.values():
+        print(tt.summary())
+    for p in written:
+        if p is not None:
+            print(f"wrote {p}")
+    return 0

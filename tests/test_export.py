@@ -1,0 +1,320 @@
+"""``logger export`` on a drive recorded by the real daemon, checked against the messages read back from it.
+
+The drive: the simulated vehicle through the whole daemon (drivers, device models, recorder, live navigator),
+with a short GNSS outage near its end and the recorder rotating files every minute, then ``logger replay`` over
+it. Also here: the Python reading example of docs/foxglove.md (run as written on a recorded file) and the
+Foxglove message paths that guide gives (checked against the topic schemas).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import datetime as dt
+import io
+import itertools
+import json
+import re
+import subprocess
+import sys
+import threading
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from logger.config import defaults
+from logger.export_cmd import drive_name
+from logger.mcap_files import is_finished, walk
+from logger.run_cmd import build
+from logger.topics import TOPICS
+
+ROOT = Path(__file__).resolve().parents[1]
+GPX = "{http://www.topografix.com/GPX/1/1}"
+KML = "{http://www.opengis.net/kml/2.2}"
+XSI = "{http://www.w3.org/2001/XMLSchema-instance}"
+# GPX 1.1 wptType: its children in the order the schema's <xsd:sequence> requires
+WPT_ORDER = ("ele", "time", "magvar", "geoidheight", "name", "cmt", "desc", "src", "link", "sym", "type", "fix",
+             "sat", "hdop", "vdop", "pdop", "ageofdgpsdata", "dgpsid", "extensions")
+DURATION_S, OUTAGE_S, TIME_SCALE = 155.0, 8.0, 12.0  # the outage starts about 138 s into the drive
+
+
+@dataclass
+class Drive:
+    files: list[Path]  # finished, rotated
+    cut: Path  # a copy of the last file as a power cut leaves it
+    replay: Path  # logger replay's trajectory.mcap
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Drive:
+    base = tmp_path_factory.mktemp("export")
+    cfg = defaults(sim=True)
+    cfg.values["logger"].update(out_dir=str(base / "rec"), status_socket=str(base / "status.sock"),
+                                state_dir=str(base / "state"))
+    cfg.values["sim"].update(scenario="outage-60s", seed=3, time_scale=TIME_SCALE)
+    cfg.values["recorder"]["rotate_duration_s"] = 60.0
+    daemon, _ = build(cfg, DURATION_S, scenario_options={"outage_s": OUTAGE_S})
+    runner = threading.Thread(target=daemon.run, args=(DURATION_S,), daemon=True)  # no signal handlers off main
+    runner.start()
+    runner.join(120)
+    assert not runner.is_alive()
+    files = sorted((base / "rec").glob("*.mcap"))
+    assert len(files) >= 3 and all(is_finished(f) for f in files)
+    cut = base / "cut" / files[-1].name
+    cut.parent.mkdir()
+    data = files[-1].read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    r = run("replay", *map(str, files), "--out", str(base / "replay"))
+    assert r.returncode == 0, r.stderr
+    return Drive(files, cut, base / "replay" / "trajectory.mcap")
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "logger.cli", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+
+
+def recorded(paths: list[Path], topic: str) -> list[tuple[int, dict]]:
+    """(log_time, message) of a topic: the mcap package's reader for finished files, recovery's walk for a cut."""
+    out = []
+    for p in paths:
+        if is_finished(p):
+            with open(p, "rb") as f:
+                out += [(m.log_time, json.loads(m.data)) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+        else:
+            found = walk(p)
+            ids = {cid for cid, ch in found.channels.items() if ch.topic == topic}
+            out += [(m.log_time, json.loads(m.data)) for m in found.messages if m.channel_id in ids]
+    return sorted(out, key=lambda x: x[0])
+
+
+def valid_fix(m: dict) -> bool:
+    return bool(m["fix_ok"]) and m["fix_mode"] == 3
+
+
+def epoch_ns(m: dict) -> int:
+    return m["timestamp"]["sec"] * 1_000_000_000 + m["timestamp"]["nsec"]
+
+
+def iso_ns(text: str) -> int:
+    assert text.endswith("Z") and re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", text), text
+    t = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    return int(t.timestamp()) * 1_000_000_000 + t.microsecond * 1000
+
+
+def gpx_tracks(path: Path) -> dict[str, list[list[ET.Element]]]:
+    """Track name -> segments -> trkpt elements, after checking the document's frame."""
+    root = ET.parse(path).getroot()
+    assert root.tag == f"{GPX}gpx" and root.get("version") == "1.1" and root.get("creator")
+    assert root.get(f"{XSI}schemaLocation") == "http://www.topografix.com/GPX/1/1 http://www.topografix.com/GPX/1/1/gpx.xsd"
+    assert next(iter(root)).tag == f"{GPX}metadata"
+    out = {}
+    for trk in root.findall(f"{GPX}trk"):
+        out[trk.findtext(f"{GPX}name")] = [seg.findall(f"{GPX}trkpt") for seg in trk.findall(f"{GPX}trkseg")]
+        for seg in out[trk.findtext(f"{GPX}name")]:
+            for pt in seg:
+                names = [c.tag.removeprefix(GPX) for c in pt]
+                assert [WPT_ORDER.index(n) for n in names] == sorted(WPT_ORDER.index(n) for n in names), names
+    bounds = root.find(f"{GPX}metadata/{GPX}bounds")
+    pts = [p for segs in out.values() for s in segs for p in s]
+    assert bounds is not None and pts
+    assert float(bounds.get("minlat")) == min(float(p.get("lat")) for p in pts)
+    assert float(bounds.get("maxlon")) == max(float(p.get("lon")) for p in pts)
+    return out
+
+
+def test_gpx_holds_every_valid_fix_split_at_the_outage(drive: Drive, tmp_path: Path) -> None:
+    r = run("export", *map(str, drive.files), drive.replay.as_posix(), "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    name = drive_name(drive.files)
+    tracks = gpx_tracks(tmp_path / f"{name}.gpx")
+    assert list(tracks) == ["/gnss/fix", "/nav/fix", f"/nav/fix (replay: {drive.replay.name})"]
+
+    fixes = recorded(drive.files, "/gnss/fix")
+    valid = [i for i, (_, m) in enumerate(fixes) if valid_fix(m)]
+    assert len(valid) < len(fixes) - 3, "the drive should hold a GNSS outage"
+    segs = tracks["/gnss/fix"]
+    pts = [p for s in segs for p in s]
+    assert len(pts) == len(valid)
+    for pt, i in zip(pts, valid, strict=True):
+        m = fixes[i][1]
+        assert abs(float(pt.get("lat")) - m["latitude"]) < 1e-9 and abs(float(pt.get("lon")) - m["longitude"]) < 1e-9
+        assert abs(float(pt.findtext(f"{GPX}ele")) - m["altitude"]) < 1e-3  # ellipsoidal by default
+        assert abs(iso_ns(pt.findtext(f"{GPX}time")) - epoch_ns(m)) <= 500_000  # the receiver's epoch, to 1 ms
+        assert pt.findtext(f"{GPX}fix") == "3d" and int(pt.findtext(f"{GPX}sat")) == m["num_sv"]
+        assert (float(pt.get("lat")), float(pt.get("lon"))) != (0.0, 0.0)
+    # Within a segment: consecutive epochs, no invalid one between; between segments: an invalid one or 3 s.
+    pos = 0
+    for k, seg in enumerate(segs):
+        idx = valid[pos:pos + len(seg)]
+        assert all(b - a == 1 for a, b in itertools.pairwise(idx)), "a segment joins across a bad fix"
+        if k:
+            before, after = fixes[valid[pos - 1]][1], fixes[idx[0]][1]
+            assert idx[0] - valid[pos - 1] > 1 or epoch_ns(after) - epoch_ns(before) > 3e9
+        pos += len(seg)
+    assert len(segs) >= 2
+
+    live = [m for _, m in recorded(drive.files, "/nav/fix")]
+    nav = [p for s in tracks["/nav/fix"] for p in s]
+    assert len(live) > 50 and len(nav) == len(live)
+    for p, m in zip(nav, live, strict=True):
+        assert abs(iso_ns(p.findtext(f"{GPX}time")) - m["t_sync_ns"]) <= 500_000
+    replayed = recorded([drive.replay], "/nav/fix")
+    assert sum(len(s) for s in tracks[f"/nav/fix (replay: {drive.replay.name})"]) == len(replayed) > 50
+    assert (tmp_path / f"{name}_nav_fix_replay.csv").exists()
+
+
+def test_kml_and_csv_agree_with_the_gpx(drive: Drive, tmp_path: Path) -> None:
+    r = run("export", *map(str, drive.files), "--out", str(tmp_path), "--gap-marks", "--topic", "/gnss/fix")
+    assert r.returncode == 0, r.stderr
+    name = drive_name(drive.files)
+    segs = gpx_tracks(tmp_path / f"{name}.gpx")["/gnss/fix"]
+    root = ET.parse(tmp_path / f"{name}.kml").getroot()
+    assert root.tag == f"{KML}kml"
+    (folder,) = root.findall(f"{KML}Document/{KML}Folder")
+    assert folder.findtext(f"{KML}name") == "/gnss/fix"
+    track, *gaps = folder.findall(f"{KML}Placemark")
+    geoms = list(track.find(f"{KML}MultiGeometry"))
+    assert len(geoms) == len(segs) and len(gaps) == len(segs) - 1
+    for geom, seg in zip(geoms, segs, strict=True):
+        coords = [c.split(",") for c in geom.findtext(f"{KML}coordinates").split()]
+        assert geom.tag == (f"{KML}LineString" if len(seg) > 1 else f"{KML}Point")
+        assert [(c[0], c[1]) for c in coords] == [(p.get("lon"), p.get("lat")) for p in seg]
+    for g in gaps:
+        assert re.fullmatch(r"gap \d+\.\d s", g.findtext(f"{KML}name"))
+    with open(tmp_path / f"{name}_gnss_fix.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {"lat_deg", "lon_deg", "height_ellipsoid_m", "height_msl_m", "speed_mps", "h_sigma_m",
+            "sync_err_ns"} <= set(rows[0])
+    pts = [(n, p) for n, s in enumerate(segs, 1) for p in s]
+    assert len(rows) == len(pts)
+    for row, (n, p) in zip(rows, pts, strict=True):
+        assert int(row["segment"]) == n and row["lat_deg"] == p.get("lat")
+        assert row["time_utc"] == p.findtext(f"{GPX}time")
+        assert float(row["height_ellipsoid_m"]) == float(p.findtext(f"{GPX}ele"))
+    assert not (tmp_path / f"{name}_nav_fix.csv").exists()  # --topic /gnss/fix only
+
+
+def test_msl_heights_use_the_receivers_geoid(drive: Drive, tmp_path: Path) -> None:
+    r = run("export", *map(str, drive.files), "--out", str(tmp_path), "--format", "gpx", "--height", "msl")
+    assert r.returncode == 0, r.stderr
+    tracks = gpx_tracks(tmp_path / f"{drive_name(drive.files)}.gpx")
+    fixes = [m for _, m in recorded(drive.files, "/gnss/fix") if valid_fix(m)]
+    gnss = [p for s in tracks["/gnss/fix"] for p in s]
+    for p, m in zip(gnss, fixes, strict=True):
+        assert abs(float(p.findtext(f"{GPX}ele")) - m["height_msl_m"]) < 1e-3
+        assert abs(float(p.findtext(f"{GPX}geoidheight")) - (m["altitude"] - m["height_msl_m"])) < 2e-3
+    sep = [m["altitude"] - m["height_msl_m"] for m in fixes]
+    live = [m for _, m in recorded(drive.files, "/nav/fix")]
+    for p, m in zip((p for s in tracks["/nav/fix"] for p in s), live, strict=True):
+        assert min(sep) - 1e-3 <= m["altitude"] - float(p.findtext(f"{GPX}ele")) <= max(sep) + 1e-3
+
+
+def test_a_file_cut_short_is_read_up_to_the_cut(drive: Drive, tmp_path: Path) -> None:
+    files = [*drive.files[:-1], drive.cut]
+    assert not is_finished(drive.cut)
+    r = run("export", *map(str, files), "--out", str(tmp_path), "--format", "csv")
+    assert r.returncode == 0, r.stderr
+    assert f"{drive.cut} was not closed cleanly" in r.stderr
+    from_cut = [m for _, m in recorded([drive.cut], "/gnss/fix") if valid_fix(m)]
+    whole = [m for _, m in recorded(drive.files[-1:], "/gnss/fix") if valid_fix(m)]
+    assert 0 < len(from_cut) < len(whole)
+    expected = [m for _, m in recorded(files, "/gnss/fix") if valid_fix(m)]
+    with open(tmp_path / f"{drive_name(files)}_gnss_fix.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["lat_deg"]) for r in rows] == pytest.approx([m["latitude"] for m in expected], abs=1e-9)
+
+
+def write_mcap(path: Path, topic: str, messages: list[dict]) -> None:
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel(topic, "json", w.register_schema(TOPICS[topic].schema_name, "jsonschema", b"{}"))
+        for i, m in enumerate(messages):
+            w.add_message(cid, log_time=i + 1, publish_time=i + 1, data=json.dumps(m).encode())
+        w.finish()
+
+
+def test_what_cannot_be_exported_is_one_line_and_exit_2(drive: Drive, tmp_path: Path) -> None:
+    imu_only = tmp_path / "imu.mcap"
+    write_mcap(imu_only, "/imu", [{"t_mono_ns": 1}])
+    no_fix = tmp_path / "nofix.mcap"
+    fix = recorded(drive.files[:1], "/gnss/fix")[0][1]
+    write_mcap(no_fix, "/gnss/fix", [{**fix, "fix_ok": False, "fix_mode": 1, "latitude": 0.0, "longitude": 0.0}] * 3)
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    cases = [
+        ((str(tmp_path / "missing.mcap"),), "no such file"),
+        ((str(text),), "not an MCAP file"),
+        ((str(imu_only),), "no /gnss/fix or /nav/fix messages in"),
+        ((str(no_fix),), "no valid position to export"),
+        ((str(drive.files[0]), "--format", "gpx,shp"), "--format"),
+        ((str(drive.files[0]), "--topic", "/imu"), "only /gnss/fix and /nav/fix hold positions"),
+    ]
+    for args, words in cases:
+        r = run("export", *args, "--out", str(tmp_path / "out"))
+        assert r.returncode == 2, (args, r.stderr)
+        assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_the_guides_python_example_runs_as_written(drive: Drive) -> None:
+    guide = (ROOT / "docs" / "foxglove.md").read_text()
+    code = re.search(r"```python\n(.*?)```", guide, re.S).group(1)
+    assert '"drive.mcap"' in code
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(code.replace('"drive.mcap"', repr(str(drive.files[0]))), "foxglove.md", "exec"), {})
+    lines = out.getvalue().splitlines()
+    fixes = [(t, m) for t, m in recorded(drive.files[:1], "/gnss/fix") if valid_fix(m)]
+    assert len(lines) == len(fixes) + 1 and len(fixes) > 10
+    for line, (t, m) in zip(lines, fixes, strict=False):
+        assert line.split() == [str(t), str(m["latitude"]), str(m["longitude"]), str(m["altitude"]), str(m["h_acc_m"])]
+    assert lines[-1] == "h_acc_m: " + TOPICS["/gnss/fix"].schema["properties"]["h_acc_m"]["description"]
+
+
+def test_the_guides_message_paths_exist_in_the_schemas() -> None:
+    guide = (ROOT / "docs" / "foxglove.md").read_text()
+    paths = set(re.findall(r"`(/[a-z_/]+(?:\{[^}`]*\})?(?:\.[a-z_]+(?:\[\d+\])?)+)`", guide))
+    assert len(paths) > 25
+    for path in paths:
+        topic = max((t for t in TOPICS if path.startswith(t) and path[len(t)] in ".{"), key=len)
+        props = TOPICS[topic].schema["properties"]
+        rest = path[len(topic):]
+        for field, _ in re.findall(r"\{([a-z_]+)==([^}]*)\}", rest):
+            assert field in props, path
+        for field, index in re.findall(r"\.([a-z_]+)(?:\[(\d+)\])?", re.sub(r"\{[^}]*\}", "", rest)):
+            assert field in props, path
+            if index:
+                assert "array" in props[field]["type"] and int(index) < props[field]["maxItems"], path
+
+
+def test_bad_epochs_split_the_track_and_never_become_points(drive: Drive) -> None:
+    """Fixes built from a recorded one: every kind of bad epoch the receiver can give, between good ones."""
+    from logger.drive_reader import DriveFile, DriveMessage
+    from logger.tracks import build_tracks
+
+    good = next(m for _, m in recorded(drive.files[:1], "/gnss/fix") if valid_fix(m))
+    t0 = epoch_ns(good)
+
+    def at(k: float, **change: object) -> DriveMessage:
+        t = t0 + int(k * 1e9)
+        msg = {**good, "timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000}, **change}
+        return DriveMessage(t, "/gnss/fix", 0, msg)
+
+    stream = [at(0), at(1), at(2, fix_mode=2), at(3), at(4, fix_ok=False), at(5), at(6, fix_mode=1, fix_ok=False,
+              latitude=0.0, longitude=0.0), at(7), at(8, latitude=0.0, longitude=0.0), at(9), at(9), at(13), at(14),
+              at(14.5), at(15)]
+    files = [DriveFile(drive.files[0], "live", True)]
+    (track,) = build_tracks(stream, files, gap_s=3.0)
+    times = [[round((p.t_ns - t0) / 1e9, 1) for p in seg] for seg in track.segments]
+    assert times == [[0, 1], [3], [5], [7], [9], [13, 14, 14.5, 15]]
+    assert [round(g.duration_s) for g in track.gaps] == [2, 2, 2, 2, 4]
+    assert track.skipped == {"2D fix": 1, "fix not flagged valid": 1, "no fix": 1, "no position": 1,
+                             "repeated or out-of-order time": 1}
+    (thin,) = build_tracks(stream, files, gap_s=3.0, every_s=1.0)
+    assert [round((p.t_ns - t0) / 1e9, 1) for p in thin.segments[-1]] == [13, 14, 15]

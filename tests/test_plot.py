@@ -1,0 +1,140 @@
+"""``logger plot`` and the timing statistics behind its rates plot, on a drive recorded by the real daemon.
+
+Messages are taken out of a copy of the recording (as a full queue or a cut cable would lose them), and the
+statistics must find exactly that many lost by ``seq`` and a gap in the stamps where they were.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from logger import plot_cmd
+from logger.drive_reader import iter_messages, open_drive
+from logger.topic_timing import STAMPED_TOPICS, timings
+
+ROOT = Path(__file__).resolve().parents[1]
+REMOVED = 20  # consecutive /imu messages taken out
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "logger.cli", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+
+
+def without_imu_block(src: Path, dst: Path, count: int) -> list[int]:
+    """Copy ``src`` leaving out ``count`` consecutive /imu messages from its middle; their seq numbers."""
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        records = sorted(((m.log_time, m.sequence, ch.topic, m) for _, ch, m in reader.iter_messages()),
+                         key=lambda r: r[0])
+    imu = [r for r in records if r[2] == "/imu"]
+    start = (len(imu) - count) // 2
+    drop = {id(r[3]) for r in imu[start:start + count]}
+    with open(dst, "wb") as f:
+        w = Writer(f)
+        w.start(library="vehicle-logger")
+        sids = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        cids = {cid: w.register_channel(ch.topic, ch.message_encoding, sids.get(ch.schema_id, 0), dict(ch.metadata))
+                for cid, ch in summary.channels.items()}
+        for _, _, _, m in records:
+            if id(m) not in drop:
+                w.add_message(cids[m.channel_id], log_time=m.log_time, publish_time=m.publish_time, data=m.data,
+                              sequence=m.sequence)
+        w.finish()
+    return [json.loads(r[3].data)["seq"] for r in imu[start:start + count]]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[int]]:
+    out = tmp_path_factory.mktemp("plot")
+    r = run("run", "--sim", "--scenario", "outage-60s", "--duration", "70", "--time-scale", "10", "--out", str(out),
+            "--status-socket", str(out / "status.sock"))
+    assert r.returncode == 0, r.stderr
+    (original,) = sorted(out.glob("*.mcap"))
+    thinned = out / "thinned" / original.name
+    thinned.parent.mkdir()
+    seqs = without_imu_block(original, thinned, REMOVED)
+    return original, thinned, seqs
+
+
+def test_lost_messages_and_the_gap_are_found_where_they_were_taken_out(recorded: tuple[Path, Path, list[int]]):
+    original, thinned, seqs = recorded
+    before = timings(list(iter_messages(open_drive([original]), STAMPED_TOPICS)))
+    after = timings(list(iter_messages(open_drive([thinned]), STAMPED_TOPICS)))
+    assert set(before) == set(STAMPED_TOPICS)
+    imu0, imu1 = before["/imu"], after["/imu"]
+    assert len(imu0.log_ns) - len(imu1.log_ns) == REMOVED
+    assert imu1.n_lost - imu0.n_lost == REMOVED
+    new_lost = [x for x in imu1.lost if x not in imu0.lost]
+    (at_ns, n), = new_lost
+    assert n == REMOVED and at_ns == int(imu1.log_ns[imu1.seq == seqs[-1] + 1][0])
+    (gap,) = [g for g in imu1.gaps if g.after_ns == at_ns]
+    first = int(imu0.log_ns.searchsorted(at_ns))  # the message after the block, in the original
+    assert gap.interval_s == (imu0.mono_ns[first] - imu0.mono_ns[first - REMOVED - 1]) / 1e9
+    for topic in set(STAMPED_TOPICS) - {"/imu"}:  # the other topics are untouched
+        assert after[topic].summary() == before[topic].summary()
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def test_plot_writes_the_three_pngs(recorded: tuple[Path, Path, list[int]], tmp_path: Path):
+    _, thinned, _ = recorded
+    r = run("plot", str(thinned), "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    name = thinned.stem.removesuffix("_0001")
+    for kind in ("map", "rates", "sync"):
+        w, h = png_size(tmp_path / f"{name}_{kind}.png")
+        assert w > 500 and h > 500
+        assert f"wrote {tmp_path / f'{name}_{kind}.png'}" in r.stdout
+    after = timings(list(iter_messages(open_drive([thinned]), STAMPED_TOPICS)))
+    assert [line for line in r.stdout.splitlines() if not line.startswith("wrote ")] == \
+        [t.summary() for t in after.values()]
+    import matplotlib.image
+
+    img = matplotlib.image.imread(tmp_path / f"{name}_map.png")
+    assert img[..., :3].std() > 0.01  # something was drawn
+
+
+def test_without_matplotlib_it_says_how_to_install(recorded: tuple[Path, Path, list[int]], tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib raises ImportError
+    assert plot_cmd.main([str(recorded[0]), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "pip install" in err and "matplotlib" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_what_cannot_be_plotted_is_one_line_and_exit_2(tmp_path: Path):
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    for path, words in ((tmp_path / "missing.mcap", "no such file"), (text, "not an MCAP file")):
+        r = run("plot", str(path), "--out", str(tmp_path / "out"))
+        assert r.returncode == 2 and words in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_restart_is_not_counted_as_loss():
+    from logger.topic_timing import topic_timing
+
+    period = 50_000_000
+    seqs = [0, 1, 2, 6, 7, 0, 1, 2, 3]  # three lost, then the daemon started again
+    monos = [k * period for k in (0, 1, 2, 6, 7)] + [100 * period + k * period for k in range(4)]
+    rows = [(1_000 + m, m, s, "locked", 1000) for s, m in zip(seqs, monos, strict=True)]
+    tt = topic_timing("/imu", rows)
+    assert tt.lost == [(1_000 + 6 * period, 3)] and tt.restarts == [1_000 + 100 * period]
+    assert tt.median_interval_s == period / 1e9
+    assert [(g.before_ns, g.after_ns) for g in tt.gaps] == [(1_000 + 2 * period, 1_000 + 6 * period),
+                                                            (1_000 + 7 * period, 1_000 + 100 * period)]
