@@ -79,6 +79,20 @@ def _abs_path(v: str) -> str | None:
     return None if v.startswith("/") else "must be an absolute path"
 
 
+_HOST = re.compile(r"[A-Za-z0-9._:-]{1,253}")
+
+
+def _host(v: str) -> str | None:
+    return None if _HOST.fullmatch(v) else "is not a host name or IP address"
+
+
+def _gpsd_device(v: str) -> str | None:
+    """gpsd names a receiver by its path, or by a URL for a network source (tcp://, udp://, ...)."""
+    if v == "" or (v.startswith("/") and v.isprintable()) or re.fullmatch(r"[a-z]+://\S+", v):
+        return None
+    return "must be empty (every receiver), a device path such as /dev/ttyACM0, or a gpsd source URL"
+
+
 NUM = (int, float)
 SOURCES_I2C = ("i2c", "sim")
 
@@ -124,13 +138,16 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "rate_hz": Key(NUM, 2, _range(0.1, 20)),
     },
     "gnss": {
-        "source": Key(str, "serial", _one_of("serial", "sim")),
+        "source": Key(str, "serial", _one_of("serial", "gpsd", "sim")),
         "port": Key(str, None, _abs_path, "receiver serial/USB port"),
+        "gpsd_host": Key(str, "127.0.0.1", _host, "gpsd to read for source = 'gpsd' (and pps.source = 'gpsd')"),
+        "gpsd_port": Key(int, 2947, _range(1, 65535), "gpsd's TCP port"),
+        "gpsd_device": Key(str, "", _gpsd_device, "the receiver gpsd reads, when it has several; empty: any"),
         "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)),
         "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start"),
     },
     "pps": {
-        "source": Key(str, "gpio", _one_of("gpio", "sim", "none")),
+        "source": Key(str, "gpio", _one_of("gpio", "gpsd", "sim", "none")),
         "chip": Key(str, "/dev/gpiochip0", _abs_path),
         "line": Key((int, str), 60, None, "line offset or line name"),
     },
@@ -179,6 +196,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "time_scale": Key(NUM, 1.0, _range(0.01, 1000)),
     },
 }
+        "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
 
 # Keys that a source makes necessary: (section, source value) -> keys that must be set.
 REQUIRED_FOR_SOURCE = {("obd", "elm327"): ["port"], ("gnss", "serial"): ["port"]}

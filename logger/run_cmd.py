@@ -44,12 +44,22 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def simulated_sections(cfg: Config) -> dict[str, bool]:
+    """Which sensors the simulated vehicle plays: those with source 'sim', and 'gpsd' ones when sim.gpsd says
+    that gpsd is simulated too."""
+    return {s: cfg[s]["source"] == "sim" or (cfg[s]["source"] == "gpsd" and bool(cfg["sim"]["gpsd"]))
+            for s in SIM_SECTIONS}
+
+
 def resolve_config(args: argparse.Namespace) -> Config:
     if args.config:
         cfg = load(args.config)
         if args.sim:
             for s in SIM_SECTIONS:
-                cfg.values[s]["source"] = "sim"
+                if cfg.values[s]["source"] == "gpsd":
+                    cfg.values["sim"]["gpsd"] = True  # keep reading gpsd: a simulated one, fed by the simulation
+                else:
+                    cfg.values[s]["source"] = "sim"
     elif args.sim:
         cfg = defaults(sim=True)
         cfg.values["logger"]["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
@@ -73,7 +83,8 @@ def resolve_config(args: argparse.Namespace) -> Config:
             cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
     if args.status_socket:
         cfg.values["logger"]["status_socket"] = args.status_socket
-    real = [s for s in SIM_SECTIONS if cfg[s]["source"] not in ("sim", "none")]
+    simulated = simulated_sections(cfg)
+    real = [s for s in SIM_SECTIONS if not simulated[s] and cfg[s]["source"] != "none"]
     if real and sim["time_scale"] != 1.0:
         raise ConfigError([f"sim.time_scale = {sim['time_scale']:g} needs every sensor simulated; real: "
                            + ", ".join(real)])
@@ -85,7 +96,8 @@ def build(cfg: Config, duration_s: float | None,
     """The daemon and, when any sensor is simulated, the vehicle behind it (already started).
 
     ``scenario_options`` reach the simulated drive (e.g. ``tunnel_s`` of tunnel-130s): for evaluation tools."""
-    simulated = {s: cfg[s]["source"] == "sim" for s in SIM_SECTIONS}
+    simulated = simulated_sections(cfg)
+    sim_gpsd = bool(cfg["sim"]["gpsd"]) and "gpsd" in (cfg["gnss"]["source"], cfg["pps"]["source"])
     vehicle = None
     tb: TimeBase = host_timebase()
     extras = Extras()
@@ -99,7 +111,8 @@ def build(cfg: Config, duration_s: float | None,
         vehicle = build_vehicle(sim["scenario"], sim["seed"], time_scale=sim["time_scale"], duration_s=duration_s,
                                 scenario_options=scenario_options,
                                 imu=simulated["imu"], baro=simulated["baro"], obd=simulated["obd"],
-                                gnss=simulated["gnss"], pps=simulated["pps"])
+                                gnss=cfg["gnss"]["source"] == "sim", pps=cfg["pps"]["source"] == "sim",
+                                gpsd=sim_gpsd)
         vehicle.start()
         tb = TimeBase(vehicle.clock.monotonic_ns, vehicle.time_scale)
         extras.close.append(vehicle.stop)

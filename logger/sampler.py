@@ -80,6 +80,7 @@ class SensorHealth:
     gaps: int = 0
     reconnects: int = 0
     last_error: str = ""
+    origin: str = ""  # where the samples come from, for sensors with more than one kind of source
     last_sample_mono_ns: int | None = None
     heartbeat_mono_ns: int = 0
     incidents: dict[str, int] = field(default_factory=dict)  # totals since start, by kind
@@ -99,7 +100,7 @@ class SensorHealth:
         return {"name": self.name, "state": self.state, "rate_hz": self.rate_hz,
                 "measured_rate_hz": round(self.measured_rate_hz(now_ns), 3), "last_sample_age_s": age,
                 "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
-                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error,
+                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error, "origin": self.origin,
                 "incidents": dict(self.incidents), "last_incident": self.last_incident,
                 "last_incident_age_s": (now_ns - self.last_incident_mono_ns) / 1e9
                 if self.last_incident_mono_ns is not None else None}
@@ -127,7 +128,7 @@ class Sampler(threading.Thread):
         self.rate_hz = rate_hz
         self.stop_event = stop
         expected_hz = expected_hz or rate_hz
-        self.health = SensorHealth(source.name, expected_hz)
+        self.health = SensorHealth(source.name, expected_hz, origin=str(getattr(source, "origin", "") or ""))
         # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
         self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
         self._logged: dict[str, float] = {}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -211,6 +212,7 @@ class GnssSource:
 
     def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase) -> None:
         self.path, self.baud, self.configure, self.tb = path, baud, configure, tb
+        self.origin = f"serial {path}"
         self.receiver: Any = None
         self.setup: Any = None
 
@@ -264,6 +266,7 @@ class PpsSource:
 
     def __init__(self, chip: str, line: int | str) -> None:
         self.chip, self.line = chip, line
+        self.origin = f"gpio {chip} line {line}"
         self.driver: Any = None
 
     def open(self) -> None:
@@ -322,10 +325,24 @@ def plans_from_config(cfg: Any, tb: TimeBase, devices: Any | None = None) -> lis
         plans.append(Plan(ObdSource(lambda: Elm327(port, baudrate=obd["baud"], protocol=obd["protocol"],
                                                    headers=obd["headers"]), "elm327", tb),
                           obd["rate_hz"], obd["rate_hz"]))
-    g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
-    g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
-    plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb), None, 1.0))
-    if pps["source"] != "none":
+    # gpsd: the one at gnss.gpsd_host, or the simulated vehicle's when sim.gpsd asks for it.
+    sim_gpsd = bool(cfg["sim"]["gpsd"]) and getattr(devices, "gpsd_port", None) is not None
+    gpsd_at = (devices.gpsd_host, devices.gpsd_port) if sim_gpsd else (gnss["gpsd_host"], gnss["gpsd_port"])
+    if gnss["source"] == "gpsd":
+        from logger.gpsd_sources import GpsdSource
+
+        plans.append(Plan(GpsdSource(*gpsd_at, gnss["gpsd_device"], tb), None, 1.0))
+    else:
+        g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
+        g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
+        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb), None, 1.0))
+    if pps["source"] == "gpsd":
+        from logger.gpsd_sources import GpsdPpsSource
+
+        realtime = devices.realtime_ns if sim_gpsd else time.time_ns  # the clock gpsd stamps edges with
+        # Any device's PPS: a /dev/ppsN given to gpsd beside the receiver reports as a device of its own.
+        plans.append(Plan(GpsdPpsSource(*gpsd_at, None, tb, realtime), None, 1.0))
+    elif pps["source"] != "none":
         chip = devices.gpio_chip if pps["source"] == "sim" else pps["chip"]
         line = devices.pps_line if pps["source"] == "sim" else pps["line"]
         plans.append(Plan(PpsSource(chip, line), None, 1.0))

@@ -135,6 +135,9 @@ def render(snap: dict[str, Any]) -> str:
     for h in snap.get("sensors", []):
         for kind, count in (h.get("incidents") or {}).items():
             lines.append(f"  {h['name']:<8} {kind}: {count} since start")
+    origins = [f"{h['name']} from {h['origin']}" for h in snap.get("sensors", []) if h.get("origin")]
+    if origins:
+        lines.append("  source   " + ", ".join(origins))
     sync = snap.get("sync")
     if sync:
         lines.append("")

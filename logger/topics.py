@@ -77,7 +77,7 @@ GNSS_FIX: dict[str, Field] = {
     "s_acc_mps": ("number?", "speed accuracy estimate, m/s"),
     "num_sv": ("integer?", "satellites used in the solution"),
     "pdop": ("number?", "position dilution of precision"),
-    "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA"),
+    "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA, or gpsd (its TPV and SKY reports)"),
 }
 
 TOPICS: dict[str, TopicSpec] = {}
@@ -109,7 +109,8 @@ _add("/obd/speed", "vehicle_logger.ObdSpeed", {
     "ecu": ("string", "which ECU answered (CAN id such as 7E8, or '' when headers are off)"),
     "interface": ("string", "elm327 or can"),
 }, "OBD-II vehicle speed")
-_add("/gnss/fix", "foxglove.LocationFix", GNSS_FIX, "u-blox navigation solution, one per epoch")
+_add("/gnss/fix", "foxglove.LocationFix", GNSS_FIX,
+     "u-blox navigation solution, one per epoch, read on the serial port or through gpsd")
 _add("/gnss/timepulse", "vehicle_logger.TimePulse", {
     "tow_ms": ("integer", "GPS time of week of the next PPS edge, ms"),
     "tow_sub_ms": ("number", "sub-millisecond part, ms"),
@@ -123,9 +124,11 @@ _add("/gnss/raw", "vehicle_logger.RawBytes", {
     "n_bytes": ("integer", "number of bytes"),
 }, "the receiver's byte stream for post-processing (RTKLIB, gpsd tools)", stamped=False)
 _add("/pps", "vehicle_logger.PpsEdge", {
-    "seqno": ("integer", "the line's edge sequence number from the kernel"),
-    "lost": ("integer", "edges the kernel saw but were not read (sequence gap)"),
-}, "PPS rising edges; t_mono_ns is the kernel's edge time stamp")
+    "seqno": ("integer", "the line's edge sequence number from the kernel; from gpsd: edges recorded since start"),
+    "lost": ("integer", "edges the kernel saw but were not read (sequence gap); from gpsd: seconds skipped"),
+    "gnss_time_ns": ("integer?", "GNSS time of the edge when the source names it (gpsd: real time less qErr), "
+                                 "Unix ns UTC; null from a GPIO line"),
+}, "PPS rising edges; t_mono_ns is the kernel's edge time stamp (from gpsd: its system-clock stamp, mapped)")
 _add("/sync", "vehicle_logger.Sync", {
     "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
     "state": ("string", "freerun, locked or holdover"),

@@ -116,7 +116,11 @@ class PpsClock:
             with self._lock:
                 self.counts["edges"] += 1
                 self.paper.on_edge(t_mono_ns)
-                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
+                label = payload.get("gnss_time_ns")  # set when the PPS source names the edge's second (gpsd)
+                if label is None:
+                    self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
+                else:
+                    self._take(self.labeller.on_labelled_edge(t_mono_ns, int(label), self._predict_unix_ns))
         elif topic == "/gnss/timepulse":
             with self._lock:
                 self._take(self.labeller.on_timepulse(payload, t_mono_ns, self._predict_unix_ns))

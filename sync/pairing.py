@@ -44,6 +44,15 @@ class EdgeLabeller:
         self._edges.append(edge_ns)
         return self._match(predict)
 
+    def on_labelled_edge(self, edge_ns: int, label_ns: int, predict: Predict) -> list[tuple[int, int]]:
+        """An edge whose source names the GNSS second it marks (gpsd's PPS report): no matching needed, but
+        the label must fall on a whole second and pass the same checks as a matched pair."""
+        whole = (label_ns + NS // 2) // NS * NS
+        if abs(label_ns - whole) > WHOLE_SECOND_TOLERANCE_NS or not self._accept(edge_ns, label_ns, predict):
+            self.rejected += 1
+            return []
+        return [(edge_ns, label_ns)]
+
     def on_timepulse(self, tp: dict[str, Any], received_ns: int, predict: Predict) -> list[tuple[int, int]]:
         label = self._timepulse_unix_ns(tp)
         if label is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,6 +54,9 @@ class VehicleDevices:
     gnss_baud: int = 9600
     gpio_chip: str | None = None
     pps_line: int = PPS_LINE
+    gpsd_host: str | None = None  # a simulated gpsd reading the receiver and its PPS
+    gpsd_port: int | None = None
+    realtime_ns: Callable[[], int] | None = None  # the board's system clock, which gpsd stamps PPS edges with
 
 
 @dataclass
@@ -75,6 +79,8 @@ class SimVehicle:
     gnss: UbloxReceiverModel | None = None
     pps: PpsSignal | None = None
     gpio: Any = None
+    gpsd: Any = None
+    realtime_offset_ns: int = 0  # the board's system clock minus its monotonic clock (no NTP step during a drive)
     _stack: list[Any] = field(default_factory=list)
 
     @property
@@ -88,6 +94,10 @@ class SimVehicle:
     def wall_clock_ns(self) -> int:
         """The simulated board's system clock: NTP-synchronised, 20 ms off true time (an LTE link's worth)."""
         return self.true_unix_ns(self.clock.monotonic_ns()) + WALL_CLOCK_ERROR_NS
+
+    def board_realtime_ns(self) -> int:
+        """The board's CLOCK_REALTIME as a simulated gpsd stamps PPS edges with: monotonic plus a fixed offset."""
+        return self.clock.monotonic_ns() + self.realtime_offset_ns
 
     def truth_nav(self, board_ns: int) -> dict[str, Any]:
         true_ns = self.oscillator.true_ns(board_ns)
@@ -109,6 +119,9 @@ class SimVehicle:
             gpiod_ext.register(self.gpio)
             self._stack.append(gpiod_ext.uninstall)
             self._stack.append(lambda: gpiod_ext.unregister(self.gpio))
+        if self.gpsd is not None:
+            self.gpsd.start()
+            self._stack.append(self.gpsd.stop)
 
     def stop(self) -> None:
         while self._stack:
@@ -120,15 +133,20 @@ class SimVehicle:
         for port in (self.elm327_port, self.gnss_port):
             if port is not None:
                 port.close()
+        if self.gpsd is not None:
+            self.gpsd.stop()  # also when never started: it listens from the moment it is built
 
 
 def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float = 1.0,
                   duration_s: float | None = None, imu: bool = True, baro: bool = True, obd: bool = True,
                   gnss: bool = True, pps: bool = True, start_utc: dt.datetime | None = None,
                   host_monotonic_ns: Any = time.monotonic_ns,
-                  scenario_options: dict[str, Any] | None = None) -> SimVehicle:
+                  scenario_options: dict[str, Any] | None = None, gpsd: bool = False) -> SimVehicle:
     """Build the drive and the models asked for. Board time starts at the host's monotonic clock, so at time
-    scale 1 simulated and real devices share one clock; the drive starts at the current UTC second."""
+    scale 1 simulated and real devices share one clock; the drive starts at the current UTC second.
+
+    With ``gpsd`` a simulated gpsd on 127.0.0.1 reads the receiver and its PPS (``devices.gpsd_host/port``),
+    whether or not the daemon also opens the receiver's port or PPS line itself."""
     horizon = duration_s if duration_s is not None else 8 * 3600.0
     drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0, **(scenario_options or {}))
     rng = np.random.default_rng([seed, 7])
@@ -157,16 +175,27 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         v.elm327_port = PtyPort()
         v.elm327 = Elm327Model(v.elm327_port, ecus, clock, seed=np.random.default_rng(child[2]))
         devices.elm327_path = v.elm327_port.path
-    if gnss or pps:
+    if gnss or pps or gpsd:
         v.gnss_port = PtyPort()
         v.gnss = UbloxReceiverModel(v.gnss_port, clock, drive, seed=np.random.default_rng(child[3]),
                                     timeline=timeline)
         devices.gnss_path = v.gnss_port.path
         devices.gnss_baud = v.gnss.baud
-    if pps and v.gnss is not None:
+    if (pps or gpsd) and v.gnss is not None:
         v.pps = PpsSignal(oscillator, v.gnss.time_pulse_locked, seed=int(child[4].generate_state(1)[0]),
                           gnss_ns_at_start=timeline.start_gps_ns,
                           pulse_offset_ns=v.gnss.pulse_quantisation.edge_offset_ns)
+    if pps and v.pps is not None:
         v.gpio = pps_chip(v.pps, clock, path=PPS_CHIP_PATH, offset=PPS_LINE, paced=True)
         devices.gpio_chip = PPS_CHIP_PATH
+    if gpsd and v.gnss is not None:
+        from sensors.sim.gpsd import ReceiverFeed, SimGpsd
+
+        # The board's system clock as NTP set it at boot; gpsd stamps PPS edges on it.
+        v.realtime_offset_ns = v.wall_clock_ns() - clock.monotonic_ns()
+        feed = ReceiverFeed(v.gnss, pps=v.pps, realtime_offset_ns=v.realtime_offset_ns,
+                            seed=np.random.default_rng([seed, 13]))
+        v.gpsd = SimGpsd(feed)
+        devices.gpsd_host, devices.gpsd_port = v.gpsd.address
+        devices.realtime_ns = v.board_realtime_ns
     return v

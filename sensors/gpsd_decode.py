@@ -1,0 +1,296 @@
+"""gpsd's JSON reports (gpsd_json(5)) as the same navigation fixes the serial receiver gives.
+
+gpsd describes one navigation epoch in several objects: a TPV (time, position, velocity and their error
+estimates), a SKY (satellites and dilutions of precision) before or after it, and, for receivers that dribble
+their epoch in several sentences, more than one TPV with the same ``time``, each repeating and completing the
+last. :class:`GpsdEpochs` collects the objects of one epoch and turns them into one
+:class:`~sensors.ublox_decode.GnssFix`, so the record on ``/gnss/fix`` does not depend on whether the receiver
+was read on its serial port or through gpsd. What gpsd cannot tell (GPS time of week, week number) stays None.
+
+An epoch is reported when an object of a later epoch arrives, or when its objects have stopped coming for a
+settle time; a TPV of an epoch already reported is counted and dropped, never reported twice. A SKY goes with
+the epoch of its time, or, when gpsd left its time behind (it keeps a sky view's time until the receiver
+sends a new one), with the next epoch that has none.
+Times are integer nanoseconds, Unix UTC for GNSS times and the caller's monotonic clock for arrival times:
+this module reads no clock itself.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensors.ublox_decode import GnssFix
+
+NS_PER_S = 1_000_000_000
+SOURCE = "gpsd"
+
+# gpsd prints ISO 8601 UTC with up to millisecond digits ("2023-06-28T14:52:12.000Z"); accept up to ns.
+_ISO = re.compile(r"(\d{4})-(\d\d)-(\d\d)T(\d\d):(\d\d):(\d\d)(?:\.(\d{1,9}))?Z")
+
+
+def number(value: object) -> float | None:
+    """A finite JSON number, else None (gpsd omits unknown values; a bool or a string is not a number)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    result = float(value)
+    return result if math.isfinite(result) else None
+
+
+def integer(value: object) -> int | None:
+    """A JSON number that is a whole number, else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        return None
+    return int(value)
+
+
+def parse_time_ns(value: object) -> int | None:
+    """gpsd's ``time``: ISO 8601 UTC (protocol 3.10 and later) or Unix seconds (older daemons) -> Unix ns."""
+    if isinstance(value, str):
+        m = _ISO.fullmatch(value)
+        if m is None:
+            return None
+        year, month, day, hour, minute, second = (int(g) for g in m.groups()[:6])
+        if not (1 <= month <= 12 and 1 <= day <= 31 and hour < 24 and minute < 60 and second <= 60):
+            return None
+        try:
+            whole = calendar.timegm((year, month, day, hour, minute, second, 0, 0, 0))
+        except (OverflowError, ValueError):
+            return None
+        frac = m.group(7) or ""
+        return whole * NS_PER_S + int(frac.ljust(9, "0") or "0")
+    seconds = number(value)
+    if seconds is None or not 0 <= seconds < 1e11:
+        return None
+    return round(seconds * 1e6) * 1000  # a float of Unix seconds holds microseconds, not nanoseconds
+
+
+@dataclass(frozen=True, slots=True)
+class PpsReport:
+    """gpsd's PPS object: one edge, stamped on the host's CLOCK_REALTIME and named in GNSS time.
+
+    ``clock_ns`` is when the system clock saw the edge, ``real_ns`` the GNSS second the edge marks, and
+    ``qerr_ps`` the receiver's quantisation error of that pulse when gpsd knows it (u-blox TIM-TP).
+    """
+
+    device: str | None
+    real_ns: int
+    clock_ns: int
+    qerr_ps: int | None
+    precision: int | None
+
+    @property
+    def edge_gnss_ns(self) -> int:
+        """GNSS time of the edge itself: the pulse leaves qErr early of the second it marks (u-blox's sign)."""
+        return self.real_ns - round((self.qerr_ps or 0) / 1000)
+
+
+def pps_report(msg: Mapping[str, Any]) -> PpsReport | None:
+    """A PPS object with all four time fields as whole numbers, else None (TOFF and others too)."""
+    if msg.get("class") != "PPS":
+        return None
+    fields = [integer(msg.get(k)) for k in ("real_sec", "real_nsec", "clock_sec", "clock_nsec")]
+    if any(f is None for f in fields):
+        return None
+    real_s, real_ns, clock_s, clock_ns = (int(f) for f in fields)  # type: ignore[arg-type]
+    if not (0 <= real_ns < NS_PER_S and 0 <= clock_ns < NS_PER_S and real_s > 0 and clock_s > 0):
+        return None
+    device = msg.get("device")
+    return PpsReport(device if isinstance(device, str) else None, real_s * NS_PER_S + real_ns,
+                     clock_s * NS_PER_S + clock_ns, integer(msg.get("qErr")), integer(msg.get("precision")))
+
+
+def _first(tpv: Mapping[str, Any], *keys: str) -> float | None:
+    for key in keys:
+        value = number(tpv.get(key))
+        if value is not None:
+            return value
+    return None
+
+
+def sky_used(sky: Mapping[str, Any] | None) -> int | None:
+    """Satellites in the solution: SKY's ``uSat``, else the satellites flagged ``used``."""
+    if sky is None:
+        return None
+    used = integer(sky.get("uSat"))
+    if used is not None and used >= 0:
+        return used
+    sats = sky.get("satellites")
+    if isinstance(sats, list):
+        return sum(1 for s in sats if isinstance(s, dict) and s.get("used") is True)
+    return None
+
+
+def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -> GnssFix:
+    """One epoch's TPV (and SKY, when one came with it) as the fix the serial receiver would give.
+
+    ``fix_mode`` is gpsd's ``mode`` (0 unknown, 1 no fix, 2 2D, 3 3D), and gpsd reports a position only
+    with a 2D or 3D fix, so that is also the fix's validity. Heights: ``altHAE``, else ``altMSL`` plus
+    ``geoidSep``; mean sea level from ``altMSL``, else the older ``alt``. Velocity: ``velN/E/D`` when gpsd has
+    them, else speed and track over ground with ``climb`` upwards (down velocity NaN when there is none, as
+    for NMEA). Accuracies: ``eph`` (else epx and epy combined), ``epv``, ``eps``, which gpsd passes through
+    from the receiver where it reports them (u-blox hAcc, vAcc, sAcc).
+    """
+    mode = integer(tpv.get("mode"))
+    mode = mode if mode in (0, 1, 2, 3) else 0
+    fixed = mode >= 2
+    time_ns = parse_time_ns(tpv.get("time"))
+    lat = number(tpv.get("lat"))
+    lon = number(tpv.get("lon"))
+    if (lat is not None and not -90.0 <= lat <= 90.0) or (lon is not None and not -180.0 <= lon <= 180.0):
+        lat = lon = None
+    sep = number(tpv.get("geoidSep"))
+    hae = number(tpv.get("altHAE"))
+    msl = _first(tpv, "altMSL", "alt")
+    if hae is None and msl is not None and sep is not None:
+        hae = msl + sep
+    if msl is None and hae is not None and sep is not None:
+        msl = hae - sep
+    vel: tuple[float, float, float] | None = None
+    vn, ve, vd = number(tpv.get("velN")), number(tpv.get("velE")), number(tpv.get("velD"))
+    climb = number(tpv.get("climb"))
+    down = vd if vd is not None else (-climb if climb is not None else math.nan)
+    if vn is not None and ve is not None:
+        vel = (vn, ve, down)
+    else:
+        speed = number(tpv.get("speed"))
+        if speed is not None:
+            track = math.radians(number(tpv.get("track")) or 0.0)
+            vel = (speed * math.cos(track), speed * math.sin(track), down)
+    h_acc = number(tpv.get("eph"))
+    epx, epy = number(tpv.get("epx")), number(tpv.get("epy"))
+    if h_acc is None and epx is not None and epy is not None:
+        h_acc = math.hypot(epx, epy)
+    if not fixed:
+        lat = lon = hae = msl = None
+        vel = None
+    return GnssFix(
+        source=SOURCE,
+        itow_ms=None,
+        week=None,
+        time_utc_ns=time_ns,
+        time_valid=time_ns is not None and fixed,
+        fix_mode=mode,
+        fix_ok=fixed and lat is not None and lon is not None,
+        lat_deg=lat,
+        lon_deg=lon,
+        height_hae_m=hae,
+        height_msl_m=msl,
+        vel_ned_mps=vel,
+        h_acc_m=h_acc,
+        v_acc_m=number(tpv.get("epv")),
+        s_acc_mps=number(tpv.get("eps")),
+        num_sv=sky_used(sky),
+        pdop=number(sky.get("pdop")) if sky is not None else None,
+    )
+
+
+@dataclass
+class _Epoch:
+    """The objects of one epoch so far: TPVs merged field by field (later ones win), the SKY if any."""
+
+    key: int | None  # TPV time, Unix ns; None for a TPV without time (no fix, time not known yet)
+    tpv: dict[str, Any] = field(default_factory=dict)
+    sky: dict[str, Any] | None = None
+    last_ns: int = 0  # arrival of its latest object
+
+
+@dataclass
+class EpochCounters:
+    """What the assembler did with the objects it was given."""
+
+    tpv: int = 0
+    sky: int = 0
+    epochs: int = 0
+    late: int = 0  # TPVs of an epoch already reported
+    stale_sky: int = 0  # SKYs with an older time than the epoch they went with
+    other: int = 0  # objects of other classes (VERSION, DEVICES, TOFF, PPS, GST, ATT, ...)
+
+
+class GpsdEpochs:
+    """TPV and SKY objects -> one fix per epoch: ``push`` returns what an object completes, ``poll`` what the
+    settle time completes, ``flush`` the rest. Each fix comes with the arrival time of its epoch's last TPV."""
+
+    def __init__(self, settle_ns: int = 300_000_000) -> None:
+        self.settle_ns = settle_ns
+        self._open: _Epoch | None = None
+        self._sky: tuple[int | None, dict[str, Any]] | None = None  # a SKY waiting for its TPV: (time, object)
+        self._done: int | None = None  # time of the last epoch reported
+        self.counters = EpochCounters()
+
+    def push(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
+        kind = msg.get("class")
+        if kind == "TPV":
+            self.counters.tpv += 1
+            return self._tpv(msg, t_ns)
+        if kind == "SKY":
+            self.counters.sky += 1
+            return self._skyview(msg)
+        self.counters.other += 1
+        return []
+
+    def poll(self, t_ns: int) -> list[tuple[GnssFix, int]]:
+        """The open epoch, once nothing was added to it for the settle time."""
+        if self._open is not None and t_ns - self._open.last_ns >= self.settle_ns:
+            return self._finish()
+        return []
+
+    def due_ns(self) -> int | None:
+        """When ``poll`` will report the open epoch (arrival clock), or None with nothing open."""
+        return None if self._open is None else self._open.last_ns + self.settle_ns
+
+    def flush(self) -> list[tuple[GnssFix, int]]:
+        return self._finish()
+
+    def _tpv(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
+        key = parse_time_ns(msg.get("time"))
+        out: list[tuple[GnssFix, int]] = []
+        if self._open is not None and self._open.key == key:
+            self._open.tpv.update(msg)
+            self._open.last_ns = t_ns
+            return out
+        if key is not None and self._done == key:
+            self.counters.late += 1  # a TPV completing an epoch that was already reported
+            return out
+        out += self._finish()
+        epoch = _Epoch(key, dict(msg), None, t_ns)
+        pending = self._sky
+        if pending is not None and (pending[0] is None or key is None or pending[0] <= key):
+            epoch.sky = pending[1]
+        self._sky = None
+        self._open = epoch
+        return out
+
+    def _skyview(self, msg: Mapping[str, Any]) -> list[tuple[GnssFix, int]]:
+        key = parse_time_ns(msg.get("time"))
+        open_ = self._open
+        if open_ is not None and (key is None or key == open_.key):
+            open_.sky = {**open_.sky, **msg} if open_.sky is not None else dict(msg)
+            return []
+        if open_ is not None and key is not None and (open_.key is None or key > open_.key):
+            out = self._finish()  # the next epoch has begun: this one is complete
+            self._sky = (key, dict(msg))
+            return out
+        # Older than the open epoch, or nothing open: gpsd keeps a sky view's time until the receiver updates it,
+        # so even an old one is the latest sky there is; the epoch that has none takes it.
+        if open_ is not None or (key is not None and self._done is not None and key <= self._done):
+            self.counters.stale_sky += 1
+        if open_ is not None and open_.sky is None:
+            open_.sky = dict(msg)
+        else:
+            self._sky = (key, dict(msg))
+        return []
+
+    def _finish(self) -> list[tuple[GnssFix, int]]:
+        epoch, self._open = self._open, None
+        if epoch is None:
+            return []
+        self._done = epoch.key
+        self.counters.epochs += 1
+        return [(fix_from_tpv(epoch.tpv, epoch.sky), epoch.last_ns)]

@@ -1,0 +1,597 @@
+"""gpsd as the GNSS source: its JSON over TCP, recorded as the same /gnss/fix and /pps records.
+
+Everything talks to a real TCP server on 127.0.0.1 speaking gpsd's protocol (sensors/sim/gpsd.py), fed by hand,
+by replaying gpsd 3.27's own decoding of real u-blox captures, or by the simulated receiver of a whole drive.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import calendar
+import collections
+import datetime as dt
+import itertools
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+
+from logger import gpsd_sources
+from logger.config import ConfigError, parse
+from logger.gnss_decode import decode_pieces, strip_capture_comments
+from logger.gpsd_sources import GpsdPpsSource, GpsdSource
+from logger.run_cmd import resolve_config
+from logger.sampler import Reading, Sampler, wait_until
+from logger.sources import location_fix
+from logger.status import fetch, render
+from logger.timebase import TimeBase, host_timebase
+from sensors.errors import DeviceNotFound, NoData
+from sensors.gpsd import MAX_LINE_BYTES, GpsdClient, LineSplitter, watch_command
+from sensors.gpsd_decode import GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
+from sensors.sim.clock import ManualClock
+from sensors.sim.gpsd import SimGpsd
+from sync.clock import PpsClock, SyncSettings
+from sync.realtime import RealtimeMap
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_DIR = ROOT.parent / "shared" / "data" / "gpsd-ublox"
+NS = 1_000_000_000
+T0 = 1_700_000_000 * NS  # 2023-11-14T22:13:20Z
+
+needs_data = pytest.mark.skipif(not DATA_DIR.is_dir(), reason=f"gpsd captures not found at {DATA_DIR}")
+
+
+def iso(unix_ns: int) -> str:
+    ms = unix_ns // 1_000_000
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(ms // 1000)) + f".{ms % 1000:03d}Z"
+
+
+def tpv(t_ns: int | None, device: str = "/dev/ttyACM0", **fields: Any) -> dict[str, Any]:
+    obj: dict[str, Any] = {"class": "TPV", "device": device, "mode": 3, "lat": 37.5, "lon": 127.0,
+                           "altHAE": 60.0, "altMSL": 35.0, "speed": 10.0, "track": 90.0}
+    if t_ns is not None:
+        obj["time"] = iso(t_ns)
+    obj.update(fields)
+    return obj
+
+
+def sky(t_ns: int | None, used: int = 9, **fields: Any) -> dict[str, Any]:
+    obj: dict[str, Any] = {"class": "SKY", "device": "/dev/ttyACM0", "pdop": 1.5, "uSat": used, "nSat": used + 3}
+    if t_ns is not None:
+        obj["time"] = iso(t_ns)
+    obj.update(fields)
+    return obj
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Parsing
+
+
+def test_gpsd_time_in_both_of_its_formats() -> None:
+    assert parse_time_ns("2023-06-28T14:52:12.000Z") == calendar.timegm((2023, 6, 28, 14, 52, 12)) * NS
+    assert parse_time_ns("2023-06-28T14:52:12.25Z") == calendar.timegm((2023, 6, 28, 14, 52, 12)) * NS + NS // 4
+    assert parse_time_ns("2023-06-28T14:52:12Z") == calendar.timegm((2023, 6, 28, 14, 52, 12)) * NS
+    assert parse_time_ns(1270517264.24) == 1270517264_240_000_000  # gpsd before protocol 3.10: Unix seconds
+    for bad in ("2023-13-28T14:52:12.000Z", "2023-06-28 14:52:12", "", None, True, float("nan"), -5, [1]):
+        assert parse_time_ns(bad) is None, bad
+
+
+def test_a_tpv_fills_the_fields_of_a_serial_fix() -> None:
+    t = T0 + 7 * NS
+    fix = fix_from_tpv(tpv(t, eph=1.5, epv=2.5, eps=0.3, climb=0.5), sky(t, used=11))
+    assert (fix.source, fix.fix_mode, fix.fix_ok, fix.time_utc_ns, fix.time_valid) == ("gpsd", 3, True, t, True)
+    assert (fix.lat_deg, fix.lon_deg, fix.height_hae_m, fix.height_msl_m) == (37.5, 127.0, 60.0, 35.0)
+    assert fix.vel_ned_mps is not None
+    assert fix.vel_ned_mps[0] == pytest.approx(0.0, abs=1e-12) and fix.vel_ned_mps[1] == pytest.approx(10.0)
+    assert fix.vel_ned_mps[2] == -0.5  # climb is up, the record's velocity is down
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps, fix.num_sv, fix.pdop) == (1.5, 2.5, 0.3, 11, 1.5)
+    assert (fix.itow_ms, fix.week) == (None, None)  # gpsd does not tell
+    # velN/E/D win over speed and track; heights and accuracies from the alternatives gpsd may send instead
+    fix = fix_from_tpv(tpv(t, velN=1.0, velE=2.0, velD=-0.25, altHAE=None, altMSL=None, alt=30.0, geoidSep=20.0,
+                           epx=3.0, epy=4.0))
+    assert fix.vel_ned_mps == (1.0, 2.0, -0.25) and fix.num_sv is None and fix.pdop is None
+    assert (fix.height_msl_m, fix.height_hae_m, fix.h_acc_m) == (30.0, 50.0, 5.0)
+    # no fix: gpsd's position (if any) is not one, and its time is not valid
+    fix = fix_from_tpv(tpv(t, mode=1))
+    assert (fix.fix_mode, fix.fix_ok, fix.time_valid, fix.lat_deg, fix.vel_ned_mps) == (1, False, False, None, None)
+    assert fix_from_tpv({"class": "TPV", "mode": "3", "lat": "x"}).fix_mode == 0  # nonsense types: unknown
+
+
+def test_a_pps_report_names_its_edge() -> None:
+    msg = {"class": "PPS", "device": "/dev/ttyACM0", "real_sec": 1700000000, "real_nsec": 0,
+           "clock_sec": 1700000000, "clock_nsec": 12345, "precision": -20, "qErr": -2400}
+    rep = pps_report(msg)
+    assert rep is not None and rep.clock_ns == T0 + 12345 and rep.real_ns == T0
+    assert rep.edge_gnss_ns == T0 + 2  # the pulse left qErr early of its second: -(-2.4 ns), rounded
+    assert pps_report({**msg, "class": "TOFF"}) is None
+    assert pps_report({**msg, "clock_nsec": 2 * NS}) is None
+    assert pps_report({**msg, "real_sec": "1700000000"}) is None
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Lines and epochs
+
+
+def test_lines_are_split_across_reads_and_an_overlong_line_is_dropped_whole() -> None:
+    s = LineSplitter(max_bytes=32)
+    assert s.feed(b'{"a":1}\r\n{"b"') == [b'{"a":1}']
+    assert s.feed(b':2}\n') == [b'{"b":2}']
+    assert s.feed(b"x" * 20) == [] and s.feed(b"y" * 20) == []  # beyond 32 bytes without a newline
+    assert s.feed(b"z" * 100) == []
+    assert s.feed(b'zz\n{"c":3}\n') == [b'{"c":3}'] and s.oversized == 1
+    assert len(s._buf) == 0
+    assert s.feed(b"q" * 40 + b"\nok\n") == [b"ok"] and s.oversized == 2
+
+
+def test_watch_request_fits_gpsd_and_names_the_device_when_it_can() -> None:
+    plain = watch_command()
+    assert plain == b'?WATCH={"enable":true,"json":true,"pps":true}\n'
+    assert b'"device":"/dev/ttyACM0"' in watch_command("/dev/ttyACM0")
+    long_path = "/dev/serial/by-id/usb-u-blox_AG_-_www.u-blox.com_u-blox_GNSS_receiver-if00"
+    assert watch_command(long_path) == plain  # would exceed gpsd's 80 characters: filtered here instead
+    assert all(len(c.strip()) <= 80 for c in (plain, watch_command("/dev/ttyACM0")))
+
+
+def test_one_fix_per_epoch_whatever_the_order_of_its_reports() -> None:
+    e = GpsdEpochs(settle_ns=300_000_000)
+    t1, t2, t3 = T0 + NS, T0 + 2 * NS, T0 + 3 * NS
+    out = e.push(sky(t1, used=7), 0)  # SKY first (u-blox binary)
+    out += e.push(tpv(t1, lat=1.0), 10)
+    out += e.push({"class": "TPV", "time": iso(t1), "mode": 3, "lat": 1.5, "eph": 2.0}, 20)  # completes the first
+    out += e.push(tpv(t2, lat=2.0), 1000)  # the next epoch closes the last one
+    assert [(f.time_utc_ns, f.lat_deg, f.lon_deg, f.height_hae_m, f.h_acc_m, f.num_sv) for f, _ in out] == [
+        (t1, 1.5, 127.0, 60.0, 2.0, 7)]
+    assert out[0][1] == 20  # acquisition time: the arrival of the epoch's last TPV
+    out = e.push(sky(t2, used=8), 1010)  # SKY after its TPV (NMEA receivers)
+    out += e.push(tpv(t2, lat=2.5), 1020)
+    assert out == [] and e.poll(1020 + 299_999_999) == []
+    (fix, t), = e.poll(1020 + 300_000_000)
+    assert (fix.time_utc_ns, fix.lat_deg, fix.num_sv, t) == (t2, 2.5, 8, 1020)
+    assert e.push(tpv(t2, lat=9.0), 2000) == [] and e.counters.late == 1  # too late: never a second record
+    out = e.push(sky(t3 - NS, used=5), 2100)  # gpsd kept an old sky time: the next epoch still takes it
+    out += e.push(tpv(t3), 2200) + e.flush()
+    assert [(f.time_utc_ns, f.num_sv) for f, _ in out] == [(t3, 5)] and e.counters.stale_sky == 1
+    assert e.counters.epochs == 3
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The client against a gpsd on a socket
+
+
+@pytest.fixture
+def gpsd() -> Iterator[SimGpsd]:
+    devices = [{"class": "DEVICE", "path": p, "driver": "u-blox", "activated": "2024-01-01T00:00:00.000Z"}
+               for p in ("/dev/ttyACM0", "/dev/ttyUSB0")]
+    server = SimGpsd(devices=devices).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def read_until(read: Callable[[], list[Any]], done: Callable[[list[Any]], bool], timeout_s: float = 10.0) -> list[Any]:
+    out: list[Any] = []
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and not done(out):
+        out += read()
+    return out
+
+
+@pytest.mark.parametrize("device", ["/dev/ttyUSB0", "/dev/serial/by-id/" + "x" * 70])
+def test_the_configured_receiver_is_the_only_one_read(device: str) -> None:
+    devices = [{"class": "DEVICE", "path": p, "driver": "u-blox"} for p in ("/dev/ttyACM0", device)]
+    with SimGpsd(devices=devices) as gpsd, GpsdClient.connect(*gpsd.address, device=device) as client:
+        assert gpsd.wait_for_watchers()
+        for i in range(5):
+            gpsd.publish(tpv(T0 + i * NS, device="/dev/ttyACM0"))
+            gpsd.publish(tpv(T0 + i * NS, device=device))
+        got = read_until(lambda: client.read(0.2), lambda o: sum(m["class"] == "TPV" for m in o) >= 5)
+        assert [m["device"] for m in got if m["class"] == "TPV"] == [device] * 5
+        assert client.version is not None and client.version["proto_major"] == 3
+        assert client.devices == {"/dev/ttyACM0", device} and client.missing_device() is None
+        # a short path is selected by gpsd itself; a long one does not fit the request and is dropped here
+        assert client.counters.other_device == (0 if len(device) < 40 else 5)
+
+
+def test_garbage_and_overlong_lines_are_counted_and_reading_goes_on(gpsd: SimGpsd) -> None:
+    src = GpsdSource(*gpsd.address, None, host_timebase(), settle_s=0.05)
+    src.open()
+    try:
+        assert gpsd.wait_for_watchers()
+        gpsd.publish(tpv(T0))
+        for junk in (b"garbage\r\n", b"{not json\r\n", b'["a list"]\r\n', b'{"noclass":1}\r\n', b"\xff\xfe{}\r\n",
+                     b"[" * 5000 + b"\r\n", b"{" + b"x" * (MAX_LINE_BYTES + 10) + b"}\r\n", b"\r\n"):
+            gpsd.inject(junk)
+        gpsd.publish(tpv(T0 + NS))
+        gpsd.publish(tpv(T0 + 2 * NS))
+        got = read_until(src.read, lambda o: len(o) >= 3)
+        assert [r.payload["gnss_time_ns"] for r in got] == [T0, T0 + NS, T0 + 2 * NS]
+        c = src.client.counters
+        assert (c.garbage, c.oversized) == (6, 1)
+        assert src.incidents() == {"lines of garbage from gpsd": 6, "overlong lines from gpsd": 1}
+    finally:
+        src.close()
+
+
+def test_a_receiver_gpsd_does_not_have_is_reported_as_no_data(gpsd: SimGpsd, monkeypatch) -> None:
+    monkeypatch.setattr(gpsd_sources, "QUIET_S", 0.2)
+    src = GpsdSource(*gpsd.address, "/dev/ttyS4", host_timebase())
+    src.open()
+    try:
+        with pytest.raises(NoData, match=r"has no /dev/ttyS4 \(it has /dev/ttyACM0, /dev/ttyUSB0\)"):
+            read_until(src.read, lambda o: False, timeout_s=5.0)
+    finally:
+        src.close()
+
+
+def test_no_gpsd_listening_is_one_clear_line() -> None:
+    server = SimGpsd()
+    host, port = server.address
+    server.stop()  # the port is free again: nothing listens
+    src = GpsdSource(host, port, None, host_timebase())
+    with pytest.raises(DeviceNotFound, match=rf"gpsd: nothing listens on 127.0.0.1:{port} \(is gpsd running\?\)"):
+        src.open()
+
+
+class EpochPublisher(threading.Thread):
+    """gpsd's reports of a receiver at 20 epochs a second, whether or not gpsd is up."""
+
+    def __init__(self, server: SimGpsd) -> None:
+        super().__init__(daemon=True)
+        self.server = server
+        self.halt = threading.Event()
+
+    def run(self) -> None:
+        for i in itertools.count():
+            if self.halt.wait(0.05):
+                return
+            self.server.publish(sky(T0 + i * NS))
+            self.server.publish(tpv(T0 + i * NS))
+
+
+def test_gpsd_restart_is_reconnected_and_fixes_resume() -> None:
+    server = SimGpsd().start()
+    tb = host_timebase()
+    src = GpsdSource(*server.address, None, tb, settle_s=0.05)
+    got: list[Reading] = []
+    stop = threading.Event()
+    sampler = Sampler(src, got.append, tb, None, stop, expected_hz=20.0)
+    feeder = EpochPublisher(server)
+    feeder.start()
+    sampler.start()
+    try:
+        assert wait_until(lambda: len(got) >= 5, 10)
+        server.stop()
+        assert wait_until(lambda: sampler.health.state in ("retrying", "missing"), 10)
+        assert "gpsd at 127.0.0.1" in sampler.health.last_error or "nothing listens" in sampler.health.last_error
+        before = len(got)
+        server.start()
+        assert wait_until(lambda: sampler.health.reconnects >= 1 and len(got) >= before + 5, 20)
+        assert sampler.health.state == "ok"
+    finally:
+        feeder.halt.set()
+        stop.set()
+        sampler.join(5)
+        server.stop()
+    times = [r.payload["gnss_time_ns"] for r in got]
+    assert all(b > a for a, b in itertools.pairwise(times))  # no epoch twice, none out of order
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# PPS through gpsd
+
+
+def test_the_realtime_map_refuses_edges_a_clock_step_crossed() -> None:
+    mono = ManualClock(start_ns=5 * NS)
+    offset = [T0]
+    rmap = RealtimeMap(lambda: mono.now_ns() + offset[0], mono.now_ns)
+    rmap.sample()
+    mono.advance(0.3)
+    edge = mono.now_ns()
+    stamp = edge + offset[0]
+    mono.advance(0.2)
+    rmap.sample()
+    assert rmap.to_monotonic(stamp) == edge  # no step: exact
+    for step_s in (0.001, -0.001, 3.0, -3.0):
+        mono.advance(0.5)
+        edge = mono.now_ns()
+        stamp = edge + offset[0]  # stamped before the step...
+        offset[0] += round(step_s * NS)
+        mono.advance(0.1)
+        rmap.sample()  # ...reported after it
+        assert rmap.to_monotonic(stamp) is None, step_s
+    assert rmap.refused_step == 4
+    mono.advance(0.5)
+    edge = mono.now_ns()
+    mono.advance(0.1)
+    rmap.sample()
+    assert rmap.to_monotonic(edge + offset[0]) == edge  # after the step, edges are mapped again
+    assert RealtimeMap(lambda: 0, lambda: 0).to_monotonic(5) is None  # nothing sampled: nothing vouched for
+
+
+def pps(real_s: int, clock_ns: int, qerr_ps: int = 0) -> dict[str, Any]:
+    return {"class": "PPS", "device": "/dev/ttyACM0", "real_sec": real_s, "real_nsec": 0,
+            "clock_sec": clock_ns // NS, "clock_nsec": clock_ns % NS, "precision": -20, "qErr": qerr_ps}
+
+
+def test_pps_reports_become_labelled_edges_on_the_monotonic_clock(gpsd: SimGpsd) -> None:
+    mono = ManualClock(start_ns=100 * NS)
+    offset = [T0 - 100 * NS + 123_456]  # the board's system clock, as NTP left it
+    tb = TimeBase(mono.now_ns, 1.0)
+    src = GpsdPpsSource(*gpsd.address, None, tb, realtime_ns=lambda: mono.now_ns() + offset[0])
+    src.open()
+    try:
+        assert gpsd.wait_for_watchers()
+
+        def edge_and_report(real_s: int, qerr_ps: int = 0, step_ns: int = 0, wait_s: float = 3.0) -> list[Reading]:
+            mono.advance(1.0)
+            edge = mono.now_ns()
+            gpsd.publish(tpv(real_s * NS))  # reports of other classes pass by
+            gpsd.publish(pps(real_s, edge + offset[0], qerr_ps))
+            offset[0] += step_ns
+            mono.advance(0.02)  # gpsd reports the edge a little later
+            return read_until(src.read, lambda o: bool(o), timeout_s=wait_s)
+
+        s0 = T0 // NS
+        (r,) = edge_and_report(s0, qerr_ps=-2400)
+        assert r.topic == "/pps" and r.t_mono_ns == mono.now_ns() - 20_000_000
+        assert r.payload == {"seqno": 0, "lost": 0, "gnss_time_ns": s0 * NS + 2}
+        (r,) = edge_and_report(s0 + 3)  # two seconds without a report
+        assert r.payload == {"seqno": 1, "lost": 2, "gnss_time_ns": (s0 + 3) * NS}
+        assert edge_and_report(s0 + 4, step_ns=2 * NS, wait_s=1.0) == []  # the system clock was stepped meanwhile
+        assert src.incidents()["edges left out: system clock stepped"] == 1
+        (r,) = edge_and_report(s0 + 5)
+        assert r.t_mono_ns == mono.now_ns() - 20_000_000 and r.payload["seqno"] == 2
+    finally:
+        src.close()
+
+
+def test_labelled_edges_lock_the_clock_and_a_wrong_second_is_refused() -> None:
+    now = [10 * NS]
+    clock = PpsClock(SyncSettings(pps_latency_ns=0), monotonic_ns=lambda: now[0], wall_ns=lambda: T0)
+    board_rate = 1.0 + 30e-6  # the board's crystal runs 30 ppm fast
+    for k in range(10):
+        now[0] = 10 * NS + round(k * NS * board_rate)
+        clock.observe("/pps", {"seqno": k, "lost": 0, "gnss_time_ns": T0 + k * NS}, now[0])
+    assert clock.report()["state"] == "locked" and clock.counts["rejected"] == 0
+    assert abs(clock.stamp(now[0]).t_sync_ns - (T0 + 9 * NS)) < 1_000
+    now[0] += round(NS * board_rate)
+    clock.observe("/pps", {"seqno": 10, "lost": 0, "gnss_time_ns": T0 + 11 * NS}, now[0])  # a second off
+    assert clock.counts["rejected"] == 1
+    assert abs(clock.stamp(now[0]).t_sync_ns - (T0 + 10 * NS)) < 1_000
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# gpsd's own decoding of real captures, replayed through the socket
+
+
+def merged_tpvs(lines: list[str]) -> dict[int, dict[str, Any]]:
+    """gpsd's reports per epoch, as gpsd completes them: later TPVs of the same time add and replace fields."""
+    out: dict[int, dict[str, Any]] = {}
+    for line in lines:
+        if line.startswith('{"class":"TPV"') and '"time"' in line:
+            obj = json.loads(line)
+            stamp = dt.datetime.strptime(obj["time"], "%Y-%m-%dT%H:%M:%S.%fZ")
+            key = calendar.timegm(stamp.timetuple()) * NS + stamp.microsecond * 1000
+            out.setdefault(key, {}).update(obj)
+    return out
+
+
+REPLAYED = ["ublox-glo.log", "ublox-neo-m8p.log", "ublox-zed-f9p-rtk.log", "ublox-8.log"]
+
+
+@pytest.fixture(scope="module")
+def replayed() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[str, Any]]]]:
+    """Per capture: gpsd's merged TPVs and our records of them, by epoch time (a capture replayed per server)."""
+    results = {}
+    for log in REPLAYED:
+        lines = (DATA_DIR / (log + ".chk")).read_text(encoding="utf-8", errors="replace").splitlines()
+        expected = merged_tpvs(lines)
+        with SimGpsd() as server:
+            src = GpsdSource(*server.address, None, host_timebase())
+            src.open()
+            try:
+                assert server.wait_for_watchers()
+                server.replay(lines)
+                n = len(expected)
+                got = read_until(src.read, lambda o, n=n: len(o) >= n, timeout_s=20.0)
+            finally:
+                src.close()
+        records: dict[int, dict[str, Any]] = {}
+        for r in got:
+            ts = r.payload["timestamp"]
+            key = ts["sec"] * NS + ts["nsec"]
+            assert key not in records, (log, key)  # one record per epoch
+            records[key] = r.payload
+        results[log] = (expected, records)
+    return results
+
+
+@needs_data
+@pytest.mark.parametrize("log", REPLAYED)
+def test_replayed_reports_are_recorded_as_gpsd_gave_them(replayed, log: str) -> None:
+    expected, records = replayed[log]
+    assert len(expected) > 5 and set(records) == set(expected)
+    for key, g in expected.items():
+        rec = records[key]
+        assert rec["source"] == "gpsd" and rec["fix_mode"] == g["mode"]
+        if g["mode"] < 2:
+            continue
+        assert rec["gnss_time_ns"] == key
+        assert (rec["latitude"], rec["longitude"]) == (g["lat"], g["lon"])
+        assert rec["altitude"] == g.get("altHAE", rec["altitude"]) and rec["height_msl_m"] == g.get("altMSL")
+        assert (rec["h_acc_m"], rec["v_acc_m"], rec["s_acc_mps"]) == (g.get("eph"), g.get("epv"), g.get("eps"))
+        vn, ve, vd = rec["vel_ned_mps"]
+        if "velN" in g:
+            assert (vn, ve, vd) == (g["velN"], g["velE"], g["velD"])
+        assert math.hypot(vn, ve) == pytest.approx(g["speed"], rel=1e-12, abs=1e-12) or "velN" in g
+        if "track" in g and g["speed"] > 0 and "velN" not in g:
+            assert math.degrees(math.atan2(ve, vn)) % 360.0 == pytest.approx(g["track"] % 360.0, abs=1e-9)
+        assert vd == (-g["climb"] if "climb" in g and "velD" not in g else vd)
+
+
+@needs_data
+@pytest.mark.parametrize("log", REPLAYED)
+def test_replayed_reports_equal_our_own_decoding_of_the_capture(replayed, log: str) -> None:
+    _, records = replayed[log]
+    serial = decode_pieces([strip_capture_comments((DATA_DIR / log).read_bytes())])
+    mine = {}
+    for fix in serial.fixes:
+        if fix.time_utc_ns is not None and fix.source != "HNR-PVT":
+            mine.setdefault((fix.time_utc_ns + 500_000) // 1_000_000 * 1_000_000, location_fix(fix, 0))
+    common = set(records) & set(mine)
+    assert len(common) >= len(records) - 1  # every epoch gpsd reported (test_gnss_decode_gpsd: all agree)
+    for key in common:
+        a, b = records[key], mine[key]
+        assert a["fix_mode"] == b["fix_mode"]
+        if a["fix_mode"] < 2:
+            continue
+        # gpsd prints 9 decimals of a degree and 4 of a metre; UBX values it passes on exactly
+        assert abs(a["latitude"] - b["latitude"]) <= 5e-10 and abs(a["longitude"] - b["longitude"]) <= 5e-10
+        assert abs(a["altitude"] - b["altitude"]) <= 5e-5
+        assert abs(a["height_msl_m"] - b["height_msl_m"]) <= 5e-5
+        # gpsd's speed is the receiver's ground speed, ours the norm of its N and E velocity: each to 1 mm/s
+        assert abs(math.hypot(*a["vel_ned_mps"][:2]) - math.hypot(*b["vel_ned_mps"][:2])) <= 0.0015
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Configuration
+
+
+GPSD_CONFIG = '[gnss]\nsource = "gpsd"\ngpsd_host = "::1"\ngpsd_port = 2948\ngpsd_device = "/dev/ttyACM0"\n' \
+              '[pps]\nsource = "gpsd"\n[obd]\nsource = "can"\n'
+
+
+def test_gpsd_configuration_and_its_one_line_errors() -> None:
+    cfg = parse(GPSD_CONFIG, "logger.toml")
+    assert (cfg["gnss"]["source"], cfg["gnss"]["gpsd_host"], cfg["gnss"]["gpsd_port"]) == ("gpsd", "::1", 2948)
+    assert cfg["pps"]["source"] == "gpsd" and cfg["gnss"]["port"] is None  # no serial port needed
+    bad = GPSD_CONFIG.replace('"::1"', '"my gpsd!"').replace("2948", "70000").replace('"/dev/ttyACM0"', '"ttyACM0"')
+    with pytest.raises(ConfigError) as err:
+        parse(bad, "logger.toml")
+    assert err.value.problems == [
+        "logger.toml:3: gnss.gpsd_host = 'my gpsd!' is not a host name or IP address",
+        "logger.toml:4: gnss.gpsd_port = 70000 must be between 1 and 65535",
+        "logger.toml:5: gnss.gpsd_device = 'ttyACM0' must be empty (every receiver), a device path such as "
+        "/dev/ttyACM0, or a gpsd source URL"]
+    url = GPSD_CONFIG.replace('"/dev/ttyACM0"', '"tcp://10.0.0.2:2947"')
+    assert parse(url)["gnss"]["gpsd_device"] == "tcp://10.0.0.2:2947"
+
+
+def test_sim_keeps_gpsd_as_a_simulated_gpsd_and_real_gpsd_cannot_be_time_scaled(tmp_path: Path) -> None:
+    path = tmp_path / "logger.toml"
+    path.write_text(GPSD_CONFIG)
+    args = argparse.Namespace(config=str(path), sim=True, scenario=None, seed=None, duration=None, time_scale=5.0,
+                              out=None, status_socket=None)
+    cfg = resolve_config(args)
+    assert cfg["gnss"]["source"] == "gpsd" and cfg["pps"]["source"] == "gpsd" and cfg["sim"]["gpsd"] is True
+    assert cfg["imu"]["source"] == "sim"
+    args.sim = False
+    with pytest.raises(ConfigError, match="needs every sensor simulated; real: imu, baro, obd, gnss, pps"):
+        resolve_config(args)
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_the_systemd_drop_in_opens_tcp_to_localhost_only(tmp_path: Path) -> None:
+    """The unit forbids Internet sockets; the shipped drop-in must open exactly the way to a local gpsd."""
+    units = tmp_path / "etc" / "systemd" / "system"
+    (units / "vehicle-logger.service.d").mkdir(parents=True)
+    unit = (ROOT / "systemd" / "vehicle-logger.service").read_text()
+    (units / "vehicle-logger.service").write_text(unit.replace("/opt/vehicle-logger/venv/bin/logger", "/bin/true"))
+    drop_in = ROOT / "systemd" / "vehicle-logger.service.d" / "gpsd.conf"
+    (units / "vehicle-logger.service.d" / "gpsd.conf").write_text(drop_in.read_text())
+    r = subprocess.run(["systemd-analyze", "security", "--offline=true", f"--root={tmp_path}", "--json=short",
+                        "vehicle-logger.service"], capture_output=True, text=True, timeout=60)
+    items = {i["name"]: i for i in json.loads(r.stdout)}
+    assert items["RestrictAddressFamilies=~AF_(INET|INET6)"]["set"] is False  # TCP to gpsd: allowed
+    assert items["RestrictAddressFamilies=~AF_NETLINK"]["set"] is True  # the rest of the list still holds
+    assert "only localhost" in items["IPAddressDeny="]["description"]
+    r = subprocess.run(["systemd-analyze", "security", "--offline=true", f"--root={tmp_path}",
+                        "vehicle-logger.service"], capture_output=True, text=True, timeout=60)
+    exposure = float(re.search(r"Overall exposure level for vehicle-logger\.service: (\d+\.\d)", r.stdout).group(1))
+    assert exposure <= 2.0, r.stdout
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The daemon on the simulated vehicle, its receiver read through a simulated gpsd
+
+
+def read_file(path: Path) -> dict[str, list[dict[str, Any]]]:
+    out: dict[str, list[dict[str, Any]]] = collections.defaultdict(list)
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            out[channel.topic].append(json.loads(message.data))
+    return out
+
+
+def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pps(tmp_path: Path) -> None:
+    cfg = tmp_path / "logger.toml"
+    cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n[gnss]\nsource = "gpsd"\n[pps]\nsource = "gpsd"\n'
+                   '[obd]\nsource = "sim"\n')
+    sock = tmp_path / "status.sock"
+    duration_s = 40
+    proc = subprocess.Popen([sys.executable, "-m", "logger.cli", "run", "--sim", "--config", str(cfg), "--duration",
+                             str(duration_s), "--time-scale", "5", "--out", str(tmp_path), "--status-socket",
+                             str(sock)], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    snap = None
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                snap = fetch(sock)
+                if snap["uptime_s"] > 10 and all(s["state"] == "ok" for s in snap["sensors"]):
+                    break
+            except ConnectionError:
+                pass
+            time.sleep(0.1)
+        assert snap is not None, proc.stderr.read() if proc.stderr else ""
+        _, stderr = proc.communicate(timeout=90)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, stderr
+    origins = {s["name"]: s["origin"] for s in snap["sensors"]}
+    assert origins["gnss"].startswith("gpsd 127.0.0.1:") and origins["pps"].startswith("gpsd 127.0.0.1:")
+    assert f"gnss from {origins['gnss']}" in render(snap)
+    (path,) = sorted(tmp_path.glob("*.mcap"))
+    msgs = read_file(path)
+    fixes = msgs["/gnss/fix"]
+    assert {f["source"] for f in fixes} == {"gpsd"}
+    t = [f["t_mono_ns"] for f in fixes]
+    rate = (len(t) - 1) / ((t[-1] - t[0]) / NS)
+    assert abs(rate - 1.0) < 0.05 and len(fixes) >= duration_s - 4, (rate, len(fixes))
+    epochs = [f["gnss_time_ns"] for f in fixes if f["gnss_time_ns"] is not None]
+    assert len(epochs) >= len(fixes) - 2 and all(b - a == NS for a, b in itertools.pairwise(epochs))
+    assert all(f["num_sv"] and f["pdop"] for f in fixes if f["fix_mode"] == 3)
+    # each fix sits within metres of the truth of its epoch
+    truth: dict[int, dict[str, Any]] = {}
+    for m in msgs["/truth/nav"]:
+        truth.setdefault(m["t_true_ns"] // NS, m)  # the first sample of each second: at most 50 ms after it
+    near = [abs(f["latitude"] - truth[f["gnss_time_ns"] // NS]["lat_deg"]) * 111_000 for f in fixes
+            if f["fix_mode"] == 3 and f["gnss_time_ns"] is not None and f["gnss_time_ns"] // NS in truth]
+    assert len(near) > 30 and max(near) < 30
+    edges = msgs["/pps"]
+    assert [e["seqno"] for e in edges] == list(range(len(edges))) and len(edges) >= duration_s - 4
+    assert all(abs(e["gnss_time_ns"] - round(e["gnss_time_ns"] / NS) * NS) < 100 for e in edges)
+    assert msgs["/sync"][-1]["state"] == "locked" and msgs["/sync"][-1]["rejected"] == 0
+    # stamps of the IMU, once locked, against the true time at their board time
+    clock = sorted((m["t_mono_ns"], m["t_true_ns"]) for m in msgs["/truth/clock"])
+    board = [c[0] for c in clock]
+    errors = []
+    for m in msgs["/imu"]:
+        i = bisect.bisect_left(board, m["t_mono_ns"])
+        if m["sync_state"] != "locked" or not 0 < i < len(clock):
+            continue
+        (m0, t0), (m1, t1) = clock[i - 1], clock[i]
+        errors.append(abs(m["t_sync_ns"] - (t0 + (t1 - t0) * (m["t_mono_ns"] - m0) / (m1 - m0))))
+    assert len(errors) > 500 and max(errors) < 20_000, (len(errors), max(errors))
