@@ -178,6 +178,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gnss_uere_m": Key(NUM, 3.0, _range(0.01, 100), "range error for receivers that give DOP but no accuracy"),
         "gnss_acc_scale": Key(NUM, 1.0, _range(0.1, 100), "multiply the receiver's own accuracies"),
         "gnss_min_sv": Key(int, 5, _range(4, 40), "fixes on fewer satellites are not used"),
+        "gnss_multipath_corr_s": Key(NUM, 5.0, _range(0, 600),
+                                     "correlation time of GNSS errors above the receiver's floor, s"),
         "zupt_sigma_mps": Key(NUM, 0.02, _range(1e-4, 1), "velocity noise of a zero-velocity update"),
         "zaru_sigma_dps": Key(NUM, 0.01, _range(1e-5, 10), "angular rate noise of a zero-rate update"),
         "gate_probability": Key(NUM, 0.999, _range(0.5, 0.999999), "chi-square gate of every update"),
@@ -194,9 +196,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "scenario": Key(str, "urban", None, "drive to simulate"),
         "seed": Key(int, 1, _range(0, 2**32 - 1)),
         "time_scale": Key(NUM, 1.0, _range(0.01, 1000)),
+        "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
     },
 }
-        "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
 
 # Keys that a source makes necessary: (section, source value) -> keys that must be set.
 REQUIRED_FOR_SOURCE = {("obd", "elm327"): ["port"], ("gnss", "serial"): ["port"]}

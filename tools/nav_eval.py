@@ -93,11 +93,60 @@ def replay(files: list[Path], mode: str, smooth: bool = False,
     return engine, trajectory(rows), elapsed / max(engine.counters.imu, 1) * 1e6
 
 
+SEGMENTS = ("open", "canyon", "approach", "tunnel", "exit")
+
+
+def drive_segments(files: list[Path], duration_s: float) -> tuple[Any, float] | None:
+    """The simulated drive behind a recording (its spans) and its start as Unix seconds, from the metadata."""
+    import datetime as dt
+
+    from mcap.reader import make_reader
+
+    from sensors.sim.scenarios import make_drive
+
+    with open(files[0], "rb") as f:
+        sim = next((dict(m.metadata) for m in make_reader(f).iter_metadata() if m.name == "simulation"), None)
+    if not sim or "start_utc" not in sim:
+        return None
+    # As sensors.sim.vehicle.build_vehicle makes it: the recording's length plus a minute.
+    drive = make_drive(sim["scenario"], seed=int(sim["seed"]), duration_s=duration_s + 60.0)
+    return drive, dt.datetime.fromisoformat(sim["start_utc"]).timestamp()
+
+
+def segment_of(drive: Any, t_s: np.ndarray) -> np.ndarray:
+    """Each drive time's kind of sky: a street canyon (with 3 s either side), the 10 s before a tunnel, the
+    tunnel, the 30 s after it, or open."""
+    kind = np.full(len(t_s), "open", dtype=object)
+    for sp in drive.spans_of("canyon"):
+        kind[(t_s >= sp.start_s - 3.0) & (t_s < sp.end_s + 3.0)] = "canyon"
+    for sp in drive.spans_of("tunnel") + drive.spans_of("outage"):
+        kind[(t_s >= sp.start_s - 10.0) & (t_s < sp.start_s)] = "approach"
+        kind[(t_s >= sp.start_s) & (t_s < sp.end_s)] = "tunnel"
+        kind[(t_s >= sp.end_s) & (t_s < sp.end_s + 30.0)] = "exit"
+    return kind
+
+
+def segment_lines(label: str, s: Score, truth: Any, found: tuple[Any, float]) -> list[str]:
+    """Where a filter's error is made: RMSE per segment and its share of the drive's squared error."""
+    drive, start = found
+    kind = segment_of(drive, s.t_s + truth.t_ns[0] / 1e9 - start)
+    total = np.maximum((s.err**2).sum(axis=0), 1e-12)
+    out = [f"  {label}: segment, share of time, RMSE N/E/V (m), share of the squared error N/E/V"]
+    for k in SEGMENTS:
+        m = kind == k
+        if m.any():
+            e = s.err[m]
+            r, sh = np.sqrt((e**2).mean(axis=0)), (e**2).sum(axis=0) / total
+            out.append(f"    {k:9} {m.mean() * 100:5.1f} %  {r[0]:6.2f} {r[1]:6.2f} {r[2]:6.2f}   "
+                       f"{sh[0] * 100:5.1f} {sh[1] * 100:5.1f} {sh[2] * 100:5.1f} %")
+    return out
+
+
 def check(label: str, ok: bool, detail: str) -> str:
     return f"  [{'PASS' if ok else 'FAIL'}] {label}: {detail}"
 
 
-def urban(files: list[Path], plot_dir: Path | None) -> tuple[list[str], dict[str, Score]]:
+def urban(files: list[Path], plot_dir: Path | None, duration_s: float) -> tuple[list[str], dict[str, Score]]:
     truth = load_truth(files)
     out: list[str] = []
     t8 = table8(files)
@@ -137,6 +186,11 @@ def urban(files: list[Path], plot_dir: Path | None) -> tuple[list[str], dict[str
     out.append(check("17-state RMSE <= the paper's 0.67 / 0.56 / 0.48 m",
                      all(a <= b for a, b in zip(r17, paper, strict=True)),
                      " ".join(f"{a:.3f}" for a in r17)))
+    found = drive_segments(files, duration_s)
+    if found is not None:
+        out.append("Where the error is made (segments from the simulated drive's plan):")
+        for key, label in (("15", "15-state"), ("17", "17-state")):
+            out += segment_lines(label, scores[key], truth, found)
     g = scores["gnss"].rmse
     out.append(f"  GNSS-only RMSE {g[0]:.2f} / {g[1]:.2f} / {g[2]:.2f} m against the paper's 9.18 / 12.93 / 4.57 m")
     if plot_dir is not None:
@@ -203,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds if args.urban_seeds is None else args.urban_seeds:
         lines.append(f"== urban, seed {seed}, {args.urban_s:g} s")
         files = record(args.drives, "urban", seed, args.urban_s, args.time_scale)
-        lines += urban(files, args.plots / f"urban-{seed}" if args.plots else None)[0]
+        lines += urban(files, args.plots / f"urban-{seed}" if args.plots else None, args.urban_s)[0]
         lines.append(f"== consistency, urban seed {seed}")
         lines += consistency(files)
         print("\n".join(lines), flush=True)

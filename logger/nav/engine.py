@@ -24,6 +24,7 @@ from logger.nav import earth
 from logger.nav.alignment import StaticAlignment, rotate_heading, tilt_bias_covariance
 from logger.nav.dynamics import ProcessNoise, discretize, error_dynamics
 from logger.nav.ekf import ErrorStateEkf
+from logger.nav.gnss_noise import CorrelatedGnssNoise
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.measurements import (
     BaroHeight,
@@ -33,6 +34,7 @@ from logger.nav.measurements import (
     ObdVelocity,
     Observation,
     ZeroMotion,
+    repeat_variance,
 )
 from logger.nav.params import MODES, NavParams
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler, quat_from_rotvec, quat_mul
@@ -47,6 +49,8 @@ UPDATE_STALE_S = 0.2  # an update uses the covariance as last propagated if that
 CONING_MAX_DT_S = 0.0105  # mean sample interval below which coning/sculling corrections are applied
 OBD_FRESH_NS = int(1.2 * NS)
 OBD_MIN_SPEED_MPS = 0.5  # below this the 1 km/h steps of PID 0x0D say little
+OBD_STEP_MPS = 1.0 / 3.6  # PID 0x0D's resolution, whatever the interface
+OBD_ROUNDING_HOLD_NS = 10 * NS  # how long one rounding error is taken to last: a speed leaves its step by then
 NHC_MIN_SPEED_MPS = 1.0
 NHC_INTERVAL_NS = NS // 2
 DIVERGENCE_REJECTS = 10  # consecutive rejected GNSS fixes with a good receiver accuracy...
@@ -134,6 +138,7 @@ class NavEngine:
         self.stops = StopDetector(p.still_accel_mps2)
         self.align = StaticAlignment()
         self.epoch_clock = GnssEpochClock()
+        self._gnss_noise = CorrelatedGnssNoise(p.gnss_multipath_corr_s)
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)
         self.q_diag = self.noise.diagonal(self.n)
@@ -163,6 +168,8 @@ class NavEngine:
         self._baro_last: tuple[int, float] | None = None
         self._prov_w: tuple[float, float, float] | None = None
         self._obd: tuple[int, float] | None = None  # (t_ns, speed) of the last OBD reading
+        self._obd_run = 0  # readings in a row with the same value (within OBD_ROUNDING_HOLD_NS of the first)
+        self._obd_run_t0 = 0
         self._w_stop = [0.0, 0.0, 0.0, 0]  # gyro sum and count since the last zero-motion update
         self._w_stop_t0 = 0
         self._next_idle_check_ns = 0
@@ -431,12 +438,12 @@ class NavEngine:
             h_acc = p.gnss_uere_m * pdop * 0.6 * math.sqrt(2.0)
             v_acc = p.gnss_uere_m * pdop * 0.8
         k = p.gnss_acc_scale
-        sig_h = max(0.1, k * h_acc / math.sqrt(2.0))
-        sig_v = max(0.2, k * v_acc)
+        s_acc = msg.get("s_acc_mps")
+        sig_h, sig_v, s_vel = self._gnss_noise.sigmas(t_e, float(h_acc), float(v_acc),
+                                                      float(s_acc) if s_acc is not None else 0.5)
+        sig_h, sig_v, s_vel = max(0.1, k * sig_h), max(0.2, k * sig_v), max(0.03, k * s_vel)
         vel = msg.get("vel_ned_mps")
         vel_arr = None if vel is None or any(v is None for v in vel) else np.array(vel, float)
-        s_acc = msg.get("s_acc_mps")
-        s_vel = max(0.03, k * (s_acc if s_acc is not None else 0.5))
         fix_3d = (msg.get("fix_mode") or 0) >= 3
         fix = _Fix(t_e, int(msg["t_mono_ns"]) + (t_e - t_sync), math.radians(msg["latitude"]),
                    math.radians(msg["longitude"]), float(msg["altitude"]), vel_arr, (sig_h, sig_h, sig_v), s_vel,
@@ -581,6 +588,10 @@ class NavEngine:
         if self.mode != "17":  # the baseline and GNSS-only modes know nothing of the vehicle's speed sensor
             return
         self.counters.obd += 1
+        if self._obd is None or self._obd[1] != speed_mps:
+            self._obd_run, self._obd_run_t0 = 1, t_ns
+        elif t_ns - self._obd_run_t0 <= OBD_ROUNDING_HOLD_NS:
+            self._obd_run += 1
         self._obd = (t_ns, speed_mps)
         if self.state is None:
             return
@@ -590,8 +601,14 @@ class NavEngine:
         if speed_mps < OBD_MIN_SPEED_MPS:
             return
         # The speed the ECU reported belongs to its own instant: evaluated against the solution then.
+        # At a steady speed the reading stays on one 1 km/h step and its rounding error stays the same: the
+        # repeats say little new about it, so they weigh less and less (a run of equal readings is not many
+        # independent ones: 40 of them would otherwise pull the solution to the rounded speed). A real speed
+        # does not stay within one step for long, and the IMU drifts meanwhile: past OBD_ROUNDING_HOLD_NS the
+        # repeats keep the weight they had then, and hold the speed again.
+        sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._obd_run))
         snap = self._state_at(t_ns)
-        obs = ObdVelocity(speed_mps, p.obd_speed_sigma_mps, p.nhc_sigma_mps).observe(snap, snap.dcm(), self.n)
+        obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, snap.dcm(), self.n)
         if self._apply(obs):
             self._last_nhc_ns = t_ns
             if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip

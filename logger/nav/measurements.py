@@ -109,6 +109,27 @@ class ObdVelocity:
         return Observation("obd", z, h, np.array((self.sigma**2, self.nhc_sigma**2, self.nhc_sigma**2)))
 
 
+NO_WEIGHT_VAR = 1.0e6  # a row's variance that leaves the state as it is, yet keeps the update's algebra finite
+
+
+def repeat_variance(sigma: float, step: float, n: int) -> float:
+    """Forward-row variance of the ``n``-th of equal speed readings in a row, so that the run weighs as it should.
+
+    A reading's error is its rounding to ``step`` (variance step^2 / 12, part of ``sigma``) plus the rest
+    (latency, wheel slip), taken as white. At a steady speed the rounding error is the same in every reading
+    of a run: n readings then know the speed to var_q + var_w / n, not to sigma^2 / n. The n-th reading gets
+    the variance that makes the information of the run add up to exactly that, so the first counts in full
+    and the repeats less and less, however long the run.
+    """
+    var = sigma * sigma
+    var_q = min(step * step / 12.0, var)
+    var_w = var - var_q
+    if n <= 1:
+        return var
+    gain = 0.0 if var_w <= 0.0 else 1.0 / (var_q + var_w / n) - 1.0 / (var_q + var_w / (n - 1))
+    return min(1.0 / gain, NO_WEIGHT_VAR) if gain > 0.0 else NO_WEIGHT_VAR
+
+
 @dataclass
 class NonHolonomic:
     """No side slip and no vertical motion of the vehicle body: zero lateral and vertical body velocity."""

@@ -38,6 +38,7 @@ class NavParams:
     gnss_uere_m: float = 3.0  # for receivers that report a DOP but no accuracy
     gnss_acc_scale: float = 1.0
     gnss_min_sv: int = 5  # fewer satellites: the fix's own accuracy figure cannot be trusted (no redundancy)
+    gnss_multipath_corr_s: float = 5.0  # how long a fix's error above the receiver's floor lasts (facades)
     zupt_sigma_mps: float = 0.02
     zaru_sigma_dps: float = 0.01
     gate_probability: float = 0.999

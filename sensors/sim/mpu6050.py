@@ -8,6 +8,20 @@ register order that drops its oldest bytes on overflow, and INT_STATUS cleared b
 Errors follow the datasheet and the paper's Table 3: white noise of 400 ug/sqrt(Hz) (accelerometer) and
 0.005 deg/s/sqrt(Hz) (gyro: 0.05 deg/s RMS in 100 Hz), shaped by the selected low-pass filter; a turn-on
 bias drawn at each power-up; a bias random walk; the temperature sensor reading the truth's ambient.
+
+The gyro's rate random walk K (1e-4 deg/s/sqrt(s), 21.6 deg/h/sqrt(h)) is set from published Allan-variance
+characterisations of this gyro family, since the datasheet gives none: D. R. Greenheck, *Design and
+Characterization of a Low Cost MEMS IMU Cluster for Precision Navigation* (Marquette University MSc thesis,
+2015; its MPU-6000 figures are the defaults of AirSim's ``ImuSimpleParams.hpp``) measures an angle random walk
+of 0.30 deg/sqrt(h) and a bias stability of 4.6 deg/h at tau = 500 s; an MPU-6050 log at 500 Hz (Robotics
+Stack Exchange question 8860) shows 0.003 deg/sqrt(s) and a bias instability of 0.0012 deg/s (4.3 deg/h). An
+Allan deviation is sqrt(N^2 / tau + K^2 tau / 3) with white noise and a rate random walk: with this model's
+N = 0.005 deg/s/sqrt(Hz) and K = 1e-4 it is 2.7 deg/h at its minimum (87 s) and 4.7 deg/h at 500 s, as
+measured; K = 1e-3 would put 46 deg/h at 500 s, ten times what the chip shows. The accelerometer's walk
+(0.05 mg/sqrt(s)) is kept on the pessimistic side of the same thesis (36 ug at tau = 800 s). The bias does
+not follow the temperature in this model: the simulated cabin warms along a half cosine over hours, so a
+7-minute drive sees under 0.05 degC and a 30-minute one under 1 degC, slow enough for the filter's bias
+states to follow with GNSS.
 The filter is modelled as a first-order low-pass whose discrete form keeps the noise density at low
 frequency exactly, since that density is what a navigation filter's tuning rests on.
 
@@ -96,7 +110,7 @@ class Mpu6050Errors:
     accel_turn_on_bias_mg: float = 30.0  # datasheet: +-50 mg (x, y), +-80 mg (z) initial tolerance
     gyro_turn_on_bias_dps: float = 3.0  # datasheet: +-20 deg/s zero-rate output
     accel_bias_walk_mg_per_rts: float = 0.05
-    gyro_bias_walk_dps_per_rts: float = 1.0e-3
+    gyro_bias_walk_dps_per_rts: float = 1.0e-4  # Allan-variance figures above, not the datasheet
     temp_noise_degc: float = 0.02
     self_heating_degc: float = 0.0
 

@@ -1,0 +1,84 @@
+"""Measurement noise of the navigation filter: correlated GNSS errors above the receiver's floor, and runs of
+equal OBD speed readings. Each model must give a run of epochs the weight its shared error leaves it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from logger.nav.gnss_noise import CorrelatedGnssNoise, RunningMin
+from logger.nav.measurements import repeat_variance
+
+NS = 1_000_000_000
+
+
+def test_running_minimum_matches_a_brute_force_window():
+    rng = np.random.default_rng(1)
+    values = rng.gamma(2.0, 1.0, 2000)
+    rm = RunningMin(window=37)
+    for i, v in enumerate(values):
+        assert rm.add(float(v)) == values[max(0, i - 36): i + 1].min()
+
+
+def test_open_sky_figures_pass_unchanged():
+    noise = CorrelatedGnssNoise(corr_s=5.0)
+    for k in range(20):
+        h, v, s = noise.sigmas(k * NS, 0.5, 0.8, 0.05)
+        assert (h, v, s) == pytest.approx((0.5 / math.sqrt(2.0), 0.8, 0.05))
+
+
+def _belief_and_truth(corr_s: float, tau_s: float, n: int, runs: int = 400) -> tuple[float, float]:
+    """Variance the filter would believe of n epochs' mean, and the true one, for AR(1) errors over a floor."""
+    floor, excess = 0.5, 3.0  # the receiver's open-sky figure and a canyon's extra error, DRMS
+    rho = math.exp(-1.0 / tau_s)
+    rng = np.random.default_rng(7)
+    e = np.zeros((runs, n))
+    x = rng.standard_normal(runs) * excess / math.sqrt(2.0)
+    for k in range(n):
+        e[:, k] = x + rng.standard_normal(runs) * floor / math.sqrt(2.0)
+        x = rho * x + rng.standard_normal(runs) * excess / math.sqrt(2.0) * math.sqrt(1.0 - rho**2)
+    noise = CorrelatedGnssNoise(corr_s)
+    for k in range(30):  # open sky first: the receiver's floor is known
+        noise.sigmas(k * NS, floor, 1.0, 0.05)
+    h_acc = math.hypot(floor, excess)
+    info = sum(1.0 / noise.sigmas((30 + k) * NS, h_acc, 1.0, 0.05)[0] ** 2 for k in range(n))
+    return 1.0 / info, float(e.mean(axis=1).var())
+
+
+def test_a_canyons_correlated_fixes_weigh_what_their_shared_error_leaves_them():
+    believed, true = _belief_and_truth(corr_s=5.0, tau_s=5.0, n=60)
+    assert 0.5 < believed / true < 2.0
+    white, true = _belief_and_truth(corr_s=0.0, tau_s=5.0, n=60)  # taken as independent: far too sure
+    assert white / true < 0.2
+
+
+def test_fixes_far_apart_are_taken_as_independent():
+    noise = CorrelatedGnssNoise(corr_s=5.0)
+    noise.sigmas(0, 0.5, 0.8, 0.05)
+    assert noise.factor(60 * NS) == 1.0
+    assert noise.factor(61 * NS) == pytest.approx((1 + math.exp(-0.2)) / (1 - math.exp(-0.2)))
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 40, 400])
+def test_a_run_of_equal_speed_readings_adds_up_to_what_its_rounding_leaves(n):
+    sigma, step = 0.2, 1.0 / 3.6
+    var_q = step**2 / 12.0
+    info = sum(1.0 / repeat_variance(sigma, step, k) for k in range(1, n + 1))
+    assert 1.0 / info == pytest.approx(var_q + (sigma**2 - var_q) / n, rel=1e-6)
+
+
+def test_rounded_steady_speeds_are_consistent_with_the_weight_of_their_run():
+    sigma, step, n = 0.2, 1.0 / 3.6, 40
+    rng = np.random.default_rng(3)
+    v = rng.uniform(5.0, 25.0, 5000)
+    err = np.round(v / step) * step - v  # the same in every reading of the run
+    believed = 1.0 / sum(1.0 / repeat_variance(sigma, step, k) for k in range(1, n + 1))
+    assert float(np.mean(err**2 / believed)) < 1.2
+    assert float(np.mean(err**2 / (sigma**2 / n))) > 4.0  # taken as independent: far too sure
+
+
+def test_no_white_part_leaves_the_repeats_without_weight_but_finite():
+    assert repeat_variance(0.05, 1.0 / 3.6, 1) == pytest.approx(0.0025)
+    assert math.isfinite(repeat_variance(0.05, 1.0 / 3.6, 2)) and repeat_variance(0.05, 1.0 / 3.6, 2) >= 1e5
