@@ -8,6 +8,8 @@ is refused then, because real devices cannot run faster than real time.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import logging
 import sys
 import time
@@ -119,6 +121,9 @@ def build(cfg: Config, duration_s: float | None,
         extras.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
                                          "time_scale": f"{vehicle.time_scale:g}",
                                          "start_utc": vehicle.timeline.start_utc.isoformat()}
+        if vehicle.imu is not None and "imu_error_scale" in (scenario_options or {}):
+            # A drive made with a chip other than the default says so: its IMU errors are part of what it tests.
+            extras.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
 
         def truth_clock() -> list[Reading]:
             now = tb.monotonic_ns()

@@ -258,6 +258,38 @@ def test_gyro_noise_matches_datasheet_figure(rig) -> None:
     assert np.all((rms_dps > 0.045) & (rms_dps < 0.075))
 
 
+def test_a_worse_chip_scales_every_error_term_and_its_noise_shows_it(rig) -> None:
+    """``imu_error_scale`` (a factor, or one per term) makes a chip worse than the datasheet's, for testing a filter
+    against errors it was not tuned for; what it makes is seen in the samples, not only in the figures."""
+    base = Mpu6050Errors()
+    twice = base.scaled(2.0)
+    assert twice.gyro_noise_dps_per_rthz == 2 * base.gyro_noise_dps_per_rthz
+    assert twice.accel_bias_walk_mg_per_rts == 2 * base.accel_bias_walk_mg_per_rts
+    assert twice.temp_noise_degc == base.temp_noise_degc
+    per_term = base.scaled({"gyro_bias_walk_dps_per_rts": 40.0, "accel_turn_on_bias_mg": 3.0})
+    assert per_term.gyro_bias_walk_dps_per_rts == pytest.approx(40 * base.gyro_bias_walk_dps_per_rts)
+    assert per_term.accel_turn_on_bias_mg == pytest.approx(3 * base.accel_turn_on_bias_mg)
+    assert per_term.gyro_noise_dps_per_rthz == base.gyro_noise_dps_per_rthz
+    with pytest.raises(ValueError, match="unknown term"):
+        base.scaled({"gyro_noise": 2.0})
+    with pytest.raises(ValueError, match=">= 0"):
+        base.scaled({"gyro_noise_dps_per_rthz": -1.0})
+    quiet = Mpu6050Errors(gyro_turn_on_bias_dps=0.0, gyro_bias_walk_dps_per_rts=0.0)
+    rms = []
+    for errors in (quiet, quiet.scaled({"gyro_noise_dps_per_rthz": 3.0})):
+        r = rig(ParkedTrajectory(), errors=errors, seed=11)
+        d = r.driver(rate_hz=1000, dlpf_cfg=2, fifo=True)
+        d.configure()
+        r.clock.advance(0.1)
+        d.read_fifo(r.clock.now_ns())
+        gyro = []
+        for _ in range(40):
+            r.clock.advance(0.05)
+            gyro.append(d.read_fifo(r.clock.now_ns()).gyro_rps)
+        rms.append(float(np.vstack(gyro).std(axis=0).mean()))
+    assert rms[1] / rms[0] == pytest.approx(3.0, rel=0.2)
+
+
 def test_group_delay_is_the_register_maps(rig) -> None:
     """A linear ramp read at time t shows the value of t - delay: the driver's delay is the chip's."""
     truth = MotionTrajectory(w0=(0.0, 0.0, 0.0), w_dot_z=1.0)

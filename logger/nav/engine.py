@@ -21,7 +21,13 @@ from typing import Any
 import numpy as np
 
 from logger.nav import earth
-from logger.nav.alignment import StaticAlignment, rotate_heading, tilt_bias_covariance
+from logger.nav.alignment import (
+    StaticAlignment,
+    gyro_calibration_variance,
+    horizontal_earth_rate_body,
+    rotate_heading,
+    tilt_bias_covariance,
+)
 from logger.nav.dynamics import ProcessNoise, discretize, error_dynamics
 from logger.nav.ekf import ErrorStateEkf
 from logger.nav.gnss_noise import CorrelatedGnssNoise
@@ -164,6 +170,8 @@ class NavEngine:
         self._prov_q: tuple[float, float, float, float] | None = None  # attitude before the heading is known
         self._prov_hist: deque[tuple[int, tuple[float, float, float, float]]] = deque(maxlen=4096)
         self._levelled: tuple[float, float, tuple[float, float, float], tuple[float, float, float]] | None = None
+        self._level_span = (0, 0.0)  # end (ns) and length (s) of the standstill the levelling averaged
+        self._level_yaw = 0.0  # heading at the end of levelling, once the GNSS course (or config) tells it
         self._last_fix: _Fix | None = None
         self._baro_last: tuple[int, float] | None = None
         self._prov_w: tuple[float, float, float] | None = None
@@ -283,9 +291,11 @@ class NavEngine:
             roll, pitch = self.align.level()
             bg = self.align.gyro_bias(lat)
             self._levelled = (roll, pitch, bg, self.align.mean_force())
+            self._level_span = (self.align.t1_ns, self.align.duration_s)
             self._prov_q = quat_from_euler(roll, pitch, 0.0)
             self._prov_w = None
             if self.params.heading_source == "config" and fix is not None:
+                self._level_yaw = math.radians(self.params.initial_heading_deg)
                 self._initialise(t_ns, math.radians(self.params.initial_heading_deg), "config heading", fix)
                 return
         bg = self._levelled[2] if self._levelled else (0.0, 0.0, 0.0)
@@ -308,12 +318,21 @@ class NavEngine:
             if yaw_or_none is not None and method == "config heading":
                 q = quat_from_euler(roll, pitch, yaw_or_none)
             att_var = math.radians(0.3) ** 2
-            bg_var = (earth.OMEGA_IE**2) + (math.radians(0.05)) ** 2
+            # With the heading known, the horizontal earth rate comes out of the standstill's gyro mean, and
+            # what is left of the offset is what that mean could not average out.
+            e = horizontal_earth_rate_body(roll, pitch, self._level_yaw, fix.lat)
+            bg = (bg[0] - e[0], bg[1] - e[1], bg[2] - e[2])
+            end_ns, span_s = self._level_span
+            bg_var = gyro_calibration_variance(p.gyro_arw, p.gyro_bias_walk, span_s, (t_ns - end_ns) / NS)
+            # Levelling made the specific force it measured vertical in the attitude of that moment: the tilt
+            # it took for the accelerometer offset is tied to the body axes as they were then.
+            c_level = dcm_from_euler(roll, pitch, self._level_yaw)
         else:  # moving from the start: no levelling, no gyro calibration
             bg = (0.0, 0.0, 0.0)
             q = quat_from_euler(0.0, 0.0, yaw_or_none or 0.0)
             att_var = math.radians(3.0) ** 2
             bg_var = p.gyro_bias_sigma**2
+            c_level = None
         dt_e = (t_ns - fix.t_ns) / NS
         vel = fix.vel if fix.vel is not None else np.zeros(3)
         lat, lon, h = earth.offset_llh(fix.lat, fix.lon, fix.h, vel[0] * dt_e, vel[1] * dt_e, vel[2] * dt_e)
@@ -330,7 +349,8 @@ class NavEngine:
             p0[P_ID + i, P_ID + i] = fix.sigma[i] ** 2 + (abs(vel[i]) * 0.05) ** 2
             p0[V_ID + i, V_ID + i] = max(fix.s_vel, 0.1) ** 2 + 0.1
             p0[BG_ID + i, BG_ID + i] = bg_var
-        pphi, pphiba, pba = tilt_bias_covariance(c_bn, p.accel_bias_sigma**2, earth.G0)
+        pphi, pphiba, pba = tilt_bias_covariance(c_bn if c_level is None else c_level, p.accel_bias_sigma**2,
+                                                 earth.G0)
         p0[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + np.diag((att_var, att_var, heading_var))
         p0[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
         p0[BA_ID:BA_ID + 3, PHI_ID:PHI_ID + 3] = pphiba.T
@@ -392,8 +412,8 @@ class NavEngine:
     def _feedback(self, dx: np.ndarray) -> None:
         assert self.state is not None
         self.state.correct(dx)
-        c = self._corr
-        self._corr = (c[0] + dx[0], c[1] + dx[1], c[2] + dx[2], c[3] + dx[3], c[4] + dx[4], c[5] + dx[5])
+        c, d = self._corr, dx[:6].tolist()
+        self._corr = (c[0] + d[0], c[1] + d[1], c[2] + d[2], c[3] + d[3], c[4] + d[4], c[5] + d[5])
         if self.record and self.epochs:
             ep = self.epochs[-1]
             ep.dx = dx if ep.dx is None else ep.dx + dx
@@ -521,6 +541,7 @@ class NavEngine:
                     break
             _, _, yaw_then = euler_from_dcm(_dcm(q_then))
             self._prov_q = rotate_heading(self._prov_q, course - yaw_then)
+            self._level_yaw = course - yaw_then  # the provisional attitude began at yaw 0 when levelling ended
             self._initialise(self._t_last or fix.t_ns, None, "gnss course", fix, heading_var)
         else:
             self._initialise(self._t_last or fix.t_ns, course, "gnss course, no levelling", fix,

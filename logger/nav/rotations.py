@@ -14,8 +14,8 @@ import numpy as np
 
 def skew(v: np.ndarray | tuple[float, float, float]) -> np.ndarray:
     """The matrix ``[v x]`` with ``skew(a) @ b == cross(a, b)``."""
-    x, y, z = (float(c) for c in v)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    x, y, z = v.tolist() if isinstance(v, np.ndarray) else v
+    return np.array(((0.0, -z, y), (z, 0.0, -x), (-y, x, 0.0)))
 
 
 def dcm_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:

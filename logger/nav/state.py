@@ -63,22 +63,20 @@ class NavState:
 
     def correct(self, dx: np.ndarray) -> None:
         """Feed an estimated error back into the nominal state (closed loop): x_true = x_hat - dx."""
+        d = dx.tolist()  # plain floats at once: indexing the array element by element costs more than the rest
         rm, rn = earth.radii(self.lat)
-        self.lat -= float(dx[P_ID]) / (rm + self.h)
-        self.lon -= float(dx[P_ID + 1]) / ((rn + self.h) * math.cos(self.lat))
-        self.h += float(dx[P_ID + 2])
-        self.vn -= float(dx[V_ID])
-        self.ve -= float(dx[V_ID + 1])
-        self.vd -= float(dx[V_ID + 2])
+        self.lat -= d[P_ID] / (rm + self.h)
+        self.lon -= d[P_ID + 1] / ((rn + self.h) * math.cos(self.lat))
+        self.h += d[P_ID + 2]
+        self.vn -= d[V_ID]
+        self.ve -= d[V_ID + 1]
+        self.vd -= d[V_ID + 2]
         # C_true = (I + [phi x]) C_hat: rotate the computed frame back by phi, in NED.
-        w, x, y, z = quat_mul(quat_from_rotvec(float(dx[PHI_ID]), float(dx[PHI_ID + 1]), float(dx[PHI_ID + 2])),
-                              self.q)
+        w, x, y, z = quat_mul(quat_from_rotvec(d[PHI_ID], d[PHI_ID + 1], d[PHI_ID + 2]), self.q)
         n = math.sqrt(w * w + x * x + y * y + z * z)
         self.q = (w / n, x / n, y / n, z / n)
-        self.ba = (self.ba[0] - float(dx[BA_ID]), self.ba[1] - float(dx[BA_ID + 1]),
-                   self.ba[2] - float(dx[BA_ID + 2]))
-        self.bg = (self.bg[0] - float(dx[BG_ID]), self.bg[1] - float(dx[BG_ID + 1]),
-                   self.bg[2] - float(dx[BG_ID + 2]))
-        if len(dx) > SF_ID:
-            self.sf -= float(dx[SF_ID])
-            self.dh -= float(dx[DH_ID])
+        self.ba = (self.ba[0] - d[BA_ID], self.ba[1] - d[BA_ID + 1], self.ba[2] - d[BA_ID + 2])
+        self.bg = (self.bg[0] - d[BG_ID], self.bg[1] - d[BG_ID + 1], self.bg[2] - d[BG_ID + 2])
+        if len(d) > SF_ID:
+            self.sf -= d[SF_ID]
+            self.dh -= d[DH_ID]

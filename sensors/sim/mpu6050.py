@@ -35,7 +35,8 @@ mounted face-down with x forward, so a parked level vehicle reads -1 g on chip z
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -118,6 +119,24 @@ class Mpu6050Errors:
     def ideal(cls) -> Mpu6050Errors:
         """No noise and no bias: what is left is quantisation, saturation and the filter delay."""
         return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def scaled(self, scale: float | Mapping[str, float]) -> Mpu6050Errors:
+        """A worse (or better) chip: every noise density, turn-on bias and bias walk times ``scale``, or each
+        named term by its own factor (a mapping of field names), for testing a filter against errors other
+        than those it was tuned for. The temperature sensor is left as it is."""
+        terms = [f.name for f in fields(self) if f.name in SCALABLE_TERMS]
+        factors = {name: float(scale) for name in terms} if isinstance(scale, (int, float)) else dict(scale)
+        unknown = sorted(set(factors) - set(terms))
+        if unknown:
+            raise ValueError(f"imu_error_scale: unknown term(s) {', '.join(unknown)}; known: {', '.join(terms)}")
+        bad = [k for k, v in factors.items() if not (math.isfinite(v) and v >= 0.0)]
+        if bad:
+            raise ValueError(f"imu_error_scale: factors must be finite and >= 0 ({', '.join(sorted(bad))})")
+        return replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+
+SCALABLE_TERMS = ("accel_noise_ug_per_rthz", "gyro_noise_dps_per_rthz", "accel_turn_on_bias_mg",
+                  "gyro_turn_on_bias_dps", "accel_bias_walk_mg_per_rts", "gyro_bias_walk_dps_per_rts")
 
 
 class Mpu6050Model(RegisterChip):

@@ -23,7 +23,7 @@ from sensors.sim.drive import Drive
 from sensors.sim.elm327 import Elm327Model
 from sensors.sim.gnss_time import GnssTimeline
 from sensors.sim.i2c import SimI2cAdapter
-from sensors.sim.mpu6050 import Mpu6050Model
+from sensors.sim.mpu6050 import Mpu6050Errors, Mpu6050Model
 from sensors.sim.obd_ecu import engine_ecu, transmission_ecu
 from sensors.sim.oscillator import Oscillator, OscillatorClock
 from sensors.sim.pps import PpsSignal, pps_chip
@@ -146,9 +146,16 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
     scale 1 simulated and real devices share one clock; the drive starts at the current UTC second.
 
     With ``gpsd`` a simulated gpsd on 127.0.0.1 reads the receiver and its PPS (``devices.gpsd_host/port``),
-    whether or not the daemon also opens the receiver's port or PPS line itself."""
+    whether or not the daemon also opens the receiver's port or PPS line itself.
+
+    ``scenario_options`` go to the drive (:func:`sensors.sim.scenarios.make_drive`), except ``imu_error_scale``:
+    a factor on the MPU-6050's error terms, or a mapping of term to factor (:meth:`Mpu6050Errors.scaled`), for
+    testing the filter on a chip worse than its configuration assumes."""
     horizon = duration_s if duration_s is not None else 8 * 3600.0
-    drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0, **(scenario_options or {}))
+    options = dict(scenario_options or {})
+    imu_scale = options.pop("imu_error_scale", None)
+    imu_errors = Mpu6050Errors().scaled(imu_scale) if imu_scale is not None else None
+    drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0, **options)
     rng = np.random.default_rng([seed, 7])
     oscillator = Oscillator.for_trajectory(drive, horizon_s=horizon + 60.0, board_start_ns=host_monotonic_ns(),
                                            offset_ppm=float(rng.uniform(-40.0, 40.0)), seed=rng)
@@ -163,7 +170,7 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         v.i2c = SimI2cAdapter()
         devices.i2c_path = v.i2c.path
         if imu:
-            v.imu = Mpu6050Model(clock, drive, seed=np.random.default_rng(child[0]))
+            v.imu = Mpu6050Model(clock, drive, seed=np.random.default_rng(child[0]), errors=imu_errors)
             v.i2c.attach(MPU6050_ADDRESS, v.imu)
         if baro:
             v.baro = Bmp085Model(clock, drive, seed=np.random.default_rng(child[1]))
