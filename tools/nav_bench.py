@@ -24,7 +24,8 @@ from logger.nav.recording import read_messages
 from logger.replay_cmd import run_filter
 
 
-def bench_replay(files: list[Path], mode: str, smooth: bool) -> None:
+def bench_replay(files: list[Path], mode: str, smooth: bool) -> dict[str, float | int | str | bool]:
+    """Time one replay, print the line and return the figures (``tools/bench.py`` tabulates them)."""
     p = NavParams(mode=mode)
     c0, w0 = time.process_time(), time.perf_counter()
     engine, rows = run_filter(files, p, smooth)
@@ -35,6 +36,9 @@ def bench_replay(files: list[Path], mode: str, smooth: bool) -> None:
     print(f"replay mode {mode}{' + smoother' if smooth else ''}: {n} {what}, {span:.0f} s of drive: "
           f"CPU {cpu:.2f} s ({cpu / max(n, 1) * 1e6:.1f} us per sample, {span / max(cpu, 1e-9):.0f}x real time), "
           f"wall {wall:.2f} s ({wall / max(n, 1) * 1e6:.1f} us per sample)")
+    return {"mode": mode, "smooth": smooth, "samples": n, "what": what, "drive_s": span, "cpu_s": cpu,
+            "wall_s": wall, "cpu_us_per_sample": cpu / max(n, 1) * 1e6, "x_real_time_cpu": span / max(cpu, 1e-9),
+            "x_real_time_wall": span / max(wall, 1e-9)}
 
 
 def bench_live(files: list[Path], seconds: float, start_s: float) -> None:

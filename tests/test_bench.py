@@ -1,0 +1,131 @@
+"""The benchmark tools' measuring parts: per-thread CPU, the simulator's share, the file analysis (no timings)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+
+import bench_board  # noqa: E402
+import bench_daemon  # noqa: E402
+
+
+def burn(cpu_s: float) -> None:
+    """Spend this much of the calling thread's CPU time, however long the loaded machine makes it take."""
+    end = time.thread_time() + cpu_s
+    while time.thread_time() < end:
+        pass
+
+
+def test_bench_help_names_every_benchmark() -> None:
+    out = subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--help"], capture_output=True,
+                         text=True, check=True).stdout
+    for name in ("daemon", "recorder", "nav", "sync", "startup", "--quick", "--only"):
+        assert name in out
+
+
+def test_bench_refuses_an_unknown_benchmark() -> None:
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--only", "disk"], capture_output=True,
+                          text=True)
+    assert proc.returncode == 2
+    assert "unknown benchmark disk" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_task_cpu_follows_a_busy_thread_by_name() -> None:
+    ready = threading.Event()
+    tid: list[int] = []
+
+    def work() -> None:
+        tid.append(threading.get_native_id())
+        burn(0.3)
+        ready.set()
+        time.sleep(0.5)  # stay alive while the test reads /proc
+
+    t = threading.Thread(target=work, name="sampler-test")
+    t.start()
+    try:
+        assert ready.wait(30)
+        cpu = bench_daemon.task_cpu_s()
+        names = bench_daemon.thread_names(cpu)
+        assert names[tid[0]] == "sampler-test"
+        assert cpu[tid[0]] >= 0.25  # clock ticks of 10 ms: 0.3 s of CPU reads as at least 0.29
+    finally:
+        t.join()
+
+
+def test_sim_meter_counts_nested_calls_once_and_by_thread() -> None:
+    class Chip:
+        def inner(self) -> None:
+            burn(0.05)
+
+        def outer(self) -> None:
+            burn(0.05)
+            self.inner()
+
+    meter = bench_daemon.SimMeter()
+    meter.wrap(Chip, "inner")
+    meter.wrap(Chip, "outer")
+    spent: list[float] = []
+
+    def work() -> None:
+        t0 = time.thread_time()
+        Chip().outer()
+        burn(0.05)  # outside the simulation: not metered
+        spent.append(time.thread_time() - t0)
+
+    t = threading.Thread(target=work, name="sampler-imu")
+    t.start()
+    t.join()
+    inside = meter.snapshot()["sampler-imu"]
+    assert 0.1 <= inside < spent[0] - 0.04  # outer and inner once each, the last 0.05 s left out
+
+
+@pytest.mark.parametrize(("name", "kind"), [("sampler-imu", "daemon"), ("recorder", "daemon"), ("navigator", "daemon"),
+                                            ("MainThread", "daemon"), ("sim-elm327", "sim"), ("ublox-model", "sim"),
+                                            ("sim-irq-gpiochip1", "sim"), ("bench-monitor", "bench"),
+                                            ("native:zstd", "other")])
+def test_threads_are_classed_by_name(name: str, kind: str) -> None:
+    assert bench_daemon.thread_class(name) == kind
+
+
+def test_file_analysis_finds_lost_records_and_irregular_stamps(tmp_path: Path) -> None:
+    from mcap.writer import Writer
+
+    period = 1_000_000  # 1 kHz
+    stamps = [0, 1, 2, 3, 2, 3, 7, 10, 11]  # in periods: one stamp back (3 -> 2), one gap of 4 (3 -> 7)
+    seqs = [0, 1, 2, 3, 4, 5, 6, 9, 10]  # records 7 and 8 lost
+    lost = [0, 0, 0, 0, 0, 0, 3, 0, 0]  # a FIFO overflow of 3 before record 6
+    path = tmp_path / "drive.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("imu", "jsonschema", b"{}")
+        cid = w.register_channel("/imu", "json", sid)
+        for k, (t, s, n) in enumerate(zip(stamps, seqs, lost, strict=True)):
+            msg = {"t_mono_ns": 10**9 + t * period, "seq": s, "lost": n}
+            w.add_message(cid, k, json.dumps(msg).encode(), k)
+        w.finish()
+    got = bench_daemon.analyse_file([path], 1000.0, 10**9, 10**9 + 11 * period)
+    assert got["imu_records"] == 9
+    assert got["seq_missing"] == 2
+    assert got["fifo_lost"] == 3
+    assert got["stamp_backwards"] == 1
+    assert got["stamp_gaps"] == 1  # the jump over the lost records (7 -> 10) is no stamp step
+    assert got["stamp_step_error_max_ms"] == pytest.approx(3.0)  # 4 periods where 1 was due
+
+
+def test_board_verdict_against_the_budget() -> None:
+    low, high = bench_board.board_range(1.0)
+    assert (low, high) == (bench_board.FACTOR_LOW, bench_board.FACTOR_HIGH)
+    assert "within" in bench_board.verdict(5.0, 20.0) and "over" not in bench_board.verdict(5.0, 20.0)
+    assert "over it at the slow end" in bench_board.verdict(20.0, 40.0)
+    assert "across the whole range" in bench_board.verdict(30.0, 60.0)

@@ -1,0 +1,350 @@
+"""Run every benchmark, each in its own process, and write the figures as tables into BENCHMARKS.md.
+
+    python tools/bench.py                      # everything, about 35 minutes; writes BENCHMARKS.md
+    python tools/bench.py --quick              # a short smoke run of everything; prints, writes nothing
+    python tools/bench.py --only recorder,nav  # a subset; the other sections keep their last figures
+
+Benchmarks (``--only`` names): ``daemon`` (CPU per thread and memory of the daemon on the simulated vehicle
+at the default rates and with the IMU at 200, 500 and 1000 Hz, each long enough to tell whether the rate is
+sustained, plus a profiled run; ``tools/bench_daemon.py``), ``recorder`` (throughput against the bare mcap
+writer; ``tools/bench_recorder.py``), ``nav`` (filter cost per IMU sample and ``logger replay`` speed;
+``tools/bench_nav.py``), ``sync`` (stamp error against the truth, locked and in holdover;
+``tools/bench_sync.py``), ``startup`` (time to the first recorded sample; ``tools/bench_startup.py``). The
+recorder and filter benchmarks share one simulated drive, recorded first by ``tools/nav_eval.py``'s recorder.
+
+The raw figures of each benchmark go to BENCHMARKS.json beside the report, with when and under what load they
+were taken, so that a subset run keeps the other sections. Other jobs may share the machine: the load average
+and how busy the machine was while each benchmark ran are in the report. No test asserts on these figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import importlib.metadata
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+TOOLS = ROOT / "tools"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(TOOLS))
+
+import bench_board  # noqa: E402
+import bench_daemon  # noqa: E402
+import bench_nav  # noqa: E402
+import bench_recorder  # noqa: E402
+import bench_startup  # noqa: E402
+import bench_sync  # noqa: E402
+
+BENCHMARKS = ("daemon", "recorder", "nav", "sync", "startup")
+LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "lz4", "pyubx2", "pynmeagps", "gpiod")
+
+# (full, quick) settings of each benchmark
+DAEMON_RATES = ((20.0, 300.0), (200.0, 300.0), (500.0, 300.0), (1000.0, 300.0))
+QUICK_DAEMON_RATES = ((20.0, 30.0), (200.0, 30.0), (500.0, 30.0), (1000.0, 30.0))
+PROFILE_S = (60.0, 20.0)
+DRIVE_S = (600.0, 180.0)
+DRIVE_TIME_SCALE = 4.0  # faster starves the simulated sensors on a loaded 2-core host (docs/nav.md)
+RECORDER = (("--messages", "200000", "--repeat", "3"), ("--messages", "20000", "--repeat", "1"))
+SYNC = (("--duration", "900", "--pps-outage", "300", "400", "--time-scale", "5"),
+        ("--duration", "180", "--pps-outage", "60", "60", "--time-scale", "6"))
+STARTUP_RUNS = ("5", "2")
+
+
+# ---- the machine ---------------------------------------------------------------------------------------------
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def loadavg() -> str:
+    try:
+        return " ".join(Path("/proc/loadavg").read_text(encoding="ascii").split()[:3])
+    except OSError:
+        return "?"
+
+
+def machine_busy() -> tuple[int, int]:
+    """(busy, total) jiffies of all CPUs since boot, from /proc/stat."""
+    fields = [int(x) for x in Path("/proc/stat").read_text(encoding="ascii").splitlines()[0].split()[1:]]
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)
+    return sum(fields) - idle, sum(fields)
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for name in LIBRARIES:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def tree_state() -> str:
+    """The commit measured, and whether the work tree differed from it (read-only git commands)."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return head + (" with uncommitted changes" if dirty else "")
+
+
+def machine() -> dict[str, Any]:
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "kernel": platform.release(), "arch": platform.machine(),
+            "versions": versions(), "commit": tree_state()}
+
+
+# ---- running one benchmark in its own process ----------------------------------------------------------------
+def run_step(name: str, args: list[str], work: Path) -> Any:
+    """Run ``tools/<script> args --json F`` as a child; returns its JSON and notes the load while it ran."""
+    out = work / f"{name}.json"
+    log = work / f"{name}.log"
+    started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    busy0, total0 = machine_busy()
+    child0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0, t0 = loadavg(), time.monotonic()
+    print(f"[bench] {name}: {' '.join(args)}", flush=True)
+    with open(log, "w", encoding="utf-8") as f:
+        code = subprocess.run([sys.executable, *args, "--json", str(out)], cwd=ROOT, stdout=f, stderr=f).returncode
+    wall = time.monotonic() - t0
+    busy1, total1 = machine_busy()
+    child1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if code != 0 or not out.exists():
+        tail = log.read_text(encoding="utf-8", errors="replace")[-3000:]
+        raise SystemExit(f"bench: {name} failed (exit {code}); its log ends:\n{tail}")
+    ours = (child1.ru_utime - child0.ru_utime) + (child1.ru_stime - child0.ru_stime)
+    ticks = os.sysconf("SC_CLK_TCK")
+    cores = os.cpu_count() or 1
+    busy_pct = (busy1 - busy0) / max(total1 - total0, 1) * 100
+    return {"result": json.loads(out.read_text()),
+            "load": {"started": started, "wall_s": round(wall), "loadavg_before": load0, "loadavg_after": loadavg(),
+                     "machine_busy_pct": round(busy_pct, 1),
+                     "others_pct_of_machine": round(max(0.0, busy_pct - ours * 100 / (wall * cores)), 1),
+                     "jiffy_hz": ticks}}
+
+
+def run_daemon(quick: bool, work: Path, nice: int) -> dict[str, Any]:
+    runs, loads = [], []
+    for rate, seconds in QUICK_DAEMON_RATES if quick else DAEMON_RATES:
+        step = run_step(f"daemon-{rate:g}", ["tools/bench_daemon.py", "--imu-rate", f"{rate:g}", "--seconds",
+                                             f"{seconds:g}", "--nice", str(nice)], work)
+        runs.append(step["result"])
+        loads.append({"step": f"daemon {rate:g} Hz", **step["load"]})
+    step = run_step("daemon-profile", ["tools/bench_daemon.py", "--imu-rate", "20", "--seconds",
+                                       f"{PROFILE_S[quick]:g}", "--profile", "--nice", str(nice)], work)
+    runs.append(step["result"])
+    loads.append({"step": "daemon 20 Hz, profiled", **step["load"]})
+    return {"runs": runs, "loads": loads}
+
+
+def record_drive(quick: bool, work: Path) -> list[Path]:
+    import nav_eval
+
+    files = nav_eval.record(work / "drives", "urban", 1, DRIVE_S[quick], DRIVE_TIME_SCALE)
+    if not files:
+        raise SystemExit("bench: recording the simulated drive gave no file")
+    return files
+
+
+def run_all(selected: list[str], quick: bool, work: Path, nice: int) -> dict[str, Any]:
+    done: dict[str, Any] = {}
+    drive: list[Path] = []
+    for name in selected:
+        started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+        if name == "daemon":
+            section = run_daemon(quick, work, nice)
+        else:
+            if name in ("recorder", "nav") and not drive:
+                drive = record_drive(quick, work)
+            args = {"recorder": ["tools/bench_recorder.py", *map(str, drive), *RECORDER[quick]],
+                    "nav": ["tools/bench_nav.py", *map(str, drive)],
+                    "sync": ["tools/bench_sync.py", *SYNC[quick]],
+                    "startup": ["tools/bench_startup.py", "--runs", STARTUP_RUNS[quick]]}[name]
+            step = run_step(name, args, work)
+            section = {**step["result"], "loads": [{"step": name, **step["load"]}]}
+        section["measured"] = started
+        section["quick"] = quick
+        done[name] = section
+    return done
+
+
+# ---- the report ----------------------------------------------------------------------------------------------
+HEADINGS = {
+    "daemon": ("Daemon CPU and memory on the simulated vehicle", bench_daemon),
+    "recorder": ("Recorder throughput against the bare mcap writer", bench_recorder),
+    "nav": ("Navigation filter and `logger replay`", bench_nav),
+    "sync": ("Time sync: stamp error against the truth", bench_sync),
+    "startup": ("Start-up to the first recorded sample", bench_startup),
+}
+
+
+def _doc(module: Any) -> list[str]:
+    """The module's description after its usage line, for the method under each table (lists kept as lists)."""
+    parts = (module.__doc__ or "").strip().split("\n\n")[2:]
+    out: list[str] = []
+    for part in parts:
+        items: list[str] = []
+        for line in part.splitlines():
+            if line.startswith("- ") or not items:
+                items.append(line.strip())
+            else:
+                items[-1] += " " + line.strip()
+        out += [*items, ""]
+    return out
+
+
+def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
+    v = info["versions"]
+    lines = ["# Benchmarks", "",
+             f"Written by `{command}`; each section says when it was measured. Every figure below was measured; "
+             "the BeagleBone section translates them with the stated factors. Tools: `tools/bench*.py`; raw "
+             "figures in `BENCHMARKS.json`.", "",
+             "## Machine", "",
+             "| CPU | cores | kernel | Python | " + " | ".join(LIBRARIES) + " | commit |",
+             "| --- | --- | --- | --- | " + " | ".join("---" for _ in LIBRARIES) + " | --- |",
+             f"| {info['cpu']} ({info['arch']}) | {info['cores']} | {info['kernel']} | {v['python']} | "
+             + " | ".join(v.get(n, "?") for n in LIBRARIES) + f" | {info['commit']} |", ""]
+    summary = summary_lines(results)
+    if summary:
+        lines += ["## Summary", "", *summary, ""]
+    for name in BENCHMARKS:
+        section = results.get(name)
+        if not section:
+            continue
+        title, module = HEADINGS[name]
+        lines += [f"## {title}", "", f"Measured {section['measured']}" + (" (quick run)" if section.get("quick")
+                                                                           else "") + ".", ""]
+        lines += _doc(module)
+        lines += [*module.render(section["runs"] if name == "daemon" else section), ""]
+    lines += ["## On a BeagleBone-class board", "", *bench_board.render(results), ""]
+    lines += ["## Load on this machine while measuring", "",
+              "Other jobs shared the machine. *Busy* is the share of all cores in use while the step ran, *others* "
+              "that share less this benchmark's own processes.", "",
+              "| step | started | wall | load average before -> after | machine busy | others |",
+              "| --- | --- | --- | --- | --- | --- |"]
+    for name in BENCHMARKS:
+        for ld in (results.get(name) or {}).get("loads", []):
+            when = ld.get("started") or f"in the section from {results[name]['measured']}"
+            lines.append(f"| {ld['step']} | {when} | {ld['wall_s']} s "
+                         f"| {ld['loadavg_before']} -> {ld['loadavg_after']} | {ld['machine_busy_pct']:.0f} % "
+                         f"| {ld['others_pct_of_machine']:.0f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def summary_lines(results: dict[str, Any]) -> list[str]:
+    out: list[str] = []
+    daemon = [r for r in (results.get("daemon") or {}).get("runs", []) if not r["profile"]]
+    default = next((r for r in daemon if r["imu_rate_hz"] == 20.0), None)
+    if default:
+        low, high = bench_board.board_range(default["daemon_pct"])
+        out.append(f"- Daemon threads at the default rates: **{default['daemon_pct']:.2f} % of one core** here "
+                   f"(the whole process with the simulator: {default['process_pct']:.2f} %); RSS "
+                   f"{default['rss_end_mb']:.0f} MB; on a BeagleBone-class core {low:.0f} to {high:.0f} %: "
+                   f"{bench_board.verdict(low, high)}.")
+        for r in daemon:
+            if r is not default:
+                out.append(f"  - IMU at {r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS "
+                           f"{r['rss_end_mb']:.0f} MB.")
+        ok = [r["imu_rate_hz"] for r in daemon if r["sustained"]]
+        failed = [f"{r['imu_rate_hz']:g} Hz ({bench_daemon.why_not(r)})" for r in daemon if not r["sustained"]]
+        out.append(f"- Highest IMU rate sustained over {default['window_s']:.0f} s without a late, missed, lost or "
+                   f"dropped sample: **{max(ok):g} Hz**" if ok else
+                   "- No IMU rate tried was sustained without a late, missed, lost or dropped sample")
+        out[-1] += (f"; not sustained: {', '.join(failed)}." if failed else ".")
+    rec = (results.get("recorder") or {}).get("streams", {}).get("drive mix")
+    if rec:
+        w = rec["writers"]
+        out.append(f"- Recorder: {w['recorder']['msgs_per_s']:,.0f} records/s, {w['recorder']['mb_per_s']:.1f} MB/s "
+                   f"of JSON; {w['recorder']['cpu_vs_bare']:.2f}x the bare mcap writer's CPU per record "
+                   f"({w['recorder']['cpu_us_per_msg']:.1f} against {w['bare']['cpu_us_per_msg']:.1f} us).")
+    nav = results.get("nav")
+    if nav:
+        r17 = next(r for r in nav["replays"] if r["mode"] == "17" and not r["smooth"])
+        out.append(f"- Filter: {r17['cpu_us_per_sample']:.1f} us of CPU per IMU sample (17-state); `logger replay` "
+                   f"runs at {nav['cli']['x_real_time_wall']:.0f}x real time.")
+    sync = results.get("sync")
+    if sync:
+        err = sync["report"].get("stamp_error", {})
+        parts = [f"{state} RMSE {err[k]['rmse_us']:.2f} us, largest {err[k]['max_us']:.2f} us"
+                 for state in ("locked", "holdover") for k in [f"/imu {state}"] if k in err]
+        if parts:
+            out.append("- IMU stamp error against the truth: " + "; ".join(parts) + ".")
+    start = results.get("startup")
+    if start:
+        s = bench_startup.summary(start)
+        out.append(f"- Start-up: first IMU sample recorded {s['first_s']['/imu']:.2f} s after the process started "
+                   f"(median of {len(start['runs'])}).")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    ap.add_argument("--quick", action="store_true", help="short runs (30 s per IMU rate): a smoke test, not figures")
+    ap.add_argument("--only", help=f"comma-separated subset of: {','.join(BENCHMARKS)}")
+    ap.add_argument("--out", type=Path, help="report file (default BENCHMARKS.md; --quick prints unless given)")
+    ap.add_argument("--work", type=Path, help="keep the benchmarks' files and logs in this folder")
+    ap.add_argument("--render-only", action="store_true",
+                    help="write the report again from the saved figures (BENCHMARKS.json), measuring nothing")
+    ap.add_argument("--daemon-nice", type=int, default=-10,
+                    help="niceness of the daemon benchmark (default -10, as root): other jobs on a shared machine "
+                    "then delay its sampler threads less, as nothing would on the board; CPU times are unaffected")
+    args = ap.parse_args(argv)
+    selected = list(BENCHMARKS)
+    if args.only:
+        selected = [s.strip() for s in args.only.split(",") if s.strip()]
+        unknown = [s for s in selected if s not in BENCHMARKS]
+        if unknown or not selected:
+            ap.error(f"--only: unknown benchmark {', '.join(unknown) or '(none)'}; choose from {', '.join(BENCHMARKS)}")
+    out = args.out or (None if args.quick else ROOT / "BENCHMARKS.md")
+    command = "python tools/bench.py" + ("" if argv is None and len(sys.argv) == 1 else " " + " ".join(
+        sys.argv[1:] if argv is None else argv))
+    raw = out.with_suffix(".json") if out is not None else None
+    saved: dict[str, Any] = {}
+    if raw is not None and raw.exists() and (args.only or args.render_only):
+        saved = json.loads(raw.read_text())
+    if args.render_only:
+        if not saved:
+            ap.error(f"--render-only: no saved figures in {raw}")
+        assert out is not None and raw is not None
+        out.write_text(report(saved["results"], saved["machine"], saved["command"]))
+        print(f"[bench] wrote {out} from {raw}")
+        return 0
+    with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
+        work = args.work or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        fresh = run_all(selected, args.quick, work, args.daemon_nice)
+    results: dict[str, Any] = dict(saved.get("results", {}))  # the sections not run now keep their figures
+    results.update(fresh)
+    info = machine()
+    text = report(results, info, command)
+    if out is None or raw is None:
+        print(text)
+        return 0
+    out.write_text(text)
+    raw.write_text(json.dumps({"machine": info, "command": command, "results": results}, indent=1))
+    print(f"[bench] wrote {out} and {raw}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
