@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from logger.fifo_time import FifoClock
 from logger.sampler import Reading
 from logger.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, SensorError
@@ -60,9 +61,12 @@ class ImuSource:
         self.driver: Any = None
         self._bus: Any = None
         self._pending_lost = 0
+        self._fifo_clock: FifoClock | None = None
 
     def open(self) -> None:
         from sensors.mpu6050 import Mpu6050, choose_sample_timing
+
+        self._fifo_clock = None  # a reopened chip starts an empty FIFO on a new count
 
         if self.fifo:
             chip_rate, dlpf = self.rate_hz, None
@@ -92,18 +96,19 @@ class ImuSource:
                                      "temp_degc": round(s.temp_degc, 3), "fifo": False, "lost": 0}, (t0 + t1) // 2)]
         t_read = self.tb.monotonic_ns()
         batch = self.driver.read_fifo(t_read)
+        t_done = self.tb.monotonic_ns()
+        if self._fifo_clock is None:
+            self._fifo_clock = FifoClock(batch.period_s * 1e9)
         if batch.overflowed:
             self._pending_lost += batch.lost_samples if batch.lost_samples is not None else 1
+            self._fifo_clock.reset()
         n = len(batch)
-        period_ns = round(batch.period_s * 1e9)
-        # The newest frame came somewhere in the last period before the read: take the middle of it.
-        t_last = t_read - period_ns // 2
+        times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
         out = []
         for i in range(n):
             out.append(Reading("/imu", {"accel_mps2": batch.accel_mps2[i], "gyro_rps": batch.gyro_rps[i],
                                         "temp_degc": round(batch.temp_degc, 3), "fifo": True,
-                                        "lost": self._pending_lost if i == 0 else 0},
-                               t_last - (n - 1 - i) * period_ns))
+                                        "lost": self._pending_lost if i == 0 else 0}, times[i]))
         if n:
             self._pending_lost = 0
         return out

@@ -348,6 +348,11 @@ class Mpu6050:
         raw = self._read_block(TEMP_OUT_H, 2, "reading the temperature")
         return float(int.from_bytes(raw, "big", signed=True) / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC)
 
+    @property
+    def backlog_frames(self) -> int:
+        """Frames that were in the FIFO at the last read but not delivered by it (a bounded read, a split frame)."""
+        return self._backlog_frames
+
     def read_fifo(self, read_time_ns: int | None = None, max_bytes: int | None = None) -> ImuBatch:
         """All complete samples waiting in the FIFO (or up to ``max_bytes`` of them), oldest first.
 
