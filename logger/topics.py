@@ -190,6 +190,8 @@ _add("/nav/state", "vehicle_logger.NavState", {
     "rejections": ("object", "updates refused by the chi-square gate per type since the start"),
     "resets": ("integer", "times the filter lost itself and restarted from GNSS"),
     "reanchors": ("integer", "times agreeing good fixes after an outage made the filter widen its position sigma"),
+    "reopens": ("integer", "times trusted velocities refused in a row made the filter reopen velocity, attitude and "
+                           "IMU offsets"),
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay"),

@@ -245,3 +245,37 @@ def test_good_fixes_after_an_outage_that_all_disagree_the_same_way_widen_the_pos
     assert moved and engine.counters.reanchors == 1 and engine.counters.resets == 0
     t, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[t > span.end_s + 8.0, 0], e[t > span.end_s + 8.0, 1]).max() < 1.5
+
+
+def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_instead_of_restarting():
+    """A solution tilted 8 deg behind a covariance that claims a fraction of a degree (a chip worse than
+    configured): the good receiver's velocities and the OBD speed are refused in a row and agree, so velocity,
+    attitude and offsets are reopened (counted) and the filter re-converges without a restart."""
+    from logger.nav.rotations import quat_from_rotvec, quat_mul
+
+    drive = make_drive("outage-60s", seed=3, duration_s=200.0)
+    recs = records(drive, 200.0, seed=12)
+    engine = NavEngine(NavParams(), record=True)
+    tilted = False
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+        if not tilted and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
+            engine.state.q = quat_mul(quat_from_rotvec(math.radians(8.0), 0.0, 0.0), engine.state.q)
+            tilted = True
+    assert tilted and engine.counters.reopens >= 1 and engine.counters.resets == 0
+    t, e, s = errors(drive, engine.rows)
+    late = t > 150.0
+    assert np.hypot(e[late, 0], e[late, 1]).max() < 2.0
+    assert np.mean(np.abs(e[late]) <= 3.0 * s[late]) > 0.9
+
+
+def test_levelling_widens_the_accelerometer_prior_by_what_gravity_says():
+    from logger.nav.alignment import accel_offset_variance
+
+    g = earth.gravity(math.radians(37.5), 60.0)
+    prior = (0.05 * earth.G0) ** 2
+    # A magnitude 100 mg short of normal gravity: the offset along the vertical is twice the 50 mg prior.
+    wide = accel_offset_variance((0.0, 0.0, -(g - 0.1 * earth.G0)), g, prior)
+    assert math.sqrt(wide) == pytest.approx(0.1 * earth.G0, rel=1e-6)
+    # A chip within the prior leaves it as configured (one draw never narrows it).
+    assert accel_offset_variance((0.3, 0.2, -g), g, prior) == prior

@@ -281,6 +281,7 @@ def consistency(files: list[Path], times_config: float) -> list[str]:
             check("no divergence (no filter restart, no covariance repair)",
                   engine.counters.resets == 0 and (engine.ekf is None or engine.ekf.repairs == 0),
                   f"{engine.counters.resets} restarts, {engine.ekf.repairs if engine.ekf else 0} repairs, "
+                  f"{engine.counters.reopens} reopens of velocity, attitude and offsets, "
                   f"gate refusals {json.dumps(nis)}"),
             f"  error within 3 sigma: north {s.within_3sigma[0] * 100:.1f} %, east {s.within_3sigma[1] * 100:.1f} %, "
             f"down {s.within_3sigma[2] * 100:.1f} % of {s.n} solutions; all three at once "

@@ -81,6 +81,18 @@ def gyro_calibration_variance(gyro_arw: float, gyro_bias_walk: float, duration_s
     return gyro_arw**2 / t + gyro_bias_walk**2 * (t / 3.0 + max(since_s, 0.0))
 
 
+def accel_offset_variance(mean_force: tuple[float, float, float], gravity: float, prior_var: float) -> float:
+    """Variance per axis of the accelerometer offset, widened by what levelling measured.
+
+    At standstill the specific force's magnitude is normal gravity; what the mean differs by is the offset along
+    the vertical (its horizontal part adds only its square over 2 g), a draw from the same distribution as the
+    horizontal parts, which levelling cannot see. A residual beyond the configured prior says the chip is worse
+    than configured: the prior becomes that residual, so the tilt the horizontal offsets may have caused is
+    covered too. One draw is weak evidence, so the prior is only ever widened by it, never narrowed."""
+    r = math.sqrt(mean_force[0] ** 2 + mean_force[1] ** 2 + mean_force[2] ** 2) - gravity
+    return max(prior_var, r * r)
+
+
 def attitude(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
     return quat_from_euler(roll, pitch, yaw)
 

@@ -23,6 +23,7 @@ import numpy as np
 from logger.nav import earth
 from logger.nav.alignment import (
     StaticAlignment,
+    accel_offset_variance,
     gyro_calibration_variance,
     horizontal_earth_rate_body,
     rotate_heading,
@@ -65,6 +66,8 @@ DIVERGENCE_SIGMA_M = 1000.0
 REANCHOR_REJECTS = 3  # consecutive refused fixes that agree, from a receiver this sure of itself...
 REANCHOR_H_ACC_M = 2.0  # ...make the filter admit its position is less certain than it thought, when they
 REANCHOR_AFTER_NS = 5 * NS  # come after this long without an accepted fix (a tunnel) or after worse ones only
+VELOCITY_REFUSALS = 3  # trusted velocities (a stop the OBD confirms, a good receiver's, OBD's) refused in a row
+VELOCITY_REFUSAL_SPAN_NS = NS  # ... over at least this long, agreeing: the filter's velocity is off, not theirs
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
 
 
@@ -93,6 +96,7 @@ class EngineCounters:
     zupt: int = 0
     resets: int = 0
     reanchors: int = 0  # times good fixes, refused in a row, made the filter widen its position uncertainty
+    reopens: int = 0  # times trusted velocities, refused in a row, made it reopen velocity, attitude and offsets
     initialised_ns: int | None = None
     init_method: str = ""
 
@@ -171,6 +175,7 @@ class NavEngine:
         self._prov_hist: deque[tuple[int, tuple[float, float, float, float]]] = deque(maxlen=4096)
         self._levelled: tuple[float, float, tuple[float, float, float], tuple[float, float, float]] | None = None
         self._level_span = (0, 0.0)  # end (ns) and length (s) of the standstill the levelling averaged
+        self._accel_bias_var = self.params.accel_bias_sigma**2  # prior of the accelerometer offset, per axis
         self._level_yaw = 0.0  # heading at the end of levelling, once the GNSS course (or config) tells it
         self._last_fix: _Fix | None = None
         self._baro_last: tuple[int, float] | None = None
@@ -184,6 +189,7 @@ class NavEngine:
         self._last_nhc_ns = 0
         self._last_pos_ok = (0, math.inf)  # time and accuracy of the last fix whose position went in
         self._rejects: list[tuple[int, float, float]] = []  # consecutive refused fixes: time, N and E innovation
+        self._vel_refusals: dict[str, list[tuple[int, float, float]]] = {}  # the same for trusted velocities
         self.stopped = False
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
 
@@ -349,7 +355,11 @@ class NavEngine:
             p0[P_ID + i, P_ID + i] = fix.sigma[i] ** 2 + (abs(vel[i]) * 0.05) ** 2
             p0[V_ID + i, V_ID + i] = max(fix.s_vel, 0.1) ** 2 + 0.1
             p0[BG_ID + i, BG_ID + i] = bg_var
-        pphi, pphiba, pba = tilt_bias_covariance(c_bn if c_level is None else c_level, p.accel_bias_sigma**2,
+        self._accel_bias_var = p.accel_bias_sigma**2
+        if self._levelled is not None and c_level is not None:
+            self._accel_bias_var = accel_offset_variance(self._levelled[3], earth.gravity(fix.lat, fix.h),
+                                                         self._accel_bias_var)
+        pphi, pphiba, pba = tilt_bias_covariance(c_bn if c_level is None else c_level, self._accel_bias_var,
                                                  earth.G0)
         p0[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + np.diag((att_var, att_var, heading_var))
         p0[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
@@ -492,10 +502,12 @@ class NavEngine:
             self._last_pos_ok = (t_e, fix.h_acc)
         if vel_arr is not None:
             snap = self._state_at(t_e)
-            obs = self._informative(GnssVelocity(vel_arr, s_vel, self.lever, np.array(self._gyro_raw), not fix_3d)
-                                    .observe(snap, snap.dcm(), self.n), V_ID)
+            full = GnssVelocity(vel_arr, s_vel, self.lever, np.array(self._gyro_raw), not fix_3d).observe(
+                snap, snap.dcm(), self.n)
+            obs = self._informative(full, V_ID)
             if obs is not None:
-                self._apply(obs)
+                self._velocity_evidence(obs, self._apply(obs), t_e,
+                                        fix_3d and len(obs.z) == len(full.z) and fix.h_acc < 10.0)
         self._divergence_check(ok, fix)
 
     def _informative(self, obs: Observation, block: int) -> Observation | None:
@@ -591,10 +603,78 @@ class NavEngine:
         self._feedback(dx)
         self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, fix.sigma[2] ** 2,
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
-        self.ekf.p[PHI_ID + 2, PHI_ID + 2] += math.radians(5.0) ** 2
+        self._reopen_attitude_and_offsets()
         self.counters.resets += 1
         self._rejects.clear()
         self._refresh_sigma()
+
+    def _velocity_evidence(self, obs: Observation, accepted: bool, t_ns: int, trusted: bool,
+                           body_to_ned: np.ndarray | None = None) -> bool:
+        """Trusted velocities refused in a row that agree with each other: reopen the filter's velocity, attitude
+        and offsets (counted as ``reopens``) and let the last one in. Returns whether it went in.
+
+        A stop the OBD confirms is zero velocity beyond doubt, and a good receiver's Doppler velocity has no
+        canyon bias worth metres per second; when the gate refuses them again and again, the filter's velocity
+        is off by more than its covariance admits, and it got there through a tilt or an offset it holds too
+        firmly (a chip worse than configured). The same holds for the OBD speed with its non-holonomic rows
+        (innovations in vehicle axes: ``body_to_ned`` turns them). Refusing them further would leave it dead
+        reckoning on that error until a divergence restart; a canyon's scattered velocities do not agree and do
+        not trigger it. Each source keeps its own run of refusals."""
+        rv = self._vel_refusals.setdefault(obs.name, [])
+        if accepted:
+            rv.clear()
+            return True
+        if not trusted:
+            return False
+        rv.append((t_ns, float(obs.z[0]), float(obs.z[1])))
+        if (len(rv) < VELOCITY_REFUSALS or rv[-1][0] - rv[-VELOCITY_REFUSALS][0] < VELOCITY_REFUSAL_SPAN_NS
+                or not self._agree(rv[-VELOCITY_REFUSALS:])):
+            return False
+        assert self.ekf is not None
+        zv = obs.z[:3] if body_to_ned is None else body_to_ned @ obs.z[:3]
+        z, r = zv.tolist(), obs.r.tolist()
+        if body_to_ned is not None:  # the rows' noise, turned the same way (per axis, upper bound)
+            r = (np.abs(body_to_ned) @ np.asarray(obs.r[:3])).tolist()
+        old = self.ekf.p.diagonal().copy()
+        # The velocity was off by up to this much since the first refusal: so was the position's drift.
+        span_s = (rv[-1][0] - rv[0][0]) / NS
+        self.ekf.inflate(slice(P_ID, V_ID + 3),
+                         [float(old[P_ID + i]) + (z[i] * span_s) ** 2 if i < len(z) else float(old[P_ID + i])
+                          for i in range(3)]
+                         + [float(old[V_ID + i]) + z[i] ** 2 + r[i] if i < len(z) else float(old[V_ID + i])
+                            for i in range(3)])
+        self._reopen_attitude_and_offsets()
+        self.counters.reopens += 1
+        rv.clear()
+        return self._apply(obs)
+
+    def _reopen_attitude_and_offsets(self) -> None:
+        """After a restart, forget what the filter believed of its attitude and IMU offsets, not only of its position.
+
+        A filter that lost itself did so because its attitude or offsets were further off than their covariance
+        said (a tilt taken for an accelerometer offset, a gyro offset the standstill mis-read): keeping that
+        covariance would lock the same error in and restart again. Tilt and accelerometer offset get back their
+        joint prior (the tilt that offset would cause, tied to the body axes as they stand now: the velocity
+        updates that follow pin the sum as levelling did), heading and gyro offset what the start-up gave them;
+        none shrinks below what the filter holds now."""
+        assert self.ekf is not None and self.state is not None
+        p = self.params
+        ekf = self.ekf
+        old = ekf.p.diagonal().copy()
+        pphi, pphiba, pba = tilt_bias_covariance(self.state.dcm(), self._accel_bias_var, earth.G0)
+        end_ns, span_s = self._level_span
+        since_s = ((self._t_last or 0) - end_ns) / NS
+        bg_var = (gyro_calibration_variance(p.gyro_arw, p.gyro_bias_walk, span_s, since_s) if span_s > 0.0
+                  else p.gyro_bias_sigma**2)
+        ekf.inflate(slice(PHI_ID, BG_ID + 3), np.zeros(9))
+        att = np.diag((math.radians(0.3) ** 2, math.radians(0.3) ** 2, math.radians(5.0) ** 2))
+        ekf.p[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + att
+        ekf.p[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
+        ekf.p[BA_ID:BA_ID + 3, PHI_ID:PHI_ID + 3] = pphiba.T
+        ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba
+        for i in range(3):
+            ekf.p[BG_ID + i, BG_ID + i] = max(bg_var, float(old[BG_ID + i]))
+            ekf.p[PHI_ID + i, PHI_ID + i] = max(float(ekf.p[PHI_ID + i, PHI_ID + i]), float(old[PHI_ID + i]))
 
     @staticmethod
     def _agree(refused: list[tuple[int, float, float]]) -> bool:
@@ -630,7 +710,7 @@ class NavEngine:
         sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._obd_run))
         snap = self._state_at(t_ns)
         obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, snap.dcm(), self.n)
-        if self._apply(obs):
+        if self._velocity_evidence(obs, self._apply(obs), t_ns, True, snap.dcm()):
             self._last_nhc_ns = t_ns
             if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
                 self.mount_yaw_stat[0] += float(obs.z[1]) / speed_mps
@@ -651,7 +731,8 @@ class NavEngine:
                 w_mean = np.array((ws[0] / ws[3], ws[1] / ws[3], ws[2] / ws[3]))
                 # The mean over the window: the gyro's white noise averages down with its length.
                 sigma_w = max(math.radians(p.zaru_sigma_dps), p.gyro_arw) / math.sqrt(span_s)
-                self._apply(ZeroMotion(w_mean, p.zupt_sigma_mps, sigma_w).observe(s, s.dcm(), self.n))
+                obs = ZeroMotion(w_mean, p.zupt_sigma_mps, sigma_w).observe(s, s.dcm(), self.n)
+                self._velocity_evidence(obs, self._apply(obs), self._t_last or 0, learn)
                 self.counters.zupt += 1
         self._w_stop = [0.0, 0.0, 0.0, 0]
         self._w_stop_t0 = self._t_last or 0

@@ -63,7 +63,7 @@ def state_message(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: list[s
         "nis": {k: v.last_nis for k, v in ekf.stats.items()} if ekf else {},
         "updates": {k: v.accepted for k, v in ekf.stats.items()} if ekf else {},
         "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
-        "resets": c.resets, "reanchors": c.reanchors, "repairs": ekf.repairs if ekf else 0,
+        "resets": c.resets, "reanchors": c.reanchors, "reopens": c.reopens, "repairs": ekf.repairs if ekf else 0,
         "stopped": engine.stopped,
         "gnss_time": engine.epoch_clock.method,
         "verdicts": verdicts or [],
