@@ -48,6 +48,7 @@ from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, SF_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown
+from logger.nav.thermal import TemperatureSpan
 
 NS = 1_000_000_000
 IMU_GAP_S = 0.5  # samples further apart than this are a gap: counted, and still integrated across
@@ -152,6 +153,7 @@ class NavEngine:
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)
         self.q_diag = self.noise.diagonal(self.n)
+        self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
         self.state: NavState | None = None
         self.ekf: ErrorStateEkf | None = None
         self.counters = EngineCounters()
@@ -198,6 +200,9 @@ class NavEngine:
         """One recorded or live message; topics the filter does not use are ignored."""
         if topic == "/imu":
             a, g = msg["accel_mps2"], msg["gyro_rps"]
+            temp = msg.get("temp_degc")
+            if temp is not None:
+                self.thermal.add(msg["t_sync_ns"], float(temp))
             self.imu(msg["t_sync_ns"], msg["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]))
         elif topic == "/gnss/fix":
             self.gnss(msg)
@@ -370,6 +375,7 @@ class NavEngine:
             p0[DH_ID, DH_ID] = fix.sigma[2] ** 2 + p.baro_sigma_m**2 + 1.0
         self.ekf = ErrorStateEkf(np.ones(n), p.gate_probability)
         self.ekf.p = p0
+        self.thermal.restart()
         self._sig = tuple(math.sqrt(p0[P_ID + i, P_ID + i]) for i in range(3))
         self.mech.reset()
         acc, gyro = self._raw  # the latest sample starts the integration, corrected as the state now says
@@ -396,6 +402,13 @@ class NavEngine:
         if self.record:
             self.epochs[-1].p_plus = self.ekf.p.copy()
         self.ekf.propagate(phi, qd)
+        owed = self.thermal.take()
+        if owed > 0.0:
+            # The offsets follow the die temperature through a fixed, unknown coefficient (thermal.py).
+            pk = self.ekf.p
+            for i in range(3):
+                pk[BA_ID + i, BA_ID + i] += self.params.accel_bias_tempco**2 * owed
+                pk[BG_ID + i, BG_ID + i] += self.params.gyro_bias_tempco**2 * owed
         if self.record:
             self.epochs.append(Epoch(self._t_last or 0, phi.astype(np.float32), self.ekf.p.copy(), dx=np.zeros(self.n)))
         self._cov_dt = 0.0
@@ -656,7 +669,8 @@ class NavEngine:
         covariance would lock the same error in and restart again. Tilt and accelerometer offset get back their
         joint prior (the tilt that offset would cause, tied to the body axes as they stand now: the velocity
         updates that follow pin the sum as levelling did), heading and gyro offset what the start-up gave them;
-        none shrinks below what the filter holds now."""
+        none shrinks below what the filter holds now. The gyro offset's also covers the die temperature's change
+        since the start (thermal.py)."""
         assert self.ekf is not None and self.state is not None
         p = self.params
         ekf = self.ekf
@@ -672,6 +686,7 @@ class NavEngine:
         ekf.p[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
         ekf.p[BA_ID:BA_ID + 3, PHI_ID:PHI_ID + 3] = pphiba.T
         ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba
+        bg_var += p.gyro_bias_tempco**2 * self.thermal.range_degc**2
         for i in range(3):
             ekf.p[BG_ID + i, BG_ID + i] = max(bg_var, float(old[BG_ID + i]))
             ekf.p[PHI_ID + i, PHI_ID + i] = max(float(ekf.p[PHI_ID + i, PHI_ID + i]), float(old[PHI_ID + i]))

@@ -29,6 +29,9 @@ class NavParams:
     gyro_bias_dps: float = 20.0  # initial uncertainty of the gyro offset, before the standstill calibration
     accel_bias_walk_mg_rts: float = 0.1
     gyro_bias_walk_dps_rts: float = 0.002
+    # Offsets against die temperature, 0 = off (datasheet bounds: 0.5 mg/degC, 0.16 deg/s/degC): thermal.py
+    accel_bias_tempco_mg_degc: float = 0.0
+    gyro_bias_tempco_dps_degc: float = 0.0
     obd_speed_sigma_mps: float = 0.2
     obd_scale_sigma: float = 0.05
     obd_scale_walk_rts: float = 1.0e-5
@@ -78,11 +81,20 @@ class NavParams:
     def gyro_bias_walk(self) -> float:
         return math.radians(self.gyro_bias_walk_dps_rts)
 
+    @property
+    def accel_bias_tempco(self) -> float:
+        return self.accel_bias_tempco_mg_degc * 1e-3 * G0
+
+    @property
+    def gyro_bias_tempco(self) -> float:
+        return math.radians(self.gyro_bias_tempco_dps_degc)
+
     def scaled_imu(self, factor: float) -> NavParams:
         """The same tuning with every IMU error figure multiplied by ``factor`` (for consistency checks)."""
         p = NavParams(**{f.name: getattr(self, f.name) for f in fields(self)})
         for name in ("accel_noise_ug_rthz", "gyro_noise_dps_rthz", "accel_bias_mg", "gyro_bias_dps",
-                     "accel_bias_walk_mg_rts", "gyro_bias_walk_dps_rts"):
+                     "accel_bias_walk_mg_rts", "gyro_bias_walk_dps_rts", "accel_bias_tempco_mg_degc",
+                     "gyro_bias_tempco_dps_degc"):
             setattr(p, name, getattr(p, name) * factor)
         return p
 

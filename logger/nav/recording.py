@@ -28,7 +28,7 @@ OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x04, 0x05, 0x06, 0x0F
 # whole JSON object (json.loads of an IMU record costs more than the strapdown step it feeds). Anything that
 # does not match, written by another tool or another version, is decoded in full.
 _IMU = re.compile(rb'"t_mono_ns":\s*(-?\d+),\s*"t_sync_ns":\s*(-?\d+),.*?"accel_mps2":\s*\[([^\]]*)\],\s*'
-                  rb'"gyro_rps":\s*\[([^\]]*)\]')
+                  rb'"gyro_rps":\s*\[([^\]]*)\](?:,\s*"temp_degc":\s*(-?[0-9.eE+-]+))?')
 
 
 class UnexpectedLayout(Exception):
@@ -119,8 +119,11 @@ def read_messages(paths: Iterable[Path], topics: Iterable[str]) -> Iterator[tupl
             if m is not None:
                 a, g = m.group(3).split(b","), m.group(4).split(b",")
                 if len(a) == 3 and len(g) == 3:
-                    yield topic, {"t_mono_ns": int(m.group(1)), "t_sync_ns": int(m.group(2)),
-                                  "accel_mps2": [float(a[0]), float(a[1]), float(a[2])],
-                                  "gyro_rps": [float(g[0]), float(g[1]), float(g[2])]}
+                    msg = {"t_mono_ns": int(m.group(1)), "t_sync_ns": int(m.group(2)),
+                           "accel_mps2": [float(a[0]), float(a[1]), float(a[2])],
+                           "gyro_rps": [float(g[0]), float(g[1]), float(g[2])]}
+                    if m.group(5) is not None:  # die temperature: the offsets' thermal drift (thermal.py)
+                        msg["temp_degc"] = float(m.group(5))
+                    yield topic, msg
                     continue
         yield topic, loads(data)
