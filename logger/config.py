@@ -168,9 +168,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "accel_bias_mg": Key(NUM, 50.0, _range(0.01, 1000), "initial accelerometer offset uncertainty"),
         "gyro_bias_dps": Key(NUM, 20.0, _range(0.001, 200), "initial gyro offset uncertainty"),
         "accel_bias_walk_mg_rts": Key(NUM, 0.1, _range(0, 100), "accelerometer offset random walk"),
-        "gyro_bias_walk_dps_rts": Key(NUM, 0.002, _range(0, 10), "gyro offset random walk"),
-        "accel_bias_tempco_mg_degc": Key(NUM, 0.0, _range(0, 100), "accel offset change per degC of die (0: off)"),
-        "gyro_bias_tempco_dps_degc": Key(NUM, 0.0, _range(0, 10), "gyro offset change per degC of die (0: off)"),
+        # 5x the chip family's Allan-variance bias stability; the temperature drift is the tempcos' (datasheet)
+        "gyro_bias_walk_dps_rts": Key(NUM, 0.0005, _range(0, 10), "gyro offset random walk at a steady temperature"),
+        "accel_bias_tempco_mg_degc": Key(NUM, 0.5, _range(0, 100), "accel offset change per degC of die (0: off)"),
+        "gyro_bias_tempco_dps_degc": Key(NUM, 0.16, _range(0, 10), "gyro offset change per degC of die (0: off)"),
         "obd_speed_sigma_mps": Key(NUM, 0.2, _range(0.01, 10), "OBD speed noise (1 km/h steps, timing)"),
         "obd_scale_sigma": Key(NUM, 0.05, _range(1e-4, 0.5), "initial uncertainty of the OBD scale factor"),
         "obd_scale_walk_rts": Key(NUM, 1e-5, _range(0, 0.01), "OBD scale factor random walk, 1/sqrt(s)"),

@@ -250,7 +250,9 @@ def test_good_fixes_after_an_outage_that_all_disagree_the_same_way_widen_the_pos
 def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_instead_of_restarting():
     """A solution tilted 8 deg behind a covariance that claims a fraction of a degree (a chip worse than
     configured): the good receiver's velocities and the OBD speed are refused in a row and agree, so velocity,
-    attitude and offsets are reopened (counted) and the filter re-converges without a restart."""
+    attitude and offsets are reopened (counted) and the filter re-converges without a restart. The reopened
+    covariance admits the drift that was refused (the tilt is not tied to the accelerometer offset again), so it
+    takes one reopening or two, not one every few seconds while the car drives straight."""
     from logger.nav.rotations import quat_from_rotvec, quat_mul
 
     drive = make_drive("outage-60s", seed=3, duration_s=200.0)
@@ -262,7 +264,7 @@ def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_inste
         if not tilted and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
             engine.state.q = quat_mul(quat_from_rotvec(math.radians(8.0), 0.0, 0.0), engine.state.q)
             tilted = True
-    assert tilted and engine.counters.reopens >= 1 and engine.counters.resets == 0
+    assert tilted and 1 <= engine.counters.reopens <= 3 and engine.counters.resets == 0
     t, e, s = errors(drive, engine.rows)
     late = t > 150.0
     assert np.hypot(e[late, 0], e[late, 1]).max() < 2.0

@@ -667,15 +667,18 @@ class NavEngine:
         A filter that lost itself did so because its attitude or offsets were further off than their covariance
         said (a tilt taken for an accelerometer offset, a gyro offset the standstill mis-read): keeping that
         covariance would lock the same error in and restart again. Tilt and accelerometer offset get back their
-        joint prior (the tilt that offset would cause, tied to the body axes as they stand now: the velocity
-        updates that follow pin the sum as levelling did), heading and gyro offset what the start-up gave them;
-        none shrinks below what the filter holds now. The gyro offset's also covers the die temperature's change
-        since the start (thermal.py)."""
+        priors (the tilt an offset of the prior would cause, in the body axes as they stand now), but not the
+        correlation levelling gave them: levelling measured their sum (the horizontal specific force was zero), a
+        reopening is the evidence that the sum is off, so a prior that pins it again would admit none of the drift
+        that caused it, and the next velocities would be refused and reopen again (every few seconds, for as long
+        as the car drives straight). Heading and gyro offset get what the start-up gave them; none shrinks below
+        what the filter holds now. The gyro offset's also covers the die temperature's change since the start
+        (thermal.py)."""
         assert self.ekf is not None and self.state is not None
         p = self.params
         ekf = self.ekf
         old = ekf.p.diagonal().copy()
-        pphi, pphiba, pba = tilt_bias_covariance(self.state.dcm(), self._accel_bias_var, earth.G0)
+        pphi, _, pba = tilt_bias_covariance(self.state.dcm(), self._accel_bias_var, earth.G0)
         end_ns, span_s = self._level_span
         since_s = ((self._t_last or 0) - end_ns) / NS
         bg_var = (gyro_calibration_variance(p.gyro_arw, p.gyro_bias_walk, span_s, since_s) if span_s > 0.0
@@ -683,9 +686,7 @@ class NavEngine:
         ekf.inflate(slice(PHI_ID, BG_ID + 3), np.zeros(9))
         att = np.diag((math.radians(0.3) ** 2, math.radians(0.3) ** 2, math.radians(5.0) ** 2))
         ekf.p[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + att
-        ekf.p[PHI_ID:PHI_ID + 3, BA_ID:BA_ID + 3] = pphiba
-        ekf.p[BA_ID:BA_ID + 3, PHI_ID:PHI_ID + 3] = pphiba.T
-        ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba
+        ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba  # uncorrelated with the tilt: their sum was just shown off
         bg_var += p.gyro_bias_tempco**2 * self.thermal.range_degc**2
         for i in range(3):
             ekf.p[BG_ID + i, BG_ID + i] = max(bg_var, float(old[BG_ID + i]))

@@ -28,10 +28,13 @@ class NavParams:
     accel_bias_mg: float = 50.0  # initial uncertainty of the accelerometer offset
     gyro_bias_dps: float = 20.0  # initial uncertainty of the gyro offset, before the standstill calibration
     accel_bias_walk_mg_rts: float = 0.1
-    gyro_bias_walk_dps_rts: float = 0.002
-    # Offsets against die temperature, 0 = off (datasheet bounds: 0.5 mg/degC, 0.16 deg/s/degC): thermal.py
-    accel_bias_tempco_mg_degc: float = 0.0
-    gyro_bias_tempco_dps_degc: float = 0.0
+    # The offsets' wander at a steady temperature: 5x the MPU-6050 family's published Allan-variance bias stability
+    # (1e-4 deg/s/sqrt(s), sensors/sim/mpu6050.py); the drift with temperature is the tempco terms' below.
+    gyro_bias_walk_dps_rts: float = 0.0005
+    # Offsets against die temperature (thermal.py), datasheet bounds (PS-MPU-6000A rev. 3.4): zero-g change +-35 mg
+    # (x, y) over 0-70 degC = 0.5 mg/degC; zero-rate output variation +-20 deg/s over -40..85 degC = 0.16 deg/s/degC.
+    accel_bias_tempco_mg_degc: float = 0.5
+    gyro_bias_tempco_dps_degc: float = 0.16
     obd_speed_sigma_mps: float = 0.2
     obd_scale_sigma: float = 0.05
     obd_scale_walk_rts: float = 1.0e-5
