@@ -4,6 +4,11 @@ Sensor threads hand over a record and return at once; a full queue is a counted 
 (the PX4 logger's rule). The writer closes the open chunk and fsyncs at least every ``flush_interval_s``, so a
 power cut loses about that much; it rotates files by duration and size, and stops recording with a clear state
 before the disk is full rather than leave a file it cannot finish.
+
+Handing over does not wake the writer: it wakes a few times a second (``BATCH_WAIT_S``), at each flush, or when a
+quarter of the queue has filled, and writes everything waiting in one go. On a one-core board a thread woken per
+record costs more than writing the record; batching costs nothing in safety, since a record is only durable at
+the next flush either way and every flush first writes all that is queued.
 """
 
 from __future__ import annotations
@@ -12,10 +17,9 @@ import errno
 import json
 import logging
 import os
-import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +31,7 @@ from logger.topics import TopicSpec
 
 log = logging.getLogger(__name__)
 
+BATCH_WAIT_S = 0.5  # longest real time a record waits in the queue between flushes
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
 
@@ -103,8 +108,6 @@ def boot_safe_file_name(prefix: str, boot_id: str, sequence: int) -> str:
 class Recorder:
     """Writes records to rotating MCAP files from its own thread."""
 
-    _STOP = object()
-
     def __init__(self, settings: RecorderSettings, topics: Mapping[str, TopicSpec],
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
                  file_name: Callable[[str, int | None, int], str] = default_file_name,
@@ -124,7 +127,13 @@ class Recorder:
         self._synced_unix_ns = synced_unix_ns
         self._boot_id = read_boot_id()
         self._unnamed: list[tuple[Path, int, int]] = []  # (path, start monotonic ns, sequence) awaiting a date
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=settings.queue_size)
+        # A deque behind one short lock (bound and append together, so the bound is exact with many producers):
+        # unlike queue.Queue it does not notify the writer on every record.
+        self._queue: deque[tuple[str, Mapping[str, Any], int, int]] = deque()
+        self._queue_lock = threading.Lock()
+        self._wake = threading.Event()  # set at a backlog of ``_wake_at`` records, and to stop
+        self._wake_at = max(1, min(settings.queue_size // 4, 1024))
+        self._stopping = False
         self._lock = threading.Lock()
         self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
         self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
@@ -157,13 +166,18 @@ class Recorder:
             with self._lock:
                 self._unrecorded[topic] += 1
             return False
-        try:
-            self._queue.put_nowait((topic, payload, log_time_ns, publish_time_ns))
-            return True
-        except queue.Full:
+        q = self._queue
+        with self._queue_lock:
+            full = len(q) >= self.settings.queue_size
+            if not full:
+                q.append((topic, payload, log_time_ns, publish_time_ns))
+        if full:
             with self._lock:
                 self._dropped[topic] += 1
             return False
+        if len(q) >= self._wake_at:
+            self._wake.set()
+        return True
 
     def status(self) -> RecorderStatus:
         with self._lock:
@@ -173,7 +187,7 @@ class Recorder:
                 file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), dropped=dict(self._dropped), unrecorded=dict(self._unrecorded),
-                queue_depth=self._queue.qsize(), queue_size=self.settings.queue_size)
+                queue_depth=len(self._queue), queue_size=self.settings.queue_size)
 
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
@@ -188,7 +202,8 @@ class Recorder:
         """Write what is queued, finish the file cleanly, and stop the thread."""
         if self._thread is None:
             return
-        self._queue.put(self._STOP)
+        self._stopping = True
+        self._wake.set()
         self._thread.join(timeout_s)
         self._thread = None
 
@@ -204,29 +219,24 @@ class Recorder:
         interval = self.settings.flush_interval_s
         while True:
             self.heartbeat_mono_ns = self._mono_ns()
-            wait = max(0.0, self._last_flush + interval - self._now())
-            try:
-                item = self._queue.get(timeout=wait / self._scale)
-            except queue.Empty:
-                item = None
-            if item is self._STOP:
+            wait = max(0.0, self._last_flush + interval - self._now()) / self._scale
+            if not self._stopping:
+                self._wake.wait(min(wait, BATCH_WAIT_S))
+                self._wake.clear()  # before draining: a backlog reached meanwhile is drained now
+            self._drain()
+            if self._stopping:
                 self._drain()
                 self._close_file()
                 self._set_state("stopped", "recorder stopped")
                 return
-            if item is not None:
-                self._write(item)
             if self._now() - self._last_flush >= interval:
                 self._flush()
 
     def _drain(self) -> None:
-        while True:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                return
-            if item is not self._STOP:
-                self._write(item)
+        """Write everything queued, oldest first (producers may go on appending meanwhile)."""
+        q = self._queue
+        while q:
+            self._write(q.popleft())
 
     def _write(self, item: tuple[str, Mapping[str, Any], int, int]) -> None:
         topic, payload, log_ns, pub_ns = item

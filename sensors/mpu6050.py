@@ -22,6 +22,7 @@ caller's read times and the nominal rate (the chip's own clock is good to about 
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,6 +32,8 @@ import numpy as np
 
 from sensors.errors import BusError, ProtocolError, WrongDevice
 from sensors.i2c import i2c_transfer
+
+_BURST = struct.Struct(">7h")  # ACCEL_XOUT_H..GYRO_ZOUT_L: accel x y z, temperature, gyro x y z
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 
@@ -170,10 +173,14 @@ def choose_sample_timing(rate_hz: float, dlpf_cfg: int | None = None) -> SampleT
 
 @dataclass(frozen=True, slots=True)
 class ImuSample:
-    """One sample in chip axes."""
+    """One sample in chip axes.
 
-    accel_mps2: np.ndarray  # (3,) specific force
-    gyro_rps: np.ndarray  # (3,) angular rate
+    A direct read gives tuples of Python floats: the record is JSON-encoded and the filter works on scalars,
+    and both are cheaper with floats than with small numpy arrays at every sample on the board.
+    """
+
+    accel_mps2: np.ndarray | tuple[float, float, float]  # (3,) specific force
+    gyro_rps: np.ndarray | tuple[float, float, float]  # (3,) angular rate
     temp_degc: float
 
 
@@ -340,9 +347,10 @@ class Mpu6050:
     def read(self) -> ImuSample:
         """The latest sample: one burst ACCEL_XOUT_H..GYRO_ZOUT_L, coherent within itself."""
         raw = self._read_block(ACCEL_XOUT_H, 14, "reading the data registers")
-        values = np.frombuffer(raw, dtype=">i2").astype(np.float64)
-        return ImuSample(values[0:3] * self._accel_scale, values[4:7] * self._gyro_scale,
-                         float(values[3] / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC))
+        ax, ay, az, t, gx, gy, gz = _BURST.unpack(raw)
+        sa, sg = self._accel_scale, self._gyro_scale
+        return ImuSample((ax * sa, ay * sa, az * sa), (gx * sg, gy * sg, gz * sg),
+                         t / TEMP_LSB_PER_DEGC + TEMP_OFFSET_DEGC)
 
     def read_temperature_degc(self) -> float:
         raw = self._read_block(TEMP_OUT_H, 2, "reading the temperature")

@@ -92,6 +92,7 @@ class GnssReceiver:
             raise BusError(f"GNSS receiver on {self.path}: serial port lost: {_one_line(err)}") from err
         items: list[GnssItem] = []
         if data:
+            self.framer.decode_nmea = not self.decoder.ignores_nmea  # what the decoder would discard is not parsed
             for frame in self.framer.feed(data):
                 items += self.decoder.push(frame)
         return GnssRead(raw=bytes(data), items=items)

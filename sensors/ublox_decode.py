@@ -276,6 +276,11 @@ class GnssDecoder:
             self.rejected += 1  # checksum-valid nonsense; the decoder's state stays usable
         return []
 
+    @property
+    def ignores_nmea(self) -> bool:
+        """True once UBX solutions were seen: from then on NMEA sentences give nothing (see ``_push_nmea``)."""
+        return self._ubx_solutions
+
     def push_all(self, frames: Iterable[Frame]) -> list[GnssItem]:
         items: list[GnssItem] = []
         for frame in frames:

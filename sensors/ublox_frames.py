@@ -111,6 +111,10 @@ class UbxNmeaFramer:
     - ``garbage_bytes``: bytes that belong to no good frame,
     - ``undecoded``: good frames the decoding library could not turn into a message,
     - ``rtcm3_unchecked``: RTCM3 candidates skipped unchecked because the check budget was spent.
+
+    ``decode_nmea`` False frames and checks NMEA sentences but leaves their ``message`` None (not counted as
+    undecoded): for a reader that takes its solutions from UBX and ignores NMEA, as ``GnssDecoder`` does once it
+    has seen UBX solutions. Parsing the sentences it would throw away is most of a receiver thread's CPU.
     """
 
     def __init__(self) -> None:
@@ -120,6 +124,7 @@ class UbxNmeaFramer:
         self.garbage_bytes = 0
         self.undecoded = 0
         self.rtcm3_unchecked = 0
+        self.decode_nmea = True
         self._consumed = 0  # bytes of the stream before the buffer
         self._rtcm3_credit = RTCM3_CHECK_BURST
         self._rtcm3_credited_at = 0
@@ -266,6 +271,8 @@ class UbxNmeaFramer:
         sentence = text.decode("ascii")  # the scanner let only printable ASCII through
         if nmea_checksum(sentence[1:star]) != sentence[star + 1 :].upper():
             return None
+        if not self.decode_nmea:
+            return Frame(KIND_NMEA, raw, None)
         try:
             message = NMEAReader.parse(sentence)
         except Exception:

@@ -25,7 +25,10 @@ class TempcoEstimator:
         self._pts: deque[tuple[float, float]] = deque(maxlen=max_points)  # (degC, fractional frequency)
         self._last_ns: int | None = None
         self._prior: float | None = None
+        # The fit, or None when the points do not allow one, until the next point: asked at every IMU sample,
+        # and "no fit yet" (a car whose cabin temperature holds still) must not refit 360 points each time.
         self._cache: tuple[float, float] | None = None
+        self._cached = False
 
     def prior(self, coefficient: float) -> None:
         """A coefficient saved by the previous run: used until this run has learned its own."""
@@ -39,11 +42,15 @@ class TempcoEstimator:
             return
         self._last_ns = t_ns
         self._pts.append((temp_degc, freq))
-        self._cache = None
+        self._cached = False
 
     def _fit(self) -> tuple[float, float] | None:
-        if self._cache is not None:
-            return self._cache
+        if not self._cached:
+            self._cache = self._compute_fit()
+            self._cached = True
+        return self._cache
+
+    def _compute_fit(self) -> tuple[float, float] | None:
         if len(self._pts) < MIN_POINTS:
             return None
         pts = np.array(self._pts)
@@ -55,8 +62,7 @@ class TempcoEstimator:
         k = float(np.sum(tm * (freq - freq.mean())) / sxx)
         res = freq - freq.mean() - k * tm
         sigma = math.sqrt(float(np.sum(res**2)) / max(len(pts) - 2, 1) / sxx)
-        self._cache = (k, sigma)
-        return self._cache
+        return k, sigma
 
     def coefficient(self) -> float | None:
         """d(frequency)/d(temperature) per degC (1e-6 is 1 ppm/degC), or None while unknown."""

@@ -202,8 +202,9 @@ def test_scale_factors_of_every_full_scale(rig, accel_range_g, gyro_range_dps) -
     assert sample.temp_degc == pytest.approx(raw[3] / 340 + 36.53, rel=1e-12)
     # And the chip's counts are the truth, to half a count.
     t_gyro = r.clock.now_ns() / 1e9 - d.gyro_delay_s
-    assert np.all(np.abs(sample.accel_mps2 - truth.f_body) <= 0.5 * G0 / a_lsb + 1e-12)
-    assert np.all(np.abs(sample.gyro_rps - truth.state(t_gyro).w_body_rps) <= math.radians(0.5 / g_lsb) + 1e-12)
+    assert np.all(np.abs(np.asarray(sample.accel_mps2) - truth.f_body) <= 0.5 * G0 / a_lsb + 1e-12)
+    assert np.all(np.abs(np.asarray(sample.gyro_rps) - truth.state(t_gyro).w_body_rps)
+                  <= math.radians(0.5 / g_lsb) + 1e-12)
     assert abs(sample.temp_degc - 25.0) <= 0.5 / 340 + 1e-9
 
 

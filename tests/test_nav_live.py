@@ -33,7 +33,7 @@ def test_offer_never_blocks_and_counts_what_it_drops():
     assert nav.dropped == 990
     nav.offer("/truth/nav", msg)  # topics the filter does not use are not even queued
     nav.offer("/nav/fix", msg)  # nor its own output coming back through the daemon's sink
-    assert nav.dropped == 990 and nav._q.qsize() == 10
+    assert nav.dropped == 990 and nav.queued == 10
     assert "navigator behind: 990 records skipped" in nav.section()["verdicts"]
 
 
@@ -52,7 +52,7 @@ def test_navigator_thread_publishes_fixes_state_and_status():
         for _, topic, msg in records(drive, 80.0, seed=1):
             nav.offer(topic, msg)
         deadline = time.monotonic() + 20.0
-        while nav._q.qsize() and time.monotonic() < deadline:
+        while nav.queued and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.5)
     finally:
@@ -183,4 +183,4 @@ def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path
                      "accel_mps2": msg["accel_mps2"], "gyro_rps": msg["gyro_rps"], "temp_degc": 20.0}).encode())
         w.finish()
     again = [m for _, m in read_messages([spaced], ("/imu",))]
-    assert again and all(set(m) == {"t_mono_ns", "t_sync_ns", "accel_mps2", "gyro_rps"} for m in again)
+    assert again and all(set(m) == {"t_mono_ns", "t_sync_ns", "accel_mps2", "gyro_rps", "temp_degc"} for m in again)

@@ -87,6 +87,29 @@ def test_full_queue_is_a_counted_drop_not_a_block(tmp_path: Path) -> None:
     assert rec.status().dropped == {"/a": 15}
 
 
+def test_writer_takes_records_in_batches_without_waiting_for_the_flush(tmp_path: Path) -> None:
+    from logger.recorder import BATCH_WAIT_S
+    from logger.sampler import wait_until
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=3600, queue_size=400), TOPICS)
+    rec.start()
+    try:
+        rec.submit("/a", {"x": 0}, 1, 1)  # wakes nobody: written at the writer's next batch, long before a flush
+        assert wait_until(lambda: rec.status().written.get("/a") == 1, 10 * BATCH_WAIT_S + 5.0)
+        # A quarter of the queue waiting wakes the writer before the batch interval: nothing is refused.
+        for i in range(1, 1001):
+            rec.submit("/a", {"x": i}, i + 1, i + 1)
+            if i % 100 == 0:
+                wait_until(lambda: rec.status().queue_depth < 200, 10.0)
+        assert rec.status().dropped == {}
+        assert wait_until(lambda: rec.status().written.get("/a") == 1001, 10.0)
+    finally:
+        rec.stop()
+    assert rec.status().state == "stopped"
+    (path,) = tmp_path.glob("*.mcap")
+    assert len(_read_all(path)) == 1001
+
+
 def test_disk_below_minimum_free_stops_recording_with_a_clear_state(tmp_path: Path) -> None:
     free = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize
     rec = Recorder(RecorderSettings(out_dir=tmp_path, min_free_bytes=free * 2), TOPICS)

@@ -273,3 +273,29 @@ def test_messages_seen_late_at_start_lock_a_second_off_unless_a_synced_wall_cloc
     locked = checked["state"] == "locked"
     assert locked.sum() > 100 and np.abs(checked["err"][locked]).max() <= 100_000
     assert covered(checked)
+
+
+def test_tempco_fit_is_computed_once_per_new_point_even_when_there_is_none() -> None:
+    """The clock asks for the coefficient at every IMU sample; a cabin whose temperature holds still gives no fit,
+    and that answer must be remembered rather than refitted from every stored point at each sample."""
+    from sync.tempco import MIN_POINTS, MIN_SPACING_NS, TempcoEstimator
+
+    est = TempcoEstimator()
+    fits = 0
+    compute = est._compute_fit
+
+    def counted() -> tuple[float, float] | None:
+        nonlocal fits
+        fits += 1
+        return compute()
+
+    est._compute_fit = counted  # type: ignore[method-assign]
+    for i in range(MIN_POINTS + 5):
+        est.add(i * MIN_SPACING_NS, 1e-6, 25.0 + 0.1 * (i % 2), n_used=100)  # a span far below MIN_SPAN_DEGC
+    for _ in range(100):
+        assert est.coefficient() is None and est.sigma() is None
+    assert fits == 1
+    est.add((MIN_POINTS + 5) * MIN_SPACING_NS, 1e-6, 30.0, n_used=100)  # a new point: the answer may change
+    assert est.coefficient() is not None and fits == 2
+    est.sigma()
+    assert fits == 2

@@ -378,6 +378,42 @@ def test_ubx_solutions_take_over_from_nmea() -> None:
     assert [i.source for i in items if isinstance(i, GnssFix)] == ["NMEA", "NAV-PVT"]
 
 
+def test_receiver_stops_parsing_nmea_once_ubx_solutions_arrive() -> None:
+    """NMEA sentences are still framed and kept as raw bytes, but not parsed once the decoder takes UBX
+    solutions, and what comes out is what a decoder given every parsed frame gives."""
+    gga = nmea("GPGGA,000000.25,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,")
+    chunks = [gga, nav_pvt(), gga + nav_eoe(345_600_250), gga + nav_pvt(345_601_250) + nav_eoe(345_601_250)]
+    with PtyPort() as device:
+        receiver = GnssReceiver.open(device.path, 115200)
+        try:
+            frames_nmea: list[object] = []
+            feed = receiver.framer.feed
+
+            def spy(data: bytes) -> list[object]:
+                frames = feed(data)
+                frames_nmea.extend(f.message for f in frames if f.kind == KIND_NMEA)
+                return frames
+
+            receiver.framer.feed = spy  # type: ignore[method-assign]
+            items: list[object] = []
+            for chunk in chunks:  # one read per chunk: the switch happens between reads
+                device.write(chunk)
+                got = b""
+                for _ in range(200):
+                    r = receiver.read(0.05)
+                    got += r.raw
+                    items += r.items
+                    if len(got) >= len(chunk):
+                        break
+        finally:
+            receiver.close()
+    assert frames_nmea[0] is not None and frames_nmea[0].msgID == "GGA"  # before any UBX solution: parsed
+    assert frames_nmea[1:] == [None, None]  # after: framed, checked, not parsed
+    assert receiver.framer.undecoded == 0 and receiver.framer.frames_ok == 7
+    assert [(type(i).__name__, i.source) for i in items] == [(type(i).__name__, i.source) for i in
+                                                             decode(b"".join(chunks))]
+
+
 def test_time_messages_come_out_at_once() -> None:
     timeutc = UBXMessage(
         "NAV", "NAV-TIMEUTC", GET, iTOW=1000, tAcc=30, nano=-5, year=2024, month=3, day=5, hour=1,

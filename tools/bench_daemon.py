@@ -489,8 +489,9 @@ def render(results: list[dict[str, Any]], board: Any = None) -> list[str]:
             else:
                 cells.append(f"{t['pct']:.3f}" + (f" ({t['sim_inside_pct']:.3f})" if t["sim_inside_pct"] else ""))
         lines.append(f"| {n} | {thread_class(n)} | " + " | ".join(cells) + " |")
-    lines += ["", "Live, the threads that wake for every record cost more per record than the throughput "
-              "benchmarks below show (a thread wakes, a chunk is closed and fsynced every second whatever the rate):",
+    lines += ["", "Live, the recorder and navigator threads cost more per record than the throughput benchmarks "
+              "below show: each wakes a few times a second and takes what has arrived in one go, and a chunk is "
+              "closed and fsynced every second whatever the rate, so at low rates those fixed costs dominate:",
               ""]
     for r in plain:
         c = live_costs(r)

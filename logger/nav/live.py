@@ -1,8 +1,9 @@
 """The navigator thread of the daemon: the filter at the IMU rate, never in the way of the recording.
 
-The daemon offers it every stamped record through ``offer`` (a tap), which only puts the record into a
+The daemon offers it every stamped record through ``offer`` (a tap), which only appends the record to a
 bounded queue and counts a drop when the queue is full: the sampler threads and the recorder never wait for
-the filter. The thread wakes a few times a second, runs the engine over what has arrived, and publishes
+the filter, and an offer never wakes the thread (a wake-up per sample would cost more than the filter step on
+the board). The thread wakes a few times a second, runs the engine over what has arrived, and publishes
 ``/nav/fix`` at ``publish_hz`` and ``/nav/state`` once a second through the daemon's sink. It measures its own
 CPU time, so ``logger status`` can show what the filter costs on the board.
 """
@@ -11,9 +12,9 @@ from __future__ import annotations
 
 import logging
 import math
-import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -26,7 +27,7 @@ from logger.sampler import Reading
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = frozenset(("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps"))
-WAKE_S = 0.2
+WAKE_S = 0.5  # the filter runs in batches: a wake-up per sample would cost more than the filter
 
 
 def fix_message(t_ns: int, t_mono_ns: int, lat: float, lon: float, h: float, vel: tuple[float, float, float],
@@ -83,7 +84,8 @@ class Navigator:
         self.publish = publish
         self.monotonic_ns = monotonic_ns
         self.judge = HealthJudge()
-        self._q: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue(maxsize=params.queue_size)
+        self._q: deque[tuple[str, dict[str, Any]]] = deque()
+        self._q_lock = threading.Lock()  # the bound and the append together, for offers from many threads
         self.dropped = 0
         self.processed = 0
         self.cpu_s = 0.0
@@ -99,10 +101,16 @@ class Navigator:
     def offer(self, topic: str, payload: dict[str, Any]) -> None:
         if topic not in INPUT_TOPICS:
             return
-        try:
-            self._q.put_nowait((topic, payload))
-        except queue.Full:
+        with self._q_lock:
+            if len(self._q) < self.params.queue_size:
+                self._q.append((topic, payload))
+                return
             self.dropped += 1
+
+    @property
+    def queued(self) -> int:
+        """Records offered and not yet taken by the filter thread."""
+        return len(self._q)
 
     # ---- life cycle ---------------------------------------------------------------------------------------
     def bind(self, daemon: Any) -> None:
@@ -127,17 +135,11 @@ class Navigator:
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
-        while not self._halt.is_set():
-            try:
-                item = self._q.get(timeout=0.5)
-            except queue.Empty:
+        q = self._q
+        while not self._halt.wait(WAKE_S):
+            if not q:
                 continue
-            batch = [item]
-            while True:
-                try:
-                    batch.append(self._q.get_nowait())
-                except queue.Empty:
-                    break
+            batch = [q.popleft() for _ in range(len(q))]  # only this thread takes: len(q) are there
             try:
                 with self._lock:
                     for topic, payload in batch:
@@ -151,7 +153,6 @@ class Navigator:
                 with self._lock:
                     self.engine = NavEngine(self.params)
             self.cpu_s = time.thread_time() - cpu0
-            self._halt.wait(WAKE_S)
 
     def _maybe_publish(self) -> None:
         t_last = self.engine._t_last
