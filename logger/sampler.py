@@ -77,6 +77,7 @@ class SensorHealth:
     errors: int = 0
     late: int = 0
     missed: int = 0
+    delayed: int = 0  # samples finished more than half a period after their deadline (host scheduling)
     gaps: int = 0
     reconnects: int = 0
     last_error: str = ""
@@ -100,7 +101,8 @@ class SensorHealth:
         return {"name": self.name, "state": self.state, "rate_hz": self.rate_hz,
                 "measured_rate_hz": round(self.measured_rate_hz(now_ns), 3), "last_sample_age_s": age,
                 "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
-                "gaps": self.gaps, "reconnects": self.reconnects, "last_error": self.last_error, "origin": self.origin,
+                "delayed": self.delayed, "gaps": self.gaps, "reconnects": self.reconnects,
+                "last_error": self.last_error, "origin": self.origin,
                 "incidents": dict(self.incidents), "last_incident": self.last_incident,
                 "last_incident_age_s": (now_ns - self.last_incident_mono_ns) / 1e9
                 if self.last_incident_mono_ns is not None else None}
@@ -196,6 +198,10 @@ class Sampler(threading.Thread):
             self._read_once()
             n += 1
             after = self.tb.monotonic_ns()
+            if after - due > period_ns // 2:
+                # Its stamp may then sit more than 1.5 periods after the previous one: say so, so that the
+                # irregularity a loaded host causes is counted rather than found later in the file.
+                self.health.delayed += 1
             if after > start + n * period_ns:
                 # This sample ended after the next one was due: count it late; skip periods already gone.
                 self.health.late += 1

@@ -186,3 +186,13 @@ def test_an_unexpected_error_while_opening_is_retried_not_fatal() -> None:
     s, out = _run(src, 2.0)
     assert src.opens == 3 and len(out) == 5
     assert s.health.errors == 2 and "ValueError: unexpected reply 0xFF" in s.health.last_error
+
+
+def test_a_sample_finished_over_half_a_period_late_is_counted_delayed_not_late() -> None:
+    tb = VirtualTime()
+    work = [0.0] * 100
+    work[10] = 0.030  # 30 ms of a 50 ms period: the next deadline still ahead, but the stamps' spacing is off
+    work[20] = 0.020  # 20 ms: ordinary jitter
+    src = Scripted(tb, work_s=work, limit=50)
+    s, _ = _run(src, 20.0)
+    assert s.health.delayed == 1 and s.health.late == 0 and s.health.missed == 0
