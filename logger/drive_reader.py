@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.mcap_files import MAGIC, McapFileError, is_finished, walk
-from logger.nav.recording import _fast, _slow
+from logger.nav.recording import raw_messages
 
 REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
 
@@ -87,13 +87,10 @@ def _raw(f: DriveFile, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
     """(log_time, order, topic, data) of the wanted topics in one file."""
     if f.finished:
         try:
-            return _fast(f.path, wanted)
-        except Exception:  # a layout it does not expect, or a damaged chunk: the mcap package decides
-            try:
-                return _slow(f.path, wanted)
-            except Exception as exc:  # the mcap package's reader raises its own kinds for a damaged file
-                raise DriveFileError(f"{f.path}: cannot be read ({type(exc).__name__}: {exc}); "
-                                     "`logger recover` may save what is left") from exc
+            return raw_messages(f.path, wanted)
+        except Exception as exc:  # the mcap package's reader raises its own kinds for a damaged file
+            raise DriveFileError(f"{f.path}: cannot be read ({type(exc).__name__}: {exc}); "
+                                 "`logger recover` may save what is left") from exc
     try:
         found = walk(f.path)
     except McapFileError as exc:

@@ -138,6 +138,7 @@ class Sampler(threading.Thread):
         self._sample_topic: str | None = getattr(source, "sample_topic", None)
         self._suppressed = 0
         self._incident_base: dict[str, int] | None = None  # counts of the device opened now, at its first read
+        self._incidents_of: Callable[[], dict[str, int]] | None = getattr(source, "incidents", None)
 
     # The thread body: open, sample until an error, back off, reopen.
     def run(self) -> None:
@@ -242,10 +243,9 @@ class Sampler(threading.Thread):
     def _check_incidents(self) -> None:
         """Count what the device recovered from by itself; the first read after an open sets the base, since
         a line opened mid-frame or an adapter's start-up is not a fault."""
-        counts_of = getattr(self.source, "incidents", None)
-        if counts_of is None:
+        if self._incidents_of is None:
             return
-        counts = counts_of()
+        counts = self._incidents_of()
         base = self._incident_base
         self._incident_base = dict(counts)
         if base is None:

@@ -246,6 +246,12 @@ def test_parked_level_vehicle_reads_minus_one_g_on_z(rig) -> None:
 def test_gyro_noise_matches_datasheet_figure(rig) -> None:
     """0.05 deg/s RMS at the ~100 Hz filter (DLPF_CFG 2), sampled at 1 kHz."""
     errors = Mpu6050Errors(gyro_turn_on_bias_dps=0.0, gyro_bias_walk_dps_per_rts=0.0)
+    rms_dps = np.degrees(_parked_gyro_std_rps(rig, errors))
+    assert np.all((rms_dps > 0.045) & (rms_dps < 0.075))
+
+
+def _parked_gyro_std_rps(rig, errors: Mpu6050Errors) -> np.ndarray:
+    """Per-axis gyro standard deviation of a parked chip over 2 s of 1 kHz FIFO reads (DLPF_CFG 2, seed 11)."""
     r = rig(ParkedTrajectory(), errors=errors, seed=11)
     d = r.driver(rate_hz=1000, dlpf_cfg=2, fifo=True)
     d.configure()
@@ -255,8 +261,7 @@ def test_gyro_noise_matches_datasheet_figure(rig) -> None:
     for _ in range(40):
         r.clock.advance(0.05)
         gyro.append(d.read_fifo(r.clock.now_ns()).gyro_rps)
-    rms_dps = np.degrees(np.vstack(gyro).std(axis=0))
-    assert np.all((rms_dps > 0.045) & (rms_dps < 0.075))
+    return np.vstack(gyro).std(axis=0)
 
 
 def test_a_worse_chip_scales_every_error_term_and_its_noise_shows_it(rig) -> None:
@@ -276,18 +281,8 @@ def test_a_worse_chip_scales_every_error_term_and_its_noise_shows_it(rig) -> Non
     with pytest.raises(ValueError, match=">= 0"):
         base.scaled({"gyro_noise_dps_per_rthz": -1.0})
     quiet = Mpu6050Errors(gyro_turn_on_bias_dps=0.0, gyro_bias_walk_dps_per_rts=0.0)
-    rms = []
-    for errors in (quiet, quiet.scaled({"gyro_noise_dps_per_rthz": 3.0})):
-        r = rig(ParkedTrajectory(), errors=errors, seed=11)
-        d = r.driver(rate_hz=1000, dlpf_cfg=2, fifo=True)
-        d.configure()
-        r.clock.advance(0.1)
-        d.read_fifo(r.clock.now_ns())
-        gyro = []
-        for _ in range(40):
-            r.clock.advance(0.05)
-            gyro.append(d.read_fifo(r.clock.now_ns()).gyro_rps)
-        rms.append(float(np.vstack(gyro).std(axis=0).mean()))
+    rms = [float(_parked_gyro_std_rps(rig, errors).mean())
+           for errors in (quiet, quiet.scaled({"gyro_noise_dps_per_rthz": 3.0}))]
     assert rms[1] / rms[0] == pytest.approx(3.0, rel=0.2)
 
 

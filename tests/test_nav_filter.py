@@ -7,6 +7,7 @@ simulator's device models, so these also check that the filter holds on data the
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -103,16 +104,24 @@ def test_a_multipath_jump_is_refused_counted_and_harmless():
     assert np.hypot(e[after, 0], e[after, 1]).max() < 2.0
 
 
-def test_a_lost_filter_restarts_from_gnss_and_says_so():
-    drive = make_drive("outage-60s", seed=3, duration_s=160.0)
-    recs = records(drive, 160.0, seed=5)
+def upset_at_90_s(duration_s: float, records_seed: int, upset) -> tuple[Any, NavEngine, bool]:
+    """The outage-60s drive (seed 3) through the default filter, with ``upset(engine)`` applied once, 90 s in."""
+    drive = make_drive("outage-60s", seed=3, duration_s=duration_s)
     engine = NavEngine(NavParams(), record=True)
-    teleported = False
-    for _, topic, msg in recs:
+    done = False
+    for _, topic, msg in records(drive, duration_s, seed=records_seed):
         engine.feed(topic, msg)
-        if not teleported and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
-            engine.state.lat += 300.0 / 6.36e6  # 300 m off, with the covariance still confident
-            teleported = True
+        if not done and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
+            upset(engine)
+            done = True
+    return drive, engine, done
+
+
+def test_a_lost_filter_restarts_from_gnss_and_says_so():
+    def teleport(engine: NavEngine) -> None:
+        engine.state.lat += 300.0 / 6.36e6  # 300 m off, with the covariance still confident
+
+    drive, engine, teleported = upset_at_90_s(160.0, 5, teleport)
     assert teleported and engine.counters.resets == 1 and engine.counters.reanchors == 0
     _, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[-1, 0], e[-1, 1]) < 2.0
@@ -255,15 +264,10 @@ def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_inste
     takes one reopening or two, not one every few seconds while the car drives straight."""
     from logger.nav.rotations import quat_from_rotvec, quat_mul
 
-    drive = make_drive("outage-60s", seed=3, duration_s=200.0)
-    recs = records(drive, 200.0, seed=12)
-    engine = NavEngine(NavParams(), record=True)
-    tilted = False
-    for _, topic, msg in recs:
-        engine.feed(topic, msg)
-        if not tilted and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
-            engine.state.q = quat_mul(quat_from_rotvec(math.radians(8.0), 0.0, 0.0), engine.state.q)
-            tilted = True
+    def tilt(engine: NavEngine) -> None:
+        engine.state.q = quat_mul(quat_from_rotvec(math.radians(8.0), 0.0, 0.0), engine.state.q)
+
+    drive, engine, tilted = upset_at_90_s(200.0, 12, tilt)
     assert tilted and 1 <= engine.counters.reopens <= 3 and engine.counters.resets == 0
     t, e, s = errors(drive, engine.rows)
     late = t > 150.0

@@ -92,15 +92,6 @@ class NavParams:
     def gyro_bias_tempco(self) -> float:
         return math.radians(self.gyro_bias_tempco_dps_degc)
 
-    def scaled_imu(self, factor: float) -> NavParams:
-        """The same tuning with every IMU error figure multiplied by ``factor`` (for consistency checks)."""
-        p = NavParams(**{f.name: getattr(self, f.name) for f in fields(self)})
-        for name in ("accel_noise_ug_rthz", "gyro_noise_dps_rthz", "accel_bias_mg", "gyro_bias_dps",
-                     "accel_bias_walk_mg_rts", "gyro_bias_walk_dps_rts", "accel_bias_tempco_mg_degc",
-                     "gyro_bias_tempco_dps_degc"):
-            setattr(p, name, getattr(p, name) * factor)
-        return p
-
     @classmethod
     def from_config(cls, section: dict[str, Any]) -> NavParams:
         """From the validated ``[nav]`` section (keys as in :data:`logger.config.SCHEMA`)."""

@@ -99,15 +99,21 @@ def _slow(path: Path, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
     return out
 
 
+def raw_messages(path: Path, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
+    """(log_time, order, topic, data) of the wanted topics in one finished file: the record walk above, or the
+    mcap package's reader for a layout the walk does not expect (its errors are then the caller's)."""
+    try:
+        return _fast(path, wanted)
+    except Exception:  # a layout or a damage the walk does not expect: the mcap package decides
+        return _slow(path, wanted)
+
+
 def read_messages(paths: Iterable[Path], topics: Iterable[str]) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over one drive's files, in log-time order (ties: file order)."""
     wanted = set(topics)
     raw: list[tuple[int, int, str, bytes]] = []
     for path in paths:
-        try:
-            part = _fast(Path(path), wanted)
-        except (UnexpectedLayout, struct.error, UnicodeDecodeError, ValueError):
-            part = _slow(Path(path), wanted)
+        part = raw_messages(Path(path), wanted)
         base = len(raw)
         raw.extend((t, base + i, topic, data) for t, i, topic, data in part)
     raw.sort()
