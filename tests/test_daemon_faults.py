@@ -175,4 +175,6 @@ def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
     steps = [b - a for a, b in itertools.pairwise(t)]
     assert min(steps) > 0  # counted frames: a poll preempted mid-read does not send time back
     imu_health = next(s for s in daemon.samplers if s.health.name == "imu").health
-    assert imu_health.errors == 0 and imu_health.missed == 0
+    # A poll the host ran late is counted (missed/late) but loses nothing while the 85-frame FIFO holds: the
+    # samples above are all there, and their stamps, counted from frames, show no gap either.
+    assert imu_health.errors == 0 and imu_health.gaps == 0, imu_health
