@@ -189,7 +189,7 @@ _add("/nav/state", "vehicle_logger.NavState", {
     "updates": ("object", "accepted updates per type since the start"),
     "rejections": ("object", "updates refused by the chi-square gate per type since the start"),
     "resets": ("integer", "times the filter lost itself and restarted from GNSS"),
-    "reanchors": ("integer", "times agreeing good fixes after an outage made the filter widen its position sigma"),
+    "reanchors": ("integer", "times refused good fixes or baro heights, agreeing, widened the position sigma"),
     "reopens": ("integer", "times trusted velocities refused in a row made the filter reopen velocity, attitude and "
                            "IMU offsets"),
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),

@@ -275,6 +275,59 @@ def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_inste
     assert np.mean(np.abs(e[late]) <= 3.0 * s[late]) > 0.9
 
 
+def shifted_height(recs, at_s: float, metres: float, **params) -> NavEngine:
+    """The records through a filter whose height is moved by ``metres`` at ``at_s``, unknown to its covariance."""
+    engine = NavEngine(NavParams(**params), record=True)
+    moved = False
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+        if not moved and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > at_s:
+            engine.state.h += metres
+            moved = True
+    assert moved
+    return engine
+
+
+def test_a_height_gone_off_in_an_outage_is_given_back_by_the_barometer(outage):
+    """A height 15 m off behind a covariance that claims decimetres: each barometer reading is refused, and
+    refusing them all would keep it off for the rest of the drive (and every later GNSS height with it). Five
+    that agree widen the height (counted); with no receiver to say otherwise the barometer's offset, which moves
+    by centimetres a minute, keeps its own, so the height follows the barometer within the outage."""
+    drive, span, recs = outage
+    engine = shifted_height(recs, span.start_s + 5.0, 15.0)
+    assert engine.counters.reanchors == 1 and engine.counters.resets == 0
+    t, e, s = errors(drive, engine.rows)
+    after = t > span.start_s + 15.0
+    assert np.abs(e[after, 2]).max() < 1.0
+    assert np.mean(np.abs(e[after, 2]) <= 3.0 * s[after, 2]) > 0.9
+
+
+def test_a_moved_barometer_offset_is_settled_by_the_receiver(outage):
+    """The barometer's reading steps 20 m (a sensor replaced, a pressure port knocked) while fixes come: its
+    heights are refused in a row, and with a receiver there both the height and the barometer's offset are
+    widened; the receiver's heights then keep the height and put the step into the offset."""
+    drive, _, recs = outage
+    step_s = 60.0
+    moved = [(ts, tp, {**m, "altitude_m": m["altitude_m"] + 20.0} if tp == "/baro" and ts - T0_NS > step_s * 1e9
+              else m) for ts, tp, m in recs]
+    engine = run(moved)
+    assert engine.counters.reanchors >= 1 and engine.counters.resets == 0
+    t, e, _ = errors(drive, engine.rows)
+    assert np.abs(e[(t > step_s + 15.0) & (t < 140.0), 2]).max() < 1.0
+    # The offset took the step (height minus barometer: 20 m less than without it).
+    assert engine.state.dh == pytest.approx(run(recs).state.dh - 20.0, abs=1.0)
+
+
+def test_the_baseline_restarts_from_fixes_that_agree_only_in_height(outage):
+    """Without a barometer, good fixes all refused on a height 15 m off agree among themselves only in their
+    vertical innovation: that is a lost filter too, restarted from the receiver."""
+    drive, _, recs = outage
+    engine = shifted_height(recs, 60.0, 15.0, mode="15")
+    assert engine.counters.resets == 1
+    t, e, _ = errors(drive, engine.rows)
+    assert np.abs(e[(t > 100.0) & (t < 140.0), 2]).max() < 1.0
+
+
 def test_levelling_widens_the_accelerometer_prior_by_what_gravity_says():
     from logger.nav.alignment import accel_offset_variance
 

@@ -69,6 +69,9 @@ REANCHOR_H_ACC_M = 2.0  # ...make the filter admit its position is less certain 
 REANCHOR_AFTER_NS = 5 * NS  # come after this long without an accepted fix (a tunnel) or after worse ones only
 VELOCITY_REFUSALS = 3  # trusted velocities (a stop the OBD confirms, a good receiver's, OBD's) refused in a row
 VELOCITY_REFUSAL_SPAN_NS = NS  # ... over at least this long, agreeing: the filter's velocity is off, not theirs
+BARO_REFUSALS = 5  # barometer heights refused in a row...
+BARO_REFUSAL_SPAN_NS = 4 * NS  # ... over at least this long, agreeing: the filter's height is off, not the sensor's
+GNSS_ARBITER_NS = 3 * NS  # a good fix this recent can tell a wrong height from a moved barometer offset
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
 
 
@@ -96,7 +99,7 @@ class EngineCounters:
     baro: int = 0
     zupt: int = 0
     resets: int = 0
-    reanchors: int = 0  # times good fixes, refused in a row, made the filter widen its position uncertainty
+    reanchors: int = 0  # times good fixes or baro heights, refused in a row, made it widen its position uncertainty
     reopens: int = 0  # times trusted velocities, refused in a row, made it reopen velocity, attitude and offsets
     initialised_ns: int | None = None
     init_method: str = ""
@@ -190,7 +193,9 @@ class NavEngine:
         self._next_idle_check_ns = 0
         self._last_nhc_ns = 0
         self._last_pos_ok = (0, math.inf)  # time and accuracy of the last fix whose position went in
-        self._rejects: list[tuple[int, float, float]] = []  # consecutive refused fixes: time, N and E innovation
+        self._rejects: list[tuple[float, ...]] = []  # consecutive refused fixes: time, then N, E (and D) innovation
+        self._baro_refusals: list[tuple[float, ...]] = []  # the same for barometer heights: time, innovation
+        self._last_good_fix_ns = 0  # arrival of the last fix from a receiver sure of itself, whether it went in
         self._vel_refusals: dict[str, list[tuple[int, float, float]]] = {}  # the same for trusted velocities
         self.stopped = False
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
@@ -508,8 +513,9 @@ class NavEngine:
         # and a receiver's errors in a street canyon persist for many epochs: those percents add up to its
         # bias, not to information. Such rows are left out (counted); the others go in.
         snap = self._state_at(t_e)
-        obs = self._informative(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix_3d)
-                                .observe(snap, snap.dcm(), self.n), P_ID)
+        full_pos = GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix_3d).observe(
+            snap, snap.dcm(), self.n)
+        obs = self._informative(full_pos, P_ID)
         ok = True if obs is None else self._apply(obs)
         if obs is not None and ok:
             self._last_pos_ok = (t_e, fix.h_acc)
@@ -521,7 +527,7 @@ class NavEngine:
             if obs is not None:
                 self._velocity_evidence(obs, self._apply(obs), t_e,
                                         fix_3d and len(obs.z) == len(full.z) and fix.h_acc < 10.0)
-        self._divergence_check(ok, fix)
+        self._divergence_check(ok, fix, full_pos.z.tolist())
 
     def _informative(self, obs: Observation, block: int) -> Observation | None:
         """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO."""
@@ -572,16 +578,20 @@ class NavEngine:
             self._initialise(self._t_last or fix.t_ns, course, "gnss course, no levelling", fix,
                              heading_var + math.radians(3.0) ** 2)
 
-    def _divergence_check(self, accepted: bool, fix: _Fix) -> None:
+    def _divergence_check(self, accepted: bool, fix: _Fix, innovation: list[float]) -> None:
         """Good fixes refused again and again that agree among themselves (the filter, not the receiver, is
         off), or a covariance gone wild: start again from the receiver. A street canyon's fixes are refused
         too, but they scatter: they do not trigger it."""
         assert self.ekf is not None and self.state is not None
-        st = self.ekf.stats.get("gnss_pos")
+        if fix.h_acc < 10.0:
+            self._last_good_fix_ns = fix.t_ns
         if accepted:
             self._rejects.clear()
-        elif fix.h_acc < 10.0 and st is not None and len(st.last_innovation) >= 2:
-            self._rejects.append((fix.t_ns, st.last_innovation[0], st.last_innovation[1]))
+        elif fix.h_acc < 10.0 and len(innovation) >= 2:
+            # On every axis the fix had (its whole innovation, also the rows left out as uninformative): a height
+            # gone off behind a confident covariance is refused as surely as a position off sideways, and only
+            # its vertical innovations agree.
+            self._rejects.append((fix.t_ns, *innovation))
         sig = max(self._sig)
         lost = False
         rj = self._rejects
@@ -593,7 +603,7 @@ class NavEngine:
             # solution drifted further than its covariance says (a long dead reckoning on a speed sensor whose
             # steps do not average out). Admit the uncertainty of the position, counted, and let this fix in;
             # velocity and attitude are kept.
-            inno = np.array((*rj[-1][1:], 0.0))
+            inno = np.array((*rj[-1][1:], 0.0, 0.0)[:3])
             self.ekf.inflate(slice(P_ID, P_ID + 3), [float(self.ekf.p[P_ID + i, P_ID + i]) + inno[i] ** 2
                                                       + fix.sigma[i] ** 2 for i in range(3)])
             self.counters.reanchors += 1
@@ -693,10 +703,11 @@ class NavEngine:
             ekf.p[PHI_ID + i, PHI_ID + i] = max(float(ekf.p[PHI_ID + i, PHI_ID + i]), float(old[PHI_ID + i]))
 
     @staticmethod
-    def _agree(refused: list[tuple[int, float, float]]) -> bool:
-        """Refused fixes whose horizontal innovations agree within a quarter of their mean: a shifted solution,
-        not a scattering receiver."""
-        inno = np.array([(r[1], r[2]) for r in refused])
+    def _agree(refused: list[tuple[float, ...]]) -> bool:
+        """Refused measurements (time, innovation...) whose innovations agree within a quarter of their mean: a
+        shifted solution, not a scattering receiver."""
+        width = min(len(r) for r in refused)
+        inno = np.array([r[1:width] for r in refused])
         mean = inno.mean(axis=0)
         return float(np.linalg.norm(inno - mean, axis=1).max()) < 0.25 * float(np.linalg.norm(mean))
 
@@ -762,12 +773,39 @@ class NavEngine:
         if self.state is None:
             return
         s = self.state
-        self._apply(BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), self.n))
+        self._height_evidence(BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), self.n), t_ns)
         # No fresh OBD speed: the vehicle still cannot slide sideways or lift off.
         if (self.stopped is False and self._obd is not None and t_ns - self._obd[0] > OBD_FRESH_NS
                 and t_ns - self._last_nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
                 and self._apply(NonHolonomic(self.params.nhc_sigma_mps).observe(s, s.dcm(), self.n))):
             self._last_nhc_ns = t_ns
+
+    def _height_evidence(self, obs: Observation, t_ns: int) -> bool:
+        """Barometer heights refused in a row that agree (the same few metres off, second after second): the
+        filter's height went further off than its covariance admits (a vertical channel dead reckoned on too
+        firm a belief), and refusing the sensor would keep it off for the rest of the drive, with every later
+        GNSS fix refused on its height as well. Widen the height (counted as ``reanchors``) and let the
+        barometer in. Without a recent good fix the barometer's offset, which weather moves by centimetres a
+        minute, is the firmer of the two and keeps its variance, so the height follows the barometer; with one,
+        the offset is widened too and the receiver's heights settle which of the two moved. Returns whether
+        the height went in."""
+        if self._apply(obs):
+            self._baro_refusals.clear()
+            return True
+        rb = self._baro_refusals
+        rb.append((t_ns, float(obs.z[0])))
+        if (len(rb) < BARO_REFUSALS or rb[-1][0] - rb[-BARO_REFUSALS][0] < BARO_REFUSAL_SPAN_NS
+                or not self._agree(rb[-BARO_REFUSALS:])):
+            return False
+        assert self.ekf is not None
+        old = self.ekf.p.diagonal().copy()
+        grow = float(obs.z[0]) ** 2 + float(obs.r[0])
+        self.ekf.inflate(slice(P_ID + 2, P_ID + 3), [float(old[P_ID + 2]) + grow])
+        if t_ns - self._last_good_fix_ns <= GNSS_ARBITER_NS:
+            self.ekf.inflate(slice(DH_ID, DH_ID + 1), [float(old[DH_ID]) + grow])
+        self.counters.reanchors += 1
+        rb.clear()
+        return self._apply(obs)
 
     # ---- output ------------------------------------------------------------------------------------------
     def current(self) -> Solution | None:
