@@ -65,6 +65,9 @@ class RecorderStatus:
     unrecorded: dict[str, int] = field(default_factory=dict)
     queue_depth: int = 0
     queue_size: int = 0
+    # Per topic, the board time (t_mono_ns) of the newest record the last flush put on disk: what a power cut
+    # now would keep. Everything of that topic up to it survives a kill; what came later waits for the next flush.
+    on_disk_mono_ns: dict[str, int] = field(default_factory=dict)
 
 
 def _json_default(value: Any) -> Any:
@@ -138,6 +141,8 @@ class Recorder:
         self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
         self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
         self._written: Counter[str] = Counter()
+        self._newest_written: dict[str, int] = {}  # topic -> t_mono_ns of its newest record handed to the writer
+        self._on_disk: dict[str, int] = {}  # ... and of its newest record fsynced
         self._state = "starting"
         self._detail = ""
         self._thread: threading.Thread | None = None
@@ -187,7 +192,8 @@ class Recorder:
                 file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), dropped=dict(self._dropped), unrecorded=dict(self._unrecorded),
-                queue_depth=len(self._queue), queue_size=self.settings.queue_size)
+                queue_depth=len(self._queue), queue_size=self.settings.queue_size,
+                on_disk_mono_ns=dict(self._on_disk))
 
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
@@ -264,6 +270,7 @@ class Recorder:
             return
         if self._first_log_ns is None:
             self._first_log_ns = log_ns
+        self._newest_written[topic] = pub_ns
         with self._lock:
             self._written[topic] += 1
         if self._first_log_ns is not None and log_ns - self._first_log_ns >= self.settings.rotate_duration_s * 1e9:
@@ -298,6 +305,8 @@ class Recorder:
         except OSError as exc:
             self._io_failed(exc)
             return
+        with self._lock:
+            self._on_disk.update(self._newest_written)
         size = self._stream.tell()
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
@@ -404,6 +413,8 @@ class Recorder:
             writer.finish()
             stream.flush()
             os.fsync(stream.fileno())
+            with self._lock:
+                self._on_disk.update(self._newest_written)
         except OSError as exc:
             log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
         finally:

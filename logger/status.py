@@ -161,8 +161,11 @@ def render(snap: dict[str, Any]) -> str:
                      f" ({rec.get('file_bytes', 0) / 1e6:.1f} MB), free disk "
                      + (f"{free / 1e9:.2f} GB" if free is not None else "?"))
         dropped = sum((rec.get("dropped") or {}).values())
+        on_disk = rec.get("on_disk_mono_ns") or {}
+        at_risk = (f", on disk up to {(snap['t_mono_ns'] - max(on_disk.values())) / 1e9:.1f} s ago"
+                   if on_disk and snap.get("t_mono_ns") else "")
         lines.append(f"  records  {sum((rec.get('written') or {}).values())} written, {dropped} dropped, "
-                     f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}")
+                     f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}{at_risk}")
     return "\n".join(lines)
 
 

@@ -167,14 +167,26 @@ def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
     from test_daemon_sim import read_messages
 
     imu = [m for _, _, m in read_messages(path)["/imu"]]
-    assert all(m["fifo"] for m in imu) and sum(m["lost"] for m in imu) == 0
+    assert all(m["fifo"] for m in imu)
     assert [m["seq"] for m in imu] == list(range(len(imu)))
+    h = next(s for s in daemon.samplers if s.health.name == "imu").health
+    assert h.errors == 0, h
+    # The 85-frame FIFO holds 85 ms: only a poll the host ran over 45 ms late (counted as delayed) can let it
+    # overflow, and then the loss is counted in the record after it. Nothing is lost silently, and on a host that
+    # ran every poll in time nothing is lost at all.
+    lost_at = {i for i, m in enumerate(imu) if m["lost"]}
+    assert len(lost_at) <= h.delayed, (len(lost_at), h)
     t = [m["t_mono_ns"] for m in imu]
-    rate = (len(t) - 1) / ((t[-1] - t[0]) / 1e9)
-    assert abs(rate - 1000.0) < 2.0, rate
     steps = [b - a for a, b in itertools.pairwise(t)]
     assert min(steps) > 0  # counted frames: a poll preempted mid-read does not send time back
-    imu_health = next(s for s in daemon.samplers if s.health.name == "imu").health
-    # A poll the host ran late is counted (missed/late) but loses nothing while the 85-frame FIFO holds: the
-    # samples above are all there, and their stamps, counted from frames, show no gap either.
-    assert imu_health.errors == 0 and imu_health.gaps == 0, imu_health
+    # Every silence over 2.5 periods in the stamps is one the daemon counted as a gap, after a delayed poll.
+    assert sum(st > 2.5e6 for st in steps) <= h.gaps <= h.delayed, h
+    if h.delayed == 0:
+        assert not lost_at and h.gaps == 0
+    # The chip's rate, from counted stamps, over the longest stretch without an overflow.
+    cuts = [0, *sorted(lost_at), len(t)]
+    a, b = max(itertools.pairwise(cuts), key=lambda ab: ab[1] - ab[0])
+    span_s = (t[b - 1] - t[a]) / 1e9
+    assert span_s > 2.0, (span_s, len(lost_at))
+    rate = (b - 1 - a) / span_s
+    assert abs(rate - 1000.0) < 2.0, rate

@@ -9,7 +9,8 @@ from logger.cli import main
 from logger.status import StatusServer, fetch
 
 SNAP = {
-    "verdict": "degraded", "uptime_s": 3723, "pid": 42, "problems": ["obd: NO DATA (engine off?)"],
+    "verdict": "degraded", "uptime_s": 3723, "pid": 42, "t_mono_ns": 50_000_000_000,
+    "problems": ["obd: NO DATA (engine off?)"],
     "sensors": [{"name": "imu", "state": "ok", "rate_hz": 20, "measured_rate_hz": 20.0, "last_sample_age_s": 0.02,
                  "errors": 0, "gaps": 0, "late": 0, "reconnects": 0, "last_error": ""},
                 {"name": "obd", "state": "retrying", "rate_hz": 2, "measured_rate_hz": 0.0, "last_sample_age_s": 12.5,
@@ -17,7 +18,7 @@ SNAP = {
     "sync": {"state": "locked", "err_ns": 15000, "offset_ns": 1200, "freq_ppm": 31.2, "since_edge_s": 0.4},
     "recorder": {"state": "recording", "file": "/data/drive_1.mcap", "file_bytes": 1_200_000,
                  "free_bytes": 3_000_000_000, "written": {"/imu": 100}, "dropped": {}, "queue_depth": 0,
-                 "queue_size": 20000},
+                 "queue_size": 20000, "on_disk_mono_ns": {"/imu": 49_400_000_000, "/baro": 49_000_000_000}},
 }
 
 
@@ -33,6 +34,7 @@ def test_status_round_trip_and_exit_codes(tmp_path: Path, capsys) -> None:
         out = capsys.readouterr().out
         assert "DEGRADED" in out and "up 1h02m03s" in out and "obd: NO DATA" in out
         assert "obd      retrying" in out and "locked" in out and "31.200 ppm" in out
+        assert "on disk up to 0.6 s ago" in out  # what a power cut now would lose, from the newest record on disk
         assert main(["status", "--json", "--socket", str(sock)]) == 1
     finally:
         server.close()
