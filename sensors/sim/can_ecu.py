@@ -9,12 +9,12 @@ it. Answers leave after ``response_delay_s`` of drive time, the ECU's own proces
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Sequence
 
 import can
 
 from sensors.sim.clock import DriveClock
+from sensors.sim.device_thread import DeviceThread
 from sensors.sim.obd_ecu import ObdEcu
 
 FUNCTIONAL_11 = 0x7DF
@@ -22,8 +22,10 @@ FUNCTIONAL_29 = 0x18DB33F1
 TESTER = 0xF1
 
 
-class CanEcuModel:
+class CanEcuModel(DeviceThread):
     """A thread answering OBD-II requests on ``bus`` for ``ecus``; ``silent`` mutes them all at once."""
+
+    thread_name = "sim-can-ecu"
 
     def __init__(
         self,
@@ -43,27 +45,7 @@ class CanEcuModel:
         self.padding = padding
         self.silent = False
         self.requests: list[can.Message] = []  # every diagnostic request heard, for the tests to inspect
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> CanEcuModel:
-        if self._thread is None:
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name="sim-can-ecu", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-
-    def __enter__(self) -> CanEcuModel:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+        super().__init__()
 
     def _run(self) -> None:
         while not self._stop.is_set():

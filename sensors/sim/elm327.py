@@ -23,6 +23,7 @@ import numpy as np
 
 from sensors.obd import j1850_crc, kline_checksum
 from sensors.sim.clock import DriveClock
+from sensors.sim.device_thread import DeviceThread
 from sensors.sim.obd_ecu import ObdEcu
 from sensors.sim.pty import PtyPort
 
@@ -91,7 +92,7 @@ class _Settings:
     timeout_hh: int = DEFAULT_TIMEOUT_HH
 
 
-class Elm327Model:
+class Elm327Model(DeviceThread):
     """The adapter: a thread that reads command lines from the pty and writes the ELM327's answers.
 
     ``vehicle_protocol`` is the bus the car has (the AT SP digit it would be found as). The delays are
@@ -99,6 +100,8 @@ class Elm327Model:
     ``ecu_delay_s`` for the ECUs to answer a request once connected. ``seed`` drives the battery
     voltage noise and the bytes of injected garbage.
     """
+
+    thread_name = "sim-elm327"
 
     def __init__(
         self,
@@ -126,8 +129,7 @@ class Elm327Model:
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self._lock = threading.RLock()
         self._faults: deque[ElmFault] = deque()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        super().__init__()
         # Kept in the adapter's EEPROM: AT SP survives a reset, the other settings do not.
         self._stored_protocol = "0"
         self._auto = True
@@ -137,25 +139,6 @@ class Elm327Model:
         self.commands: list[str] = []  # every command line received, spaces removed, upper case
 
     # ----------------------------------------------------------------- control from the test side
-
-    def start(self) -> Elm327Model:
-        if self._thread is None:
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name="sim-elm327", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-
-    def __enter__(self) -> Elm327Model:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def inject(self, fault: ElmFault, count: int = 1) -> None:
         """Answer the next ``count`` OBD requests with ``fault`` instead of the ECUs' data."""

@@ -1,0 +1,41 @@
+"""The thread a simulated device answers on.
+
+A real adapter or ECU answers on its own while the code under test waits on the bus: each model runs its loop
+(``_run``, until ``_stop`` is set) beside it, started and stopped by the test or the simulated vehicle, or used
+as a context manager.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Self
+
+
+class DeviceThread:
+    thread_name = "sim-device"
+
+    def __init__(self) -> None:
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> Self:
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name=self.thread_name, daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        raise NotImplementedError
