@@ -42,13 +42,14 @@ def test_bench_refuses_an_unknown_benchmark() -> None:
 
 def test_task_cpu_follows_a_busy_thread_by_name() -> None:
     ready = threading.Event()
+    read = threading.Event()
     tid: list[int] = []
 
     def work() -> None:
         tid.append(threading.get_native_id())
         burn(0.3)
         ready.set()
-        time.sleep(0.5)  # stay alive while the test reads /proc
+        read.wait(60)  # stay alive (and listed in /proc) until the test has read it, however late that is
 
     t = threading.Thread(target=work, name="sampler-test")
     t.start()
@@ -56,10 +57,11 @@ def test_task_cpu_follows_a_busy_thread_by_name() -> None:
         assert ready.wait(30)
         cpu = bench_daemon.task_cpu_s()
         names = bench_daemon.thread_names(cpu)
-        assert names[tid[0]] == "sampler-test"
-        assert cpu[tid[0]] >= 0.25  # clock ticks of 10 ms: 0.3 s of CPU reads as at least 0.29
     finally:
+        read.set()
         t.join()
+    assert names[tid[0]] == "sampler-test"
+    assert cpu[tid[0]] >= 0.25  # clock ticks of 10 ms: 0.3 s of CPU reads as at least 0.29
 
 
 def test_sim_meter_counts_nested_calls_once_and_by_thread() -> None:

@@ -47,11 +47,13 @@ GAP_PERIODS = 2.5  # a silence longer than this many periods is a gap (the daemo
 # than that to show in the log each time (the figures would otherwise blame the rate limit, not the fault).
 SAME_KIND_COOLDOWN_REAL_S = 65.0
 COUNTER_LAG_S = 30.0  # drive seconds after a silence within which the daemon's counters must show it
+# Drive seconds: a silence that ends closer than this before the counters' last reading (a kill -9 leaves no
+# later one) may not show in it yet, since the read that ends it counts it only when it returns (83 ms at 60x).
+LAST_READING_MARGIN_S = 5.0
 # The MCAP writer keeps the index of every chunk (one per flush, each drive second) until the file is finished,
 # about 14 MB for the hour a file lasts; after the first rotation that memory is reused. Growth is measured from
 # then on, in the workers that run long enough.
 RSS_WARM_UP_S = 4500.0
-STOP_S = 5.0  # drive seconds before a worker's last record: samplers are being stopped one by one
 POLL_REAL_S = 0.1  # how often the injector reads the status socket while a fault lasts (it costs CPU too)
 SENSOR_OF_TOPIC = {"/imu": "imu", "/baro": "baro", "/obd/speed": "obd", "/gnss/fix": "gnss", "/pps": "pps"}
 
@@ -357,7 +359,12 @@ def worker(args: argparse.Namespace) -> int:
                    lambda: sample_loop(daemon, journal, args.sample_real_s)):
         threading.Thread(target=target, daemon=True, name="soak").start()
     code = daemon.run(args.duration)
-    journal.write(ev="end", host_ns=time.monotonic_ns(), drive_ns=int(daemon.tb.monotonic_ns()), code=code,
+    # The counters once every sampler has stopped: the last /health record comes before the samplers' last
+    # records, and only these can tell whether a silence in that tail was counted.
+    now = int(daemon.tb.monotonic_ns())
+    counters = {c["name"]: {k: c[k] for k in ("late", "missed", "gaps")}
+                for c in (s.health.snapshot(now) for s in daemon.samplers)}
+    journal.write(ev="end", host_ns=time.monotonic_ns(), drive_ns=now, code=code, sensors=counters,
                   threads_left=sorted(t.name for t in threading.enumerate()
                                       if t.is_alive() and not t.daemon and t is not threading.main_thread()))
     return code
@@ -488,23 +495,36 @@ def analyse(args: argparse.Namespace, out: Path, segments: list[Segment]) -> dic
         lost: dict[str, list[str]] = defaultdict(list)
         gaps: dict[str, list[str]] = defaultdict(list)
         counted: dict[str, int] = defaultdict(int)
+        unjudged: dict[str, int] = defaultdict(int)
         health = sorted(h for n in seg_files for h in files[n]["health"])
+        # The last /health record comes before the samplers' last records (the health loop ends first when the
+        # daemon stops); a worker that stopped cleanly journals the counters once every sampler has ended.
+        final = end is not None and "sensors" in end
+        if final:
+            health.append((end["drive_ns"], {n: (c["late"] + c["missed"], c["gaps"])
+                                             for n, c in end["sensors"].items()}))
         health_t = [t for t, _ in health]
 
-        def daemon_counted(sensor: str, a: int, b: int, health: list[Any] = health,
-                           health_t: list[int] = health_t) -> bool:
+        def daemon_counted(sensor: str, a: int, b: int, health: list[Any] = health, health_t: list[int] = health_t,
+                           final: bool = final) -> bool | None:
             """The daemon's own counters (late + missed periods, gaps) grew across the silence (a, b): it knew
-            and reported it (/health, `logger status`); a silence nobody counted would be a silent loss."""
+            and reported it (/health, `logger status`); a silence nobody counted would be a silent loss. None
+            when the counters were last read too soon after the silence to tell (the tail before a kill -9)."""
+            if not health:
+                return False
             # The counters move when the sampler's late read returns, which can be well after the silence ended
             # when the read itself was held up (a serial timeout is real time, 60 drive seconds at 60x).
             i = max(0, bisect.bisect_right(health_t, a) - 1)
-            j = min(len(health) - 1, bisect.bisect_left(health_t, b + COUNTER_LAG_S * NS))
-            if not health or i >= j:
+            j = bisect.bisect_left(health_t, b + COUNTER_LAG_S * NS)
+            if j == len(health):  # no reading that late: the last one, if read after every sampler had ended
+                if not final and b > health_t[-1] - LAST_READING_MARGIN_S * NS:  # or long enough after the silence
+                    return None
+                j -= 1
+            if i >= j:
                 return False
             before, after = health[i][1].get(sensor), health[j][1].get(sensor)
             return before is not None and after is not None and (after[0] > before[0] or after[1] > before[1])
 
-        last_ns = max((t for n in seg_files for recs in files[n]["topics"].values() for t, _ in recs), default=0)
         for topic, hz in SENSOR_TOPICS.items():
             recs = sorted(r for n in seg_files for r in files[n]["topics"][topic])
             wins = windows_for(events, topic)
@@ -513,8 +533,11 @@ def analyse(args: argparse.Namespace, out: Path, segments: list[Segment]) -> dic
                 if s1 != s0 + 1 and not explained(disk, t0, t1):
                     lost[topic].append(f"seq {s0}->{s1} at drive {(t0 - start['drive_ns']) / NS:.0f} s")
                 if t1 - t0 > GAP_PERIODS * NS / hz and t0 - start["drive_ns"] > WARM_UP_S * NS \
-                        and t1 < last_ns - STOP_S * NS and not explained(wins, t0, t1):
-                    if daemon_counted(SENSOR_OF_TOPIC[topic], t0, t1):
+                        and not explained(wins, t0, t1):
+                    verdict = daemon_counted(SENSOR_OF_TOPIC[topic], t0, t1)
+                    if verdict is None:
+                        unjudged[topic] += 1
+                    elif verdict:
                         counted[topic] += 1
                     else:
                         gaps[topic].append(f"{(t1 - t0) / NS:.2f} s at drive {(t0 - start['drive_ns']) / NS:.0f} s")
@@ -550,6 +573,7 @@ def analyse(args: argparse.Namespace, out: Path, segments: list[Segment]) -> dic
             "gaps_outside_faults_uncounted": {k: v[:5] + ([f"... {len(v)} in all"] if len(v) > 5 else [])
                                               for k, v in gaps.items() if v},
             "gaps_outside_faults_counted_by_daemon": dict(counted),
+            "gaps_after_the_last_counters": dict(unjudged),
             "records": {t: sum(len(files[n]["topics"][t]) for n in seg_files) for t in SENSOR_TOPICS},
             "recovered_lines": recovered,
             "sensor_counters_at_end": last.get("sensors", {}),
@@ -580,6 +604,9 @@ def summary(report: dict[str, Any]) -> str:
         lines.append(f"    gaps outside faults nobody counted: {s['gaps_outside_faults_uncounted'] or 'none'}; "
                      f"counted by the daemon as late/missed samples or gaps (host too slow for the time scale): "
                      f"{s['gaps_outside_faults_counted_by_daemon'] or 'none'}")
+        if s["gaps_after_the_last_counters"]:
+            lines.append(f"    gaps too near the end to judge (counters last read before they could show them): "
+                         f"{s['gaps_after_the_last_counters']}")
         if s["recovered_lines"]:
             lines.append(f"    after kill -9: {'; '.join(x.split(': ', 1)[-1] for x in s['recovered_lines'])}")
     lines.append(f"  files unfinished at the end: {report['files']['unfinished'] or 'none'}; files cut by kill -9 "
