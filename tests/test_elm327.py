@@ -217,7 +217,9 @@ def test_something_else_on_the_port_is_device_not_found(port: PtyPort) -> None:
     thread = threading.Thread(target=modem)
     thread.start()
     try:
-        elm = driver(port, reset_timeout_s=0.2)
+        # The modem thread must answer each ATZ within this, and each of the two tries then waits it out for a
+        # prompt that never comes: a second, not a fraction that a busy host could take to run the thread.
+        elm = driver(port, reset_timeout_s=1.0)
         with pytest.raises(DeviceNotFound) as exc:
             elm.open()
         assert "answered 'OK'" in one_line(exc)
@@ -335,10 +337,11 @@ def test_headers_of_every_obd_bus(port: PtyPort, vehicle: str, configured: str, 
 
 
 def test_slow_protocol_search_is_waited_for(port: PtyPort) -> None:
-    # A real-time drive clock: the adapter spends 0.5 s searching, twice the 0.25 s it may otherwise stay
-    # silent. The driver waits on the first request, and on a later one because the adapter said SEARCHING...
+    # A real-time drive clock: the adapter spends 2 s searching, twice the 1 s it may otherwise stay silent
+    # (every other answer comes at once, but a busy host may take a good part of a second to deliver it).
+    # The driver waits on the first request, and on a later one because the adapter said SEARCHING...
     with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))], ScaledClock(1.0),
-                 search_delay_s=0.5) as model, driver(port, timeout_s=0.25, search_timeout_s=5.0) as elm:
+                 search_delay_s=2.0) as model, driver(port, timeout_s=1.0, search_timeout_s=5.0) as elm:
         assert elm.read().speed_kmh == 50
         model.inject(ElmFault.UNABLE_TO_CONNECT)  # the link drops: the next request searches again
         with pytest.raises(BusError):
@@ -348,7 +351,7 @@ def test_slow_protocol_search_is_waited_for(port: PtyPort) -> None:
 
 
 def test_search_longer_than_allowed_is_reported_by_open(port: PtyPort) -> None:
-    # The control for the test above: the same adapter, but the driver allows only 0.25 s for the search.
+    # The control for the test above: an adapter searching twice as long as the driver allows (0.5 s, 0.25 s).
     with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))], ScaledClock(1.0), search_delay_s=0.5), \
             driver(port, timeout_s=0.25, search_timeout_s=0.25) as elm:
         # The search runs during set-up; its failure is kept for the reads to tell, not raised by open().

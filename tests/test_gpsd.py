@@ -16,6 +16,7 @@ import json
 import math
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import threading
@@ -567,11 +568,15 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
     msgs = read_file(path)
     fixes = msgs["/gnss/fix"]
     assert {f["source"] for f in fixes} == {"gpsd"}
-    t = [f["t_mono_ns"] for f in fixes]
-    rate = (len(t) - 1) / ((t[-1] - t[0]) / NS)
-    assert abs(rate - 1.0) < 0.05 and len(fixes) >= duration_s - 4, (rate, len(fixes))
     epochs = [f["gnss_time_ns"] for f in fixes if f["gnss_time_ns"] is not None]
     assert len(epochs) >= len(fixes) - 2 and all(b - a == NS for a, b in itertools.pairwise(epochs))
+    # One fix per epoch, none missing (above), and the epochs arrive at one a second of the daemon's clock: the
+    # slope of arrival time against epoch over the whole drive, which a few fixes a busy host delivered late
+    # barely move (unlike the first and last arrival alone).
+    timed = [(f["gnss_time_ns"], f["t_mono_ns"]) for f in fixes if f["gnss_time_ns"] is not None]
+    slope = statistics.linear_regression([(g - timed[0][0]) / NS for g, _ in timed],
+                                         [(m - timed[0][1]) / NS for _, m in timed]).slope
+    assert abs(slope - 1.0) < 0.05 and len(fixes) >= duration_s - 4, (slope, len(fixes))
     assert all(f["num_sv"] and f["pdop"] for f in fixes if f["fix_mode"] == 3)
     # each fix sits within metres of the truth of its epoch
     truth: dict[int, dict[str, Any]] = {}

@@ -148,7 +148,7 @@ def test_silent_engine_the_gearbox_answer_is_taken_after_p2(channel: str) -> Non
     engine = engine_ecu(traj)
     engine.silent = True
     with vehicle(channel, [transmission_ecu(traj, 0.10), engine]), bus(channel) as mine:
-        speed = ObdCan(mine, p2_timeout_s=0.2).read()
+        speed = ObdCan(mine, p2_timeout_s=GENEROUS_P2_S).read()
     assert (speed.speed_kmh, speed.ecu_id) == (45, 0x7E9)
 
 
@@ -257,7 +257,7 @@ def test_negative_answer_is_no_data_naming_the_ecu(channel: str) -> None:
         thread.start()
         try:
             with pytest.raises(NoData) as exc:
-                ObdCan(mine, p2_timeout_s=0.2).read()
+                ObdCan(mine, p2_timeout_s=GENEROUS_P2_S).read()
         finally:
             stop.set()
             thread.join()
