@@ -417,6 +417,7 @@ class Recorder:
                 self._on_disk.update(self._newest_written)
         except OSError as exc:
             log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
+            self._newest_written = dict(self._on_disk)
         finally:
             try:
                 stream.close()
@@ -440,6 +441,7 @@ class Recorder:
         with self._lock:
             self._writer = None
             self._stream = None
+        self._newest_written = dict(self._on_disk)  # what was handed over since the last flush is not on disk
         if exc.errno == errno.ENOSPC:
             self._set_state("disk-full", f"recording stopped: disk full while writing {path}")
         else:

@@ -173,14 +173,10 @@ def wait_until(condition: Callable[[], object], what: str, timeout_s: float = 20
         time.sleep(0.01)
 
 
-def test_ready_after_start_then_pings_stop_while_a_sensor_thread_hangs(
-        tmp_path: Path, systemd: tuple[FakeSystemd, str], caplog: pytest.LogCaptureFixture) -> None:
-    fake, path = systemd
-    steady, stuck = TickSource("steady"), TickSource("stuck")
-    d = make_daemon(tmp_path, [steady, stuck], path)
-    caplog.set_level(logging.INFO)
-    # Every pass of the service loop asks for the stale threads: counting the calls counts the chances it had to
-    # ping, so "no ping while hung" is checked over passes that really ran, however slow the host.
+def count_passes(d: Daemon) -> tuple[list[int], Callable[[], list[str]]]:
+    """Every pass of the service loop asks for the stale threads: counting the calls counts the chances it had
+    to ping, so "no ping" is checked over passes that really ran, however slow the host. Returns the counter and
+    the uncounted query."""
     passes = [0]
     stale_threads = d.stale_threads
 
@@ -189,6 +185,16 @@ def test_ready_after_start_then_pings_stop_while_a_sensor_thread_hangs(
         return stale_threads()
 
     d.stale_threads = counted_stale_threads  # type: ignore[method-assign]
+    return passes, stale_threads
+
+
+def test_ready_after_start_then_pings_stop_while_a_sensor_thread_hangs(
+        tmp_path: Path, systemd: tuple[FakeSystemd, str], caplog: pytest.LogCaptureFixture) -> None:
+    fake, path = systemd
+    steady, stuck = TickSource("steady"), TickSource("stuck")
+    d = make_daemon(tmp_path, [steady, stuck], path)
+    caplog.set_level(logging.INFO)
+    passes, stale_threads = count_passes(d)
     d.start()
     try:
         ready = fake.wait_for("READY")
@@ -242,14 +248,16 @@ def test_ready_waits_for_the_first_open_but_not_forever(tmp_path: Path, systemd:
 def test_a_dead_recorder_stops_the_pings(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
     fake, path = systemd
     d = make_daemon(tmp_path, [TickSource("a")], path)
+    passes, stale_threads = count_passes(d)
     d.start()
     try:
         fake.wait_for("READY")
         d.recorder.stop()  # the writer thread ends while the sensors go on
-        wait_until(lambda: "recorder has ended" in d.stale_threads(), "the ended recorder noticed")
-        time.sleep(0.2)  # a pass that had decided to ping before it noticed has sent it by now
-        pings = d.watchdog_pings
-        time.sleep(0.5)  # five passes of the service loop on a quiet host, fewer on a busy one: none may ping
+        wait_until(lambda: "recorder has ended" in stale_threads(), "the ended recorder noticed")
+        seen = passes[0]
+        wait_until(lambda: passes[0] >= seen + 2, "a pass that had decided to ping before it noticed is over")
+        pings, seen = d.watchdog_pings, passes[0]
+        wait_until(lambda: passes[0] >= seen + 5, "five more passes of the service loop")
         assert d.watchdog_pings == pings  # what reaches the manager is what was counted (checked above)
     finally:
         d.stop()

@@ -164,3 +164,43 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     junk.write_bytes(b"hello world" * 10)
     assert main(["recover", str(junk)]) == 1
     assert "not an MCAP file" in capsys.readouterr().err
+
+
+def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> None:
+    """`logger status` says how far each topic is on disk: a record handed over before a failed fsync (a dying
+    card) is not counted as kept, neither then nor after the recorder has reopened on a new file."""
+    import errno
+
+    import logger.recorder as recorder_module
+
+    class DyingCard:
+        def __getattr__(self, name: str):
+            return getattr(os, name)
+
+        @staticmethod
+        def fsync(fd: int) -> None:
+            raise OSError(errno.EIO, "Input/output error")
+
+    def wait(what: str, condition) -> None:
+        deadline = time.monotonic() + 20
+        while not condition():
+            assert time.monotonic() < deadline, what
+            time.sleep(0.01)
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    rec.start()
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        wait("the first record on disk", lambda: rec.status().on_disk_mono_ns.get("/a") == 1000)
+        monkeypatch.setattr(recorder_module, "os", DyingCard())
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        wait("the failed fsync noticed", lambda: rec.status().state == "failed")
+        assert rec.status().on_disk_mono_ns == {"/a": 1000}
+        monkeypatch.undo()  # the card answers again: the recorder reopens on a new file after its back-off
+        wait("recording again", lambda: rec.status().state == "recording")
+        time.sleep(0.1)  # a few flushes of the new file
+        assert rec.status().on_disk_mono_ns == {"/a": 1000}
+        rec.submit("/a", {"x": 3}, 1_700_000_000_000_000_003, 3000)
+        wait("the new record on disk", lambda: rec.status().on_disk_mono_ns.get("/a") == 3000)
+    finally:
+        rec.stop()

@@ -69,9 +69,10 @@ REANCHOR_H_ACC_M = 2.0  # ...make the filter admit its position is less certain 
 REANCHOR_AFTER_NS = 5 * NS  # come after this long without an accepted fix (a tunnel) or after worse ones only
 VELOCITY_REFUSALS = 3  # trusted velocities (a stop the OBD confirms, a good receiver's, OBD's) refused in a row
 VELOCITY_REFUSAL_SPAN_NS = NS  # ... over at least this long, agreeing: the filter's velocity is off, not theirs
-BARO_REFUSALS = 5  # barometer heights refused in a row...
+BARO_REFUSALS = 5  # barometer heights refused in a row (at least this many)...
 BARO_REFUSAL_SPAN_NS = 4 * NS  # ... over at least this long, agreeing: the filter's height is off, not the sensor's
-GNSS_ARBITER_NS = 3 * NS  # a good fix this recent can tell a wrong height from a moved barometer offset
+BARO_REFUSALS_KEPT = 64  # a 10 Hz barometer's refusals over 6 s: enough to judge, bounded while they scatter
+GNSS_ARBITER_NS = 3 * NS  # a good 3D fix this recent can tell a wrong height from a moved barometer offset
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
 
 
@@ -195,7 +196,8 @@ class NavEngine:
         self._last_pos_ok = (0, math.inf)  # time and accuracy of the last fix whose position went in
         self._rejects: list[tuple[float, ...]] = []  # consecutive refused fixes: time, then N, E (and D) innovation
         self._baro_refusals: list[tuple[float, ...]] = []  # the same for barometer heights: time, innovation
-        self._last_good_fix_ns = 0  # arrival of the last fix from a receiver sure of itself, whether it went in
+        self._last_good_fix_ns = 0  # epoch of the last 3D fix from a receiver sure of itself, whether it went in
+        self._last_height_in_ns = 0  # ... and of the last one whose height went in
         self._vel_refusals: dict[str, list[tuple[int, float, float]]] = {}  # the same for trusted velocities
         self.stopped = False
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
@@ -519,6 +521,8 @@ class NavEngine:
         ok = True if obs is None else self._apply(obs)
         if obs is not None and ok:
             self._last_pos_ok = (t_e, fix.h_acc)
+            if fix_3d and len(obs.z) == 3 and fix.h_acc < 10.0:
+                self._last_height_in_ns = t_e
         if vel_arr is not None:
             snap = self._state_at(t_e)
             full = GnssVelocity(vel_arr, s_vel, self.lever, np.array(self._gyro_raw), not fix_3d).observe(
@@ -583,7 +587,7 @@ class NavEngine:
         off), or a covariance gone wild: start again from the receiver. A street canyon's fixes are refused
         too, but they scatter: they do not trigger it."""
         assert self.ekf is not None and self.state is not None
-        if fix.h_acc < 10.0:
+        if fix.h_acc < 10.0 and fix.fix_3d:  # a 2D fix has no height of its own to settle anything with
             self._last_good_fix_ns = fix.t_ns
         if accepted:
             self._rejects.clear()
@@ -607,6 +611,7 @@ class NavEngine:
             self.ekf.inflate(slice(P_ID, P_ID + 3), [float(self.ekf.p[P_ID + i, P_ID + i]) + inno[i] ** 2
                                                       + fix.sigma[i] ** 2 for i in range(3)])
             self.counters.reanchors += 1
+            self._baro_refusals.clear()  # judged against the height just widened
             snap = self._state_at(fix.t_ns)
             if self._apply(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, self.lever, not fix.fix_3d)
                            .observe(snap, snap.dcm(), self.n)):
@@ -628,7 +633,10 @@ class NavEngine:
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
         self._reopen_attitude_and_offsets()
         self.counters.resets += 1
+        # Refusals judged against the lost solution say nothing of the new one.
         self._rejects.clear()
+        self._baro_refusals.clear()
+        self._vel_refusals.clear()
         self._refresh_sigma()
 
     def _velocity_evidence(self, obs: Observation, accepted: bool, t_ns: int, trusted: bool,
@@ -784,24 +792,34 @@ class NavEngine:
         """Barometer heights refused in a row that agree (the same few metres off, second after second): the
         filter's height went further off than its covariance admits (a vertical channel dead reckoned on too
         firm a belief), and refusing the sensor would keep it off for the rest of the drive, with every later
-        GNSS fix refused on its height as well. Widen the height (counted as ``reanchors``) and let the
-        barometer in. Without a recent good fix the barometer's offset, which weather moves by centimetres a
-        minute, is the firmer of the two and keeps its variance, so the height follows the barometer; with one,
-        the offset is widened too and the receiver's heights settle which of the two moved. Returns whether
-        the height went in."""
+        GNSS fix refused on its height as well. Or the barometer's offset moved (a sensor replaced, a pressure
+        port knocked). Which of the two is widened (counted as ``reanchors``) before the barometer goes in:
+        - the receiver's heights are going in: the filter's height agrees with them, so the offset moved;
+        - good 3D fixes come but are refused too: both, and the receiver's heights settle which one moved;
+        - no receiver: the height, since the offset, which weather moves by centimetres a minute, is the
+          firmer of the two (the height follows the barometer until fixes come back).
+        The refusals are judged over at least BARO_REFUSALS readings and BARO_REFUSAL_SPAN_NS, whatever the
+        barometer's rate. Returns whether the height went in."""
         if self._apply(obs):
             self._baro_refusals.clear()
             return True
         rb = self._baro_refusals
         rb.append((t_ns, float(obs.z[0])))
-        if (len(rb) < BARO_REFUSALS or rb[-1][0] - rb[-BARO_REFUSALS][0] < BARO_REFUSAL_SPAN_NS
-                or not self._agree(rb[-BARO_REFUSALS:])):
+        del rb[:-BARO_REFUSALS_KEPT]
+        if len(rb) < BARO_REFUSALS or rb[-1][0] - rb[0][0] < BARO_REFUSAL_SPAN_NS:
+            return False
+        k = BARO_REFUSALS  # the shortest run of the latest refusals that spans the time
+        while k < len(rb) and rb[-1][0] - rb[-k][0] < BARO_REFUSAL_SPAN_NS:
+            k += 1
+        if not self._agree(rb[-k:]):
             return False
         assert self.ekf is not None
         old = self.ekf.p.diagonal().copy()
         grow = float(obs.z[0]) ** 2 + float(obs.r[0])
-        self.ekf.inflate(slice(P_ID + 2, P_ID + 3), [float(old[P_ID + 2]) + grow])
-        if t_ns - self._last_good_fix_ns <= GNSS_ARBITER_NS:
+        receiver_heights_in = t_ns - self._last_height_in_ns <= GNSS_ARBITER_NS
+        if not receiver_heights_in:
+            self.ekf.inflate(slice(P_ID + 2, P_ID + 3), [float(old[P_ID + 2]) + grow])
+        if receiver_heights_in or t_ns - self._last_good_fix_ns <= GNSS_ARBITER_NS:
             self.ekf.inflate(slice(DH_ID, DH_ID + 1), [float(old[DH_ID]) + grow])
         self.counters.reanchors += 1
         rb.clear()
