@@ -249,7 +249,10 @@ def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_pat
     msgs = read_messages(path)
     for topic in SENSOR_TOPICS:
         synced = [m for _, _, m in msgs[topic] if m["sync_state"] != "freerun"]
-        assert len({m["sync_state"] for m in synced}) == 2, topic  # locked, then holdover, then locked again
+        states = {m["sync_state"] for m in synced}
+        # Locked, then holdover, then locked again. The PPS line has no edge in the outage: the first one after it
+        # is in holdover, or already locked when the host read it after the time message that labels it.
+        assert states == {"locked", "holdover"} or (topic == "/pps" and states == {"locked"}), (topic, states)
         # Never back, and never equal unless read together: epochs a busy host let pile up in the receiver's
         # buffer come out of one read and share its time.
         stamps = [(m["t_sync_ns"], m["t_mono_ns"]) for m in synced]
