@@ -305,8 +305,7 @@ class Recorder:
         except OSError as exc:
             self._io_failed(exc)
             return
-        with self._lock:
-            self._on_disk.update(self._newest_written)
+        self._kept_on_disk(True)
         size = self._stream.tell()
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
@@ -413,11 +412,10 @@ class Recorder:
             writer.finish()
             stream.flush()
             os.fsync(stream.fileno())
-            with self._lock:
-                self._on_disk.update(self._newest_written)
+            self._kept_on_disk(True)
         except OSError as exc:
             log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
-            self._newest_written = dict(self._on_disk)
+            self._kept_on_disk(False)
         finally:
             try:
                 stream.close()
@@ -430,6 +428,14 @@ class Recorder:
         if self.on_file_closed is not None and path is not None:
             self.on_file_closed(path)
 
+    def _kept_on_disk(self, kept: bool) -> None:
+        """After an fsync: what was handed to the writer is on disk, or (it failed) it is not and never will be."""
+        if kept:
+            with self._lock:
+                self._on_disk.update(self._newest_written)
+        else:
+            self._newest_written = dict(self._on_disk)
+
     def _io_failed(self, exc: OSError) -> None:
         """A write failed: leave the file as it is (recovery keeps every flushed chunk) and stop writing."""
         path = self._path
@@ -441,7 +447,7 @@ class Recorder:
         with self._lock:
             self._writer = None
             self._stream = None
-        self._newest_written = dict(self._on_disk)  # what was handed over since the last flush is not on disk
+        self._kept_on_disk(False)
         if exc.errno == errno.ENOSPC:
             self._set_state("disk-full", f"recording stopped: disk full while writing {path}")
         else:

@@ -104,17 +104,22 @@ def test_a_multipath_jump_is_refused_counted_and_harmless():
     assert np.hypot(e[after, 0], e[after, 1]).max() < 2.0
 
 
+def fed_with_upset(recs, at_s: float, upset, **params) -> tuple[NavEngine, bool]:
+    """The records through a filter, with ``upset(engine)`` applied once, ``at_s`` into the drive."""
+    engine = NavEngine(NavParams(**params), record=True)
+    done = False
+    for _, topic, msg in recs:
+        engine.feed(topic, msg)
+        if not done and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > at_s:
+            upset(engine)
+            done = True
+    return engine, done
+
+
 def upset_at_90_s(duration_s: float, records_seed: int, upset) -> tuple[Any, NavEngine, bool]:
     """The outage-60s drive (seed 3) through the default filter, with ``upset(engine)`` applied once, 90 s in."""
     drive = make_drive("outage-60s", seed=3, duration_s=duration_s)
-    engine = NavEngine(NavParams(), record=True)
-    done = False
-    for _, topic, msg in records(drive, duration_s, seed=records_seed):
-        engine.feed(topic, msg)
-        if not done and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 90:
-            upset(engine)
-            done = True
-    return drive, engine, done
+    return drive, *fed_with_upset(records(drive, duration_s, seed=records_seed), 90.0, upset)
 
 
 def test_a_lost_filter_restarts_from_gnss_and_says_so():
@@ -244,13 +249,11 @@ def test_good_fixes_after_an_outage_that_all_disagree_the_same_way_widen_the_pos
     """Out of a tunnel with the solution further off than its covariance admits, the first good fixes agree with
     each other and not with it: after three the position uncertainty is widened and they pull it back."""
     drive, span, recs = outage
-    engine = NavEngine(NavParams(), record=True)
-    moved = False
-    for _, topic, msg in recs:
-        engine.feed(topic, msg)
-        if not moved and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > span.start_s + 5.0:
-            engine.state.lon += 25.0 / 5.0e6  # 25 m east, unknown to the covariance
-            moved = True
+
+    def east(engine: NavEngine) -> None:
+        engine.state.lon += 25.0 / 5.0e6  # 25 m east, unknown to the covariance
+
+    engine, moved = fed_with_upset(recs, span.start_s + 5.0, east)
     assert moved and engine.counters.reanchors == 1 and engine.counters.resets == 0
     t, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[t > span.end_s + 8.0, 0], e[t > span.end_s + 8.0, 1]).max() < 1.5
@@ -277,13 +280,11 @@ def test_a_tilt_the_covariance_does_not_admit_reopens_attitude_and_offsets_inste
 
 def shifted_height(recs, at_s: float, metres: float, **params) -> NavEngine:
     """The records through a filter whose height is moved by ``metres`` at ``at_s``, unknown to its covariance."""
-    engine = NavEngine(NavParams(**params), record=True)
-    moved = False
-    for _, topic, msg in recs:
-        engine.feed(topic, msg)
-        if not moved and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > at_s:
-            engine.state.h += metres
-            moved = True
+
+    def lift(engine: NavEngine) -> None:
+        engine.state.h += metres
+
+    engine, moved = fed_with_upset(recs, at_s, lift, **params)
     assert moved
     return engine
 

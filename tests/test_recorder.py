@@ -10,6 +10,7 @@ from mcap.reader import make_reader
 
 from logger.mcap_files import is_finished, recover, walk
 from logger.recorder import Recorder, RecorderSettings
+from logger.sampler import wait_until
 from logger.topics import TopicSpec
 
 TOPICS = {"/a": TopicSpec("/a", "test.A", {"type": "object", "properties": {"x": {"type": "integer"}}}, "test")}
@@ -92,7 +93,6 @@ def test_full_queue_is_a_counted_drop_not_a_block(tmp_path: Path) -> None:
 
 def test_writer_takes_records_in_batches_without_waiting_for_the_flush(tmp_path: Path) -> None:
     from logger.recorder import BATCH_WAIT_S
-    from logger.sampler import wait_until
 
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=3600, queue_size=400), TOPICS)
     rec.start()
@@ -181,26 +181,20 @@ def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> N
         def fsync(fd: int) -> None:
             raise OSError(errno.EIO, "Input/output error")
 
-    def wait(what: str, condition) -> None:
-        deadline = time.monotonic() + 20
-        while not condition():
-            assert time.monotonic() < deadline, what
-            time.sleep(0.01)
-
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
     rec.start()
     try:
         rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
-        wait("the first record on disk", lambda: rec.status().on_disk_mono_ns.get("/a") == 1000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0), "the first record on disk"
         monkeypatch.setattr(recorder_module, "os", DyingCard())
         rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
-        wait("the failed fsync noticed", lambda: rec.status().state == "failed")
+        assert wait_until(lambda: rec.status().state == "failed", 20.0), "the failed fsync noticed"
         assert rec.status().on_disk_mono_ns == {"/a": 1000}
         monkeypatch.undo()  # the card answers again: the recorder reopens on a new file after its back-off
-        wait("recording again", lambda: rec.status().state == "recording")
+        assert wait_until(lambda: rec.status().state == "recording", 20.0), "recording again"
         time.sleep(0.1)  # a few flushes of the new file
         assert rec.status().on_disk_mono_ns == {"/a": 1000}
         rec.submit("/a", {"x": 3}, 1_700_000_000_000_000_003, 3000)
-        wait("the new record on disk", lambda: rec.status().on_disk_mono_ns.get("/a") == 3000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 3000, 20.0), "the new record on disk"
     finally:
         rec.stop()

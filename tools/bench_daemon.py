@@ -463,7 +463,7 @@ def live_costs(r: dict[str, Any]) -> dict[str, float]:
             "navigator_us_per_sample": cpu.get("navigator", 0.0) / max(samples, 1e-9) * 1e6}
 
 
-def render(results: list[dict[str, Any]], board: Any = None) -> list[str]:
+def render(results: list[dict[str, Any]]) -> list[str]:
     """Markdown: CPU and memory per IMU rate, the per-thread split, and the sustained-rate verdicts."""
     plain = [r for r in results if not r["profile"]]
     lines = ["| IMU rate | window | niceness | daemon threads | simulator (threads + inside daemon threads) "

@@ -42,20 +42,25 @@ from logger.topics import TOPICS, TopicSpec  # noqa: E402
 Item = tuple[str, dict[str, Any], int, int]  # topic, payload, log time, publish time
 
 
-def load_stream(files: list[Path], n: int, only: str | None = None) -> list[Item]:
-    """The drive's records in log-time order, repeated with shifted times up to ``n`` records."""
+def read_drive(files: list[Path]) -> list[Item]:
+    """The drive's records (the simulator's truth left out) in log-time order, decoded once for every stream."""
     from mcap.reader import make_reader
 
     base: list[Item] = []
     for path in files:
         with open(path, "rb") as f:
             for _, channel, message in make_reader(f).iter_messages():
-                if channel.topic.startswith("/truth/") or (only is not None and channel.topic != only):
-                    continue
-                base.append((channel.topic, json.loads(message.data), message.log_time, message.publish_time))
-    if not base:
-        raise SystemExit(f"bench_recorder: no records{' on ' + only if only else ''} in {', '.join(map(str, files))}")
+                if not channel.topic.startswith("/truth/"):
+                    base.append((channel.topic, json.loads(message.data), message.log_time, message.publish_time))
     base.sort(key=lambda item: item[2])
+    return base
+
+
+def load_stream(drive: list[Item], n: int, only: str | None = None) -> list[Item]:
+    """The drive's records (of topic ``only``, if given), repeated with shifted times up to ``n`` records."""
+    base = [item for item in drive if only is None or item[0] == only]
+    if not base:
+        raise SystemExit(f"bench_recorder: no records{' on ' + only if only else ''} in the drive")
     span = base[-1][2] - base[0][2] + 1
     out: list[Item] = []
     k = 0
@@ -174,8 +179,9 @@ def main(argv: list[str] | None = None) -> int:
     result: dict[str, Any] = {"streams": {}, "compression": RecorderSettings(Path()).compression,
                               "chunk_mb": RecorderSettings(Path()).chunk_size_bytes / 2**20,
                               "flush_interval_s": RecorderSettings(Path()).flush_interval_s}
+    drive = read_drive(args.files)
     for name, only in (("drive mix", None), ("/imu only", "/imu")):
-        stream = load_stream(args.files, args.messages, only)
+        stream = load_stream(drive, args.messages, only)
         result["streams"][name] = measure(stream, args.repeat, lambda: RecorderSettings(Path()))
         print(f"{name}: " + ", ".join(f"{w} {v['msgs_per_s']:,.0f} msg/s, {v['cpu_us_per_msg']:.1f} us CPU/msg"
                                       for w, v in result["streams"][name]["writers"].items()), flush=True)

@@ -71,7 +71,7 @@ VELOCITY_REFUSALS = 3  # trusted velocities (a stop the OBD confirms, a good rec
 VELOCITY_REFUSAL_SPAN_NS = NS  # ... over at least this long, agreeing: the filter's velocity is off, not theirs
 BARO_REFUSALS = 5  # barometer heights refused in a row (at least this many)...
 BARO_REFUSAL_SPAN_NS = 4 * NS  # ... over at least this long, agreeing: the filter's height is off, not the sensor's
-BARO_REFUSALS_KEPT = 64  # a 10 Hz barometer's refusals over 6 s: enough to judge, bounded while they scatter
+REFUSALS_KEPT = 64  # a run of refusals is judged on its latest: a 10 Hz sensor's over 6 s, bounded while they scatter
 GNSS_ARBITER_NS = 3 * NS  # a good 3D fix this recent can tell a wrong height from a moved barometer offset
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
 
@@ -658,6 +658,7 @@ class NavEngine:
         if not trusted:
             return False
         rv.append((t_ns, float(obs.z[0]), float(obs.z[1])))
+        del rv[:-REFUSALS_KEPT]  # only the latest are judged: bounded while they scatter
         if (len(rv) < VELOCITY_REFUSALS or rv[-1][0] - rv[-VELOCITY_REFUSALS][0] < VELOCITY_REFUSAL_SPAN_NS
                 or not self._agree(rv[-VELOCITY_REFUSALS:])):
             return False
@@ -805,7 +806,7 @@ class NavEngine:
             return True
         rb = self._baro_refusals
         rb.append((t_ns, float(obs.z[0])))
-        del rb[:-BARO_REFUSALS_KEPT]
+        del rb[:-REFUSALS_KEPT]
         if len(rb) < BARO_REFUSALS or rb[-1][0] - rb[0][0] < BARO_REFUSAL_SPAN_NS:
             return False
         k = BARO_REFUSALS  # the shortest run of the latest refusals that spans the time

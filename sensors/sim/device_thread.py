@@ -8,10 +8,11 @@ as a context manager.
 from __future__ import annotations
 
 import threading
+from abc import ABC, abstractmethod
 from typing import Self
 
 
-class DeviceThread:
+class DeviceThread(ABC):
     thread_name = "sim-device"
 
     def __init__(self) -> None:
@@ -37,5 +38,6 @@ class DeviceThread:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    @abstractmethod
     def _run(self) -> None:
-        raise NotImplementedError
+        """The device's loop: answer the bus until ``_stop`` is set."""
