@@ -13,11 +13,18 @@ import re
 import stat
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from logger.nav.params import NavParams
+from logger.recording.settings import MIB, RecorderSettings
+from sync.settings import NS_PER_US, SyncSettings
+
 DEFAULT_PATH = Path("/etc/vehicle-logger/logger.toml")
+SIM_SECTIONS = ("imu", "baro", "obd", "gnss", "pps")  # the sensors a simulated vehicle can play
+DEFAULT_SIM_OUT = "drives"  # `logger run --sim` without a configuration: files under ./drives
+DEFAULT_SIM_SOCKET = "/tmp/vehicle-logger-sim/status.sock"  # ... and its status socket, where `logger status` looks
 
 
 class ConfigError(Exception):
@@ -93,6 +100,39 @@ def _gpsd_device(v: str) -> str | None:
     return "must be empty (every receiver), a device path such as /dev/ttyACM0, or a gpsd source URL"
 
 
+def _field_default(cls: type, name: str) -> Any:
+    """The default that settings dataclass ``cls`` gives its field ``name``.
+
+    The ``[nav]``, ``[sync]`` and ``[recorder]`` defaults are written once, in the dataclasses the code runs on
+    (``NavParams``, ``SyncSettings``, ``RecorderSettings``), and the schema reads them from there, so a default
+    changed in one place cannot leave a configuration that says otherwise. A name that is not a field with a
+    default fails here, at import, rather than leave a key without one.
+    """
+    for f in fields(cls):
+        if f.name == name and f.default is not MISSING:
+            return f.default
+        if f.name == name and f.default_factory is not MISSING:
+            return f.default_factory()
+    raise TypeError(f"{cls.__name__} has no field {name!r} with a default")
+
+
+FIELD: Any = object()  # a key's default: the field of the same name of its section's settings (_defaults_from)
+
+
+def _defaults_from(cls: type, keys: dict[str, Key]) -> dict[str, Key]:
+    """``keys`` with every :data:`FIELD` default replaced by that of ``cls``' field of the same name.
+
+    Tuples (NavParams' vectors) become lists, as TOML arrays are. Keys whose field has another name or unit
+    state their default as the conversion of :func:`_field_default`, the inverse of the ``from_config`` beside
+    the dataclass; keys without a field keep their own default.
+    """
+    def own(name: str) -> Any:
+        value = _field_default(cls, name)
+        return list(value) if isinstance(value, tuple) else value
+
+    return {name: replace(key, default=own(name)) if key.default is FIELD else key for name, key in keys.items()}
+
+
 NUM = (int, float)
 SOURCES_I2C = ("i2c", "sim")
 
@@ -102,14 +142,16 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "state_dir": Key(str, "/var/lib/vehicle-logger", _abs_path, "saved clock state"),
         "status_socket": Key(str, "/run/vehicle-logger/status.sock", _abs_path, "Unix socket of `logger status`"),
     },
-    "recorder": {
-        "flush_interval_s": Key(NUM, 1.0, _range(0.05, 60), "close the chunk and fsync this often"),
-        "rotate_duration_s": Key(NUM, 3600.0, _range(10, 86400), "start a new file after this much drive time"),
-        "rotate_size_mb": Key(NUM, 1024, _range(1, 65536), "start a new file at this size"),
-        "min_free_mb": Key(NUM, 256, _range(0, 1 << 20), "stop recording below this much free disk"),
-        "compression": Key(str, "zstd", _one_of("zstd", "lz4", "none"), "MCAP chunk compression"),
-        "queue_size": Key(int, 20000, _range(100, 1_000_000), "records waiting for the writer before drops"),
-    },
+    "recorder": _defaults_from(RecorderSettings, {
+        "flush_interval_s": Key(NUM, FIELD, _range(0.05, 60), "close the chunk and fsync this often"),
+        "rotate_duration_s": Key(NUM, FIELD, _range(10, 86400), "start a new file after this much drive time"),
+        "rotate_size_mb": Key(NUM, _field_default(RecorderSettings, "rotate_size_bytes") // MIB, _range(1, 65536),
+                              "start a new file at this size"),
+        "min_free_mb": Key(NUM, _field_default(RecorderSettings, "min_free_bytes") // MIB, _range(0, 1 << 20),
+                           "stop recording below this much free disk"),
+        "compression": Key(str, FIELD, _one_of("zstd", "lz4", "none"), "MCAP chunk compression"),
+        "queue_size": Key(int, FIELD, _range(100, 1_000_000), "records waiting for the writer before drops"),
+    }),
     "imu": {
         "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
         "bus": Key(int, 2, _range(0, 255), "I2C bus number: /dev/i2c-N"),
@@ -151,50 +193,51 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "chip": Key(str, "/dev/gpiochip0", _abs_path),
         "line": Key((int, str), 60, None, "line offset or line name"),
     },
-    "sync": {
-        "pps_latency_us": Key(NUM, 7.0, _range(0, 1000), "mean delay of the PPS interrupt's time stamp"),
-        "stability_ppm": Key(NUM, 1.0, _range(0.01, 100), "how far the board clock may wander unseen (holdover)"),
-        "max_slew_ppm": Key(NUM, 500.0, _range(1, 10000), "how fast a correction is slewed in after holdover"),
+    "sync": _defaults_from(SyncSettings, {
+        "pps_latency_us": Key(NUM, _field_default(SyncSettings, "pps_latency_ns") / NS_PER_US, _range(0, 1000),
+                              "mean delay of the PPS interrupt's time stamp"),
+        "stability_ppm": Key(NUM, FIELD, _range(0.01, 100), "how far the board clock may wander unseen (holdover)"),
+        "max_slew_ppm": Key(NUM, FIELD, _range(1, 10000), "how fast a correction is slewed in after holdover"),
         "chrony_sock": Key(str, "", lambda v: None if v == "" else _abs_path(v),
                            "chronyd's SOCK refclock socket to hand PPS samples to; empty: off"),
-    },
-    "nav": {
-        "enabled": Key(bool, True, None, "run the navigation filter live and publish /nav/fix, /nav/state"),
-        "mode": Key(str, "17", _one_of("17", "15", "gnss"), "17 (GNSS, IMU, OBD, baro), 15 (GNSS + IMU), gnss"),
-        "lever_arm_m": Key(list, [0.0, 0.0, 0.0], _vector3(5.0), "GNSS antenna from the IMU, vehicle x y z (FRD), m"),
-        "mounting_rpy_deg": Key(list, [0.0, 0.0, 0.0], _vector3(180.0), "IMU chip axes against the vehicle"),
-        "accel_noise_ug_rthz": Key(NUM, 400.0, _range(1, 100000), "accelerometer noise density (datasheet)"),
-        "gyro_noise_dps_rthz": Key(NUM, 0.005, _range(1e-5, 10), "gyro noise density (datasheet)"),
-        "accel_bias_mg": Key(NUM, 50.0, _range(0.01, 1000), "initial accelerometer offset uncertainty"),
-        "gyro_bias_dps": Key(NUM, 20.0, _range(0.001, 200), "initial gyro offset uncertainty"),
-        "accel_bias_walk_mg_rts": Key(NUM, 0.1, _range(0, 100), "accelerometer offset random walk"),
+    }),
+    "nav": _defaults_from(NavParams, {  # every key is the NavParams field of the same name
+        "enabled": Key(bool, FIELD, None, "run the navigation filter live and publish /nav/fix, /nav/state"),
+        "mode": Key(str, FIELD, _one_of("17", "15", "gnss"), "17 (GNSS, IMU, OBD, baro), 15 (GNSS + IMU), gnss"),
+        "lever_arm_m": Key(list, FIELD, _vector3(5.0), "GNSS antenna from the IMU, vehicle x y z (FRD), m"),
+        "mounting_rpy_deg": Key(list, FIELD, _vector3(180.0), "IMU chip axes against the vehicle"),
+        "accel_noise_ug_rthz": Key(NUM, FIELD, _range(1, 100000), "accelerometer noise density (datasheet)"),
+        "gyro_noise_dps_rthz": Key(NUM, FIELD, _range(1e-5, 10), "gyro noise density (datasheet)"),
+        "accel_bias_mg": Key(NUM, FIELD, _range(0.01, 1000), "initial accelerometer offset uncertainty"),
+        "gyro_bias_dps": Key(NUM, FIELD, _range(0.001, 200), "initial gyro offset uncertainty"),
+        "accel_bias_walk_mg_rts": Key(NUM, FIELD, _range(0, 100), "accelerometer offset random walk"),
         # 5x the chip family's Allan-variance bias stability; the temperature drift is the tempcos' (datasheet)
-        "gyro_bias_walk_dps_rts": Key(NUM, 0.0005, _range(0, 10), "gyro offset random walk at a steady temperature"),
-        "accel_bias_tempco_mg_degc": Key(NUM, 0.5, _range(0, 100), "accel offset change per degC of die (0: off)"),
-        "gyro_bias_tempco_dps_degc": Key(NUM, 0.16, _range(0, 10), "gyro offset change per degC of die (0: off)"),
-        "obd_speed_sigma_mps": Key(NUM, 0.2, _range(0.01, 10), "OBD speed noise (1 km/h steps, timing)"),
-        "obd_scale_sigma": Key(NUM, 0.05, _range(1e-4, 0.5), "initial uncertainty of the OBD scale factor"),
-        "obd_scale_walk_rts": Key(NUM, 1e-5, _range(0, 0.01), "OBD scale factor random walk, 1/sqrt(s)"),
-        "nhc_sigma_mps": Key(NUM, 0.1, _range(0.001, 10), "lateral and vertical body velocity allowed"),
-        "baro_sigma_m": Key(NUM, 0.5, _range(0.01, 100), "barometric altitude noise"),
-        "baro_offset_walk_m_rts": Key(NUM, 0.02, _range(0, 10), "random walk of baro-GNSS height offset"),
-        "gnss_uere_m": Key(NUM, 3.0, _range(0.01, 100), "range error for receivers that give DOP but no accuracy"),
-        "gnss_acc_scale": Key(NUM, 1.0, _range(0.1, 100), "multiply the receiver's own accuracies"),
-        "gnss_min_sv": Key(int, 5, _range(4, 40), "fixes on fewer satellites are not used"),
-        "gnss_multipath_corr_s": Key(NUM, 5.0, _range(0, 600),
+        "gyro_bias_walk_dps_rts": Key(NUM, FIELD, _range(0, 10), "gyro offset random walk at a steady temperature"),
+        "accel_bias_tempco_mg_degc": Key(NUM, FIELD, _range(0, 100), "accel offset change per degC of die (0: off)"),
+        "gyro_bias_tempco_dps_degc": Key(NUM, FIELD, _range(0, 10), "gyro offset change per degC of die (0: off)"),
+        "obd_speed_sigma_mps": Key(NUM, FIELD, _range(0.01, 10), "OBD speed noise (1 km/h steps, timing)"),
+        "obd_scale_sigma": Key(NUM, FIELD, _range(1e-4, 0.5), "initial uncertainty of the OBD scale factor"),
+        "obd_scale_walk_rts": Key(NUM, FIELD, _range(0, 0.01), "OBD scale factor random walk, 1/sqrt(s)"),
+        "nhc_sigma_mps": Key(NUM, FIELD, _range(0.001, 10), "lateral and vertical body velocity allowed"),
+        "baro_sigma_m": Key(NUM, FIELD, _range(0.01, 100), "barometric altitude noise"),
+        "baro_offset_walk_m_rts": Key(NUM, FIELD, _range(0, 10), "random walk of baro-GNSS height offset"),
+        "gnss_uere_m": Key(NUM, FIELD, _range(0.01, 100), "range error for receivers that give DOP but no accuracy"),
+        "gnss_acc_scale": Key(NUM, FIELD, _range(0.1, 100), "multiply the receiver's own accuracies"),
+        "gnss_min_sv": Key(int, FIELD, _range(4, 40), "fixes on fewer satellites are not used"),
+        "gnss_multipath_corr_s": Key(NUM, FIELD, _range(0, 600),
                                      "correlation time of GNSS errors above the receiver's floor, s"),
-        "zupt_sigma_mps": Key(NUM, 0.02, _range(1e-4, 1), "velocity noise of a zero-velocity update"),
-        "zaru_sigma_dps": Key(NUM, 0.01, _range(1e-5, 10), "angular rate noise of a zero-rate update"),
-        "gate_probability": Key(NUM, 0.999, _range(0.5, 0.999999), "chi-square gate of every update"),
-        "heading_source": Key(str, "gnss", _one_of("gnss", "config"), "initial heading from GNSS course or config"),
-        "initial_heading_deg": Key(NUM, 0.0, _range(-360, 360), "used when heading_source = 'config'"),
-        "heading_min_speed_mps": Key(NUM, 3.0, _range(0.5, 50), "GNSS course trusted for heading above this"),
-        "align_min_s": Key(NUM, 2.0, _range(0.1, 600), "standstill needed to level the IMU"),
-        "still_accel_mps2": Key(NUM, 0.05, _range(1e-4, 5), "stop detector's first threshold (then adapted)"),
-        "cov_interval_s": Key(NUM, 0.5, _range(0.01, 2), "covariance propagation interval"),
-        "publish_hz": Key(NUM, 5.0, _range(0.1, 1000), "rate of /nav/fix while running live"),
-        "queue_size": Key(int, 2000, _range(10, 1_000_000), "records waiting for the filter before drops"),
-    },
+        "zupt_sigma_mps": Key(NUM, FIELD, _range(1e-4, 1), "velocity noise of a zero-velocity update"),
+        "zaru_sigma_dps": Key(NUM, FIELD, _range(1e-5, 10), "angular rate noise of a zero-rate update"),
+        "gate_probability": Key(NUM, FIELD, _range(0.5, 0.999999), "chi-square gate of every update"),
+        "heading_source": Key(str, FIELD, _one_of("gnss", "config"), "initial heading from GNSS course or config"),
+        "initial_heading_deg": Key(NUM, FIELD, _range(-360, 360), "used when heading_source = 'config'"),
+        "heading_min_speed_mps": Key(NUM, FIELD, _range(0.5, 50), "GNSS course trusted for heading above this"),
+        "align_min_s": Key(NUM, FIELD, _range(0.1, 600), "standstill needed to level the IMU"),
+        "still_accel_mps2": Key(NUM, FIELD, _range(1e-4, 5), "stop detector's first threshold (then adapted)"),
+        "cov_interval_s": Key(NUM, FIELD, _range(0.01, 2), "covariance propagation interval"),
+        "publish_hz": Key(NUM, FIELD, _range(0.1, 1000), "rate of /nav/fix while running live"),
+        "queue_size": Key(int, FIELD, _range(10, 1_000_000), "records waiting for the filter before drops"),
+    }),
     "sim": {
         "scenario": Key(str, "urban", None, "drive to simulate"),
         "seed": Key(int, 1, _range(0, 2**32 - 1)),

@@ -26,6 +26,7 @@ from sensors.obd import (
     ENGINE_RESPONSE_ID_11,
     RESPONSE_BASE_29,
     ObdSpeed,
+    SpeedDriver,
     decode_speed_payload,
     isotp_single_frame_payload,
     j1850_crc,
@@ -57,7 +58,7 @@ class _NoPrompt(Exception):
     """The line went quiet before the adapter's prompt came."""
 
 
-class Elm327:
+class Elm327(SpeedDriver):
     """One ELM327 adapter: ``open()`` resets and sets it up, ``read()`` asks the vehicle for its speed.
 
     ``protocol`` is the AT SP digit ("0" searches, "6" is CAN 11-bit 500 kbit/s, "A6" searches starting
@@ -149,6 +150,9 @@ class Elm327:
             self.connect_problem = str(exc)
         else:
             self.connect_problem = None
+
+    def incidents(self) -> dict[str, int]:
+        return {"ELM327 reset itself and was set up again": self.resets_seen}
 
     def close(self) -> None:
         ser, self._serial = self._serial, None

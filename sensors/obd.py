@@ -12,6 +12,7 @@ ELM327 shows with headers on and the adapter model computes.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 from sensors.errors import ProtocolError
@@ -103,3 +104,25 @@ def j1850_crc(data: bytes) -> int:
 def kline_checksum(data: bytes) -> int:
     """ISO 9141-2 / ISO 14230-4 check byte: the sum of the header and data bytes, modulo 256."""
     return sum(data) & 0xFF
+
+
+class SpeedDriver(ABC):
+    """What every vehicle-speed driver offers, whatever the interface (ELM327 adapter, native CAN).
+
+    The optional parts have their defaults here, as python-can's ``BusABC`` does, so the code that runs a driver
+    reads the contract in one place instead of probing each driver for what it might have.
+    """
+
+    def open(self) -> None:  # noqa: B027 - optional: a driver handed a ready bus has nothing to set up
+        """Set the interface up (an adapter's reset and protocol search); nothing for a bus handed over ready."""
+
+    @abstractmethod
+    def read(self) -> ObdSpeed:
+        """One request for the vehicle speed and its answer; raises a :class:`sensors.errors.SensorError`."""
+
+    def close(self) -> None:  # noqa: B027 - optional: nothing to release by default
+        """Release the interface; never raises for one that is already gone."""
+
+    def incidents(self) -> dict[str, int]:
+        """Cumulative counts of faults the driver recovered from by itself (an adapter that reset); none here."""
+        return {}

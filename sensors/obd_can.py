@@ -27,6 +27,7 @@ from sensors.obd import (
     SERVICE_CURRENT_DATA,
     SPEED_REQUEST,
     ObdSpeed,
+    SpeedDriver,
     decode_speed_payload,
     isotp_single_frame,
     isotp_single_frame_payload,
@@ -40,7 +41,7 @@ RESPONSE_FILTER_11 = {"can_id": RESPONSE_BASE_11, "can_mask": 0x7F8, "extended":
 RESPONSE_FILTER_29 = {"can_id": RESPONSE_BASE_29, "can_mask": 0x1FFFFF00, "extended": True}
 
 
-class ObdCan:
+class ObdCan(SpeedDriver):
     """PID 0x0D requests on a python-can bus (socketcan on the board, the virtual bus in tests).
 
     The driver sets the bus's receive filters, replacing any: give it a bus of its own. ``extended_id``

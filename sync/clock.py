@@ -21,16 +21,17 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import LineFit, fit_line
-from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp
+from sync.settings import SyncSettings
+from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock
 from sync.tempco import TempcoEstimator
 
 log = logging.getLogger(__name__)
@@ -40,25 +41,7 @@ WALL_TOLERANCE_NS = 500_000_000
 WALL_PATIENCE_NS = 60 * NS
 
 
-@dataclass
-class SyncSettings:
-    imu_rate_hz: float = 20.0
-    pps_latency_ns: int = 7_000  # mean delay from the pulse to the kernel's time stamp (pps-gpio interrupt)
-    pps_latency_spread_ns: int = 10_000  # allowance for that delay's variation in the error bound
-    max_samples: int = 64
-    lock_samples: int = 3
-    holdover_after_s: float = 1.5  # no edge for this long: HOLDOVER
-    restart_window_after_s: float = 30.0  # a gap this long starts the regression afresh (frequency prior)
-    stability_ppm: float = 1.0  # how far the frequency may wander unseen (chrony's maxclockerror)
-    tempco_bound_ppm_per_degc: float = 1.5  # assumed |df/dT| while the coefficient is not learned
-    sigma_k: float = 4.0  # error bound = sigma_k * standard error + the allowances
-    max_slew_ppm: float = 500.0
-    min_sigma_ns: float = 500.0
-    freerun_err_ns: int = 10 * NS  # a board without RTC: its wall clock is only roughly right, if at all
-    save_interval_s: float = 300.0
-
-
-class PpsClock:
+class PpsClock(StampClock):
     """A :class:`sync.stamp.StampClock` that observes PPS edges, time pulses, fixes and IMU temperatures."""
 
     def __init__(self, settings: SyncSettings | None = None, monotonic_ns: Callable[[], int] = time.monotonic_ns,
@@ -105,28 +88,32 @@ class PpsClock:
         self._load()
 
     # ---- observation (called by the daemon for every record, from any thread) ------------------------------
-    def observe(self, topic: str, payload: dict[str, Any], t_mono_ns: int) -> None:
-        if topic == "/imu":
-            with self._lock:
-                self.paper.on_imu(t_mono_ns)
-                temp = payload.get("temp_degc")
-                if temp is not None:
-                    self._on_temperature(t_mono_ns, float(temp))
-        elif topic == "/pps":
-            with self._lock:
-                self.counts["edges"] += 1
-                self.paper.on_edge(t_mono_ns)
-                label = payload.get("gnss_time_ns")  # set when the PPS source names the edge's second (gpsd)
-                if label is None:
-                    self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
-                else:
-                    self._take(self.labeller.on_labelled_edge(t_mono_ns, int(label), self._predict_unix_ns))
-        elif topic == "/gnss/timepulse":
-            with self._lock:
-                self._take(self.labeller.on_timepulse(payload, t_mono_ns, self._predict_unix_ns))
-        elif topic == "/gnss/fix":
-            with self._lock:
-                self._take(self.labeller.on_fix(payload, t_mono_ns, self._predict_unix_ns))
+    def on_imu_sample(self, t_mono_ns: int, temp_degc: float | None) -> None:
+        """An IMU sample: the paper's counters tick, and its die temperature drives the holdover correction."""
+        with self._lock:
+            self.paper.on_imu(t_mono_ns)
+            if temp_degc is not None:
+                self._on_temperature(t_mono_ns, float(temp_degc))
+
+    def on_edge(self, t_mono_ns: int, gnss_time_ns: int | None = None) -> None:
+        """A PPS edge's kernel time stamp; ``gnss_time_ns`` when its source names the second it marks (gpsd)."""
+        with self._lock:
+            self.counts["edges"] += 1
+            self.paper.on_edge(t_mono_ns)
+            if gnss_time_ns is None:
+                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
+            else:
+                self._take(self.labeller.on_labelled_edge(t_mono_ns, int(gnss_time_ns), self._predict_unix_ns))
+
+    def on_announcement(self, announcement: TimeAnnouncement, t_mono_ns: int) -> None:
+        """The receiver announced the GNSS time of its next pulse (seen at ``t_mono_ns``)."""
+        with self._lock:
+            self._take(self.labeller.on_timepulse(announcement, t_mono_ns, self._predict_unix_ns))
+
+    def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:
+        """A navigation solution for a valid GNSS second arrived (at ``t_mono_ns``, after that second's pulse)."""
+        with self._lock:
+            self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
 
     def _take(self, pairs: list[tuple[int, int]]) -> None:
         for edge_ns, label_ns in pairs:

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+
+from sync.inputs import FixEpoch, TimeAnnouncement
 
 NS = 1_000_000_000
 UNIX_NS_AT_GPS_EPOCH = 315_964_800 * NS
@@ -53,17 +54,15 @@ class EdgeLabeller:
             return []
         return [(edge_ns, label_ns)]
 
-    def on_timepulse(self, tp: dict[str, Any], received_ns: int, predict: Predict) -> list[tuple[int, int]]:
+    def on_timepulse(self, tp: TimeAnnouncement, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
         label = self._timepulse_unix_ns(tp)
         if label is not None:
             self._announced.append((received_ns, label))
         return self._match(predict)
 
-    def on_fix(self, fix: dict[str, Any], received_ns: int, predict: Predict) -> list[tuple[int, int]]:
-        utc = fix.get("gnss_time_ns")
-        if utc is None:
-            return []
-        itow = fix.get("itow_ms")
+    def on_fix(self, fix: FixEpoch, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
+        utc = fix.gnss_time_ns
+        itow = fix.itow_ms
         if itow is not None:
             utc_tow_ns = (utc - UNIX_NS_AT_GPS_EPOCH) % WEEK_NS
             leap = round(((itow * 1_000_000 - utc_tow_ns) % WEEK_NS) / NS)
@@ -74,20 +73,15 @@ class EdgeLabeller:
             self._reported.append((received_ns, whole))
         return self._match(predict)
 
-    def _timepulse_unix_ns(self, tp: dict[str, Any]) -> int | None:
-        try:
-            week, tow_ms = int(tp["week"]), int(tp["tow_ms"])
-        except (KeyError, TypeError, ValueError):
-            return None
-        sub_ns = round(float(tp.get("tow_sub_ms") or 0.0) * 1e6)
-        t = UNIX_NS_AT_GPS_EPOCH + week * WEEK_NS + tow_ms * 1_000_000 + sub_ns
-        if tp.get("time_base") != "utc":
+    def _timepulse_unix_ns(self, tp: TimeAnnouncement) -> int | None:
+        sub_ns = round(tp.tow_sub_ms * 1e6)
+        t = UNIX_NS_AT_GPS_EPOCH + tp.week * WEEK_NS + tp.tow_ms * 1_000_000 + sub_ns
+        if not tp.utc:
             if self.leap_s is None:
                 return None  # GPS-based pulse time, and GPS-UTC not known yet
             t -= self.leap_s * NS
         # The receiver puts the pulse qErr early of the ideal instant it announces.
-        qerr_ps = tp.get("qerr_ps") or 0
-        return t - round(qerr_ps / 1000)
+        return t - round(tp.qerr_ps / 1000)
 
     def restart_chain(self) -> None:
         """Forget the last accepted pair: the next pairs must agree among themselves again."""

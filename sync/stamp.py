@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import threading
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any
+
+from sync.inputs import FixEpoch, TimeAnnouncement
 
 FREERUN = "freerun"
 LOCKED = "locked"
@@ -32,12 +35,43 @@ class Stamp:
                 "imu_cnt": self.imu_cnt, "timer_cnt": self.timer_cnt}
 
 
-class StampClock(Protocol):
+class StampClock(ABC):
+    """What the daemon asks of a clock: a stamp for a monotonic time, and what it may tell the clock.
+
+    The whole contract is here, its optional parts with their defaults, as python-can's ``BusABC`` does: a clock
+    that learns nothing from PPS edges or time messages ignores them, one with nothing to persist saves nothing,
+    and every clock can report its state. Inputs arrive from any thread.
+    """
+
+    @abstractmethod
     def stamp(self, t_mono_ns: int) -> Stamp:
-        ...
+        """The synchronised time, state and error bound of the instant ``t_mono_ns`` of the board's clock."""
+
+    def on_imu_sample(self, t_mono_ns: int, temp_degc: float | None) -> None:  # noqa: B027 - optional input
+        """An IMU sample was taken (the paper's counters; the die temperature)."""
+
+    def on_edge(self, t_mono_ns: int, gnss_time_ns: int | None = None) -> None:  # noqa: B027 - optional input
+        """A PPS edge, at its kernel time stamp; ``gnss_time_ns`` when the source names its second."""
+
+    def on_announcement(self, announcement: TimeAnnouncement, t_mono_ns: int) -> None:  # noqa: B027
+        """The receiver announced the GNSS time of its next pulse."""
+
+    def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:  # noqa: B027 - optional input
+        """A navigation solution with a valid time arrived."""
+
+    def report(self, now_ns: int) -> dict[str, Any]:
+        """What ``chronyc tracking`` would show, for ``/sync`` and ``logger status``; a clock that sees no edges
+        reports its state and bound, and no edge."""
+        st = self.stamp(now_ns)
+        return {"t_mono_ns": now_ns, "state": st.state, "offset_ns": None, "freq_ppm": None, "skew_ppm": None,
+                "rms_ns": None, "err_ns": st.err_ns, "since_edge_s": None, "samples": 0,
+                "tempco_ppm_per_degc": None, "edges": 0, "rejected": 0, "relocks": 0}
+
+    def save(self) -> None:  # noqa: B027 - optional: nothing to persist by default
+        """Persist what should survive a restart (a frequency, a mapping); called when the daemon stops."""
 
 
-class FreeRunClock:
+class FreeRunClock(StampClock):
     """Unix time = wall clock read once at start + monotonic time elapsed since.
 
     Reading the wall clock once keeps stamps monotonic when NTP steps the system clock. Its error bound is

@@ -1,4 +1,4 @@
-"""Whether the system's wall clock is synchronised (NTP, chrony, a modem), read with adjtimex(2).
+"""What the host tells of its clocks: whether the wall clock is synchronised (adjtimex(2)), and which boot this is.
 
 A board without RTC boots with a wrong date, so the wall clock is no reference in general. When the kernel says
 it is synchronised, it is good to well under a second, which is enough to catch the one failure the PPS pairing
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+from pathlib import Path
 
 TIME_ERROR = 5  # clock not synchronised (adjtimex return value)
 
@@ -36,3 +37,19 @@ def system_clock_synchronized() -> bool:
     except (OSError, AttributeError):
         return False
     return 0 <= state != TIME_ERROR
+
+
+BOOT_ID_PATH = Path("/proc/sys/kernel/random/boot_id")
+
+
+def boot_id() -> str | None:
+    """The kernel's random id of this boot, or None where /proc does not tell it.
+
+    CLOCK_MONOTONIC runs on within one boot and restarts at the next: a clock mapping saved under the same id
+    still holds, and files named by it before time is known stay apart from every other boot's.
+    """
+    try:
+        text = BOOT_ID_PATH.read_text(encoding="ascii").strip()
+    except OSError:
+        return None
+    return text or None

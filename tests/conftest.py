@@ -1,6 +1,6 @@
 """Keeps one test's logging set-up from reaching the next.
 
-Tests that run the command line in-process call ``logger.logs.setup``, which points the root logger at the
+Tests that run the command line in-process call ``logger.runtime.logs.setup``, which points the root logger at the
 ``sys.stderr`` of that moment: pytest's capture file for that test, closed once it ends. Without the restore,
 later tests' log lines fail with "I/O operation on closed file" and their output is lost from the report.
 """

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from logger.recording.records import clock_observer
 from sensors.sim.oscillator import Oscillator
 
 NS = 1_000_000_000
@@ -85,6 +86,10 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
 
 
 def feed(clock, events: list[tuple[int, str, dict]]) -> Iterator[tuple[int, str, dict]]:
+    """The events through the record layer into the clock, as the daemon hands it records."""
+    observe = clock_observer(clock)
     for board, topic, payload in events:
-        clock.observe(topic, payload, board)
+        handler = observe.get(topic)
+        if handler is not None:
+            handler(payload, board)
         yield board, topic, payload

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
+from logger.compose import build
 from logger.config import defaults
-from logger.mcap_files import is_finished
-from logger.run_cmd import build
-from logger.status import fetch
+from logger.recording.files import is_finished
+from logger.runtime.status_socket import fetch
 
 
 def sim_config(tmp_path: Path) -> Any:

@@ -20,8 +20,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from logger.mcap_files import is_finished
-from logger.status import fetch
+from logger.recording.files import is_finished
+from logger.runtime.status_socket import fetch
 
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
 STAMP_FIELDS = ("t_mono_ns", "t_sync_ns", "sync_state", "sync_err_ns", "imu_cnt", "timer_cnt", "seq")

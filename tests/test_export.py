@@ -26,11 +26,11 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from logger.cli.export import drive_name
+from logger.compose import build
 from logger.config import defaults
-from logger.export_cmd import drive_name
-from logger.mcap_files import is_finished, walk
-from logger.run_cmd import build
-from logger.topics import TOPICS
+from logger.recording.files import is_finished, walk
+from logger.recording.topics import TOPICS
 
 ROOT = Path(__file__).resolve().parents[1]
 GPX = "{http://www.topografix.com/GPX/1/1}"
@@ -295,8 +295,8 @@ def test_the_guides_message_paths_exist_in_the_schemas() -> None:
 
 def test_bad_epochs_split_the_track_and_never_become_points(drive: Drive) -> None:
     """Fixes built from a recorded one: every kind of bad epoch the receiver can give, between good ones."""
-    from logger.drive_reader import DriveFile, DriveMessage
-    from logger.tracks import build_tracks
+    from logger.exports.tracks import build_tracks
+    from logger.recording.drive import DriveFile, DriveMessage
 
     good = next(m for _, m in recorded(drive.files[:1], "/gnss/fix") if valid_fix(m))
     t0 = epoch_ns(good)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from logger.fifo_time import FifoClock
+from sync.fifo import FifoClock
 
 MS = 1_000_000
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import pytest
 
-from logger.gnss_decode import DecodeResult, decode_pieces, fix_to_tpv, main, strip_capture_comments
+from logger.cli.gnss_decode import DecodeResult, decode_pieces, fix_to_tpv, main, strip_capture_comments
 from sensors.ublox_decode import GnssDecoder, GnssFix, GnssTime
 from sensors.ublox_frames import KIND_NMEA, KIND_UBX, Frame, UbxNmeaFramer
 

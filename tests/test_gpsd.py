@@ -28,22 +28,24 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from logger import gpsd_sources
+from logger.cli.gnss_decode import decode_pieces, strip_capture_comments
+from logger.cli.run import resolve_config
+from logger.cli.status import render
 from logger.config import ConfigError, parse
-from logger.gnss_decode import decode_pieces, strip_capture_comments
-from logger.gpsd_sources import GpsdPpsSource, GpsdSource
-from logger.run_cmd import resolve_config
-from logger.sampler import Reading, Sampler, wait_until
-from logger.sources import location_fix
-from logger.status import fetch, render
-from logger.timebase import TimeBase, host_timebase
+from logger.recording.records import location_fix
+from logger.runtime import gpsd_sources
+from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
+from logger.runtime.sampler import Reading, Sampler, wait_until
+from logger.runtime.status_socket import fetch
+from logger.runtime.timebase import TimeBase, host_timebase
 from sensors.errors import DeviceNotFound, NoData
 from sensors.gpsd import MAX_LINE_BYTES, GpsdClient, LineSplitter, watch_command
 from sensors.gpsd_decode import GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
 from sensors.sim.clock import ManualClock
 from sensors.sim.gpsd import SimGpsd
-from sync.clock import PpsClock, SyncSettings
+from sync.clock import PpsClock
 from sync.realtime import RealtimeMap
+from sync.settings import SyncSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = ROOT.parent / "shared" / "data" / "gpsd-ublox"
@@ -364,11 +366,11 @@ def test_labelled_edges_lock_the_clock_and_a_wrong_second_is_refused() -> None:
     board_rate = 1.0 + 30e-6  # the board's crystal runs 30 ppm fast
     for k in range(10):
         now[0] = 10 * NS + round(k * NS * board_rate)
-        clock.observe("/pps", {"seqno": k, "lost": 0, "gnss_time_ns": T0 + k * NS}, now[0])
+        clock.on_edge(now[0], T0 + k * NS)
     assert clock.report()["state"] == "locked" and clock.counts["rejected"] == 0
     assert abs(clock.stamp(now[0]).t_sync_ns - (T0 + 9 * NS)) < 1_000
     now[0] += round(NS * board_rate)
-    clock.observe("/pps", {"seqno": 10, "lost": 0, "gnss_time_ns": T0 + 11 * NS}, now[0])  # a second off
+    clock.on_edge(now[0], T0 + 11 * NS)  # a second off
     assert clock.counts["rejected"] == 1
     assert abs(clock.stamp(now[0]).t_sync_ns - (T0 + 10 * NS)) < 1_000
 

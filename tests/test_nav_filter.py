@@ -18,13 +18,15 @@ from logger.nav.engine import NavEngine
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.nav.smoother import smooth_rows
+from logger.recording.records import feed_record, nav_feeder
 from sensors.sim.scenarios import make_drive
 
 
 def run(recs, **params) -> NavEngine:
     engine = NavEngine(NavParams(**params), record=True)
+    feed = nav_feeder(engine)
     for _, topic, msg in recs:
-        engine.feed(topic, msg)
+        feed_record(feed, topic, msg)
     return engine
 
 
@@ -69,8 +71,7 @@ def test_a_minute_without_gnss_is_bridged_by_obd_and_baro_and_not_by_the_imu_alo
 def test_smoothing_shrinks_the_outage_error(outage):
     drive, span, recs = outage
     engine = run(recs)
-    engine._propagate()
-    engine.epochs[-1].p_plus = engine.ekf.p.copy()
+    engine.close_epochs()
     smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p)
     t, ef, sf = errors(drive, engine.rows)
     _, es, ss = errors(drive, smoothed)
@@ -108,8 +109,9 @@ def fed_with_upset(recs, at_s: float, upset, **params) -> tuple[NavEngine, bool]
     """The records through a filter, with ``upset(engine)`` applied once, ``at_s`` into the drive."""
     engine = NavEngine(NavParams(**params), record=True)
     done = False
+    feed = nav_feeder(engine)
     for _, topic, msg in recs:
-        engine.feed(topic, msg)
+        feed_record(feed, topic, msg)
         if not done and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > at_s:
             upset(engine)
             done = True
@@ -190,8 +192,9 @@ def test_standstill_calibration_leaves_the_gyro_offset_and_not_the_earths_rate()
     drive = make_drive("outage-60s", seed=6, duration_s=45.0)
     e = SynthErrors(gyro_noise=0.0)
     engine = NavEngine(NavParams())
+    feed = nav_feeder(engine)
     for _, topic, msg in records(drive, 45.0, seed=8, errors=e):
-        engine.feed(topic, msg)
+        feed_record(feed, topic, msg)
         if engine.state is not None:  # as the calibration left it, before any update
             break
     assert engine.counters.init_method == "gnss course"

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 from test_nav_synth import records
 
+from logger.cli.status import render
 from logger.config import ConfigError, parse
-from logger.daemon import Extras
-from logger.nav.live import Navigator, attach_navigator
 from logger.nav.params import NavParams
-from logger.sampler import Reading
-from logger.status import render
+from logger.runtime.daemon import Extras
+from logger.runtime.navigator import Navigator, attach_navigator
+from logger.runtime.sampler import Reading
 from sensors.sim.scenarios import make_drive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ def _replay(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_the_daemon_records_the_live_solution(recorded: Path):
-    from logger.nav.recording import read_messages
+    from logger.recording.drive import read_messages
 
     msgs = list(read_messages(sorted(recorded.glob("*.mcap")), ("/nav/fix", "/nav/state")))
     fixes = [m for t, m in msgs if t == "/nav/fix"]
@@ -173,12 +173,12 @@ def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path
 
     from mcap.writer import Writer
 
-    from logger.nav.recording import _slow, read_messages
+    from logger.recording.drive import read_messages, read_with_mcap
 
     files = sorted(recorded.glob("*.mcap"))
     topics = ("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps")
     fast = list(read_messages(files, topics))
-    slow = sorted(r for f in files for r in _slow(f, set(topics)))
+    slow = sorted(r for f in files for r in read_with_mcap(f, set(topics)))
     assert len(fast) == len(slow) > 100
     for (topic, msg), (_, _, topic2, data) in zip(fast, slow, strict=True):
         full = _json.loads(data)

@@ -12,6 +12,7 @@ from logger.nav.engine import NavEngine
 from logger.nav.params import NavParams
 from logger.nav.state import BA_ID, BG_ID
 from logger.nav.thermal import SMOOTH_S, STEP_DEGC, TemperatureSpan
+from logger.recording.records import feed_record, nav_feeder
 from sensors.sim.scenarios import make_drive
 
 
@@ -60,11 +61,12 @@ def run(temp_of_t, **params) -> NavEngine:
     drive = make_drive("outage-60s", seed=1, duration_s=150.0)
     engine = NavEngine(NavParams(**{**DATASHEET, **params}))
     t0 = None
+    feed = nav_feeder(engine)
     for _, topic, msg in records(drive, 150.0, seed=2):
         if topic == "/imu":
             t0 = msg["t_sync_ns"] if t0 is None else t0
             msg = {**msg, "temp_degc": temp_of_t((msg["t_sync_ns"] - t0) / 1e9)}
-        engine.feed(topic, msg)
+        feed_record(feed, topic, msg)
     assert engine.ekf is not None
     return engine
 

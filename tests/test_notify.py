@@ -17,11 +17,12 @@ from pathlib import Path
 import pytest
 
 from logger.config import defaults
-from logger.daemon import Daemon, ProblemJournal
-from logger.notify import Notifier
-from logger.sampler import Reading
-from logger.sampler import wait_until as sampler_wait_until
-from logger.sources import Plan
+from logger.runtime.daemon import Daemon
+from logger.runtime.journal import ProblemJournal
+from logger.runtime.notify import Notifier
+from logger.runtime.sampler import Reading, Source
+from logger.runtime.sampler import wait_until as sampler_wait_until
+from logger.runtime.sources import Plan
 from sensors.errors import BusError
 
 
@@ -130,7 +131,7 @@ def test_status_is_cut_to_one_bounded_line(systemd: tuple[FakeSystemd, str]) -> 
 
 # ---- the daemon under a manager --------------------------------------------------------------------------------
 
-class TickSource:
+class TickSource(Source):
     """A periodic sensor whose read can be made to hang (a driver stuck in a kernel call) or its open to block."""
 
     def __init__(self, name: str, block_open: bool = False) -> None:

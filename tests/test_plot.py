@@ -16,9 +16,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from logger import plot_cmd
-from logger.drive_reader import iter_messages, open_drive
-from logger.topic_timing import STAMPED_TOPICS, timings
+from logger.cli import plot as plot_cmd
+from logger.exports.topic_timing import STAMPED_TOPICS, timings
+from logger.recording.drive import iter_messages, open_drive
 
 ROOT = Path(__file__).resolve().parents[1]
 REMOVED = 20  # consecutive /imu messages taken out
@@ -127,7 +127,7 @@ def test_what_cannot_be_plotted_is_one_line_and_exit_2(tmp_path: Path):
 
 
 def test_a_restart_is_not_counted_as_loss():
-    from logger.topic_timing import topic_timing
+    from logger.exports.topic_timing import topic_timing
 
     period = 50_000_000
     seqs = [0, 1, 2, 6, 7, 0, 1, 2, 3]  # three lost, then the daemon started again

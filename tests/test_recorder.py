@@ -8,10 +8,11 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from logger.mcap_files import is_finished, recover, walk
-from logger.recorder import Recorder, RecorderSettings
-from logger.sampler import wait_until
-from logger.topics import TopicSpec
+from logger.recording.files import is_finished, recover, walk
+from logger.recording.recorder import Recorder
+from logger.recording.settings import RecorderSettings
+from logger.recording.topics import TopicSpec
+from logger.runtime.sampler import wait_until
 
 TOPICS = {"/a": TopicSpec("/a", "test.A", {"type": "object", "properties": {"x": {"type": "integer"}}}, "test")}
 
@@ -92,7 +93,7 @@ def test_full_queue_is_a_counted_drop_not_a_block(tmp_path: Path) -> None:
 
 
 def test_writer_takes_records_in_batches_without_waiting_for_the_flush(tmp_path: Path) -> None:
-    from logger.recorder import BATCH_WAIT_S
+    from logger.recording.recorder import BATCH_WAIT_S
 
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=3600, queue_size=400), TOPICS)
     rec.start()
@@ -171,7 +172,7 @@ def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> N
     card) is not counted as kept, neither then nor after the recorder has reopened on a new file."""
     import errno
 
-    import logger.recorder as recorder_module
+    import logger.recording.recorder as recorder_module
 
     class DyingCard:
         def __getattr__(self, name: str):

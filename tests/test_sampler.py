@@ -9,8 +9,8 @@ from __future__ import annotations
 import itertools
 import threading
 
-from logger.sampler import Reading, Sampler, wait_until
-from logger.timebase import TimeBase
+from logger.runtime.sampler import Reading, Sampler, Source, wait_until
+from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound
 from sensors.sim.clock import ManualClock
 
@@ -31,7 +31,7 @@ class VirtualTime(TimeBase):
         self.clock.advance(max(0.0, seconds))
 
 
-class Scripted:
+class Scripted(Source):
     name = "imu"
 
     def __init__(self, tb: VirtualTime, work_s: list[float] | None = None, fail_at: set[int] | None = None,
@@ -59,6 +59,9 @@ class Scripted:
         if i < len(self.work_s):
             self.tb.clock.advance(self.work_s[i])
         return [Reading("/imu", {"i": i}, t)]
+
+    def close(self) -> None:
+        pass
 
 
 def _run(src: Scripted, rate: float) -> tuple[Sampler, list[Reading]]:

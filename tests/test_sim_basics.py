@@ -1,8 +1,11 @@
-"""The shared pieces of the simulation: clocks, truth interface, earth model, pty port."""
+"""The shared pieces of the simulation: clocks, truth interface, earth model, pty port; and the rule that a
+device model never imports a driver."""
 
 from __future__ import annotations
 
+import ast
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +15,8 @@ from sensors.sim import earth
 from sensors.sim.clock import ManualClock, ScaledClock
 from sensors.sim.pty import PtyPort
 from sensors.sim.truth import ParkedTrajectory, StraightTrajectory
+
+SIM_DIR = Path(__file__).resolve().parents[1] / "sensors" / "sim"
 
 
 def test_manual_clock_moves_only_when_told() -> None:
@@ -77,3 +82,63 @@ def test_pty_port_vanishes_and_comes_back_under_the_same_path() -> None:
         port.write(b"OK\r>")
         assert ser.read_until(b">") == b"OK\r>"
         ser.close()
+
+
+# ---- models do not import drivers -------------------------------------------------------------------
+def driver_imports(source: str, module: str) -> list[tuple[int, str]]:
+    """(line, imported module) of every import in ``source`` that reaches into ``sensors`` outside ``sensors.sim``.
+
+    ``module`` is the dotted name of the file parsed, so relative imports resolve as Python resolves them.
+    Imports inside functions count too: a late import is still the driver's knowledge.
+    """
+    package = module.split(".")[:-1]
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = ".".join(package[:len(package) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            # "from sensors import bmp085" imports the module sensors.bmp085; "from x.y import name" needs x.y.
+            targets = [f"{base}.{alias.name}" for alias in node.names] if base == "sensors" else [base]
+        else:
+            continue
+        for target in targets:
+            parts = target.split(".")
+            if parts[0] == "sensors" and parts[1:2] != ["sim"]:
+                found.append((node.lineno, target))
+    return found
+
+
+@pytest.mark.parametrize(("source", "expected"), [
+    ("from sensors.bmp085 import compensate_pressure", ["sensors.bmp085"]),
+    ("import sensors.obd", ["sensors.obd"]),
+    ("import sensors", ["sensors"]),
+    ("from sensors import obd, sim", ["sensors.obd"]),
+    ("from sensors import *", ["sensors.*"]),
+    ("from .. import ublox_decode", ["sensors.ublox_decode"]),
+    ("from ..geodesy import NS_PER_S", ["sensors.geodesy"]),
+    ("def f():\n    from sensors.errors import NoData", ["sensors.errors"]),
+    ("from sensors.sim import earth\nfrom sensors.sim.clock import DriveClock", []),
+    ("from . import clock\nfrom .truth import Trajectory\nimport sensors.sim.pty", []),
+    ("import numpy\nfrom pyubx2 import UBXMessage", []),
+])
+def test_driver_import_check_sees_every_form(source: str, expected: list[str]) -> None:
+    assert [target for _, target in driver_imports(source, "sensors.sim.model")] == expected
+
+
+def test_no_device_model_imports_a_driver() -> None:
+    """See sensors/sim/__init__.py: a model is the datasheet's other side and must not share the driver's reading."""
+    files = sorted(SIM_DIR.rglob("*.py"))
+    assert len(files) > 10
+    offences = []
+    for path in files:
+        rel = path.relative_to(SIM_DIR.parents[1]).with_suffix("")
+        module = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        if rel.name == "__init__":
+            module += ".__init__"  # a package's relative imports resolve against the package itself
+        for line, target in driver_imports(path.read_text(encoding="utf-8"), module):
+            offences.append(f"{module.removesuffix('.__init__')} (line {line}) imports {target}")
+    assert not offences, "device models import drivers:\n" + "\n".join(offences)

@@ -36,6 +36,7 @@ from sensors.sim.pty import PtyPort
 from sensors.sim.truth import ParkedTrajectory, StraightTrajectory, Trajectory, TruthState
 from sensors.sim.uart_line import resample
 from sensors.sim.ublox import UbloxReceiverModel
+from sensors.sim.ublox_commands import mon_ver
 from sensors.ublox import GnssReceiver
 from sensors.ublox_frames import UbxNmeaFramer
 
@@ -417,7 +418,7 @@ def test_generations_answer_their_own_configuration_interface(rig: Rig) -> None:
     assert [(m.clsID, m.msgID) for m in named(msgs, "ACK-NAK")] == [(0x06, 0x08), (0x06, 0x8A)]
     assert [(m.clsID, m.msgID) for m in named(msgs, "ACK-ACK")] == [(0x06, 0x8A)]
     assert m10.meas_period_ms == 200 and m10.rate("NAV-PVT") == 1
-    assert b"PROTVER=34.10" in m10._mon_ver().serialize()
+    assert b"PROTVER=34.10" in mon_ver(m10.generation).serialize()
 
 
 def test_a_host_at_the_wrong_baud_rate_reads_only_garbage(rig: Rig) -> None:

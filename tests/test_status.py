@@ -6,7 +6,7 @@ import stat
 from pathlib import Path
 
 from logger.cli import main
-from logger.status import StatusServer, fetch
+from logger.runtime.status_socket import StatusServer, fetch
 
 SNAP = {
     "verdict": "degraded", "uptime_s": 3723, "pid": 42, "t_mono_ns": 50_000_000_000,

@@ -11,9 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sync_streams import NS, Stream, feed, make_stream
 
-from sync.clock import PpsClock, SyncSettings
+from logger.recording.records import observe_clock
+from sync.clock import PpsClock
 from sync.paper import PaperCounters, split_count
 from sync.regress import count_runs, critical_runs, fit_line
+from sync.settings import SyncSettings
 
 # ---------------------------------------------------------------------------------------------- regression
 
@@ -209,7 +211,7 @@ def test_state_file_restarts_in_holdover_on_the_same_boot(tmp_path: Path) -> Non
     now = stream.osc.board_ns(950 * NS)
     again = PpsClock(SyncSettings(), monotonic_ns=lambda: now, wall_ns=lambda: 0, state_path=path,
                      clock_id="boot-A")
-    again.observe("/imu", {"temp_degc": stream_temp(stream, now)}, now)  # the first IMU sample after start
+    again.on_imu_sample(now, stream_temp(stream, now))  # the first IMU sample after start
     s = again.stamp(now)
     assert s.state == "holdover"
     assert abs(s.t_sync_ns - stream.true_unix_ns(now)) <= s.err_ns
@@ -232,7 +234,7 @@ def test_any_event_stream_keeps_stamps_monotonic_and_never_raises(events: list[t
         now[0] = board
         payload = {"seqno": n, "tow_ms": n % 604_800_000, "week": 2300, "time_base": "utc", "qerr_ps": 0,
                    "gnss_time_ns": 1_700_000_000 * NS + n * 1000, "itow_ms": n % 604_800_000, "temp_degc": 20.0}
-        clock.observe(topic, payload, board)
+        observe_clock(clock, topic, payload, board)
         s = clock.stamp(board)
         if last is not None and last[1] == s.state != "freerun":
             assert s.t_sync_ns >= last[0]

@@ -14,11 +14,12 @@ import pytest
 from mcap.reader import make_reader
 
 from logger.config import defaults
-from logger.daemon import Daemon
-from logger.mcap_files import is_finished
-from logger.recorder import Recorder, RecorderSettings, boot_safe_file_name, read_boot_id
-from logger.topics import TopicSpec
-from sync.stamp import FREERUN, LOCKED, Stamp
+from logger.recording.files import is_finished
+from logger.recording.recorder import Recorder, boot_safe_file_name, read_boot_id
+from logger.recording.settings import RecorderSettings
+from logger.recording.topics import TopicSpec
+from logger.runtime.daemon import Daemon
+from sync.stamp import FREERUN, LOCKED, Stamp, StampClock
 
 TOPICS = {"/a": TopicSpec("/a", "test.A", {"type": "object", "properties": {"x": {"type": "integer"}}}, "test")}
 GNSS_OFFSET_NS = 1_795_000_000_000_000_000 - time.monotonic_ns()  # "GNSS time" = monotonic + this, in 2026
@@ -26,7 +27,7 @@ BOOT_NAME = re.compile(r"^drive_boot-[0-9a-f]{8}_(\d{4})\.mcap$")
 DATED_NAME = re.compile(r"^drive_(\d{8}T\d{6}Z)_(\d{4})\.mcap$")
 
 
-class GnssClock:
+class GnssClock(StampClock):
     """A StampClock that free-runs on a 1970 wall clock until ``lock()``, then gives GNSS time."""
 
     def __init__(self) -> None:

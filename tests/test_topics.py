@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from logger.topics import STAMP, TOPICS
+from logger.recording.topics import STAMP, TOPICS
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -167,8 +167,8 @@ class SimMeter:
         from sensors.sim import gpiod_ext, i2c
 
         self.wrap(i2c.SimI2cAdapter, "ioctl")
-        self.wrap(gpiod_ext._SimRequest, "_catch_up")
-        self.wrap(gpiod_ext._SimRequest, "read_edge_events")
+        self.wrap(gpiod_ext.SimLineRequest, "_catch_up")
+        self.wrap(gpiod_ext.SimLineRequest, "read_edge_events")
 
     def snapshot(self) -> dict[str, float]:
         with self._lock:
@@ -341,8 +341,8 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
 
 
 def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool) -> DaemonResult:
-    from logger import logs
-    from logger.run_cmd import build
+    from logger.compose import build
+    from logger.runtime import logs
 
     logs.setup(False)
     cfg = sim_config(out)

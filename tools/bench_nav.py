@@ -43,7 +43,7 @@ def time_cli(files: list[Path]) -> dict[str, float]:
 
 def drive_span_s(files: list[Path]) -> float:
     """Seconds from the first to the last IMU record: the drive the whole command goes through."""
-    from logger.nav.recording import read_messages
+    from logger.recording.drive import read_messages
 
     first = last = None
     for _, m in read_messages(files, ("/imu",)):

@@ -10,7 +10,7 @@ holds only its ``/imu`` records, the load of a high IMU rate. Three writers take
   ``encode`` and ``add_message`` in one loop, the file finished at the end;
 - ``bare + flush``: the same, closing the chunk and fsyncing once a second as the recorder does (the price of
   losing at most a second at a power cut);
-- ``recorder``: ``logger.recorder.Recorder``, records handed over with ``submit`` from this thread (as the
+- ``recorder``: ``logger.recording.recorder.Recorder``, records handed over with ``submit`` from this thread (as the
   sampler threads do) and written by its own thread; timed from the first submit until ``stop`` has finished
   the file. Its queue is made large enough that nothing is dropped.
 
@@ -36,8 +36,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from logger.recorder import COMPRESSION, PROFILE, Recorder, RecorderSettings, encode  # noqa: E402
-from logger.topics import TOPICS, TopicSpec  # noqa: E402
+from logger.recording.recorder import COMPRESSION, PROFILE, Recorder, encode  # noqa: E402
+from logger.recording.settings import RecorderSettings  # noqa: E402
+from logger.recording.topics import TOPICS, TopicSpec  # noqa: E402
 
 Item = tuple[str, dict[str, Any], int, int]  # topic, payload, log time, publish time
 

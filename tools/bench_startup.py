@@ -38,8 +38,8 @@ def worker(spawn_ns: int, out: Path) -> dict[str, Any]:
     from bench_daemon import sim_config
 
     import sensors.sim.vehicle as sim_vehicle
-    from logger import logs
-    from logger.run_cmd import build
+    from logger.compose import build
+    from logger.runtime import logs
 
     t_imported = time.monotonic_ns()
     logs.setup(False)

@@ -4,7 +4,7 @@
 
 Replay: the whole ``logger replay`` pipeline (read, decode, filter, no output files) over the drive, timed as
 process CPU time and as wall time, per IMU sample and as a multiple of real time. Live: the drive's records
-are offered to a running :class:`~logger.nav.live.Navigator` paced at the drive's own rate for ``--live-s``
+are offered to a running :class:`~logger.runtime.navigator.Navigator` paced at the drive's own rate for ``--live-s``
 seconds of real time, and the CPU time of the navigator thread plus that of every ``offer`` call (the part
 the sampler threads pay) is divided by the elapsed time. Figures go to stdout; no test asserts on them.
 """
@@ -18,10 +18,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from logger.nav.live import INPUT_TOPICS, Navigator
+from logger.exports.trajectory import run_filter
 from logger.nav.params import MODES, NavParams
-from logger.nav.recording import read_messages
-from logger.replay_cmd import run_filter
+from logger.recording.drive import read_messages
+from logger.recording.records import feed_record, nav_feeder
+from logger.runtime.navigator import INPUT_TOPICS, Navigator
 
 
 def bench_replay(files: list[Path], mode: str, smooth: bool) -> dict[str, float | int | str | bool]:
@@ -48,8 +49,9 @@ def bench_live(files: list[Path], seconds: float, start_s: float) -> None:
     skip = msgs[0][0] + int(start_s * 1e9)
     head = [m for m in msgs if m[0] < skip]
     msgs = msgs[len(head):]
+    feed = nav_feeder(nav.engine)
     for _, topic, m in head:
-        nav.engine.feed(topic, m)
+        feed_record(feed, topic, m)
     nav.start()
     offer_cpu = 0.0
     t_first = msgs[0][0]

@@ -36,8 +36,8 @@ sys.path.insert(0, str(ROOT / "tools"))
 
 from nav_score import Score, format_score, load_truth, plots, score  # noqa: E402
 
+from logger.exports.trajectory import run_filter  # noqa: E402
 from logger.nav.params import NavParams  # noqa: E402
-from logger.replay_cmd import run_filter  # noqa: E402
 
 PAPER_TABLE9 = {
     "GNSS": {"max": [53.495, 41.992, 22.062], "min": [-29.857, -67.260, -12.296], "mean": [3.298, -4.974, 0.365],
@@ -91,7 +91,7 @@ def record(drives: Path, scenario: str, seed: int, duration: float, time_scale: 
 
 def table8(files: list[Path]) -> dict[str, float]:
     """Satellites in the solutions of a drive: the paper's Table 8 figures (per fix epoch, 1 Hz)."""
-    from logger.nav.recording import read_messages
+    from logger.recording.drive import read_messages
 
     n = [m.get("num_sv") or 0 for _, m in read_messages(files, ["/gnss/fix"])]
     arr = np.array(n)
@@ -241,12 +241,14 @@ def outage_run(files: list[Path], limit_m: float, what: str) -> tuple[list[str],
 def scale_before_tunnel(files: list[Path]) -> tuple[float, float]:
     """OBD scale factor (reads-high fraction) and its sigma held by the 17-state filter as GNSS goes away."""
     from logger.nav.engine import NavEngine
-    from logger.nav.recording import read_messages
+    from logger.recording.drive import read_messages
+    from logger.recording.records import NAV_INPUT_TOPICS, feed_record, nav_feeder
 
     engine = NavEngine(NavParams(), record=False)
+    feed = nav_feeder(engine)
     held = (float("nan"), float("nan"))
-    for topic, msg in read_messages(files, ("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps")):
-        engine.feed(topic, msg)
+    for topic, msg in read_messages(files, NAV_INPUT_TOPICS):
+        feed_record(feed, topic, msg)
         if topic == "/gnss/fix" and engine.state is not None and engine.ekf is not None:
             if not msg.get("fix_ok"):
                 return held  # the first fix lost after the start: the tunnel's entry
@@ -256,9 +258,9 @@ def scale_before_tunnel(files: list[Path]) -> tuple[float, float]:
 
 def record_child(spec: dict[str, Any]) -> int:
     """Record one simulated drive with scenario options, as ``logger run --sim`` would (child process)."""
-    from logger import logs
+    from logger.compose import build
     from logger.config import defaults
-    from logger.run_cmd import build
+    from logger.runtime import logs
 
     logs.setup(False)
     out = Path(spec["out"])

@@ -42,7 +42,7 @@ class Truth:
 
 
 def load_truth(paths: list[Path]) -> Truth:
-    from logger.nav.recording import read_messages
+    from logger.recording.drive import read_messages
 
     nav: list[tuple[int, float, float, float]] = []
     clock: list[tuple[int, int]] = []
@@ -170,7 +170,7 @@ def format_score(name: str, s: Score) -> str:
 
 
 def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], truth: Truth) -> list[Path]:
-    from logger.plotting import PlotsUnavailable, local_en, pyplot
+    from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 
     try:
         plt = pyplot()

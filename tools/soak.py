@@ -117,7 +117,7 @@ class Injector:
         return bool(self.d.tb.wait(self.d.stop_event, drive_s))
 
     def snapshot(self) -> dict[str, Any] | None:
-        from logger.status import fetch
+        from logger.runtime.status_socket import fetch
 
         try:
             return fetch(self.sock, timeout_s=5.0)
@@ -160,7 +160,7 @@ class Injector:
                     seen = visible(snap)
                     if seen is not None:
                         seen_after = (self.now() - t0) / NS
-                        from logger.status import render
+                        from logger.cli.status import render
 
                         status_text = render(snap)
             time.sleep(POLL_REAL_S)
@@ -323,9 +323,9 @@ def sample_loop(daemon: Any, journal: Journal, every_real_s: float) -> None:
 
 
 def worker(args: argparse.Namespace) -> int:
-    from logger import logs
+    from logger.compose import build
     from logger.config import defaults
-    from logger.run_cmd import build
+    from logger.runtime import logs
 
     logs.setup(False)
     out = Path(args.out)
@@ -425,7 +425,7 @@ def read_files(out: Path) -> dict[str, dict[str, Any]]:
     """Per file: its segment seed, whether it is finished, and per sensor topic the (t_mono_ns, seq) list."""
     from mcap.reader import make_reader
 
-    from logger.mcap_files import is_finished
+    from logger.recording.files import is_finished
 
     files: dict[str, dict[str, Any]] = {}
     for path in sorted(out.glob("*.mcap")):
@@ -469,7 +469,7 @@ def explained(windows: list[tuple[int, int, str]], a: int, b: int) -> str | None
 
 
 def analyse(args: argparse.Namespace, out: Path, segments: list[Segment]) -> dict[str, Any]:
-    from logger.mcap_files import is_finished
+    from logger.recording.files import is_finished
 
     report: dict[str, Any] = {"drive_hours": sum(s.drive_s for s in segments) / 3600, "time_scale": args.time_scale,
                               "segments": [], "faults": [], "gaps_outside_faults": {}, "seq_breaks_outside": {}}

@@ -15,9 +15,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from logger import logs
+from logger.compose import build
 from logger.config import defaults
-from logger.run_cmd import build
+from logger.runtime import logs
 
 
 def main(argv: list[str] | None = None) -> int:

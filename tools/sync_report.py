@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # logger.plotting, without installing the tree
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # logger.exports.plotting, without installing the tree
 
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
 NS = 1_000_000_000
@@ -175,7 +175,7 @@ def render(out: dict) -> str:
 
 
 def plots(drive: Drive, out_dir: Path) -> list[Path]:
-    from logger.plotting import pyplot
+    from logger.exports.plotting import pyplot
 
     plt = pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     out = report(drive)
     print(json.dumps(out, indent=1) if args.json else render(out))
     if args.png_dir:
-        from logger.plotting import PlotsUnavailable
+        from logger.exports.plotting import PlotsUnavailable
 
         try:
             for p in plots(drive, args.png_dir):

@@ -12,9 +12,14 @@ One module per concept, so that each can be read and tested alone:
 - :mod:`ekf` the filter engine: propagation, gated sequential updates, covariance hygiene;
 - :mod:`alignment` levelling, gyro bias and heading at the start of a drive;
 - :mod:`stops` stop detection from the IMU and the OBD speed;
-- :mod:`engine` the time-ordered message loop shared by the live navigator and ``logger replay``;
+- :mod:`engine` the loop shared by the live navigator and ``logger replay``, and its rooms: :mod:`inputs` (typed
+  inputs: the filter knows no record), :mod:`core` (the filter as the rooms see it), :mod:`startup` (levelling
+  and the first heading), :mod:`policies` (what each sensor's reading is worth), :mod:`evidence` (what
+  refusals in a row that agree say), :mod:`history` (the solution at a late measurement's instant);
 - :mod:`smoother` the Rauch-Tung-Striebel backward pass for post-processing;
 - :mod:`params` the tuning, from datasheets and the ``[nav]`` section of the configuration;
-- :mod:`health` plain-language verdicts for ``logger status``;
-- :mod:`live` the navigator thread of the daemon.
+- :mod:`health` plain-language verdicts for ``logger status``.
+
+The navigator thread of the daemon is :mod:`logger.runtime.navigator`; records become the filter's inputs in
+:mod:`logger.recording.records`.
 """

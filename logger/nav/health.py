@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any
 
 from logger.nav.earth import G0
+from logger.nav.engine import NavEngine
 from logger.nav.state import DH_ID, SF_ID
 
 ACCEL_LIMIT_MG = (50.0, 50.0, 80.0)  # MPU-6050 zero-g output tolerance, x y z
@@ -29,13 +29,13 @@ class HealthJudge:
         self._seen_gnss = (0, 0)
         self._offset: deque[tuple[float, float]] = deque(maxlen=600)  # (t_s, offset m), one per call
 
-    def verdicts(self, engine: Any, t_s: float) -> list[str]:
+    def verdicts(self, engine: NavEngine, t_s: float) -> list[str]:
         out: list[str] = []
         ekf, s = engine.ekf, engine.state
         if s is None or ekf is None:
             if engine.mode == "gnss":
                 return ["GNSS-only mode: no filter, the receiver's fixes are passed through"]
-            why = "waiting for a standstill to level the IMU" if engine._prov_q is None else \
+            why = "waiting for a standstill to level the IMU" if engine.startup.prov_q is None else \
                 f"levelled; waiting for GNSS course at {engine.params.heading_min_speed_mps:g} m/s or more"
             return [f"initialising: {why}"]
         st = ekf.stats.get("gnss_pos")
@@ -46,8 +46,9 @@ class HealthJudge:
             self._gnss.extend([True] * min(d_acc, 60) + [False] * min(d_rej, 60))
         n = len(self._gnss)
         refused = n - sum(self._gnss)
-        fix = engine._last_fix
-        age = (engine._t_last - fix.t_ns) / 1e9 if fix is not None and engine._t_last else math.inf
+        fix = engine.latest.fix
+        t_last = engine.t_last_ns
+        age = (t_last - fix.t_ns) / 1e9 if fix is not None and t_last else math.inf
         if age > 5.0:
             out.append(f"no GNSS fix for {age:.0f} s: dead reckoning" + (" on IMU, OBD and baro"
                                                                         if engine.mode == "17" else " on the IMU"))
@@ -90,8 +91,8 @@ class HealthJudge:
         return out
 
 
-def mounting_verdict(engine: Any) -> str:
-    lev = engine._levelled
+def mounting_verdict(engine: NavEngine) -> str:
+    lev = engine.startup.levelled
     slip_sum, slip_n = engine.mount_yaw_stat
     parts = []
     problems = []

@@ -20,6 +20,12 @@ MODES = ("17", "15", "gnss")
 
 @dataclass
 class NavParams:
+    """The filter's tuning; these field defaults are the ``[nav]`` defaults, the only place they are written.
+
+    Every ``[nav]`` key of the configuration is the field of the same name, and :data:`logger.config.SCHEMA`
+    reads its defaults from here (this module must not import the configuration, which imports it).
+    """
+
     mode: str = "17"
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU to GNSS antenna, vehicle FRD, m
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU chip axes relative to vehicle FRD

@@ -17,12 +17,11 @@ e_j and e-_{j+1} in time. With covariance epochs every quarter second this costs
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
 from logger.nav import earth
-from logger.nav.engine import Epoch
+from logger.nav.engine import Epoch, TrajectoryRow
 from logger.nav.rotations import quat_from_rotvec, quat_mul
 from logger.nav.state import P_ID, PHI_ID, V_ID
 
@@ -55,7 +54,7 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray) -> tuple[np.ndarray, 
     return e, e_minus, sig
 
 
-def smooth_rows(rows: list[tuple[Any, ...]], epochs: list[Epoch], p_last: np.ndarray) -> list[tuple[Any, ...]]:
+def smooth_rows(rows: list[TrajectoryRow], epochs: list[Epoch], p_last: np.ndarray) -> list[TrajectoryRow]:
     """The forward rows with the smoothed error removed (same layout as the engine's rows)."""
     if not epochs or not rows:
         return rows
@@ -81,8 +80,8 @@ def smooth_rows(rows: list[tuple[Any, ...]], epochs: list[Epoch], p_last: np.nda
         ek = err[k]
         rm, rn = earth.radii(lat)
         q2 = quat_mul(quat_from_rotvec(float(ek[PHI_ID]), float(ek[PHI_ID + 1]), float(ek[PHI_ID + 2])), q)
-        out.append((row[0], t_mono, lat - float(ek[P_ID]) / (rm + h),
-                    lon - float(ek[P_ID + 1]) / ((rn + h) * math.cos(lat)), h + float(ek[P_ID + 2]),
-                    vn - float(ek[V_ID]), ve - float(ek[V_ID + 1]), vd - float(ek[V_ID + 2]), q2,
-                    (float(sg[k, P_ID]), float(sg[k, P_ID + 1]), float(sg[k, P_ID + 2])), jr))
+        out.append(TrajectoryRow(row[0], t_mono, lat - float(ek[P_ID]) / (rm + h),
+                                 lon - float(ek[P_ID + 1]) / ((rn + h) * math.cos(lat)), h + float(ek[P_ID + 2]),
+                                 vn - float(ek[V_ID]), ve - float(ek[V_ID + 1]), vd - float(ek[V_ID + 2]), q2,
+                                 (float(sg[k, P_ID]), float(sg[k, P_ID + 1]), float(sg[k, P_ID + 2])), jr))
     return out

@@ -10,20 +10,20 @@ The raw values come from inverting Bosch's compensation by search (it is monoton
 correct driver recovers the truth: the ambient temperature, and the standard-atmosphere pressure at the
 truth's height above mean sea level for the day's sea-level pressure, plus the datasheet's RMS noise for
 the oversampling setting.
+
+The compensation inverted here is this module's own reading of the datasheet (section 3.5), not the
+driver's (:mod:`sensors.bmp085`): the chip's side of the bus must not share a driver's mistake, or a test
+of the driver against this model could not catch it. The datasheet's variables are 32-bit ``long`` (B4
+and B7 ``unsigned long``), its "/ 2^n" is the reference code's arithmetic right shift and its "/" between
+variables C's division, which truncates toward zero.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-from sensors.bmp085 import (
-    DATASHEET_EXAMPLE_CALIBRATION,
-    PRESSURE_NOISE_PA,
-    Bmp085Calibration,
-    compensate_pressure,
-    compensate_temperature,
-    isa_pressure_pa,
-)
 from sensors.sim.clock import DriveClock
 from sensors.sim.i2c import RegisterChip
 from sensors.sim.truth import Trajectory
@@ -39,9 +39,98 @@ SCO = 0x20
 TEMPERATURE_TIME_S = 4.5e-3
 PRESSURE_TIME_S = (4.5e-3, 7.5e-3, 13.5e-3, 25.5e-3)
 OUT_RESET = b"\x80\x00\x00"
+# Datasheet table 3 (typical RMS noise): 0.06, 0.05, 0.04, 0.03 hPa from ultra low power (oss 0) to
+# ultra high resolution (oss 3).
+PRESSURE_NOISE_PA = (6.0, 5.0, 4.0, 3.0)
+
+# The International Standard Atmosphere's troposphere, which the truth's weather is expressed in: sea-level
+# temperature and pressure, temperature gradient, specific gas constant of dry air, standard gravity.
+ISA_T0_K = 288.15
+ISA_P0_PA = 101325.0
+ISA_LAPSE_K_PER_M = -0.0065
+ISA_GAS_CONSTANT_AIR = 287.05287
+ISA_GRAVITY_MPS2 = 9.80665
 
 
-def raw_temperature_for(temp_degc: float, cal: Bmp085Calibration) -> int:
+class EepromCalibration(NamedTuple):
+    """The factory calibration as the EEPROM holds it, eleven big-endian words from 0xAA: AC4..AC6 are
+    unsigned, the rest signed 16-bit."""
+
+    ac1: int
+    ac2: int
+    ac3: int
+    ac4: int
+    ac5: int
+    ac6: int
+    b1: int
+    b2: int
+    mb: int
+    mc: int
+    md: int
+
+    def to_bytes(self) -> bytes:
+        return b"".join((word & 0xFFFF).to_bytes(2, "big") for word in self)
+
+
+# The calibration of the datasheet's worked example (section 3.5).
+DATASHEET_EXAMPLE_CALIBRATION = EepromCalibration(
+    ac1=408, ac2=-72, ac3=-14383, ac4=32741, ac5=32757, ac6=23153, b1=6190, b2=4, mb=-32768, mc=-8711, md=2868)
+
+
+def isa_pressure_pa(height_msl_m: float, sea_level_pa: float = ISA_P0_PA) -> float:
+    """Pressure at ``height_msl_m`` above mean sea level in the standard troposphere, for the day's
+    sea-level pressure: p0 (1 + L h / T0) ^ (-g / (R L))."""
+    exponent = -ISA_GRAVITY_MPS2 / (ISA_GAS_CONSTANT_AIR * ISA_LAPSE_K_PER_M)
+    return sea_level_pa * (1.0 + ISA_LAPSE_K_PER_M * height_msl_m / ISA_T0_K) ** exponent
+
+
+def _long(v: int) -> int:
+    """``v`` as a 32-bit two's-complement ``long``: what the datasheet's integer arithmetic keeps."""
+    return (v + 0x8000_0000) % 0x1_0000_0000 - 0x8000_0000
+
+
+def _ulong(v: int) -> int:
+    return v % 0x1_0000_0000
+
+
+def _c_divide(a: int, b: int) -> int:
+    """The datasheet's "/" between two variables: C division of longs, the quotient truncated toward zero."""
+    quotient = abs(a) // abs(b)
+    return quotient if (a < 0) == (b < 0) else -quotient
+
+
+def datasheet_b5(ut: int, cal: EepromCalibration) -> int:
+    """B5 of the datasheet's temperature calculation; the true temperature is (B5 + 8) / 2^4 in 0.1 degC."""
+    x1 = _long((ut - cal.ac6) * cal.ac5) >> 15
+    if x1 + cal.md == 0:
+        raise ValueError(f"UT {ut} divides by X1 + MD = 0: no temperature of this calibration")
+    x2 = _c_divide(_long(cal.mc << 11), _long(x1 + cal.md))
+    return _long(x1 + x2)
+
+
+def datasheet_pressure_pa(up: int, oss: int, b5: int, cal: EepromCalibration) -> int:
+    """The datasheet's true pressure p (Pa) from UP, the oversampling setting and the temperature's B5."""
+    b6 = _long(b5 - 4000)
+    b6_squared = _long(b6 * b6) >> 12
+    x1 = _long(cal.b2 * b6_squared) >> 11
+    x2 = _long(cal.ac2 * b6) >> 11
+    x3 = _long(x1 + x2)
+    b3 = _long((_long(cal.ac1 * 4 + x3) << oss) + 2) >> 2
+    x1 = _long(cal.ac3 * b6) >> 13
+    x2 = _long(cal.b1 * b6_squared) >> 16
+    x3 = _long(x1 + x2 + 2) >> 2
+    b4 = _ulong(cal.ac4 * _ulong(x3 + 32768)) >> 15
+    if b4 == 0:
+        raise ValueError("the calibration gives B4 = 0: no pressure of this calibration")
+    b7 = _ulong((up - b3) * (50000 >> oss))
+    p = _long(_ulong(b7 * 2) // b4) if b7 < 0x8000_0000 else _long((b7 // b4) * 2)
+    x1 = _long((p >> 8) * (p >> 8))
+    x1 = _long(x1 * 3038) >> 16
+    x2 = _long(-7357 * p) >> 16
+    return _long(p + (_long(x1 + x2 + 3791) >> 4))
+
+
+def raw_temperature_for(temp_degc: float, cal: EepromCalibration) -> int:
     """The UT whose compensated B5 lies nearest the true temperature (T = (B5 + 8) / 160 degC)."""
     target_b5 = temp_degc * 160.0 - 8.0
     # Below this UT the compensation divides by X1 + MD <= 0: no temperature lives there.
@@ -56,29 +145,29 @@ def raw_temperature_for(temp_degc: float, cal: Bmp085Calibration) -> int:
     lo, hi = first_valid, 0xFFFF
     while lo < hi:
         mid = (lo + hi) // 2
-        if compensate_temperature(mid, cal)[1] >= target_b5:
+        if datasheet_b5(mid, cal) >= target_b5:
             hi = mid
         else:
             lo = mid + 1
-    if lo > first_valid and (target_b5 - compensate_temperature(lo - 1, cal)[1]
-                             < compensate_temperature(lo, cal)[1] - target_b5):
+    if lo > first_valid and (target_b5 - datasheet_b5(lo - 1, cal)
+                             < datasheet_b5(lo, cal) - target_b5):
         lo -= 1
     return lo
 
 
-def raw_pressure_for(pressure_pa: float, b5: int, oss: int, cal: Bmp085Calibration) -> int:
+def raw_pressure_for(pressure_pa: float, b5: int, oss: int, cal: EepromCalibration) -> int:
     """The UP (16 + oss bits) whose compensated pressure lies nearest ``pressure_pa``."""
     b6 = b5 - 4000
     b3 = (((cal.ac1 * 4 + ((((b6 * b6) >> 12) * cal.b2) >> 11) + ((cal.ac2 * b6) >> 11)) << oss) + 2) >> 2
     lo, hi = max(b3, 0), (1 << (16 + oss)) - 1
     while lo < hi:
         mid = (lo + hi) // 2
-        if compensate_pressure(mid, oss, b5, cal) >= pressure_pa:
+        if datasheet_pressure_pa(mid, oss, b5, cal) >= pressure_pa:
             hi = mid
         else:
             lo = mid + 1
-    if lo > max(b3, 0) and (pressure_pa - compensate_pressure(lo - 1, oss, b5, cal)
-                            < compensate_pressure(lo, oss, b5, cal) - pressure_pa):
+    if lo > max(b3, 0) and (pressure_pa - datasheet_pressure_pa(lo - 1, oss, b5, cal)
+                            < datasheet_pressure_pa(lo, oss, b5, cal) - pressure_pa):
         lo -= 1
     return lo
 
@@ -87,7 +176,7 @@ class Bmp085Model(RegisterChip):
     """A BMP085 or BMP180 as the bus sees it, measuring ``trajectory`` at the time ``clock`` tells."""
 
     def __init__(self, clock: DriveClock, trajectory: Trajectory, *, seed: int | np.random.Generator = 0,
-                 variant: str = "BMP180", calibration: Bmp085Calibration = DATASHEET_EXAMPLE_CALIBRATION,
+                 variant: str = "BMP180", calibration: EepromCalibration = DATASHEET_EXAMPLE_CALIBRATION,
                  noise: bool = True, chip_id: int = 0x55) -> None:
         super().__init__()
         if variant not in ("BMP085", "BMP180"):
@@ -125,7 +214,7 @@ class Bmp085Model(RegisterChip):
         pressure = isa_pressure_pa(state.height_msl_m, state.sea_level_pa)
         if self.noise:
             pressure += self.rng.standard_normal() * PRESSURE_NOISE_PA[oss]
-        _, b5 = compensate_temperature(ut, self.calibration)
+        b5 = datasheet_b5(ut, self.calibration)
         up = raw_pressure_for(pressure, b5, oss, self.calibration)
         self._out[0:3] = (up << (8 - oss)).to_bytes(3, "big")
 

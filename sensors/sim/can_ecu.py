@@ -48,7 +48,7 @@ class CanEcuModel(DeviceThread):
         super().__init__()
 
     def _run(self) -> None:
-        while not self._stop.is_set():
+        while not self.stopping.is_set():
             try:
                 msg = self.bus.recv(timeout=0.02)
             except can.CanError:

@@ -1,7 +1,7 @@
 """The thread a simulated device answers on.
 
 A real adapter or ECU answers on its own while the code under test waits on the bus: each model runs its loop
-(``_run``, until ``_stop`` is set) beside it, started and stopped by the test or the simulated vehicle, or used
+(``_run``, until ``stopping`` is set) beside it, started and stopped by the test or the simulated vehicle, or used
 as a context manager.
 """
 
@@ -16,18 +16,18 @@ class DeviceThread(ABC):
     thread_name = "sim-device"
 
     def __init__(self) -> None:
-        self._stop = threading.Event()
+        self.stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> Self:
         if self._thread is None:
-            self._stop.clear()
+            self.stopping.clear()
             self._thread = threading.Thread(target=self._run, name=self.thread_name, daemon=True)
             self._thread.start()
         return self
 
     def stop(self) -> None:
-        self._stop.set()
+        self.stopping.set()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
@@ -40,4 +40,4 @@ class DeviceThread(ABC):
 
     @abstractmethod
     def _run(self) -> None:
-        """The device's loop: answer the bus until ``_stop`` is set."""
+        """The device's loop: answer the bus until ``stopping`` is set."""

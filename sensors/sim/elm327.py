@@ -9,6 +9,10 @@ would appear as, and answers service 01 requests from the :class:`ObdEcu` models
 Clone behaviour is chosen by :class:`AdapterQuirks`; bus and adapter failures are injected with
 :meth:`Elm327Model.inject` and :meth:`Elm327Model.reset` (a brown-out while cranking), unplugging with the
 :class:`PtyPort` itself. Waits (reset, protocol search, ECU answer, ELM timeout) pass on the drive clock.
+
+The check bytes of J1850 and K-line frames, shown with headers on, are computed here from the bus
+standards rather than taken from the driver (:mod:`sensors.obd`), so a driver that checks them wrongly
+fails against the model instead of agreeing with it.
 """
 
 from __future__ import annotations
@@ -21,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensors.obd import j1850_crc, kline_checksum
 from sensors.sim.clock import DriveClock
 from sensors.sim.device_thread import DeviceThread
 from sensors.sim.obd_ecu import ObdEcu
@@ -44,6 +47,37 @@ K_LINE_PROTOCOLS = {"3", "4", "5"}  # need a 'BUS INIT' (5-baud or fast init) be
 DEVICE_DESCRIPTION = "OBDII to RS232 Interpreter"
 MAX_COMMAND_CHARS = 64
 DEFAULT_TIMEOUT_HH = 0x32  # AT ST default: 0x32 x 4.096 ms = 205 ms
+
+
+def _j1850_crc_table() -> tuple[int, ...]:
+    """CRC-8 remainders of every byte for SAE J1850's generator x^8 + x^4 + x^3 + x^2 + 1 (0x1D), MSB first."""
+    table = []
+    for byte in range(256):
+        remainder = byte
+        for _ in range(8):
+            remainder = (remainder << 1) ^ (0x11D if remainder & 0x80 else 0)
+        table.append(remainder)
+    return tuple(table)
+
+
+_J1850_CRC_TABLE = _j1850_crc_table()
+
+
+def j1850_crc(frame: bytes) -> int:
+    """The check byte a J1850 (PWM or VPW) node appends: the CRC-8 above over header and data, the register
+    preset to all ones and the result sent complemented (SAE J1850 section 5.4)."""
+    crc = 0xFF
+    for byte in frame:
+        crc = _J1850_CRC_TABLE[crc ^ byte]
+    return crc ^ 0xFF
+
+
+def kline_checksum(frame: bytes) -> int:
+    """The check byte of an ISO 9141-2 or ISO 14230-4 message: header and data bytes summed modulo 256."""
+    total = 0
+    for byte in frame:
+        total = (total + byte) % 256
+    return total
 
 
 class ElmFault(enum.Enum):
@@ -173,10 +207,10 @@ class Elm327Model(DeviceThread):
 
     def _run(self) -> None:
         line = bytearray()
-        while not self._stop.is_set():
+        while not self.stopping.is_set():
             if not self.port.present:
                 line.clear()
-                self._stop.wait(0.01)
+                self.stopping.wait(0.01)
                 continue
             for byte in self.port.read(timeout_s=0.02):
                 if byte == 0x0D:

@@ -103,7 +103,7 @@ class SimGpioChip:
         self.accessible = accessible
         self.present = True
         self._lock = threading.RLock()
-        self._owners: dict[int, _SimRequest] = {}
+        self._owners: dict[int, SimLineRequest] = {}
         self._handles: list[_SimChipHandle] = []
 
     def vanish(self) -> None:
@@ -303,7 +303,7 @@ class _SimChipHandle:
             select.select([self._rfd], [], [])
 
     def request_lines(self, line_cfg: LineConfig, consumer: str | None,
-                      event_buffer_size: int | None) -> _SimRequest:
+                      event_buffer_size: int | None) -> SimLineRequest:
         chip = self._chip
         settings = line_cfg.per_offset()
         if not settings:
@@ -318,7 +318,7 @@ class _SimChipHandle:
             busy = [o for o in offsets if o in chip._owners]
             if busy:
                 raise _oserror(errno.EBUSY, f"line {busy[0]} of {chip.path}")
-            req = _SimRequest(chip, offsets, settings, line_cfg.output_values, consumer or "?",
+            req = SimLineRequest(chip, offsets, settings, line_cfg.output_values, consumer or "?",
                               event_buffer_size or 0)
             for o in offsets:
                 chip._owners[o] = req
@@ -358,7 +358,7 @@ class _LineState:
         self.output: Value = Value.INACTIVE
 
 
-class _SimRequest:
+class SimLineRequest:
     """A line request on a simulated chip (what ``_ext.Chip.request_lines`` returns)."""
 
     def __init__(self, chip: SimGpioChip, offsets: list[int], settings: dict[int, LineSettings],

@@ -35,7 +35,8 @@ import numpy as np
 
 from sensors.sim.gnss_time import NS_PER_S
 from sensors.sim.pps import PpsSignal
-from sensors.sim.ublox import EpochRecord, UbloxReceiverModel
+from sensors.sim.ublox import UbloxReceiverModel
+from sensors.sim.ublox_encode import EpochRecord
 
 NS_PER_MS = 1_000_000
 RELEASE = "3.22"  # Debian 12's gpsd

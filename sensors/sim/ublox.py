@@ -18,9 +18,12 @@ What it does, as the hardware does:
   8 (M8: legacy UBX-CFG-MSG/RATE/PRT only; CFG-VALSET is unknown and NAKed), 9 (F9: both), 10 (M10:
   configuration keys only; the legacy messages are NAKed). A legacy CFG-PRT baud change is acknowledged at
   the old rate and takes effect after the ACK; a CFG-VALSET baud change takes effect at once, so its ACK
-  comes at the new rate. CFG messages outside these are NAKed, as not modelled, so a test notices.
+  comes at the new rate. CFG messages outside these are NAKed, as not modelled, so a test notices. The
+  interpreter and the RAM configuration it keeps are in :mod:`sensors.sim.ublox_commands`;
 - GNSS errors from :mod:`sensors.sim.gnss_errors`, with the error of every epoch kept in
-  :attr:`UbloxReceiverModel.history` so a decoded solution can be checked against truth + error.
+  :attr:`UbloxReceiverModel.history` (as :class:`~sensors.sim.ublox_encode.EpochRecord`, which the
+  message encoders of :mod:`sensors.sim.ublox_encode` turn into bytes) so a decoded solution can be
+  checked against truth + error;
 - faults on demand: garbage bytes, corrupted checksums, unplugging (the PtyPort vanishes), power cycles.
 
 A PPS line model of the same receiver shares :attr:`UbloxReceiverModel.timeline` (edges on whole GPS
@@ -30,7 +33,6 @@ edge's offset that TIM-TP announces as qErr) and :func:`has_time_fix` (no pulse 
 
 from __future__ import annotations
 
-import datetime as dt
 import heapq
 import itertools
 import math
@@ -42,13 +44,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pynmeagps import NMEAMessage
-from pyubx2 import GET, SET, UBX_MSGIDS, UBXMessage, UBXReader
+from pyubx2 import UBXMessage
 
 from sensors.sim import earth
 from sensors.sim.clock import DriveClock
 from sensors.sim.gnss_errors import (
     MAX_SATELLITES,
-    EpochError,
     GeometryErrorModel,
     GnssErrorModel,
     fix_type_for,
@@ -57,81 +58,35 @@ from sensors.sim.gnss_errors import (
 )
 from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline, PulseQuantisation
 from sensors.sim.pty import PtyPort
-from sensors.sim.truth import Trajectory, TruthState
+from sensors.sim.truth import Trajectory
 from sensors.sim.uart_line import STANDARD_BAUDS, HostSide, resample
+from sensors.sim.ublox_commands import (
+    DEFAULT_BAUD,
+    FIRMWARE,
+    TIME_REF_OFFSET_S,
+    CommandInterpreter,
+    PortConfig,
+    RamConfig,
+    Reply,
+    UbxInputScanner,
+)
+from sensors.sim.ublox_encode import MESSAGE_IDS, EpochRecord, gga, nav_pvt, nav_timegps, rmc, tim_tp
 
 __all__ = [
     "DEFAULT_MESSAGES",
     "FACTORY_MESSAGES",
-    "MESSAGE_IDS",
-    "EpochRecord",
     "ModelCounters",
     "UbloxReceiverModel",
     "has_time_fix",
 ]
 
-# Class and id of the output messages the model produces (u-blox M8 protocol spec; NMEA class 0xF0).
-MESSAGE_IDS: dict[str, tuple[int, int]] = {
-    "NAV-PVT": (0x01, 0x07),
-    "NAV-TIMEGPS": (0x01, 0x20),
-    "TIM-TP": (0x0D, 0x01),
-    "GGA": (0xF0, 0x00),
-    "RMC": (0xF0, 0x04),
-}
 DEFAULT_MESSAGES = ("NAV-PVT", "TIM-TP", "GGA", "RMC")  # a receiver whose flash holds the logger's setup
 FACTORY_MESSAGES = ("GGA", "RMC")  # fresh from the factory: NMEA only (GSA, GSV, GLL, VTG not modelled)
 
-_MSGOUT_KEYS = {  # configuration keys of the modelled messages on UART1 (u-blox 9/10 interface description)
-    "CFG_MSGOUT_UBX_NAV_PVT_UART1": "NAV-PVT",
-    "CFG_MSGOUT_UBX_NAV_TIMEGPS_UART1": "NAV-TIMEGPS",
-    "CFG_MSGOUT_UBX_TIM_TP_UART1": "TIM-TP",
-    "CFG_MSGOUT_NMEA_ID_GGA_UART1": "GGA",
-    "CFG_MSGOUT_NMEA_ID_RMC_UART1": "RMC",
-}
-_FIRMWARE = {  # MON-VER as these firmware releases report it
-    8: ("ROM CORE 3.01 (107888)", "00080000",
-        ("FWVER=SPG 3.01", "PROTVER=18.00", "GPS;GLO;GAL;BDS", "SBAS;IMES;QZSS")),
-    9: ("EXT CORE 1.00 (61b2dd)", "00190000",
-        ("ROM BASE 0x118B2060", "FWVER=HPG 1.13", "PROTVER=27.12", "MOD=ZED-F9P", "GPS;GLO;GAL;BDS", "QZSS")),
-    10: ("ROM SPG 5.10 (7b202e)", "000A0000",
-         ("ROM BASE 0x118B2060", "FWVER=SPG 5.10", "PROTVER=34.10", "MOD=NEO-M10", "GPS;GAL;GLO;BDS",
-          "SBAS;QZSS")),
-}
-_DEFAULT_BAUD = {8: 9600, 9: 38400, 10: 38400}
-# Offsets of the time scales CFG-RATE timeRef can align epochs to, from GPS time in whole seconds:
-# UTC, GPS, GLONASS (UTC(SU) + 3 h), BeiDou (GPS - 14 s), Galileo (GPS).
-_TIME_REF_OFFSET_S = {0: None, 1: 0, 2: None, 3: -14, 4: 0}
 _HOST_BUFFER_BYTES = 4095  # Linux n_tty read buffer: beyond it a host that does not read loses bytes
-_U4_MAX = 0xFFFF_FFFF
 _MIN_MOVING_MPS = 0.5  # below this speed the receiver keeps its last heading of motion
 _CLOCK_HOLDOVER_NS_PER_S = 100.0  # growth of tAcc without a fix: a TCXO known to 0.1 ppm
 _UBX_HDR = b"\xb5\x62"
-
-
-@dataclass(frozen=True, slots=True)
-class EpochRecord:
-    """One navigation solution as computed: the truth, the error applied and what was reported."""
-
-    drive_ns: int  # true drive time of the epoch
-    gps_ns: int  # true GPS time of the epoch
-    itow_ms: int
-    truth: TruthState
-    fix_type: int
-    num_sv: int
-    lat_deg: float  # reported, before the 1e-7 deg quantisation of NAV-PVT
-    lon_deg: float
-    height_m: float  # reported ellipsoidal height
-    vel_ned_mps: np.ndarray  # reported
-    pos_error_ned_m: np.ndarray  # reported minus true, metres north-east-down
-    vel_error_ned_mps: np.ndarray
-    time_error_ns: float  # reported minus true epoch time
-    error: EpochError  # the error model's draw (accuracies, DOPs, multipath part)
-    h_acc_m: float
-    v_acc_m: float
-    s_acc_mps: float
-    t_acc_ns: float
-    head_mot_deg: float = 0.0  # heading of motion; kept from the last epoch with enough speed
-    head_acc_deg: float = 180.0
 
 
 @dataclass(slots=True)
@@ -150,29 +105,6 @@ class ModelCounters:
     input_frames: int = 0
 
 
-@dataclass(slots=True)
-class _PortConfig:
-    baud: int
-    in_ubx: bool = True
-    in_nmea: bool = True
-    out_ubx: bool = True
-    out_nmea: bool = True
-
-
-@dataclass(slots=True)
-class _RamConfig:
-    """The receiver's current (RAM) configuration; a power cycle restores the one it started with."""
-
-    port: _PortConfig
-    meas_ms: int = 1000
-    nav_rate: int = 1
-    time_ref: int = 1  # GPS
-    rates: dict[tuple[int, int], int] = field(default_factory=dict)
-
-    def copy(self) -> _RamConfig:
-        return _RamConfig(replace(self.port), self.meas_ms, self.nav_rate, self.time_ref, dict(self.rates))
-
-
 @dataclass(order=True, slots=True)
 class _TxItem:
     ready_ns: int
@@ -180,33 +112,6 @@ class _TxItem:
     data: bytes = field(compare=False)
     label: str = field(compare=False)
     after: Callable[[], None] | None = field(compare=False, default=None)
-
-
-def _scaled(n: int, resolution: float) -> float:
-    """A float that pyubx2 turns back into exactly the integer ``n`` at ``resolution``.
-
-    pyubx2 truncates value / resolution; a quarter of a step away from the integer survives both
-    truncation and rounding whatever the binary representation of the resolution.
-    """
-    return (n + math.copysign(0.25, n)) * resolution
-
-
-def _nmea_coordinate(deg: float, width: int) -> str:
-    """(d)ddmm.mmmmm as u-blox prints it, rounded once to the 1e-5 minute the sentence carries."""
-    units = round(abs(deg) * 60 * 100_000)  # 1e-5 minutes
-    whole, minutes = divmod(units, 60 * 100_000)
-    return f"{whole:0{width}d}{minutes // 100_000:02d}.{minutes % 100_000:05d}"
-
-
-def _nmea_time(utc_ns: int) -> tuple[str, str]:
-    """hhmmss.ss and ddmmyy of a UTC instant (Unix ns)."""
-    cs = round(utc_ns / 10_000_000)
-    seconds, cs = divmod(cs, 100)
-    days, sod = divmod(seconds, 86_400)
-    hh, rem = divmod(sod, 3600)
-    mm, ss = divmod(rem, 60)
-    d = dt.date(1970, 1, 1) + dt.timedelta(days=days)
-    return f"{hh:02d}{mm:02d}{ss:02d}.{cs:02d}", f"{d.day:02d}{d.month:02d}{d.year % 100:02d}"
 
 
 def _child_rngs(seed: int | np.random.Generator, n: int) -> list[np.random.Generator]:
@@ -241,8 +146,8 @@ class UbloxReceiverModel:
         history_len: int = 3600,
         poll_s: float = 0.002,
     ) -> None:
-        if generation not in _FIRMWARE:
-            raise ValueError(f"generation must be one of {sorted(_FIRMWARE)}, not {generation}")
+        if generation not in FIRMWARE:
+            raise ValueError(f"generation must be one of {sorted(FIRMWARE)}, not {generation}")
         if pulse_time_base not in ("utc", "gps"):
             raise ValueError("pulse_time_base must be 'utc' or 'gps'")
         unknown = set(messages) - set(MESSAGE_IDS)
@@ -272,13 +177,12 @@ class UbloxReceiverModel:
             rng_err, len(self.sky.constellation), **getattr(trajectory, "gnss_error_options", {}))
         self.pulse_quantisation = PulseQuantisation.from_seed(rng_pulse)
         self._rng_latency = rng_lat
-        self._rng_command = rng_cmd
         self._rng_garbage = rng_garbage
-        start_baud = baud if baud is not None else _DEFAULT_BAUD[generation]
+        start_baud = baud if baud is not None else DEFAULT_BAUD[generation]
         if start_baud not in STANDARD_BAUDS:
             raise ValueError(f"{start_baud} is not a baud rate a u-blox UART offers")
-        self._startup = _RamConfig(_PortConfig(start_baud), rates={MESSAGE_IDS[m]: 1 for m in messages})
-        self._cfg = self._startup.copy()
+        startup = RamConfig(PortConfig(start_baud), rates={MESSAGE_IDS[m]: 1 for m in messages})
+        self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms)
         self.history: deque[EpochRecord] = deque(maxlen=history_len)
         self.counters = ModelCounters()
         self.error: BaseException | None = None
@@ -288,11 +192,10 @@ class UbloxReceiverModel:
         self._tx: list[_TxItem] = []
         self._seq = itertools.count()
         self._line_free_ns = 0
-        self._input = bytearray()
+        self._input = UbxInputScanner()
         self._written_this_pass = 0
         self._pending: list[Callable[[int], None]] = []  # fault injections, run by the model thread
         self._corrupt_left = 0
-        self._last_reply_ns = 0
         self._lock = threading.Lock()
         self._cv = threading.Condition()
         self._wake = threading.Event()
@@ -389,6 +292,11 @@ class UbloxReceiverModel:
     # ------------------------------------------------------------------ state
 
     @property
+    def _cfg(self) -> RamConfig:
+        """The RAM configuration, as the command interpreter holds it (a VALSET or power cycle replaces it)."""
+        return self._commands.ram
+
+    @property
     def baud(self) -> int:
         return self._cfg.port.baud
 
@@ -419,7 +327,7 @@ class UbloxReceiverModel:
     def _power_on(self, now_ns: int) -> None:
         """Start (again) as from power-up: the configuration the receiver boots with, no output pending,
         and a fix only after the time to first fix."""
-        self._cfg = self._startup.copy()
+        self._commands.power_on()
         self._tx.clear()
         self._input.clear()
         self._power_on_ns = now_ns
@@ -534,7 +442,7 @@ class UbloxReceiverModel:
         return self.timeline.drive_ns((gps // meas_ns + 1) * meas_ns - offset_ns)
 
     def _time_scale_offset_ns(self) -> int:
-        offset_s = _TIME_REF_OFFSET_S[self._cfg.time_ref]
+        offset_s = TIME_REF_OFFSET_S[self._cfg.time_ref]
         if offset_s is None:  # UTC-based scales: UTC itself or GLONASS time (UTC + 3 h)
             offset_s = -self.timeline.leap_s
         return offset_s * NS_PER_S
@@ -555,20 +463,28 @@ class UbloxReceiverModel:
             r = rates.get(MESSAGE_IDS[name], 0)
             return r > 0 and count % r == 0
 
+        known = self._time_known
+        utc_ns = self._reported_utc_ns(rec)
+        leap_s = self.timeline.leap_s
         if due("NAV-PVT", solution_index):
-            self._enqueue_ubx(ready, self._nav_pvt(rec), "NAV-PVT")
+            pvt = nav_pvt(rec, utc_ns, time_known=known, position_known=self._last_fix is not None,
+                          generation=self.generation)
+            self._enqueue_ubx(ready, pvt, "NAV-PVT")
         if due("NAV-TIMEGPS", solution_index):
-            self._enqueue_ubx(ready, self._nav_timegps(rec), "NAV-TIMEGPS")
+            self._enqueue_ubx(ready, nav_timegps(rec, leap_s=leap_s, time_known=known), "NAV-TIMEGPS")
         if due("GGA", solution_index):
-            self._enqueue_nmea(ready, self._gga(rec), "GGA")
+            self._enqueue_nmea(ready, gga(rec, utc_ns if known else None, talker=self.nmea_talker), "GGA")
         if due("RMC", solution_index):
-            self._enqueue_nmea(ready, self._rmc(rec), "RMC")
+            self._enqueue_nmea(ready, rmc(rec, utc_ns if known else None, talker=self.nmea_talker), "RMC")
         second = gps_ns // NS_PER_S
         if second != self._last_pulse_second:
             self._last_pulse_second = second
             # The pulse is locked, and announced, only while the clock is solved (see has_time_fix).
             if rec.fix_type >= 2 and due("TIM-TP", second):
-                self._enqueue_ubx(ready, self._tim_tp(second + 1), "TIM-TP")
+                pulse = second + 1
+                tp = tim_tp(pulse, leap_s=leap_s, utc_base=self.pulse_time_base == "utc",
+                            qerr_ps=self.pulse_quantisation.qerr_ps(pulse), utc_known=known)
+                self._enqueue_ubx(ready, tp, "TIM-TP")
 
     def _tracking(self, t_ns: int) -> bool:
         return (t_ns - self._power_on_ns) >= self.time_to_first_fix_s * NS_PER_S
@@ -645,331 +561,34 @@ class UbloxReceiverModel:
         self.history.append(rec)
         return rec
 
-    # ------------------------------------------------------------------ output messages
-
-    def _reported_time(self, rec: EpochRecord) -> tuple[int, int]:
-        """(UTC second as Unix ns, nano) of the epoch as the receiver states it, error included."""
-        gps = rec.gps_ns + round(rec.time_error_ns)
-        utc = self.timeline.utc_unix_ns(gps)
-        second = (utc + NS_PER_S // 2) // NS_PER_S * NS_PER_S  # nearest second; nano carries the rest
-        return second, utc - second
-
-    def _nav_pvt(self, rec: EpochRecord) -> UBXMessage:
-        known = self._time_known
-        second_ns, nano = self._reported_time(rec)
-        day = _unix_to_calendar(second_ns)
-        fix_ok = rec.fix_type >= 2
-        vn, ve, vd = (float(v) for v in rec.vel_ned_mps)
-        g_speed = math.hypot(vn, ve)
-        return UBXMessage(
-            "NAV", "NAV-PVT", GET,
-            iTOW=rec.itow_ms,
-            year=day[0], month=day[1], day=day[2], hour=day[3], min=day[4], second=day[5],
-            validDate=int(known), validTime=int(known), fullyResolved=int(known), validMag=0,
-            tAcc=_acc(rec.t_acc_ns, 1.0),
-            nano=int(nano) if known else 0,
-            fixType=rec.fix_type,
-            gnssFixOk=int(fix_ok), diffSoln=0, psmState=0, headVehValid=0, carrSoln=0,
-            confirmedAvai=1, confirmedDate=int(known), confirmedTime=int(known),
-            numSV=rec.num_sv,
-            lon=_scaled(round(rec.lon_deg * 1e7), 1e-7),
-            lat=_scaled(round(rec.lat_deg * 1e7), 1e-7),
-            height=round(rec.height_m * 1000),
-            hMSL=round((rec.height_m - rec.truth.geoid_m) * 1000) if self._last_fix is not None else 0,
-            hAcc=_acc(rec.h_acc_m, 1e3),
-            vAcc=_acc(rec.v_acc_m, 1e3),
-            velN=round(vn * 1000), velE=round(ve * 1000), velD=round(vd * 1000),
-            gSpeed=round(g_speed * 1000),
-            headMot=_scaled(round(rec.head_mot_deg * 1e5) % 36_000_000, 1e-5),
-            sAcc=_acc(rec.s_acc_mps, 1e3),
-            headAcc=_scaled(round(rec.head_acc_deg * 1e5), 1e-5),
-            pDOP=_scaled(round(rec.error.dops.pdop * 100), 0.01),
-            invalidLlh=int(self.generation >= 9 and self._last_fix is None),
-        )
-
-    def _nav_timegps(self, rec: EpochRecord) -> UBXMessage:
-        known = self._time_known
-        week, _ = GnssTimeline.week_tow(rec.gps_ns)
-        f_tow = max(-500_000, min(500_000, round(rec.time_error_ns)))
-        return UBXMessage(
-            "NAV", "NAV-TIMEGPS", GET,
-            iTOW=rec.itow_ms, fTOW=f_tow if known else 0, week=week if known else 0,
-            leapS=self.timeline.leap_s if known else 0,
-            towValid=int(known), weekValid=int(known), leapSValid=int(known),
-            tAcc=_acc(rec.t_acc_ns, 1.0),
-        )
-
-    def _tim_tp(self, pulse_second: int) -> UBXMessage:
-        utc_base = self.pulse_time_base == "utc"
-        base_ns = (pulse_second - (self.timeline.leap_s if utc_base else 0)) * NS_PER_S
-        week, tow_ns = GnssTimeline.week_tow(base_ns)
-        return UBXMessage(
-            "TIM", "TIM-TP", GET,
-            towMS=tow_ns // NS_PER_MS, towSubMS=0,
-            qErr=self.pulse_quantisation.qerr_ps(pulse_second),
-            week=week,
-            timeBase=int(utc_base), utc=int(self._time_known), raim=2, qErrInvalid=0,
-            timeRefGnss=0, utcStandard=3 if utc_base else 0,  # GPS; UTC(USNO) as GPS broadcasts it
-        )
-
-    def _gga(self, rec: EpochRecord) -> NMEAMessage:
-        known = self._time_known
-        hhmmss, _ = _nmea_time(sum(self._reported_time(rec))) if known else ("", "")
-        if rec.fix_type >= 2:
-            lat, lon = rec.lat_deg, rec.lon_deg
-            fields = [
-                hhmmss, _nmea_coordinate(lat, 2), "N" if lat >= 0 else "S", _nmea_coordinate(lon, 3),
-                "E" if lon >= 0 else "W", "1", f"{min(rec.num_sv, 12):02d}", f"{rec.error.dops.hdop:.2f}",
-                f"{rec.height_m - rec.truth.geoid_m:.1f}", "M", f"{rec.truth.geoid_m:.1f}", "M", "", "",
-            ]
-        else:
-            fields = [hhmmss, "", "", "", "", "0", f"{min(rec.num_sv, 12):02d}", "99.99", "", "", "", "", "", ""]
-        return NMEAMessage(self.nmea_talker, "GGA", GET, payload=fields)
-
-    def _rmc(self, rec: EpochRecord) -> NMEAMessage:
-        known = self._time_known
-        hhmmss, ddmmyy = _nmea_time(sum(self._reported_time(rec))) if known else ("", "")
-        if rec.fix_type >= 2:
-            lat, lon = rec.lat_deg, rec.lon_deg
-            vn, ve = float(rec.vel_ned_mps[0]), float(rec.vel_ned_mps[1])
-            knots = math.hypot(vn, ve) * 3600.0 / 1852.0
-            fields = [
-                hhmmss, "A", _nmea_coordinate(lat, 2), "N" if lat >= 0 else "S", _nmea_coordinate(lon, 3),
-                "E" if lon >= 0 else "W", f"{knots:.3f}", f"{rec.head_mot_deg:.2f}", ddmmyy, "", "", "A", "V",
-            ]
-        else:
-            fields = [hhmmss, "V", "", "", "", "", "", "", ddmmyy, "", "", "N", "V"]
-        return NMEAMessage(self.nmea_talker, "RMC", GET, payload=fields)
+    def _reported_utc_ns(self, rec: EpochRecord) -> int:
+        """UTC (Unix ns) of the epoch as the receiver states it: the true epoch plus its clock error."""
+        return self.timeline.utc_unix_ns(rec.gps_ns + round(rec.time_error_ns))
 
     # ------------------------------------------------------------------ input and configuration
 
     def _receive(self, data: bytes, now: int) -> None:
-        """Scan the host's bytes for complete UBX frames with a valid checksum; others are ignored."""
-        buf = self._input
-        buf += data
-        while True:
-            start = buf.find(_UBX_HDR)
-            if start < 0:
-                del buf[:-1 if buf.endswith(b"\xb5") else len(buf)]
-                return
-            del buf[:start]
-            if len(buf) < 8:
-                return
-            length = int.from_bytes(buf[4:6], "little")
-            if length > 4096:  # not a frame: a stray 0xB5 0x62
-                del buf[:2]
-                continue
-            if len(buf) < 8 + length:
-                return
-            frame = bytes(buf[:8 + length])
-            ck_a = ck_b = 0
-            for b in frame[2:-2]:
-                ck_a = (ck_a + b) & 0xFF
-                ck_b = (ck_b + ck_a) & 0xFF
-            if frame[-2:] != bytes((ck_a, ck_b)):
-                del buf[:2]
-                continue
-            del buf[:8 + length]
+        """Hand the host's UBX frames to the firmware's command interpreter, while UBX input is on."""
+        for frame in self._input.feed(data):
             self.counters.input_frames += 1
             if self._cfg.port.in_ubx:
-                self._command(frame, now)
+                reply = self._commands.handle(frame, now)
+                if reply is not None:
+                    self._send_reply(reply)
+                    if reply.reschedule:
+                        self._next_epoch_ns = self._epoch_after(now)
 
-    def _reply(self, now: int, *messages: UBXMessage, after: Callable[[], None] | None = None) -> None:
-        """Queue responses a few ms after the command, as the receiver's firmware takes that long."""
-        ready = now + round(self._rng_command.uniform(0.002, 0.015) * NS_PER_S)
-        ready = self._last_reply_ns = max(ready, self._last_reply_ns)  # commands are handled in order
+    def _send_reply(self, reply: Reply) -> None:
+        """Queue the answer on the UART; with UBX output off it is lost, but what waits for it still happens."""
+        if reply.ack is not None:
+            if reply.ack:
+                self.counters.acks += 1
+            else:
+                self.counters.naks += 1
         if not self._cfg.port.out_ubx:
-            if after is not None:
-                after()
+            if reply.after is not None:
+                reply.after()
             return
-        for i, msg in enumerate(messages):
-            self._enqueue(ready, msg.serialize(), msg.identity, after if i == len(messages) - 1 else None)
-
-    def _ack(self, now: int, cls: int, mid: int, ok: bool, *before: UBXMessage,
-             after: Callable[[], None] | None = None) -> None:
-        if ok:
-            self.counters.acks += 1
-        else:
-            self.counters.naks += 1
-        ack = UBXMessage("ACK", "ACK-ACK" if ok else "ACK-NAK", GET, clsID=cls, msgID=mid)
-        self._reply(now, *before, ack, after=after)
-
-    def _command(self, frame: bytes, now: int) -> None:
-        cls, mid = frame[2], frame[3]
-        payload = frame[6:-2]
-        legacy = self.generation <= 9
-        if (cls, mid) == (0x0A, 0x04) and not payload:  # MON-VER poll: answered, never acknowledged
-            self._reply(now, self._mon_ver())
-        elif cls != 0x06:
-            return  # other input classes (AID, MGA, RXM...) are not modelled and have no ACK
-        elif mid == 0x01 and legacy:
-            self._cfg_msg(payload, now)
-        elif mid == 0x08 and legacy:
-            self._cfg_rate(payload, now)
-        elif mid == 0x00 and legacy:
-            self._cfg_prt(payload, now)
-        elif mid == 0x8A and self.generation >= 9:
-            self._cfg_valset(frame, now)
-        else:
-            self._ack(now, cls, mid, False)
-
-    def _mon_ver(self) -> UBXMessage:
-        sw, hw, ext = _FIRMWARE[self.generation]
-        payload = sw.encode().ljust(30, b"\0") + hw.encode().ljust(10, b"\0")
-        payload += b"".join(e.encode().ljust(30, b"\0") for e in ext)
-        return UBXMessage("MON", "MON-VER", GET, payload=payload)
-
-    def _cfg_msg(self, payload: bytes, now: int) -> None:
-        if len(payload) == 2:  # poll the rates of one message
-            key = (payload[0], payload[1])
-            rate = self._cfg.rates.get(key, 0)
-            reply = UBXMessage("CFG", "CFG-MSG", GET, msgClass=key[0], msgID=key[1], rateUART1=rate)
-            self._ack(now, 0x06, 0x01, True, reply)
-            return
-        if len(payload) == 3:
-            # The short form sets the port the command came in on. pyubx2 knows only the eight-byte
-            # layout, so these three bytes are read directly.
-            key, rate = (payload[0], payload[1]), payload[2]
-        elif len(payload) == 8:
-            msg = UBXReader.parse(_frame(0x06, 0x01, payload), msgmode=SET)
-            key, rate = (msg.msgClass, msg.msgID), msg.rateUART1
-        else:
-            self._ack(now, 0x06, 0x01, False)
-            return
-        if bytes(key) not in UBX_MSGIDS and key[0] not in (0xF0, 0xF1):
-            self._ack(now, 0x06, 0x01, False)  # no such message on this receiver
-            return
-        self._cfg.rates[key] = rate
-        self._ack(now, 0x06, 0x01, True)
-
-    def _cfg_rate(self, payload: bytes, now: int) -> None:
-        cfg = self._cfg
-        if not payload:
-            reply = UBXMessage("CFG", "CFG-RATE", GET, measRate=cfg.meas_ms, navRate=cfg.nav_rate,
-                               timeRef=cfg.time_ref)
-            self._ack(now, 0x06, 0x08, True, reply)
-            return
-        if len(payload) != 6:
-            self._ack(now, 0x06, 0x08, False)
-            return
-        msg = UBXReader.parse(_frame(0x06, 0x08, payload), msgmode=SET)
-        if not self._apply_rate(msg.measRate, msg.navRate, msg.timeRef, now):
-            self._ack(now, 0x06, 0x08, False)
-            return
-        self._ack(now, 0x06, 0x08, True)
-
-    def _apply_rate(self, meas_ms: int, nav_rate: int, time_ref: int, now: int) -> bool:
-        # Out-of-range values are refused: measRate below the firmware's floor, navRate above 127, an
-        # unknown time scale.
-        if meas_ms < self.min_meas_period_ms or not 1 <= nav_rate <= 127 or time_ref not in _TIME_REF_OFFSET_S:
-            return False
-        cfg = self._cfg
-        cfg.meas_ms, cfg.nav_rate, cfg.time_ref = meas_ms, nav_rate, time_ref
-        self._next_epoch_ns = self._epoch_after(now)
-        return True
-
-    def _cfg_prt(self, payload: bytes, now: int) -> None:
-        port = self._cfg.port
-        if len(payload) in (0, 1):
-            port_id = payload[0] if payload else 1
-            if port_id != 1:
-                self._ack(now, 0x06, 0x00, port_id in (0, 2, 3, 4))
-                return
-            reply = UBXMessage(
-                "CFG", "CFG-PRT", GET, portID=1, charLen=3, parity=4, nStopBits=0, baudRate=port.baud,
-                inUBX=int(port.in_ubx), inNMEA=int(port.in_nmea), outUBX=int(port.out_ubx),
-                outNMEA=int(port.out_nmea),
-            )
-            self._ack(now, 0x06, 0x00, True, reply)
-            return
-        if len(payload) != 20:
-            self._ack(now, 0x06, 0x00, False)
-            return
-        msg = UBXReader.parse(_frame(0x06, 0x00, payload), msgmode=SET)
-        if msg.portID != 1:  # other ports exist but nothing of them is modelled
-            self._ack(now, 0x06, 0x00, msg.portID in (0, 2, 3, 4))
-            return
-        # Only 8N1 (charLen 3 = 8 bit, parity 10x = none, one stop bit) at a rate the UART offers.
-        if msg.charLen != 3 or msg.parity not in (4, 5) or msg.nStopBits != 0 \
-                or msg.baudRate not in STANDARD_BAUDS:
-            self._ack(now, 0x06, 0x00, False)
-            return
-        new = _PortConfig(msg.baudRate, bool(msg.inUBX), bool(msg.inNMEA), bool(msg.outUBX), bool(msg.outNMEA))
-
-        def switch() -> None:  # after the ACK has left at the old rate
-            self._cfg.port = new
-
-        self._ack(now, 0x06, 0x00, True, after=switch)
-
-    def _cfg_valset(self, frame: bytes, now: int) -> None:
-        try:
-            msg = UBXReader.parse(frame, msgmode=SET)
-        except Exception:  # a malformed key list: the receiver rejects the whole message
-            self._ack(now, 0x06, 0x8A, False)
-            return
-        if msg.version != 0:  # transactions are not modelled
-            self._ack(now, 0x06, 0x8A, False)
-            return
-        items = {k: v for k, v in vars(msg).items() if k.startswith("CFG_")}
-        cfg = self._cfg.copy()
-        rate = [cfg.meas_ms, cfg.nav_rate, cfg.time_ref]
-        for key, value in items.items():
-            if key in _MSGOUT_KEYS:
-                cfg.rates[MESSAGE_IDS[_MSGOUT_KEYS[key]]] = int(value)
-            elif key.startswith("CFG_MSGOUT_") and not key.startswith("CFG_0x"):
-                continue  # a message the model does not produce, or another port
-            elif key == "CFG_RATE_MEAS":
-                rate[0] = int(value)
-            elif key == "CFG_RATE_NAV":
-                rate[1] = int(value)
-            elif key == "CFG_RATE_TIMEREF":
-                rate[2] = int(value)
-            elif key == "CFG_UART1_BAUDRATE":
-                if int(value) not in STANDARD_BAUDS:
-                    self._ack(now, 0x06, 0x8A, False)
-                    return
-                cfg.port.baud = int(value)
-            elif key in ("CFG_UART1INPROT_UBX", "CFG_UART1INPROT_NMEA", "CFG_UART1OUTPROT_UBX",
-                         "CFG_UART1OUTPROT_NMEA"):
-                name = {"CFG_UART1INPROT_UBX": "in_ubx", "CFG_UART1INPROT_NMEA": "in_nmea",
-                        "CFG_UART1OUTPROT_UBX": "out_ubx", "CFG_UART1OUTPROT_NMEA": "out_nmea"}[key]
-                setattr(cfg.port, name, bool(value))
-            else:  # an unknown or unmodelled key: the receiver rejects the whole message
-                self._ack(now, 0x06, 0x8A, False)
-                return
-        if not msg.ram:  # BBR or flash only: stored for the next start, nothing changes now
-            self._ack(now, 0x06, 0x8A, True)
-            return
-        saved = self._cfg
-        self._cfg = cfg
-        if not self._apply_rate(rate[0], rate[1], rate[2], now):
-            self._cfg = saved
-            self._ack(now, 0x06, 0x8A, False)
-            return
-        # Configuration keys take effect at once, the baud rate included: the ACK leaves at the new rate.
-        self._ack(now, 0x06, 0x8A, True)
-
-
-def _checksum(body: bytes) -> bytes:
-    ck_a = ck_b = 0
-    for b in body:
-        ck_a = (ck_a + b) & 0xFF
-        ck_b = (ck_b + ck_a) & 0xFF
-    return bytes((ck_a, ck_b))
-
-
-def _frame(cls: int, mid: int, payload: bytes) -> bytes:
-    body = bytes((cls, mid)) + len(payload).to_bytes(2, "little") + payload
-    return _UBX_HDR + body + _checksum(body)
-
-
-def _acc(value: float, scale: float) -> int:
-    """An accuracy field (U4), saturated as u-blox does when there is no estimate."""
-    if not math.isfinite(value):
-        return _U4_MAX
-    return min(_U4_MAX, max(0, round(value * scale)))
-
-
-def _unix_to_calendar(unix_ns: int) -> tuple[int, int, int, int, int, int]:
-    t = dt.datetime(1970, 1, 1) + dt.timedelta(seconds=unix_ns // NS_PER_S)
-    return t.year, t.month, t.day, t.hour, t.minute, t.second
+        last = len(reply.messages) - 1
+        for i, msg in enumerate(reply.messages):
+            self._enqueue(reply.ready_ns, msg.serialize(), msg.identity, reply.after if i == last else None)

@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from logger.drive_reader import DriveMessage
+from logger.recording.drive import DriveMessage
+from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
 
-STAMPED_TOPICS = ("/imu", "/obd/speed", "/baro", "/gnss/fix", "/gnss/timepulse", "/pps")
+STAMPED_TOPICS = (IMU, OBD_SPEED, BARO, GNSS_FIX, TIMEPULSE, PPS)
 GAP_FACTOR = 3.0  # an interval this many times the median one is a gap
 
 

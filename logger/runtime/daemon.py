@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 import logging
 import os
-import re
 import signal
 import threading
 import time
@@ -21,13 +20,17 @@ from pathlib import Path
 from typing import Any
 
 from logger.config import Config
-from logger.mcap_files import McapFileError, is_finished, recover
-from logger.notify import Notifier
-from logger.recorder import Recorder, RecorderSettings
-from logger.sampler import Reading, Sampler
-from logger.sources import Plan
-from logger.timebase import TimeBase, host_timebase
-from logger.topics import TOPICS
+from logger.recording.files import McapFileError, is_finished, recover
+from logger.recording.recorder import Recorder
+from logger.recording.records import clock_observer
+from logger.recording.settings import RecorderSettings
+from logger.recording.topics import HEALTH, SYNC, TOPICS
+from logger.runtime.journal import ProblemJournal
+from logger.runtime.notify import Notifier
+from logger.runtime.sampler import Reading, Sampler
+from logger.runtime.sources import Plan
+from logger.runtime.status_socket import StatusServer
+from logger.runtime.timebase import TimeBase, host_timebase
 from sync.stamp import FREERUN, FreeRunClock, StampClock
 
 log = logging.getLogger(__name__)
@@ -39,7 +42,6 @@ DROP_WINDOW_NS = 60 * 1_000_000_000
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
 HEARTBEAT_BOUND_S = 60.0
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
-PROBLEM_LOG_REPEAT_S = 60.0  # a problem that comes and goes is logged at most this often
 
 
 @dataclass
@@ -83,11 +85,8 @@ class Daemon:
         self.mode = mode
         self.out_dir = Path(out_dir or cfg["logger"]["out_dir"])
         self.status_socket = Path(status_socket or cfg["logger"]["status_socket"])
-        rc = cfg["recorder"]
-        self.recorder = Recorder(RecorderSettings(
-            out_dir=self.out_dir, flush_interval_s=rc["flush_interval_s"], rotate_duration_s=rc["rotate_duration_s"],
-            rotate_size_bytes=int(rc["rotate_size_mb"] * 2**20), min_free_bytes=int(rc["min_free_mb"] * 2**20),
-            compression=rc["compression"], queue_size=rc["queue_size"]), TOPICS, metadata=self.extras.metadata,
+        self.recorder = Recorder(
+            RecorderSettings.from_config(cfg["recorder"], self.out_dir), TOPICS, metadata=self.extras.metadata,
             monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale, synced_unix_ns=self._synced_unix_ns)
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
@@ -98,7 +97,7 @@ class Daemon:
         self.startup_lines: list[str] = []
         # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
         self.taps: list[Any] = list(self.extras.taps)
-        self._observe: Callable[[str, dict[str, Any], int], None] | None = getattr(self.clock, "observe", None)
+        self._observe = clock_observer(self.clock)  # what each record tells the clock (PPS, time messages)
         self._drop_history: deque[tuple[int, int]] = deque()
         # Service manager: READY, WATCHDOG, STATUS, STOPPING (no-ops outside systemd).
         self.notifier = notifier or Notifier.from_env()
@@ -115,8 +114,9 @@ class Daemon:
         if seq is None:
             seq = self._seq.setdefault(r.topic, itertools.count())
         payload = r.payload
-        if self._observe is not None:
-            self._observe(r.topic, payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
+        observe = self._observe.get(r.topic)
+        if observe is not None:
+            observe(payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
         if r.stamped:
             stamp = self.clock.stamp(r.t_mono_ns)
             payload = {"t_mono_ns": r.t_mono_ns, **stamp.fields(), "seq": next(seq), **payload}
@@ -145,8 +145,6 @@ class Daemon:
         self._start_thread("health", self._health_loop)
         for period, fn in self.extras.periodic:
             self._start_thread("sim-truth", self._periodic_loop, period, fn)
-        from logger.status import StatusServer
-
         try:
             self.status_server = StatusServer(self.status_socket, self.snapshot)
             self.status_server.start()
@@ -227,12 +225,10 @@ class Daemon:
         if recent:
             problems.append(f"recorder: {recent} records dropped in the last minute (queue full: writer too slow)")
         verdict = "critical" if critical else ("degraded" if problems else "ok")
-        sync = getattr(self.clock, "report", None)
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
-            "sync": sync(now) if callable(sync) else {"state": self.clock.stamp(now).state,
-                                                      "err_ns": self.clock.stamp(now).err_ns},
+            "sync": self.clock.report(now),
             "recorder": rec.__dict__,
             **{name: fn() for name, fn in self.extras.sections.items()},
         }
@@ -241,14 +237,12 @@ class Daemon:
         while not self.tb.wait(self.stop_event, 1.0):
             snap = self.snapshot()
             now = self.tb.monotonic_ns()
-            report = getattr(self.clock, "report", None)
-            if callable(report):
-                self.sink(Reading("/sync", report(now), now, stamped=False))
+            self.sink(Reading(SYNC, self.clock.report(now), now, stamped=False))
             payload = {"t_mono_ns": now, "verdict": snap["verdict"], "problems": snap["problems"],
                        "sensors": snap["sensors"],
                        "recorder": {k: snap["recorder"][k] for k in ("state", "queue_depth", "written", "dropped",
                                                                      "free_bytes")}}
-            self.sink(Reading("/health", payload, now, stamped=False))
+            self.sink(Reading(HEALTH, payload, now, stamped=False))
 
     def _periodic_loop(self, period_s: float, fn: Callable[[], list[Reading]]) -> None:
         start = self.tb.monotonic_ns()
@@ -357,54 +351,3 @@ class Daemon:
         # Drive time, like every other health figure: a simulated drive at 60x logs what a real one would.
         for level, line in self.problem_journal.update(problems, self.tb.monotonic_ns() / 1e9):
             log.log(logging.ERROR if level == logging.WARNING and verdict == "critical" else level, "%s", line)
-
-
-class ProblemJournal:
-    """Turns the status problems of each second into journal lines: one when a problem appears, one when it clears.
-
-    A problem is keyed by its text with numbers masked ("no sample for 4.2 s" stays one problem while it lasts).
-    Each key may announce itself ``burst`` times, refilled at one per ``refill_s``: a fault every few minutes is
-    logged every time, a sensor flapping every second is logged a few times a minute with a count of the rest.
-    """
-
-    def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5) -> None:
-        self.burst = burst
-        self.refill_s = refill_s
-        self._active: dict[str, tuple[str, bool]] = {}  # key -> (text, announced)
-        self._tokens: dict[str, tuple[float, float]] = {}  # key -> (tokens, when counted)
-        self._unlogged: dict[str, int] = {}
-
-    @staticmethod
-    def key(problem: str) -> str:
-        return re.sub(r"\d+(?:\.\d+)?", "#", problem)
-
-    def update(self, problems: list[str], now_s: float) -> list[tuple[int, str]]:
-        """The lines to log for this second's problems, as (logging level, text)."""
-        out: list[tuple[int, str]] = []
-        current = {self.key(p): p for p in problems}
-        for key, text in current.items():
-            if key in self._active:
-                self._active[key] = (text, self._active[key][1])  # "resolved" tells its last state
-                continue
-            tokens, when = self._tokens.get(key, (float(self.burst), now_s))
-            tokens = min(float(self.burst), tokens + (now_s - when) / self.refill_s)
-            announce = tokens >= 1.0
-            if announce:
-                unlogged = self._unlogged.pop(key, 0)
-                out.append((logging.WARNING, f"problem: {text}"
-                            + (f" (appeared {unlogged} more times, not logged)" if unlogged else "")))
-                tokens -= 1.0
-            else:
-                self._unlogged[key] = self._unlogged.get(key, 0) + 1
-            self._tokens[key] = (tokens, now_s)
-            self._active[key] = (text, announce)
-        for key in [k for k in self._active if k not in current]:
-            text, announced = self._active.pop(key)
-            if announced:
-                out.append((logging.INFO, f"resolved: {text}"))
-        if len(self._tokens) > 256:  # bounded whatever the problems say: forget full buckets
-            self._tokens = {k: v for k, v in self._tokens.items() if k in self._active or v[0] < self.burst}
-            if len(self._tokens) > 256:
-                self._tokens = {k: v for k, v in self._tokens.items() if k in self._active}
-                self._unlogged = {k: v for k, v in self._unlogged.items() if k in self._active}
-        return out

@@ -1,8 +1,8 @@
 """gpsd as a source of fixes and PPS edges: the adapters that turn its reports into the same records.
 
-The counterpart of :class:`logger.sources.GnssSource` and :class:`logger.sources.PpsSource` for a receiver that
-gpsd owns. Each adapter has its own connection and its own sampler thread, so PPS edges are recorded at once
-while fixes wait for the rest of their epoch, and each shows in ``logger status`` under its usual name with
+The counterpart of :class:`logger.runtime.sources.GnssSource` and :class:`logger.runtime.sources.PpsSource` for a
+receiver that gpsd owns. Each adapter has its own connection and its own sampler thread, so PPS edges are recorded
+at once while fixes wait for the rest of their epoch, and each shows in ``logger status`` under its usual name with
 ``gpsd HOST:PORT`` as its source. gpsd's stream gives no receiver bytes (no ``/gnss/raw``) and no time pulse
 announcements (no ``/gnss/timepulse``): a PPS report names its own second instead.
 """
@@ -13,10 +13,14 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from logger.sampler import Reading
-from logger.sources import location_fix
-from logger.timebase import TimeBase
+from logger.recording.records import location_fix, pps_record
+from logger.recording.topics import GNSS_FIX, PPS
+from logger.runtime.sampler import Reading, Source
+from logger.runtime.timebase import TimeBase
 from sensors.errors import NoData
+from sensors.gpsd import GpsdClient
+from sensors.gpsd_decode import GpsdEpochs, pps_report
+from sync.realtime import RealtimeMap
 
 NS = 1_000_000_000
 READ_WAIT_S = 0.2  # longest wait for gpsd per read, host seconds: the thread's heartbeat and stop latency
@@ -28,7 +32,7 @@ def _origin(host: str, port: int, device: str | None) -> str:
     return f"gpsd {host}:{port}" + (f" {device}" if device else "")
 
 
-class _GpsdConnection:
+class _GpsdConnection(Source):
     """What both adapters share: the connection, its counters, and gpsd's word on a missing receiver."""
 
     def __init__(self, host: str, port: int, device: str | None, tb: TimeBase) -> None:
@@ -39,8 +43,6 @@ class _GpsdConnection:
         self._last_nodata_ns: int | None = None
 
     def _connect(self) -> None:
-        from sensors.gpsd import GpsdClient
-
         self.client = GpsdClient.connect(self.host, self.port, self.device)
         self._last_record_ns = self.tb.monotonic_ns()
         self._last_nodata_ns = None
@@ -81,7 +83,7 @@ class GpsdSource(_GpsdConnection):
     """
 
     name = "gnss"
-    sample_topic = "/gnss/fix"
+    sample_topic = GNSS_FIX
 
     def __init__(self, host: str, port: int, device: str | None, tb: TimeBase, settle_s: float = SETTLE_S) -> None:
         super().__init__(host, port, device, tb)
@@ -89,8 +91,6 @@ class GpsdSource(_GpsdConnection):
         self.epochs: Any = None
 
     def open(self) -> None:
-        from sensors.gpsd_decode import GpsdEpochs
-
         self._connect()
         self.epochs = GpsdEpochs(self.settle_ns)
 
@@ -105,7 +105,7 @@ class GpsdSource(_GpsdConnection):
         for msg in messages:
             done += self.epochs.push(msg, t)
         done += self.epochs.poll(t)
-        out = [Reading("/gnss/fix", location_fix(fix, t_fix), t_fix) for fix, t_fix in done]
+        out = [Reading(GNSS_FIX, location_fix(fix, t_fix), t_fix) for fix, t_fix in done]
         self._quiet(t, bool(out))
         return out
 
@@ -130,15 +130,11 @@ class GpsdPpsSource(_GpsdConnection):
         self._last_second: int | None = None
 
     def open(self) -> None:
-        from sync.realtime import RealtimeMap
-
         self._connect()
         self.map = RealtimeMap(self.realtime_ns, self.tb.monotonic_ns)
         self.map.sample()
 
     def read(self) -> list[Reading]:
-        from sensors.gpsd_decode import pps_report
-
         messages = self.client.read(READ_WAIT_S)
         self.map.sample()  # right after the read: the reports in it arrived before this sample
         out: list[Reading] = []
@@ -154,8 +150,8 @@ class GpsdPpsSource(_GpsdConnection):
                 continue  # counted by the map; a step shows as this sensor's incident
             lost = second - self._last_second - 1 if self._last_second is not None else 0
             self._last_second = second
-            out.append(Reading("/pps", {"seqno": self._seqno, "lost": lost if 0 < lost <= 3600 else 0,
-                                        "gnss_time_ns": rep.edge_gnss_ns}, mono))
+            out.append(Reading(PPS, pps_record(self._seqno, lost if 0 < lost <= 3600 else 0, rep.edge_gnss_ns),
+                               mono))
             self._seqno += 1
         self._quiet(self.tb.monotonic_ns(), bool(out))
         return out

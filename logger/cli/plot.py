@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from logger.drive_reader import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
-from logger.export_cmd import drive_name, plural
-from logger.export_formats import utc_iso
-from logger.plotting import PlotsUnavailable, local_en, pyplot
-from logger.topic_timing import STAMPED_TOPICS, TopicTiming, timings
-from logger.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.cli.export import drive_name, plural
+from logger.exports.formats import utc_iso
+from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
+from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
+from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
+from logger.recording.topics import GNSS_FIX, SYNC
 
 STATES = ("freerun", "holdover", "locked")
 DPI = 110
@@ -61,7 +62,7 @@ def draw_map(plt: Any, tracks: list[Track], path: Path) -> Path | None:
             east, north = local_en(np.radians([p.lat_deg for p in seg]), np.radians([p.lon_deg for p in seg]),
                                    lat0, lon0)
             label = f"{t.label}: {plural(t.n_points, 'point')}, {plural(len(t.gaps), 'gap')}" if k == 0 else None
-            if t.topic == "/gnss/fix":
+            if t.topic == GNSS_FIX:
                 ax.plot(east, north, ".", ms=3, color=colour, label=label)
             else:
                 ax.plot(east, north, "-", lw=1.0, color=colour, label=label)
@@ -154,7 +155,7 @@ def main(argv: list[str]) -> int:
         files = open_drive(args.files)
         if args.out.exists() and not args.out.is_dir():
             raise DriveFileError(f"--out {args.out}: exists and is not a folder")
-        messages = list(iter_messages(files, (*STAMPED_TOPICS, "/sync", *EXPORT_TOPICS)))
+        messages = list(iter_messages(files, (*STAMPED_TOPICS, SYNC, *EXPORT_TOPICS)))
     except (PlotsUnavailable, DriveFileError) as exc:
         print(f"logger plot: {exc}", file=sys.stderr)
         return 2
@@ -166,7 +167,7 @@ def main(argv: list[str]) -> int:
         return 2
     tracks = build_tracks(messages, files)
     tim = timings(messages)
-    sync = [m for m in messages if m.topic == "/sync"]
+    sync = [m for m in messages if m.topic == SYNC]
     t0 = messages[0].log_time
     span_s = (messages[-1].log_time - t0) / 1e9
     args.out.mkdir(parents=True, exist_ok=True)

@@ -27,27 +27,15 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from logger.topics import TopicSpec
+from logger.recording.settings import RecorderSettings
+from logger.recording.topics import TopicSpec
+from sync.wallclock import boot_id
 
 log = logging.getLogger(__name__)
 
 BATCH_WAIT_S = 0.5  # longest real time a record waits in the queue between flushes
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
-
-
-@dataclass
-class RecorderSettings:
-    out_dir: Path
-    prefix: str = "drive"
-    flush_interval_s: float = 1.0
-    rotate_duration_s: float = 3600.0
-    rotate_size_bytes: int = 1 << 30
-    min_free_bytes: int = 256 << 20
-    compression: str = "zstd"
-    queue_size: int = 20000
-    # Chunks are closed by time (flush_interval_s); this only caps one chunk's memory at high IMU rates.
-    chunk_size_bytes: int = 4 << 20
 
 
 @dataclass
@@ -91,9 +79,8 @@ def read_boot_id() -> str:
 
     Falls back to random digits per process where /proc is not there; unique is what matters, not stable.
     """
-    try:
-        text = Path("/proc/sys/kernel/random/boot_id").read_text(encoding="ascii")
-    except OSError:
+    text = boot_id()
+    if text is None:
         return os.urandom(4).hex()
     digits = "".join(c for c in text.lower() if c in "0123456789abcdef")
     return digits[:8] if len(digits) >= 8 else os.urandom(4).hex()

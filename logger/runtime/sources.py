@@ -7,17 +7,25 @@ of clocks and threads; samplers stay free of sensor knowledge.
 
 from __future__ import annotations
 
-import base64
-import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from logger.fifo_time import FifoClock
-from logger.sampler import Reading
-from logger.timebase import TimeBase
+from logger.recording.records import (
+    baro_record,
+    imu_record,
+    location_fix,
+    pps_record,
+    raw_bytes_record,
+    speed_record,
+    timepulse_record,
+)
+from logger.recording.topics import BARO, GNSS_FIX, GNSS_RAW, IMU, OBD_SPEED, PPS, TIMEPULSE
+from logger.runtime.sampler import Reading, Source
+from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, SensorError
+from sensors.obd import SpeedDriver
+from sync.fifo import FifoClock
 
 FIFO_THRESHOLD_HZ = 50.0  # above this the IMU is read through its FIFO in batches
 DIRECT_CHIP_RATE_HZ = 1000.0
@@ -41,15 +49,16 @@ def _i2c_bus(path_or_number: str | int) -> Any:
 
 
 def _close_quietly(obj: Any) -> None:
-    close = getattr(obj, "close", None)
-    if close is not None:
-        try:
-            close()
-        except Exception:
-            pass
+    """Close a bus or a driver, if there is one, whatever state its device is in."""
+    if obj is None:
+        return
+    try:
+        obj.close()
+    except Exception:  # a device already gone cannot be closed any further
+        pass
 
 
-class ImuSource:
+class ImuSource(Source):
     """MPU-6050: one burst per sample at low rates; the FIFO in batches above ``FIFO_THRESHOLD_HZ``."""
 
     name = "imu"
@@ -96,8 +105,7 @@ class ImuSource:
             t0 = self.tb.monotonic_ns()
             s = self.driver.read()
             t1 = self.tb.monotonic_ns()
-            return [Reading("/imu", {"accel_mps2": s.accel_mps2, "gyro_rps": s.gyro_rps,
-                                     "temp_degc": round(s.temp_degc, 3), "fifo": False, "lost": 0}, (t0 + t1) // 2)]
+            return [Reading(IMU, imu_record(s.accel_mps2, s.gyro_rps, s.temp_degc, False, 0), (t0 + t1) // 2)]
         t_read = self.tb.monotonic_ns()
         batch = self.driver.read_fifo(t_read)
         t_done = self.tb.monotonic_ns()
@@ -110,9 +118,8 @@ class ImuSource:
         times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
         out = []
         for i in range(n):
-            out.append(Reading("/imu", {"accel_mps2": batch.accel_mps2[i], "gyro_rps": batch.gyro_rps[i],
-                                        "temp_degc": round(batch.temp_degc, 3), "fifo": True,
-                                        "lost": self._pending_lost if i == 0 else 0}, times[i]))
+            out.append(Reading(IMU, imu_record(batch.accel_mps2[i], batch.gyro_rps[i], batch.temp_degc, True,
+                                               self._pending_lost if i == 0 else 0), times[i]))
         if n:
             self._pending_lost = 0
         return out
@@ -122,7 +129,7 @@ class ImuSource:
         self._bus = None
 
 
-class BaroSource:
+class BaroSource(Source):
     name = "baro"
 
     def __init__(self, bus: str | int, address: int, oversampling: int, sea_level_pa: float, variant: str,
@@ -144,80 +151,46 @@ class BaroSource:
         t0 = self.tb.monotonic_ns()
         s = self.driver.read()
         t1 = self.tb.monotonic_ns()
-        return [Reading("/baro", {"pressure_pa": float(s.pressure_pa), "temp_degc": float(s.temp_degc),
-                                  "altitude_m": round(float(s.altitude_m), 4), "sea_level_pa": self.p0,
-                                  "oversampling": s.oss, "ut": s.ut, "up": s.up}, (t0 + t1) // 2)]
+        return [Reading(BARO, baro_record(s, self.p0), (t0 + t1) // 2)]
 
     def close(self) -> None:
         _close_quietly(self._bus)
         self._bus = None
 
 
-class ObdSource:
+class ObdSource(Source):
     """Vehicle speed from an ELM327 adapter or straight from the CAN bus; the same record either way."""
 
     name = "obd"
 
-    def __init__(self, make_driver: Callable[[], Any], interface: str, tb: TimeBase) -> None:
+    def __init__(self, make_driver: Callable[[], SpeedDriver], interface: str, tb: TimeBase) -> None:
         self.make_driver, self.interface, self.tb = make_driver, interface, tb
-        self.driver: Any = None
+        self.driver: SpeedDriver | None = None
 
     def open(self) -> None:
         self.driver = self.make_driver()
-        opener = getattr(self.driver, "open", None)
-        if opener is not None:
-            opener()
+        self.driver.open()
 
     def read(self) -> list[Reading]:
         t0 = self.tb.monotonic_ns()
         s = self.driver.read()
         t1 = self.tb.monotonic_ns()
-        ecu = f"{s.ecu_id:X}" if s.ecu_id is not None else ""
         # The ECU sampled its speed somewhere between request and answer: the midpoint is the best guess.
-        return [Reading("/obd/speed", {"speed_kmh": s.speed_kmh, "speed_mps": round(s.speed_mps, 4), "ecu": ecu,
-                                       "interface": self.interface}, (t0 + t1) // 2)]
+        return [Reading(OBD_SPEED, speed_record(s, self.interface), (t0 + t1) // 2)]
 
     def incidents(self) -> dict[str, int]:
-        resets = getattr(self.driver, "resets_seen", None)
-        return {} if resets is None else {"ELM327 reset itself and was set up again": resets}
+        return {} if self.driver is None else self.driver.incidents()
 
     def close(self) -> None:
         _close_quietly(self.driver)
         self.driver = None
 
 
-def location_fix(fix: Any, t_mono_ns: int) -> dict[str, Any]:
-    """A GnssFix as a foxglove.LocationFix plus the receiver's own fields."""
-    sec_ns = fix.time_utc_ns if fix.time_utc_ns is not None else 0
-    lat = fix.lat_deg if fix.lat_deg is not None else 0.0
-    lon = fix.lon_deg if fix.lon_deg is not None else 0.0
-    alt = fix.height_hae_m if fix.height_hae_m is not None else 0.0
-    cov_type = 0
-    cov = [0.0] * 9
-    if fix.h_acc_m is not None and fix.v_acc_m is not None:
-        # u-blox hAcc is a horizontal 1-sigma over both axes: each axis gets hAcc^2 / 2.
-        cov[0] = cov[4] = fix.h_acc_m**2 / 2.0
-        cov[8] = fix.v_acc_m**2
-        cov_type = 2
-    vel = None
-    if fix.vel_ned_mps is not None:
-        vel = [None if (v is None or (isinstance(v, float) and math.isnan(v))) else float(v) for v in fix.vel_ned_mps]
-    return {
-        "timestamp": {"sec": sec_ns // 1_000_000_000, "nsec": sec_ns % 1_000_000_000},
-        "frame_id": "gnss", "latitude": lat, "longitude": lon, "altitude": alt,
-        "position_covariance": cov, "position_covariance_type": cov_type,
-        "gnss_time_ns": fix.time_utc_ns if fix.time_valid else None, "itow_ms": fix.itow_ms,
-        "fix_mode": fix.fix_mode, "fix_ok": bool(fix.fix_ok), "height_msl_m": fix.height_msl_m,
-        "vel_ned_mps": vel, "h_acc_m": fix.h_acc_m, "v_acc_m": fix.v_acc_m, "s_acc_mps": fix.s_acc_mps,
-        "num_sv": fix.num_sv, "pdop": fix.pdop, "source": fix.source,
-    }
-
-
-class GnssSource:
+class GnssSource(Source):
     """The u-blox receiver: every byte kept for post-processing, each decoded fix and time pulse recorded."""
 
     name = "gnss"
-    sample_topic = "/gnss/fix"
+    sample_topic = GNSS_FIX
 
     def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase) -> None:
         self.path, self.baud, self.configure, self.tb = path, baud, configure, tb
@@ -245,23 +218,20 @@ class GnssSource:
         t = self.tb.monotonic_ns()
         out: list[Reading] = []
         if got.raw:
-            out.append(Reading("/gnss/raw", {"t_mono_ns": t, "data_b64": base64.b64encode(got.raw).decode(),
-                                             "n_bytes": len(got.raw)}, t, stamped=False))
+            out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw), t, stamped=False))
         for item in got.items:
             if isinstance(item, GnssFix):
                 if item.source == "HNR-PVT":
                     continue  # already fused with the receiver's own sensors: not a GNSS measurement
-                out.append(Reading("/gnss/fix", location_fix(item, t), t))
+                out.append(Reading(GNSS_FIX, location_fix(item, t), t))
             elif isinstance(item, TimePulse):
-                out.append(Reading("/gnss/timepulse", {"tow_ms": item.tow_ms, "tow_sub_ms": item.tow_sub_ms,
-                                                       "week": item.week, "qerr_ps": item.qerr_ps,
-                                                       "time_base": item.time_base}, t))
+                out.append(Reading(TIMEPULSE, timepulse_record(item), t))
         return out
 
     def incidents(self) -> dict[str, int]:
-        framer = getattr(self.receiver, "framer", None)
-        if framer is None:
+        if self.receiver is None:
             return {}
+        framer = self.receiver.framer
         return {"bytes of garbage on the serial line": framer.garbage_bytes,
                 "frames with a bad checksum": framer.bad_checksum}
 
@@ -270,7 +240,7 @@ class GnssSource:
         self.receiver = None
 
 
-class PpsSource:
+class PpsSource(Source):
     name = "pps"
 
     def __init__(self, chip: str, line: int | str) -> None:
@@ -285,8 +255,7 @@ class PpsSource:
         self.driver.open()
 
     def read(self) -> list[Reading]:
-        return [Reading("/pps", {"seqno": e.line_seqno, "lost": e.lost}, e.timestamp_ns)
-                for e in self.driver.wait(EVENT_WAIT_S)]
+        return [Reading(PPS, pps_record(e.line_seqno, e.lost), e.timestamp_ns) for e in self.driver.wait(EVENT_WAIT_S)]
 
     def close(self) -> None:
         _close_quietly(self.driver)
@@ -298,61 +267,3 @@ class Plan:
     source: Any
     rate_hz: float | None
     expected_hz: float | None
-
-
-def plans_from_config(cfg: Any, tb: TimeBase, devices: Any | None = None) -> list[Plan]:
-    """One plan per configured sensor; ``devices`` (a simulated vehicle's) replaces paths of 'sim' sources."""
-    plans: list[Plan] = []
-    imu, baro, obd, gnss, pps = (cfg[s] for s in ("imu", "baro", "obd", "gnss", "pps"))
-
-    def bus_of(section: dict[str, Any]) -> str | int:
-        return devices.i2c_path if section["source"] == "sim" else section["bus"]
-
-    imu_addr = devices.imu_address if imu["source"] == "sim" else imu["address"]
-    src = ImuSource(bus_of(imu), imu_addr, imu["rate_hz"], imu["accel_range_g"], imu["gyro_range_dps"], tb)
-    plans.append(Plan(src, src.poll_hz, imu["rate_hz"]))
-    baro_addr = devices.baro_address if baro["source"] == "sim" else baro["address"]
-    plans.append(Plan(BaroSource(bus_of(baro), baro_addr, baro["oversampling"], baro["sea_level_pa"],
-                                 baro["variant"], tb), baro["rate_hz"], baro["rate_hz"]))
-    if obd["source"] == "can":
-        def make_can() -> Any:
-            import can
-
-            from sensors.obd_can import ObdCan
-
-            try:
-                bus = can.Bus(interface="socketcan", channel=obd["channel"])
-            except (OSError, can.CanError) as exc:
-                raise DeviceNotFound(f"CAN interface {obd['channel']}: {exc}") from None
-            return ObdCan(bus, extended_id=obd["extended_id"])
-
-        plans.append(Plan(ObdSource(make_can, "can", tb), obd["rate_hz"], obd["rate_hz"]))
-    else:
-        from sensors.elm327 import Elm327
-
-        port = devices.elm327_path if obd["source"] == "sim" else obd["port"]
-        plans.append(Plan(ObdSource(lambda: Elm327(port, baudrate=obd["baud"], protocol=obd["protocol"],
-                                                   headers=obd["headers"]), "elm327", tb),
-                          obd["rate_hz"], obd["rate_hz"]))
-    # gpsd: the one at gnss.gpsd_host, or the simulated vehicle's when sim.gpsd asks for it.
-    sim_gpsd = bool(cfg["sim"]["gpsd"]) and getattr(devices, "gpsd_port", None) is not None
-    gpsd_at = (devices.gpsd_host, devices.gpsd_port) if sim_gpsd else (gnss["gpsd_host"], gnss["gpsd_port"])
-    if gnss["source"] == "gpsd":
-        from logger.gpsd_sources import GpsdSource
-
-        plans.append(Plan(GpsdSource(*gpsd_at, gnss["gpsd_device"], tb), None, 1.0))
-    else:
-        g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
-        g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
-        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb), None, 1.0))
-    if pps["source"] == "gpsd":
-        from logger.gpsd_sources import GpsdPpsSource
-
-        realtime = devices.realtime_ns if sim_gpsd else time.time_ns  # the clock gpsd stamps edges with
-        # Any device's PPS: a /dev/ppsN given to gpsd beside the receiver reports as a device of its own.
-        plans.append(Plan(GpsdPpsSource(*gpsd_at, None, tb, realtime), None, 1.0))
-    elif pps["source"] != "none":
-        chip = devices.gpio_chip if pps["source"] == "sim" else pps["chip"]
-        line = devices.pps_line if pps["source"] == "sim" else pps["line"]
-        plans.append(Plan(PpsSource(chip, line), None, 1.0))
-    return plans

@@ -1,111 +1,21 @@
-"""The status socket and ``logger status``: what an operator at a red light needs, in one screen.
+"""``logger status``: what an operator at a red light needs, in one screen.
 
-The daemon answers each connection on a Unix socket with one JSON snapshot and closes it; no network listener,
-and the socket is readable by the daemon's group only (mode 0660). ``logger status`` renders it, and its exit
-code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running.
+The daemon's snapshot comes over its status socket (:mod:`logger.runtime.status_socket`); this renders it, and
+the exit code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import logging
 import os
-import socket
 import sys
-import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-log = logging.getLogger(__name__)
-
-EXIT = {"ok": 0, "degraded": 1, "critical": 2}
-NOT_RUNNING = 3
-MAX_REPLY = 4 << 20
-
-
-class StatusServer(threading.Thread):
-    """Serves ``snapshot()`` as JSON to every client that connects."""
-
-    def __init__(self, path: str | os.PathLike[str], snapshot: Callable[[], dict[str, Any]],
-                 mode: int = 0o660) -> None:
-        super().__init__(name="status", daemon=True)
-        self.path = Path(path)
-        self.snapshot = snapshot
-        self._halt = threading.Event()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        if self.path.exists() or self.path.is_symlink():
-            self.path.unlink()  # a socket left by a crashed daemon
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        old = os.umask(0o117)  # never world-accessible, not even between bind and chmod
-        try:
-            self._sock.bind(str(self.path))
-        finally:
-            os.umask(old)
-        os.chmod(self.path, mode)
-        self._sock.listen(8)
-        self._sock.settimeout(0.5)
-
-    def run(self) -> None:
-        while not self._halt.is_set():
-            try:
-                conn, _ = self._sock.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                if self._halt.is_set():
-                    return
-                continue
-            with conn:
-                try:
-                    conn.settimeout(2.0)
-                    data = json.dumps(self.snapshot(), default=str).encode() + b"\n"
-                    conn.sendall(data)
-                except Exception:  # a client that hangs up early, or a snapshot bug: never kill the server
-                    log.debug("status client failed", exc_info=True)
-
-    def close(self) -> None:
-        self._halt.set()
-        with contextlib.suppress(OSError):
-            self._sock.close()
-        with contextlib.suppress(OSError):
-            self.path.unlink()
-        if self.is_alive():
-            self.join(2.0)
-
-
-def fetch(path: str | os.PathLike[str], timeout_s: float = 3.0) -> dict[str, Any]:
-    """One snapshot from the daemon; raises ConnectionError with a readable reason when it is not there."""
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout_s)
-    try:
-        s.connect(str(path))
-        chunks, size = [], 0
-        while True:
-            part = s.recv(65536)
-            if not part:
-                break
-            chunks.append(part)
-            size += len(part)
-            if size > MAX_REPLY:
-                raise ConnectionError("status reply too large")
-    except FileNotFoundError:
-        raise ConnectionError(f"logger is not running (no status socket at {path})") from None
-    except ConnectionRefusedError:
-        raise ConnectionError(f"logger is not running (nobody answers on {path})") from None
-    except PermissionError:
-        raise ConnectionError(f"not allowed to read {path}: add yourself to the logger's group") from None
-    except TimeoutError:
-        raise ConnectionError(f"logger did not answer on {path} within {timeout_s:g} s") from None
-    finally:
-        s.close()
-    try:
-        return json.loads(b"".join(chunks))
-    except ValueError:
-        raise ConnectionError("logger sent an unreadable status") from None
+from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
+from logger.runtime.status_socket import EXIT, NOT_RUNNING, fetch
 
 
 def _age(s: float | None) -> str:
@@ -170,8 +80,6 @@ def render(snap: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    from logger.config import DEFAULT_PATH, ConfigError, load
-
     parser = argparse.ArgumentParser(prog="logger status", description="show the running logger's health")
     parser.add_argument("--json", action="store_true", help="print the raw snapshot")
     parser.add_argument("--watch", nargs="?", const=1.0, type=float, metavar="SECONDS",
@@ -189,9 +97,6 @@ def main(argv: list[str]) -> int:
         except ConfigError:
             path = None
         if path is None:
-            from logger.config import SCHEMA
-            from logger.run_cmd import DEFAULT_SIM_SOCKET
-
             path = SCHEMA["logger"]["status_socket"].default
             if not Path(path).exists() and Path(DEFAULT_SIM_SOCKET).exists():
                 path = DEFAULT_SIM_SOCKET  # `logger run --sim` without a configuration

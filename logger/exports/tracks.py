@@ -19,9 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from logger.drive_reader import DriveFile, DriveMessage
+from logger.recording.drive import DriveFile, DriveMessage
+from logger.recording.topics import GNSS_FIX, NAV_FIX
 
-EXPORT_TOPICS = ("/gnss/fix", "/nav/fix")
+EXPORT_TOPICS = (GNSS_FIX, NAV_FIX)
 SIGMA_UNKNOWN_M = 1e6  # what /nav/fix carries for a sigma the filter does not have yet
 
 
@@ -197,7 +198,7 @@ def build_tracks(messages: Iterable[DriveMessage], files: list[DriveFile], gap_s
                 key += "_replay" + (f"_{n + 1}" if n else "")
             b = builders[group] = _Builder(Track(key, m.topic, f.origin, _label(m.topic, f.origin, f)), gap_ns,
                                            every_ns)
-        b.add(gnss_point(m.msg) if m.topic == "/gnss/fix" else nav_point(m.msg))
+        b.add(gnss_point(m.msg) if m.topic == GNSS_FIX else nav_point(m.msg))
     tracks = [b.track for _, b in sorted(builders.items(), key=lambda kv: (kv[0][0], kv[0][1] != "live", kv[0][2]))]
     fill_msl(tracks)
     return tracks
@@ -206,7 +207,7 @@ def build_tracks(messages: Iterable[DriveMessage], files: list[DriveFile], gap_s
 def fill_msl(tracks: list[Track]) -> None:
     """Give filter points a height above sea level from the receiver's own geoid separation (ellipsoidal
     minus MSL height of its fixes, interpolated in time); left None without GNSS fixes that carry one."""
-    ref = [(p.t_ns, p.h_ell_m - p.h_msl_m) for t in tracks if t.topic == "/gnss/fix" for p in t.points
+    ref = [(p.t_ns, p.h_ell_m - p.h_msl_m) for t in tracks if t.topic == GNSS_FIX for p in t.points
            if p.h_msl_m is not None]
     if not ref:
         return
@@ -214,7 +215,7 @@ def fill_msl(tracks: list[Track]) -> None:
     t_ref = np.array([r[0] for r in ref], dtype=float)
     n_ref = np.array([r[1] for r in ref], dtype=float)
     for t in tracks:
-        if t.topic == "/gnss/fix":
+        if t.topic == GNSS_FIX:
             continue
         pts = t.points
         if not pts:

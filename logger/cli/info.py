@@ -20,7 +20,7 @@ from pathlib import Path
 from mcap.records import Channel, MessageIndex
 from mcap.stream_reader import StreamReader
 
-from logger.mcap_files import McapFileError, is_finished, walk
+from logger.recording.files import McapFileError, is_finished, walk
 
 
 @dataclass

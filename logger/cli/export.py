@@ -3,7 +3,7 @@
 Takes the files of one drive (rotated files in any order, a last file cut short by a power failure) and the
 ``trajectory.mcap`` of ``logger replay``; exports the receiver's ``/gnss/fix``, the live ``/nav/fix`` the daemon
 recorded, and each replayed ``/nav/fix`` as tracks of their own. Only valid positions are written, and a
-track is split wherever fixes were missing or invalid (see :mod:`logger.tracks`).
+track is split wherever fixes were missing or invalid (see :mod:`logger.exports.tracks`).
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import re
 import sys
 from pathlib import Path
 
-from logger.drive_reader import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
-from logger.export_formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
-from logger.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
+from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
 
 FORMATS = ("gpx", "kml", "csv")
 

@@ -20,6 +20,21 @@ class TopicSpec:
     description: str
 
 
+# The topic names, for code that writes or picks records by topic (the record layer, the recorder's readers).
+IMU = "/imu"
+BARO = "/baro"
+OBD_SPEED = "/obd/speed"
+GNSS_FIX = "/gnss/fix"
+TIMEPULSE = "/gnss/timepulse"
+GNSS_RAW = "/gnss/raw"
+PPS = "/pps"
+SYNC = "/sync"
+HEALTH = "/health"
+TRUTH_CLOCK = "/truth/clock"
+TRUTH_NAV = "/truth/nav"
+NAV_FIX = "/nav/fix"
+NAV_STATE = "/nav/state"
+
 Field = tuple[str, str]  # (JSON type or "number[3]", description with unit)
 
 STAMP: dict[str, Field] = {
@@ -54,7 +69,7 @@ def _schema(title: str, fields: dict[str, Field], stamped: bool = True) -> dict[
             "required": [k for k, (kind, _) in allf.items() if not kind.endswith("?")]}
 
 
-LOCATION_FIX: dict[str, Field] = {
+LOCATION_FIX_FIELDS: dict[str, Field] = {
     "timestamp": ("object", "foxglove.LocationFix time: {sec, nsec} of the fix, Unix UTC"),
     "frame_id": ("string", "foxglove.LocationFix frame: 'gnss' antenna or 'nav' filter output"),
     "latitude": ("number", "latitude, deg, WGS-84"),
@@ -64,8 +79,8 @@ LOCATION_FIX: dict[str, Field] = {
     "position_covariance_type": ("integer", "0 unknown, 1 approximated, 2 diagonal known, 3 known"),
 }
 
-GNSS_FIX: dict[str, Field] = {
-    **LOCATION_FIX,
+GNSS_FIX_FIELDS: dict[str, Field] = {
+    **LOCATION_FIX_FIELDS,
     "gnss_time_ns": ("integer?", "the receiver's epoch time, Unix ns UTC, null while not valid"),
     "itow_ms": ("integer?", "GPS time of week of the epoch, ms (UBX receivers)"),
     "fix_mode": ("integer", "1 no fix, 2 2D, 3 3D (gpsd's convention)"),
@@ -87,14 +102,14 @@ def _add(topic: str, schema_name: str, fields: dict[str, Field], description: st
     TOPICS[topic] = TopicSpec(topic, schema_name, _schema(schema_name, fields, stamped), description)
 
 
-_add("/imu", "vehicle_logger.Imu", {
+_add(IMU, "vehicle_logger.Imu", {
     "accel_mps2": ("number[3]", "specific force along the chip's x, y, z axes, m/s^2"),
     "gyro_rps": ("number[3]", "angular rate about the chip's x, y, z axes, rad/s"),
     "temp_degc": ("number", "die temperature, degC"),
     "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
     "lost": ("integer", "samples lost to a FIFO overflow just before this one"),
 }, "MPU-6050 accelerometer and gyro, one message per sample")
-_add("/baro", "vehicle_logger.Baro", {
+_add(BARO, "vehicle_logger.Baro", {
     "pressure_pa": ("number", "compensated static pressure, Pa"),
     "temp_degc": ("number", "compensated temperature, degC"),
     "altitude_m": ("number", "pressure altitude by the paper's Eq. 4 against sea_level_pa, m"),
@@ -103,33 +118,33 @@ _add("/baro", "vehicle_logger.Baro", {
     "ut": ("integer", "raw temperature word, for re-processing"),
     "up": ("integer", "raw pressure word, for re-processing"),
 }, "BMP085/BMP180 pressure, temperature and pressure altitude")
-_add("/obd/speed", "vehicle_logger.ObdSpeed", {
+_add(OBD_SPEED, "vehicle_logger.ObdSpeed", {
     "speed_kmh": ("integer", "vehicle speed as the ECU reports it (OBD-II PID 0x0D), km/h, 1 km/h steps"),
     "speed_mps": ("number", "the same speed, m/s"),
     "ecu": ("string", "which ECU answered (CAN id such as 7E8, or '' when headers are off)"),
     "interface": ("string", "elm327 or can"),
 }, "OBD-II vehicle speed")
-_add("/gnss/fix", "foxglove.LocationFix", GNSS_FIX,
+_add(GNSS_FIX, "foxglove.LocationFix", GNSS_FIX_FIELDS,
      "u-blox navigation solution, one per epoch, read on the serial port or through gpsd")
-_add("/gnss/timepulse", "vehicle_logger.TimePulse", {
+_add(TIMEPULSE, "vehicle_logger.TimePulse", {
     "tow_ms": ("integer", "GPS time of week of the next PPS edge, ms"),
     "tow_sub_ms": ("number", "sub-millisecond part, ms"),
     "week": ("integer", "GPS week of the next edge"),
     "qerr_ps": ("integer", "quantisation error of the next edge, ps"),
     "time_base": ("string", "gnss or utc: the time scale the pulse is aligned to"),
 }, "UBX TIM-TP: the GNSS time of the next PPS edge")
-_add("/gnss/raw", "vehicle_logger.RawBytes", {
+_add(GNSS_RAW, "vehicle_logger.RawBytes", {
     "t_mono_ns": ("integer", "board monotonic time when these bytes were read, ns"),
     "data_b64": ("string", "the receiver's bytes exactly as read, base64 (UBX, NMEA, RTCM, garbage included)"),
     "n_bytes": ("integer", "number of bytes"),
 }, "the receiver's byte stream for post-processing (RTKLIB, gpsd tools)", stamped=False)
-_add("/pps", "vehicle_logger.PpsEdge", {
+_add(PPS, "vehicle_logger.PpsEdge", {
     "seqno": ("integer", "the line's edge sequence number from the kernel; from gpsd: edges recorded since start"),
     "lost": ("integer", "edges the kernel saw but were not read (sequence gap); from gpsd: seconds skipped"),
     "gnss_time_ns": ("integer?", "GNSS time of the edge when the source names it (gpsd: real time less qErr), "
                                  "Unix ns UTC; null from a GPIO line"),
 }, "PPS rising edges; t_mono_ns is the kernel's edge time stamp (from gpsd: its system-clock stamp, mapped)")
-_add("/sync", "vehicle_logger.Sync", {
+_add(SYNC, "vehicle_logger.Sync", {
     "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
     "state": ("string", "freerun, locked or holdover"),
     "offset_ns": ("integer?", "at the last PPS edge, published time minus the edge's GNSS time, ns"),
@@ -144,18 +159,18 @@ _add("/sync", "vehicle_logger.Sync", {
     "rejected": ("integer", "edges or time messages refused by the pairing checks (false, doubled, stale)"),
     "relocks": ("integer", "returns from holdover to locked"),
 }, "the clock's state once a second (what `chronyc tracking` shows)", stamped=False)
-_add("/health", "vehicle_logger.Health", {
+_add(HEALTH, "vehicle_logger.Health", {
     "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
     "verdict": ("string", "ok, degraded or critical"),
     "problems": ("array", "one line per problem"),
     "sensors": ("array", "per sensor: state, rates, errors, gaps, late, missed, reconnects, last_error"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
 }, "the daemon's health once a second", stamped=False)
-_add("/truth/clock", "vehicle_logger.TruthClock", {
+_add(TRUTH_CLOCK, "vehicle_logger.TruthClock", {
     "t_mono_ns": ("integer", "board monotonic time, ns"),
     "t_true_ns": ("integer", "true GNSS time at that instant, Unix ns UTC (simulation only)"),
 }, "simulation: pairs of board time and true time, 10 Hz", stamped=False)
-_add("/truth/nav", "vehicle_logger.TruthNav", {
+_add(TRUTH_NAV, "vehicle_logger.TruthNav", {
     "t_true_ns": ("integer", "true time, Unix ns UTC"),
     "lat_deg": ("number", "true latitude, deg"),
     "lon_deg": ("number", "true longitude, deg"),
@@ -163,17 +178,17 @@ _add("/truth/nav", "vehicle_logger.TruthNav", {
     "vel_ned_mps": ("number[3]", "true velocity north, east, down, m/s"),
     "rpy_deg": ("number[3]", "true roll, pitch, yaw, deg"),
 }, "simulation: the vehicle's true state at the IMU rate", stamped=False)
-_add("/nav/fix", "foxglove.LocationFix", {
+_add(NAV_FIX, "foxglove.LocationFix", {
     "t_mono_ns": ("integer", "board monotonic time of the IMU sample this solution is for, ns"),
     "t_sync_ns": ("integer", "synchronised time of that sample, Unix ns UTC (also the MCAP log_time)"),
-    **LOCATION_FIX,
+    **LOCATION_FIX_FIELDS,
     "vel_ned_mps": ("number[3]", "velocity north, east, down, m/s"),
     "rpy_deg": ("number[3]", "roll, pitch, yaw of the vehicle, deg"),
     "sigma_ned_m": ("number[3]", "1-sigma position uncertainty north, east, down, m"),
     "source": ("string", "what the solution rests on: 'ins 17-state', 'ins 15-state' or 'gnss'"),
     "mode": ("string", "filter mode: 17, 15 or gnss"),
 }, "navigation filter solution (live: at nav.publish_hz; logger replay: one per IMU sample)", stamped=False)
-_add("/nav/state", "vehicle_logger.NavState", {
+_add(NAV_STATE, "vehicle_logger.NavState", {
     "t_mono_ns": ("integer", "board monotonic time of the IMU sample this state is for, ns"),
     "t_sync_ns": ("integer", "synchronised time of that sample, Unix ns UTC"),
     "mode": ("string", "filter mode: 17, 15 or gnss"),

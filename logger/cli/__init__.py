@@ -17,15 +17,16 @@ import sys
 from collections.abc import Sequence
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "run": ("logger.run_cmd", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
-    "gnss-decode": ("logger.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
-    "status": ("logger.status", "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
-    "config": ("logger.config_cmd", "check a configuration file without starting: logger config check FILE"),
-    "info": ("logger.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
-    "replay": ("logger.replay_cmd", "run the navigation filter over recorded drives: trajectory CSV and MCAP"),
-    "recover": ("logger.recover_cmd", "make a file cut short by a crash readable and indexed again"),
-    "export": ("logger.export_cmd", "a drive's /gnss/fix and /nav/fix as GPX, KML and CSV"),
-    "plot": ("logger.plot_cmd", "PNG plots of a drive: map, sensor rates and gaps, clock sync state"),
+    "run": ("logger.cli.run", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
+    "gnss-decode": ("logger.cli.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
+    "status": ("logger.cli.status",
+               "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
+    "config": ("logger.cli.config_check", "check a configuration file without starting: logger config check FILE"),
+    "info": ("logger.cli.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
+    "replay": ("logger.cli.replay", "run the navigation filter over recorded drives: trajectory CSV and MCAP"),
+    "recover": ("logger.cli.recover", "make a file cut short by a crash readable and indexed again"),
+    "export": ("logger.cli.export", "a drive's /gnss/fix and /nav/fix as GPX, KML and CSV"),
+    "plot": ("logger.cli.plot", "PNG plots of a drive: map, sensor rates and gaps, clock sync state"),
 }
 
 
@@ -108,6 +109,3 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(entry[0])
     return int(module.main(args[1:]) or 0)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,19 +9,19 @@ and retries it with a growing back-off while every other thread goes on.
 from __future__ import annotations
 
 import logging
-import re
 import threading
 import time
+from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
-from logger.timebase import TimeBase
+from logger.runtime.journal import RateLimiter, problem_key
+from logger.runtime.timebase import TimeBase
 from sensors.errors import DeviceNotFound, NoData, SensorError
 
 log = logging.getLogger(__name__)
-_DIGITS = re.compile(r"\d+(?:\.\d+)?")
 
 
 @dataclass(slots=True)
@@ -34,30 +34,38 @@ class Reading:
     stamped: bool = True  # False for messages that carry no sensor time (e.g. raw receiver bytes)
 
 
-class Source(Protocol):
-    """A sensor as a sampler sees it: adapters in ``logger.sources`` wrap each driver."""
+class Source(ABC):
+    """A sensor as a sampler sees it: the adapters in :mod:`logger.runtime.sources` wrap each driver.
 
-    name: str
+    The whole contract is here, its optional parts with their defaults (as python-can's ``BusABC`` does), so a
+    sampler never probes a source for what it might have.
+    """
 
+    name: str = ""
+    origin: str = ""  # where the samples come from, for sensors with more than one kind of source ("gpsd ...")
+    sample_topic: str | None = None  # the topic whose records are this sensor's samples; None: every stamped one
+
+    @abstractmethod
     def open(self) -> None:
-        ...
+        """Open and set up the device; raises :class:`SensorError` (``DeviceNotFound`` when it is absent)."""
 
+    @abstractmethod
     def read(self) -> list[Reading]:
         """One sample (periodic sensors) or what arrived (event sensors, waiting at most a short while)."""
-        ...
 
+    @abstractmethod
     def close(self) -> None:
-        ...
-
-
-class ReportsIncidents(Protocol):
-    """A source whose device can misbehave without failing a read: an adapter that reset itself and was set up
-    again, bytes on a serial line that framed as nothing. ``incidents`` returns cumulative counts for the device
-    opened now, by what a person would call them ("ELM327 resets"); the sampler turns increases into journal
-    lines and a status problem, so the fault is seen while it lasts although every read succeeded."""
+        """Release the device; never raises for a device that is already gone."""
 
     def incidents(self) -> dict[str, int]:
-        ...
+        """Cumulative counts of what the device recovered from by itself, for the device opened now.
+
+        An adapter that reset itself and was set up again, bytes on a serial line that framed as nothing: the
+        device misbehaves without failing a read. Keys are what a person would call them ("ELM327 resets"); the
+        sampler turns increases into journal lines and a status problem, so the fault is seen while it lasts
+        although every read succeeded. Most devices have none.
+        """
+        return {}
 
 
 INCIDENT_SHOW_S = 30.0  # how long an incident stays among the status problems after it last grew
@@ -130,15 +138,14 @@ class Sampler(threading.Thread):
         self.rate_hz = rate_hz
         self.stop_event = stop
         expected_hz = expected_hz or rate_hz
-        self.health = SensorHealth(source.name, expected_hz, origin=str(getattr(source, "origin", "") or ""))
+        self.health = SensorHealth(source.name, expected_hz, origin=source.origin)
         # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
         self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
-        self._logged: dict[str, float] = {}
+        self._log_limiter = RateLimiter(1, self.LOG_REPEAT_S, max_keys=64)
         # Which readings are this sensor's samples for rates and gaps (a receiver also sends time pulses).
-        self._sample_topic: str | None = getattr(source, "sample_topic", None)
-        self._suppressed = 0
+        self._sample_topic = source.sample_topic
         self._incident_base: dict[str, int] | None = None  # counts of the device opened now, at its first read
-        self._incidents_of: Callable[[], dict[str, int]] | None = getattr(source, "incidents", None)
+        self._incidents_of = source.incidents
 
     # The thread body: open, sample until an error, back off, reopen.
     def run(self) -> None:
@@ -243,8 +250,6 @@ class Sampler(threading.Thread):
     def _check_incidents(self) -> None:
         """Count what the device recovered from by itself; the first read after an open sets the base, since
         a line opened mid-frame or an adapter's start-up is not a fault."""
-        if self._incidents_of is None:
-            return
         counts = self._incidents_of()
         base = self._incident_base
         self._incident_base = dict(counts)
@@ -271,17 +276,11 @@ class Sampler(threading.Thread):
 
     def _log(self, message: str) -> None:
         """Warn once per distinct message per ``LOG_REPEAT_S``: a flapping sensor must not flood the journal."""
-        now = time.monotonic()
-        key = _DIGITS.sub("#", message)  # "pressure 110129 Pa" and "pressure 110119 Pa" are one problem
-        last = self._logged.get(key)
-        if last is not None and now - last < self.LOG_REPEAT_S:
-            self._suppressed += 1
+        allowed, held = self._log_limiter.allow(problem_key(message), time.monotonic())
+        if not allowed:
             return
-        if len(self._logged) > 64:
-            self._logged.clear()
-        self._logged[key] = now
-        extra = f" ({self._suppressed} repeats not logged)" if self._suppressed else ""
-        self._suppressed = 0
+        self._log_limiter.prune()
+        extra = f" ({held} repeats not logged)" if held else ""
         log.warning("%s: %s%s", self.source.name, message, extra)
 
     def _close(self) -> None:

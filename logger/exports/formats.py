@@ -18,7 +18,8 @@ import datetime as dt
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
-from logger.tracks import Gap, Track, TrackPoint
+from logger.exports.tracks import Gap, Track, TrackPoint
+from logger.recording.topics import GNSS_FIX, NAV_FIX
 
 GPX_NS = "http://www.topografix.com/GPX/1/1"
 GPX_SCHEMA = "http://www.topografix.com/GPX/1/1/gpx.xsd"
@@ -26,8 +27,8 @@ KML_NS = "http://www.opengis.net/kml/2.2"
 HEIGHTS = ("ellipsoid", "msl")
 HEIGHT_TEXT = {"ellipsoid": "height above the WGS-84 ellipsoid, m",
                "msl": "height above mean sea level (the receiver's geoid), m"}
-TIME_TEXT = {"/gnss/fix": "the receiver's epoch time of the fix, UTC",
-             "/nav/fix": "the synchronised (GNSS) time of the filter's IMU sample, UTC"}
+TIME_TEXT = {GNSS_FIX: "the receiver's epoch time of the fix, UTC",
+             NAV_FIX: "the synchronised (GNSS) time of the filter's IMU sample, UTC"}
 # KML colours are aabbggrr
 KML_COLOURS = ("ff1f77b4", "ff0e7fff", "ff2ca02c", "ff2827d6", "ffbd6794")
 CSV_COLUMNS = ("time_utc", "t_unix_ns", "segment", "lat_deg", "lon_deg", "height_ellipsoid_m", "height_msl_m",
@@ -91,7 +92,7 @@ def write_gpx(path: Path, tracks: list[Track], which: str, title: str) -> None:
             for seg in t.segments:
                 f.write("<trkseg>\n")
                 for p in seg:
-                    f.write(_gpx_point(p, which, t.topic == "/gnss/fix"))
+                    f.write(_gpx_point(p, which, t.topic == GNSS_FIX))
                     f.write("\n")
                 f.write("</trkseg>\n")
             f.write("</trk>\n")

@@ -21,57 +21,14 @@ from typing import Any
 from logger.nav.engine import NavEngine
 from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
-from logger.nav.state import N_FULL, STATE_NAMES
-from logger.sampler import Reading
+from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
+from logger.recording.topics import IMU, NAV_FIX, NAV_STATE
+from logger.runtime.sampler import Reading
 
 log = logging.getLogger(__name__)
 
-INPUT_TOPICS = frozenset(("/imu", "/gnss/fix", "/obd/speed", "/baro", "/pps"))
+INPUT_TOPICS = frozenset(NAV_INPUT_TOPICS)
 WAKE_S = 0.5  # the filter runs in batches: a wake-up per sample would cost more than the filter
-
-
-def fix_message(t_ns: int, t_mono_ns: int, lat: float, lon: float, h: float, vel: tuple[float, float, float],
-                rpy: tuple[float, float, float], sigma: tuple[float, float, float], source: str,
-                mode: str) -> dict[str, Any]:
-    """A ``/nav/fix`` record: foxglove.LocationFix (ENU covariance) plus velocity, attitude and sigmas."""
-    sn, se, sd = (s if math.isfinite(s) else 1e6 for s in sigma)
-    return {
-        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns),
-        "timestamp": {"sec": int(t_ns) // 1_000_000_000, "nsec": int(t_ns) % 1_000_000_000},
-        "frame_id": "nav", "latitude": math.degrees(lat), "longitude": math.degrees(lon), "altitude": h,
-        "position_covariance": [se * se, 0.0, 0.0, 0.0, sn * sn, 0.0, 0.0, 0.0, sd * sd],
-        "position_covariance_type": 2,
-        "vel_ned_mps": [float(v) for v in vel], "rpy_deg": [math.degrees(a) for a in rpy],
-        "sigma_ned_m": [sn, se, sd], "source": source, "mode": mode,
-    }
-
-
-def state_message(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: list[str] | None = None,
-                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
-    """A ``/nav/state`` record: what the filter believes about the sensors, and how its updates fare."""
-    s, ekf = engine.state, engine.ekf
-    c = engine.counters
-    msg: dict[str, Any] = {
-        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns), "mode": engine.mode,
-        "status": "navigating" if s is not None else ("gnss only" if engine.mode == "gnss" else "initialising"),
-        "accel_bias_mps2": [float(b) for b in s.ba] if s else None,
-        "gyro_bias_rps": [float(b) for b in s.bg] if s else None,
-        "obd_scale": 1.0 + s.sf if s and engine.n == N_FULL else None,
-        "height_offset_m": s.dh if s and engine.n == N_FULL else None,
-        "p_diag": [float(v) for v in ekf.p.diagonal()] if ekf else None,
-        "state_names": list(STATE_NAMES[: engine.n]),
-        "innovations": {k: v.last_innovation for k, v in ekf.stats.items()} if ekf else {},
-        "nis": {k: v.last_nis for k, v in ekf.stats.items()} if ekf else {},
-        "updates": {k: v.accepted for k, v in ekf.stats.items()} if ekf else {},
-        "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
-        "resets": c.resets, "reanchors": c.reanchors, "reopens": c.reopens, "repairs": ekf.repairs if ekf else 0,
-        "stopped": engine.stopped,
-        "gnss_time": engine.epoch_clock.method,
-        "verdicts": verdicts or [],
-    }
-    if extra:
-        msg.update(extra)
-    return msg
 
 
 class Navigator:
@@ -81,6 +38,7 @@ class Navigator:
                  monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
         self.params = params
         self.engine = NavEngine(params)
+        self._feed = nav_feeder(self.engine)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
         self.judge = HealthJudge()
@@ -142,9 +100,10 @@ class Navigator:
             batch = [q.popleft() for _ in range(len(q))]  # only this thread takes: len(q) are there
             try:
                 with self._lock:
+                    feed = self._feed
                     for topic, payload in batch:
-                        self.engine.feed(topic, payload)
-                        if topic == "/imu":
+                        feed[topic](payload)
+                        if topic == IMU:
                             self._maybe_publish()
                     self.processed += len(batch)
             except Exception as exc:  # a bug in the filter must not take the logger down: report, restart it
@@ -152,10 +111,11 @@ class Navigator:
                 self.error = f"{type(exc).__name__}: {exc}"
                 with self._lock:
                     self.engine = NavEngine(self.params)
+                    self._feed = nav_feeder(self.engine)
             self.cpu_s = time.thread_time() - cpu0
 
     def _maybe_publish(self) -> None:
-        t_last = self.engine._t_last
+        t_last = self.engine.t_last_ns
         if self.publish is None or t_last is None or (t_last < self._next_fix_ns and t_last < self._next_state_ns):
             return
         sol = self.engine.current()
@@ -164,15 +124,15 @@ class Navigator:
         t = sol.t_ns
         if t >= self._next_fix_ns:
             self._next_fix_ns = t + int(1e9 / max(self.params.publish_hz, 0.1))
-            msg = fix_message(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
+            msg = nav_fix_record(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
                               sol.sigma_ned, sol.source, self.engine.mode)
-            self.publish(Reading("/nav/fix", msg, sol.t_mono_ns, stamped=False))
+            self.publish(Reading(NAV_FIX, msg, sol.t_mono_ns, stamped=False))
         if t >= self._next_state_ns:
             self._next_state_ns = t + 1_000_000_000
             self._verdicts = self.judge.verdicts(self.engine, t / 1e9)
-            msg = state_message(self.engine, t, sol.t_mono_ns, self._verdicts,
+            msg = nav_state_record(self.engine, t, sol.t_mono_ns, self._verdicts,
                                 {"dropped": self.dropped, "cpu_s": round(self.cpu_s, 4)})
-            self.publish(Reading("/nav/state", msg, sol.t_mono_ns, stamped=False))
+            self.publish(Reading(NAV_STATE, msg, sol.t_mono_ns, stamped=False))
 
     # ---- status -------------------------------------------------------------------------------------------
     def section(self) -> dict[str, Any]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from logger.mcap_files import McapFileError, is_finished, recover
+from logger.recording.files import McapFileError, is_finished, recover
 
 
 def main(argv: list[str]) -> int:

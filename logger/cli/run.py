@@ -1,0 +1,109 @@
+"""``logger run``: the daemon in the foreground, on hardware, on the simulated vehicle, or on a mix.
+
+``--sim`` needs no file: every sensor is simulated and files go to ./drives. With a configuration, each sensor
+whose ``source`` is ``"sim"`` is simulated and the others are opened as hardware; a time scale other than 1
+is refused then, because real devices cannot run faster than real time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from logger.compose import build, simulated_sections
+from logger.config import (
+    DEFAULT_PATH,
+    DEFAULT_SIM_OUT,
+    DEFAULT_SIM_SOCKET,
+    SCHEMA,
+    SIM_SECTIONS,
+    Config,
+    ConfigError,
+    defaults,
+    load,
+)
+from logger.runtime import logs
+
+log = logging.getLogger("logger")
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="logger run", description="run the logging daemon in the foreground")
+    p.add_argument("--config", help=f"configuration file (default {DEFAULT_PATH}; none needed with --sim)")
+    p.add_argument("--sim", action="store_true", help="simulate every sensor (the vehicle, its drive and devices)")
+    p.add_argument("--scenario", help="simulated drive: urban (default), outage-60s, tunnel-130s")
+    p.add_argument("--seed", type=int, help="seed of the simulated drive and its sensor errors")
+    p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this many seconds of drive")
+    p.add_argument("--time-scale", type=float, metavar="X", help="run a simulated drive X times faster")
+    p.add_argument("--out", metavar="DIR", help="folder for the MCAP files (overrides logger.out_dir)")
+    p.add_argument("--status-socket", metavar="PATH", help="status socket (overrides logger.status_socket)")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p.parse_args(argv)
+
+
+def resolve_config(args: argparse.Namespace) -> Config:
+    if args.config:
+        cfg = load(args.config)
+        if args.sim:
+            for s in SIM_SECTIONS:
+                if cfg.values[s]["source"] == "gpsd":
+                    cfg.values["sim"]["gpsd"] = True  # keep reading gpsd: a simulated one, fed by the simulation
+                else:
+                    cfg.values[s]["source"] = "sim"
+    elif args.sim:
+        cfg = defaults(sim=True)
+        cfg.values["logger"]["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
+        cfg.values["logger"]["status_socket"] = DEFAULT_SIM_SOCKET
+        cfg.values["logger"]["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
+    else:
+        cfg = load(DEFAULT_PATH)
+    sim = cfg.values["sim"]
+    if args.scenario is not None:
+        sim["scenario"] = args.scenario
+    if args.seed is not None:
+        sim["seed"] = args.seed
+    if args.time_scale is not None:
+        problem = SCHEMA["sim"]["time_scale"].check(args.time_scale)  # type: ignore[misc]
+        if problem:
+            raise ConfigError([f"--time-scale {args.time_scale:g} {problem}"])
+        sim["time_scale"] = float(args.time_scale)
+    if args.out:
+        cfg.values["logger"]["out_dir"] = str(Path(args.out).resolve())
+        if args.sim and not args.config:
+            cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
+    if args.status_socket:
+        cfg.values["logger"]["status_socket"] = args.status_socket
+    simulated = simulated_sections(cfg)
+    real = [s for s in SIM_SECTIONS if not simulated[s] and cfg[s]["source"] != "none"]
+    if real and sim["time_scale"] != 1.0:
+        raise ConfigError([f"sim.time_scale = {sim['time_scale']:g} needs every sensor simulated; real: "
+                           + ", ".join(real)])
+    return cfg
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    logs.setup(args.verbose)
+    try:
+        cfg = resolve_config(args)
+    except ConfigError as exc:
+        for line in exc.problems:
+            print(f"logger: {line}", file=sys.stderr)
+        return 2
+    if args.duration is not None and args.duration <= 0:
+        print("logger: --duration must be positive", file=sys.stderr)
+        return 2
+    try:
+        daemon, _vehicle = build(cfg, args.duration)
+    except ConfigError as exc:
+        for line in exc.problems:
+            print(f"logger: {line}", file=sys.stderr)
+        return 2
+    try:
+        return daemon.run(args.duration)
+    except OSError as exc:  # the output folder or the socket cannot be created: say which, no traceback
+        print(f"logger: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        daemon.stop()
+        return 1

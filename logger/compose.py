@@ -1,0 +1,174 @@
+"""The composition root: a configuration in, a daemon with its sensors, clock, navigator and simulation out.
+
+Everything that turns the ``[imu]``, ``[gnss]``, ``[sync]``, ``[nav]``... sections into objects lives here, so the
+runtime modules (:mod:`logger.runtime`) take ready-made parts and never read the configuration's sensor sections
+themselves, and ``logger run``, the evaluation tools and the tests build a daemon in exactly one way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from logger.config import SIM_SECTIONS, Config, ConfigError
+from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
+from logger.runtime.daemon import Daemon, Extras
+from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
+from logger.runtime.navigator import attach_navigator
+from logger.runtime.sampler import Reading
+from logger.runtime.sources import BaroSource, GnssSource, ImuSource, ObdSource, Plan, PpsSource
+from logger.runtime.timebase import TimeBase, host_timebase
+from sensors.elm327 import Elm327
+from sensors.errors import DeviceNotFound
+from sync.chrony_sock import ChronySock
+from sync.clock import PpsClock
+from sync.settings import SyncSettings
+from sync.wallclock import boot_id, system_clock_synchronized
+
+if TYPE_CHECKING:  # the simulated vehicle is imported only when a sensor is simulated
+    from sensors.sim.vehicle import VehicleDevices
+
+
+def simulated_sections(cfg: Config) -> dict[str, bool]:
+    """Which sensors the simulated vehicle plays: those with source 'sim', and 'gpsd' ones when sim.gpsd says
+    that gpsd is simulated too."""
+    return {s: cfg[s]["source"] == "sim" or (cfg[s]["source"] == "gpsd" and bool(cfg["sim"]["gpsd"]))
+            for s in SIM_SECTIONS}
+
+
+def build(cfg: Config, duration_s: float | None,
+          scenario_options: dict[str, Any] | None = None) -> tuple[Daemon, Any]:
+    """The daemon and, when any sensor is simulated, the vehicle behind it (already started).
+
+    ``scenario_options`` reach the simulated drive (e.g. ``tunnel_s`` of tunnel-130s): for evaluation tools."""
+    simulated = simulated_sections(cfg)
+    sim_gpsd = bool(cfg["sim"]["gpsd"]) and "gpsd" in (cfg["gnss"]["source"], cfg["pps"]["source"])
+    vehicle = None
+    tb: TimeBase = host_timebase()
+    extras = Extras()
+    if any(simulated.values()):
+        from sensors.sim.scenarios import SCENARIOS
+        from sensors.sim.vehicle import build_vehicle
+
+        sim = cfg["sim"]
+        if sim["scenario"] not in SCENARIOS:
+            raise ConfigError([f"unknown scenario {sim['scenario']!r}: choose one of {', '.join(SCENARIOS)}"])
+        vehicle = build_vehicle(sim["scenario"], sim["seed"], time_scale=sim["time_scale"], duration_s=duration_s,
+                                scenario_options=scenario_options,
+                                imu=simulated["imu"], baro=simulated["baro"], obd=simulated["obd"],
+                                gnss=cfg["gnss"]["source"] == "sim", pps=cfg["pps"]["source"] == "sim",
+                                gpsd=sim_gpsd)
+        vehicle.start()
+        tb = TimeBase(vehicle.clock.monotonic_ns, vehicle.time_scale)
+        extras.close.append(vehicle.stop)
+        extras.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
+                                         "time_scale": f"{vehicle.time_scale:g}",
+                                         "start_utc": vehicle.timeline.start_utc.isoformat()}
+        if vehicle.imu is not None and "imu_error_scale" in (scenario_options or {}):
+            # A drive made with a chip other than the default says so: its IMU errors are part of what it tests.
+            extras.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
+
+        def truth_clock() -> list[Reading]:
+            now = tb.monotonic_ns()
+            return [Reading(TRUTH_CLOCK, {"t_mono_ns": now, "t_true_ns": vehicle.true_unix_ns(now)}, now,
+                            stamped=False)]
+
+        def truth_nav() -> list[Reading]:
+            now = tb.monotonic_ns()
+            return [Reading(TRUTH_NAV, vehicle.truth_nav(now), now, stamped=False)]
+
+        extras.periodic.append((0.1, truth_clock))
+        extras.periodic.append((1.0 / cfg["imu"]["rate_hz"], truth_nav))
+    extras.metadata["config"] = {f"{s}.{k}": str(v) for s, keys in cfg.values.items() for k, v in keys.items()}
+    if vehicle is not None and simulated["gnss"]:
+        # The simulated board's system clock is NTP-synchronised (to 20 ms): a check of the clock's first lock.
+        clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}",
+                           wall_ns=vehicle.wall_clock_ns, wall_trusted=True)
+    else:
+        clock = make_clock(cfg, tb, clock_id(), wall_trusted=system_clock_synchronized())
+    extras.close.append(clock.save)
+    plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
+    mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
+        "partly simulated" if vehicle else "")
+    navigator = attach_navigator(cfg["nav"], extras)
+    daemon = Daemon(cfg, plans, timebase=tb, clock=clock, extras=extras, mode=mode)
+    if navigator is not None:
+        navigator.bind(daemon)
+    return daemon, vehicle
+
+
+def clock_id() -> str:
+    """Identifies this boot for the clock's saved state: a mapping saved under the same id is still valid."""
+    boot = boot_id()
+    return f"boot-{boot}" if boot else ""
+
+
+def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], int] = time.time_ns,
+               wall_trusted: bool = False) -> PpsClock:
+    """The PPS clock of ``[sync]``: its settings come from :meth:`SyncSettings.from_config`, which alone maps the
+    keys to fields; what the settings do not hold (state file, chrony socket) is wired here."""
+    sc = cfg["sync"]
+    settings = SyncSettings.from_config(sc, imu_rate_hz=cfg["imu"]["rate_hz"])
+    clock = PpsClock(settings, monotonic_ns=tb.monotonic_ns, wall_ns=wall_ns,
+                     state_path=Path(cfg["logger"]["state_dir"]) / "clock.json", clock_id=clock_id,
+                     wall_trusted=wall_trusted)
+    if sc["chrony_sock"]:
+        clock.on_sample = ChronySock(sc["chrony_sock"]).send_edge
+    return clock
+
+
+def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None = None) -> list[Plan]:
+    """One plan per configured sensor; ``devices`` (a simulated vehicle's) replaces paths of 'sim' sources."""
+    plans: list[Plan] = []
+    imu, baro, obd, gnss, pps = (cfg[s] for s in ("imu", "baro", "obd", "gnss", "pps"))
+
+    def bus_of(section: dict[str, Any]) -> str | int:
+        return devices.i2c_path if section["source"] == "sim" else section["bus"]
+
+    imu_addr = devices.imu_address if imu["source"] == "sim" else imu["address"]
+    src = ImuSource(bus_of(imu), imu_addr, imu["rate_hz"], imu["accel_range_g"], imu["gyro_range_dps"], tb)
+    plans.append(Plan(src, src.poll_hz, imu["rate_hz"]))
+    baro_addr = devices.baro_address if baro["source"] == "sim" else baro["address"]
+    plans.append(Plan(BaroSource(bus_of(baro), baro_addr, baro["oversampling"], baro["sea_level_pa"],
+                                 baro["variant"], tb), baro["rate_hz"], baro["rate_hz"]))
+    if obd["source"] == "can":
+        def make_can() -> Any:
+            import can
+
+            from sensors.obd_can import ObdCan
+
+            try:
+                bus = can.Bus(interface="socketcan", channel=obd["channel"])
+            except (OSError, can.CanError) as exc:
+                raise DeviceNotFound(f"CAN interface {obd['channel']}: {exc}") from None
+            return ObdCan(bus, extended_id=obd["extended_id"])
+
+        plans.append(Plan(ObdSource(make_can, "can", tb), obd["rate_hz"], obd["rate_hz"]))
+    else:
+        port = devices.elm327_path if obd["source"] == "sim" else obd["port"]
+        plans.append(Plan(ObdSource(lambda: Elm327(port, baudrate=obd["baud"], protocol=obd["protocol"],
+                                                   headers=obd["headers"]), "elm327", tb),
+                          obd["rate_hz"], obd["rate_hz"]))
+    # gpsd: the one at gnss.gpsd_host, or the simulated vehicle's when sim.gpsd asks for it.
+    sim_gpsd = bool(cfg["sim"]["gpsd"]) and devices is not None and devices.gpsd_port is not None
+    gpsd_at = (devices.gpsd_host, devices.gpsd_port) if sim_gpsd else (gnss["gpsd_host"], gnss["gpsd_port"])
+    if gnss["source"] == "gpsd":
+        plans.append(Plan(GpsdSource(*gpsd_at, gnss["gpsd_device"], tb), None, 1.0))
+    else:
+        g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
+        g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
+        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb), None, 1.0))
+    if pps["source"] == "gpsd":
+        realtime = devices.realtime_ns if sim_gpsd else time.time_ns  # the clock gpsd stamps edges with
+        # Any device's PPS: a /dev/ppsN given to gpsd beside the receiver reports as a device of its own.
+        plans.append(Plan(GpsdPpsSource(*gpsd_at, None, tb, realtime), None, 1.0))
+    elif pps["source"] != "none":
+        chip = devices.gpio_chip if pps["source"] == "sim" else pps["chip"]
+        line = devices.pps_line if pps["source"] == "sim" else pps["line"]
+        plans.append(Plan(PpsSource(chip, line), None, 1.0))
+    return plans
+

@@ -1,0 +1,32 @@
+"""What the filter takes, as typed inputs: the engine never sees a topic or a record's keys.
+
+IMU samples, vehicle speeds, barometric heights and PPS edges are plain arguments of the engine's methods (they
+come at up to 1 kHz, and a float is their whole content); a GNSS fix has many optional parts and comes as one
+:class:`GnssObservation`. The record layer (:mod:`logger.recording.records`) builds them from recorded or live
+records, so the filter knows no file format, as KF-GINS' engine knows its ``IMU`` and ``GNSS`` structs only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class GnssObservation:
+    """One navigation solution of the receiver, with what it leaves out left as None."""
+
+    t_sync_ns: int  # when the solution was read, on the logger's synchronised clock (arrival, not epoch)
+    t_mono_ns: int  # the same instant on the board's monotonic clock
+    gnss_time_ns: int | None  # the receiver's epoch, Unix ns UTC; None while its time is not valid
+    sync_state: str  # the clock's state at t_sync_ns (sync.stamp's FREERUN, LOCKED, HOLDOVER)
+    fix_ok: bool  # the receiver flags the fix as valid
+    fix_mode: int | None  # 1 no fix, 2 2D, 3 3D
+    lat_deg: float
+    lon_deg: float
+    height_m: float  # above the WGS-84 ellipsoid
+    vel_ned_mps: tuple[float | None, float | None, float | None] | None  # an element is None when not given
+    h_acc_m: float | None  # the receiver's accuracy estimates, 1 sigma
+    v_acc_m: float | None
+    s_acc_mps: float | None
+    pdop: float | None
+    num_sv: int | None

@@ -1,0 +1,263 @@
+"""The measurement policies: how much each sensor's reading is worth, and when it goes in at all.
+
+One class per source of updates, each with the little state its policy needs, acting on the filter through
+:class:`logger.nav.core.FilterCore` and the evidence rules it is given:
+
+- :class:`GnssPolicy`: a fix's noise from the receiver's accuracy (or its DOP), correlated over the multipath
+  time; fixes with too few satellites left out; rows far worse than what the filter knows left out; position and
+  velocity updates, with the position and velocity evidence;
+- :class:`ObdPolicy`: the 1 km/h steps of PID 0x0D (repeats of one value weigh less and less) and the
+  non-holonomic rows that go with the speed;
+- :class:`StopPolicy`: zero velocity and zero rate at a stop (Eq. 12), over the stop so far;
+- :class:`BaroPolicy`: barometric heights, with the height evidence, and the non-holonomic constraint when no
+  fresh speed comes from the vehicle.
+
+:class:`Latest` is what the sensors said last, which more than one policy (and the start-up) goes by.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from logger.nav.core import EngineCounters, FilterCore, PreparedFix
+from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
+from logger.nav.gnss_noise import CorrelatedGnssNoise
+from logger.nav.gnss_time import GnssEpochClock
+from logger.nav.inputs import GnssObservation
+from logger.nav.measurements import (
+    BaroHeight,
+    GnssPosition,
+    GnssVelocity,
+    NonHolonomic,
+    ObdVelocity,
+    Observation,
+    ZeroMotion,
+    repeat_variance,
+)
+from logger.nav.params import NavParams
+from logger.nav.state import P_ID, V_ID
+from logger.nav.stops import StopDetector
+
+NS = 1_000_000_000
+OBD_FRESH_NS = int(1.2 * NS)
+OBD_MIN_SPEED_MPS = 0.5  # below this the 1 km/h steps of PID 0x0D say little
+OBD_STEP_MPS = 1.0 / 3.6  # PID 0x0D's resolution, whatever the interface
+OBD_ROUNDING_HOLD_NS = 10 * NS  # how long one rounding error is taken to last: a speed leaves its step by then
+NHC_MIN_SPEED_MPS = 1.0
+NHC_INTERVAL_NS = NS // 2
+UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
+
+
+@dataclass
+class Latest:
+    """What the sensors said last."""
+
+    fix: PreparedFix | None = None
+    obd: tuple[int, float] | None = None  # (t_ns, speed) of the last OBD reading
+    baro: tuple[int, float] | None = None  # (t_ns, altitude) of the last barometer reading
+    nhc_ns: int = 0  # the last non-holonomic update
+    pos_ok: tuple[int, float] = (0, math.inf)  # time and accuracy of the last fix whose position went in
+    good_fix_ns: int = 0  # epoch of the last 3D fix from a receiver sure of itself, whether it went in
+    height_in_ns: int = 0  # ... and of the last one whose height went in
+
+    def obd_fresh(self, t_ns: int) -> bool:
+        return self.obd is not None and t_ns - self.obd[0] <= OBD_FRESH_NS
+
+
+class GnssPolicy:
+    """Receiver fixes: their noise, which of their rows go in, and what refusals of good ones say."""
+
+    def __init__(self, params: NavParams, epoch_clock: GnssEpochClock, latest: Latest,
+                 position: PositionEvidence, velocity: VelocityEvidence, height: HeightEvidence) -> None:
+        self.params = params
+        self.epoch_clock = epoch_clock
+        self.latest = latest
+        self.position, self.velocity, self.height = position, velocity, height
+        self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s)
+
+    def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
+        """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
+        if not msg.fix_ok or (msg.fix_mode or 1) < 2:
+            counters.gnss_no_fix += 1
+            return None
+        counters.gnss_fixes += 1
+        p = self.params
+        t_sync = msg.t_sync_ns
+        t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state)
+        h_acc, v_acc = msg.h_acc_m, msg.v_acc_m
+        if h_acc is None or v_acc is None:
+            pdop = msg.pdop or 99.0
+            h_acc = p.gnss_uere_m * pdop * 0.6 * math.sqrt(2.0)
+            v_acc = p.gnss_uere_m * pdop * 0.8
+        k = p.gnss_acc_scale
+        s_acc = msg.s_acc_mps
+        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, float(h_acc), float(v_acc),
+                                                 float(s_acc) if s_acc is not None else 0.5)
+        sig_h, sig_v, s_vel = max(0.1, k * sig_h), max(0.2, k * sig_v), max(0.03, k * s_vel)
+        vel = msg.vel_ned_mps
+        vel_arr = None if vel is None or any(v is None for v in vel) else np.array(vel, float)
+        fix_3d = (msg.fix_mode or 0) >= 3
+        return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
+                           math.radians(msg.lon_deg), msg.height_m, vel_arr, (sig_h, sig_h, sig_v), s_vel,
+                           fix_3d, float(h_acc))
+
+    def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray) -> str:
+        """Position and velocity updates of a running filter; returns what the position evidence said ("",
+        "reanchor" or "reset": the caller restarts the filter from the fix)."""
+        p = self.params
+        if num_sv is not None and num_sv < p.gnss_min_sv:
+            # Four or five satellites leave the receiver nothing to check its solution against: a reflection
+            # shifts the fix by tens of metres while its accuracy figure stays small. Counted, not used.
+            core.counters.gnss_few_sv += 1
+            return ""
+        # Rows of a fix far worse than what the filter already knows would move it by a few percent per epoch,
+        # and a receiver's errors in a street canyon persist for many epochs: those percents add up to its
+        # bias, not to information. Such rows are left out (counted); the others go in.
+        t_e = fix.t_ns
+        snap = core.state_at(t_e)
+        full_pos = GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, core.lever, not fix.fix_3d).observe(
+            snap, snap.dcm(), core.n)
+        obs = self._informative(core, full_pos, P_ID)
+        ok = True if obs is None else core.apply(obs)
+        latest = self.latest
+        if obs is not None and ok:
+            latest.pos_ok = (t_e, fix.h_acc)
+            if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < 10.0:
+                latest.height_in_ns = t_e
+        if fix.vel is not None:
+            snap = core.state_at(t_e)
+            full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw, not fix.fix_3d).observe(
+                snap, snap.dcm(), core.n)
+            obs = self._informative(core, full, V_ID)
+            if obs is not None:
+                self.velocity.judge(core, obs, core.apply(obs), t_e,
+                                    fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < 10.0)
+        if fix.h_acc < GOOD_FIX_H_ACC_M and fix.fix_3d:  # a 2D fix has no height of its own to settle anything
+            latest.good_fix_ns = fix.t_ns
+        sigma_max = max(core.sigma)
+        verdict = self.position.judge(core, ok, fix, full_pos.z.tolist(), latest.pos_ok, sigma_max)
+        if verdict == "reanchor":
+            self.height.run.clear()  # judged against the height just widened
+        return verdict
+
+    def _informative(self, core: FilterCore, obs: Observation, block: int) -> Observation | None:
+        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO."""
+        assert core.ekf is not None
+        p = core.ekf.p
+        keep = [i for i in range(min(2, len(obs.z)))
+                if obs.r[i] <= UNINFORMATIVE_RATIO * float(p[block + i, block + i])]
+        # The height row stays while the fix is any good horizontally: the barometer's offset is learnt from the
+        # GNSS height over minutes. A fix useless horizontally is a canyon's, and its height goes with it.
+        if len(obs.z) > 2 and keep:
+            keep.append(2)
+        if len(keep) < len(obs.z):
+            core.counters.gnss_skipped += len(obs.z) - len(keep)
+            if not keep:
+                return None
+            obs = Observation(obs.name, obs.z[keep], obs.h[keep], obs.r[keep])
+        return obs
+
+
+class StopPolicy:
+    """Zero velocity and zero rate while the vehicle stands, over the stop so far."""
+
+    def __init__(self, params: NavParams, stops: StopDetector, velocity: VelocityEvidence) -> None:
+        self.params = params
+        self.stops = stops
+        self.velocity = velocity
+        self.stopped = False
+        self.w_sum = [0.0, 0.0, 0.0, 0]  # gyro sum and count since the last zero-motion update (the IMU loop adds)
+        self._t0 = 0
+
+    def update(self, core: FilterCore, stopped_now: bool, t_last_ns: int, learn: bool = False) -> bool:
+        """Zero velocity and zero rate (Eq. 12) over the stop so far; returns whether the vehicle stands.
+
+        ``learn``: the OBD confirms the stop, so the stop detector may adapt its threshold and the updates count
+        as trusted evidence."""
+        assert core.state is not None
+        p, s = self.params, core.state
+        was = self.stopped
+        self.stopped = stopped_now
+        ws = self.w_sum
+        if stopped_now:
+            if learn:
+                self.stops.learn()
+            span_s = (t_last_ns - self._t0) / NS
+            if was and ws[3] > 0 and span_s > 0.0:
+                w_mean = np.array((ws[0] / ws[3], ws[1] / ws[3], ws[2] / ws[3]))
+                # The mean over the window: the gyro's white noise averages down with its length.
+                sigma_w = max(math.radians(p.zaru_sigma_dps), p.gyro_arw) / math.sqrt(span_s)
+                obs = ZeroMotion(w_mean, p.zupt_sigma_mps, sigma_w).observe(s, s.dcm(), core.n)
+                self.velocity.judge(core, obs, core.apply(obs), t_last_ns, learn)
+                core.counters.zupt += 1
+        self.w_sum = [0.0, 0.0, 0.0, 0]
+        self._t0 = t_last_ns
+        return stopped_now
+
+
+class ObdPolicy:
+    """The vehicle's speed sensor: a velocity along the vehicle's axis, in 1 km/h steps."""
+
+    def __init__(self, params: NavParams, latest: Latest, stop: StopPolicy, velocity: VelocityEvidence) -> None:
+        self.params = params
+        self.latest = latest
+        self.stop = stop
+        self.velocity = velocity
+        self._run = 0  # readings in a row with the same value (within OBD_ROUNDING_HOLD_NS of the first)
+        self._run_t0 = 0
+        self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
+
+    def note(self, t_ns: int, speed_mps: float) -> None:
+        """Every reading, before the filter runs too: the rounding run and the latest speed."""
+        last = self.latest.obd
+        if last is None or last[1] != speed_mps:
+            self._run, self._run_t0 = 1, t_ns
+        elif t_ns - self._run_t0 <= OBD_ROUNDING_HOLD_NS:
+            self._run += 1
+        self.latest.obd = (t_ns, speed_mps)
+
+    def update(self, core: FilterCore, t_ns: int, speed_mps: float, t_last_ns: int) -> None:
+        p = self.params
+        if self.stop.update(core, speed_mps == 0.0 and self.stop.stops.still, t_last_ns, learn=True):
+            return
+        if speed_mps < OBD_MIN_SPEED_MPS:
+            return
+        # The speed the ECU reported belongs to its own instant: evaluated against the solution then.
+        # At a steady speed the reading stays on one 1 km/h step and its rounding error stays the same: the
+        # repeats say little new about it, so they weigh less and less (a run of equal readings is not many
+        # independent ones: 40 of them would otherwise pull the solution to the rounded speed). A real speed
+        # does not stay within one step for long, and the IMU drifts meanwhile: past OBD_ROUNDING_HOLD_NS the
+        # repeats keep the weight they had then, and hold the speed again.
+        sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._run))
+        snap = core.state_at(t_ns)
+        obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, snap.dcm(), core.n)
+        if self.velocity.judge(core, obs, core.apply(obs), t_ns, True, snap.dcm()):
+            self.latest.nhc_ns = t_ns
+            if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
+                self.mount_yaw_stat[0] += float(obs.z[1]) / speed_mps
+                self.mount_yaw_stat[1] += 1.0
+
+
+class BaroPolicy:
+    """Barometric heights (with the barometer's offset in the 17-state filter)."""
+
+    def __init__(self, params: NavParams, latest: Latest, stop: StopPolicy, height: HeightEvidence) -> None:
+        self.params = params
+        self.latest = latest
+        self.stop = stop
+        self.height = height
+
+    def update(self, core: FilterCore, t_ns: int, altitude_m: float) -> None:
+        s = core.state
+        assert s is not None
+        latest = self.latest
+        self.height.judge(core, BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), core.n), t_ns,
+                          latest.height_in_ns, latest.good_fix_ns)
+        # No fresh OBD speed: the vehicle still cannot slide sideways or lift off.
+        if (self.stop.stopped is False and latest.obd is not None and t_ns - latest.obd[0] > OBD_FRESH_NS
+                and t_ns - latest.nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
+                and core.apply(NonHolonomic(self.params.nhc_sigma_mps).observe(s, s.dcm(), core.n))):
+            latest.nhc_ns = t_ns

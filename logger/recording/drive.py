@@ -1,0 +1,242 @@
+"""The one drive reader: a drive's messages for post-processing, over several files, finished or cut short.
+
+A drive is rotated into several files, and its last file may be unfinished (power cut, ``kill -9``). A finished
+file is read by walking its records with ``struct`` and keeping only the wanted channels: the ``mcap`` package's
+reader handles every corner of the format but costs some 15 us per message in Python, as much as the filter's
+own work per IMU sample, and the logger's own files are simple (chunked, zstd/lz4/none, JSON messages). Anything
+the walk does not expect sends that file back to the package's reader, so a file written by another tool still
+reads. An unfinished file is read the way recovery reads it (:func:`logger.recording.files.walk`: every CRC-valid
+chunk up to the cut), so exporting, plotting or replaying a drive never needs ``logger recover`` first.
+
+Each file also says who wrote it: the daemon's recorder (``live``) or ``logger replay`` (``replay``), so that
+the live ``/nav/fix`` and a replayed one are kept apart even though they share the topic name.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lz4.frame
+import zstandard
+from mcap.reader import make_reader
+
+from logger.recording.files import MAGIC, McapFileError, is_finished, walk
+from logger.recording.topics import IMU as IMU_TOPIC
+
+REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
+
+_U8 = struct.Struct("<B")
+_REC = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQQ")
+_CHUNK = struct.Struct("<QQQI")
+_H = struct.Struct("<H")
+_I = struct.Struct("<I")
+_Q = struct.Struct("<Q")
+OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x04, 0x05, 0x06, 0x0F
+# An IMU record as the daemon writes it: the four fields the filter needs, pulled out without decoding the
+# whole JSON object (json.loads of an IMU record costs more than the strapdown step it feeds). Anything that
+# does not match, written by another tool or another version, is decoded in full.
+_IMU = re.compile(rb'"t_mono_ns":\s*(-?\d+),\s*"t_sync_ns":\s*(-?\d+),.*?"accel_mps2":\s*\[([^\]]*)\],\s*'
+                  rb'"gyro_rps":\s*\[([^\]]*)\](?:,\s*"temp_degc":\s*(-?[0-9.eE+-]+))?')
+
+
+class UnexpectedLayout(Exception):
+    pass
+
+
+def _walk(buf: bytes | memoryview, start: int, end: int, wanted: set[str], channels: dict[int, str],
+          out: list[tuple[int, int, str, bytes]], top: bool) -> bool:
+    """Collect wanted messages from records in buf[start:end]; True when the data section ended."""
+    pos = start
+    while pos + 9 <= end:
+        op, length = _REC.unpack_from(buf, pos)
+        body = pos + 9
+        nxt = body + length
+        if nxt > end:
+            raise UnexpectedLayout("record runs past its container")
+        if op == OP_MESSAGE:
+            cid, _seq, log_time, _pub = _MSG.unpack_from(buf, body)
+            topic = channels.get(cid)
+            if topic is not None:
+                out.append((log_time, len(out), topic, bytes(buf[body + 22:nxt])))
+        elif op == OP_CHANNEL:
+            cid = _H.unpack_from(buf, body)[0]
+            n = _I.unpack_from(buf, body + 4)[0]
+            topic = bytes(buf[body + 8:body + 8 + n]).decode()
+            if topic in wanted:
+                channels[cid] = topic
+        elif op == OP_CHUNK and top:
+            _start, _end, size, _crc = _CHUNK.unpack_from(buf, body)
+            n = _I.unpack_from(buf, body + 28)[0]
+            compression = bytes(buf[body + 32:body + 32 + n]).decode()
+            rec_len = _Q.unpack_from(buf, body + 32 + n)[0]
+            data = buf[body + 40 + n:body + 40 + n + rec_len]
+            if compression == "zstd":
+                data = zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
+            elif compression == "lz4":
+                data = lz4.frame.decompress(bytes(data))
+            elif compression != "":
+                raise UnexpectedLayout(f"compression {compression!r}")
+            _walk(data, 0, len(data), wanted, channels, out, False)
+        elif op == OP_DATA_END and top:
+            return True
+        pos = nxt
+    return False
+
+
+def walk_records(path: Path, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
+    """(log_time, order, topic, data) of the wanted topics in one finished file of the expected layout, by the
+    struct walk; raises :class:`UnexpectedLayout` for anything else."""
+    buf = path.read_bytes()
+    if not buf.startswith(MAGIC):
+        raise UnexpectedLayout("not an MCAP file")
+    out: list[tuple[int, int, str, bytes]] = []
+    if not _walk(memoryview(buf), len(MAGIC), len(buf), wanted, {}, out, True):
+        raise UnexpectedLayout("no data end record: an unfinished file")
+    return out
+
+
+def read_with_mcap(path: Path, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
+    """The same as :func:`walk_records` through the ``mcap`` package's reader: any layout, at its cost."""
+
+    out: list[tuple[int, int, str, bytes]] = []
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(topics=list(wanted), log_time_order=False):
+            out.append((message.log_time, len(out), channel.topic, message.data))
+    return out
+
+
+def raw_messages(path: Path, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
+    """(log_time, order, topic, data) of the wanted topics in one finished file: the record walk above, or the
+    mcap package's reader for a layout the walk does not expect (its errors are then the caller's)."""
+    try:
+        return walk_records(path, wanted)
+    except Exception:  # a layout or a damage the walk does not expect: the mcap package decides
+        return read_with_mcap(path, wanted)
+
+
+
+class DriveFileError(Exception):
+    """A file that cannot be read as part of a drive; the message is one line naming the file."""
+
+
+@dataclass(frozen=True)
+class DriveFile:
+    path: Path
+    origin: str  # "live": written by the daemon; "replay": written by logger replay
+    finished: bool
+
+
+@dataclass(frozen=True)
+class DriveMessage:
+    log_time: int  # MCAP log time, Unix ns
+    topic: str
+    file: int  # index into the list of DriveFile
+    msg: dict[str, Any]
+
+
+def _header_library(path: Path) -> str:
+    """The ``library`` string of the MCAP header record (the first record after the magic)."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    try:
+        op, _length = struct.unpack_from("<BQ", head, len(MAGIC))
+        if op != 0x01:
+            return ""
+        pos = len(MAGIC) + 9
+        n = struct.unpack_from("<I", head, pos)[0]
+        pos += 4 + n
+        n = struct.unpack_from("<I", head, pos)[0]
+        return head[pos + 4:pos + 4 + n].decode("utf-8", "replace")
+    except struct.error:
+        return ""
+
+
+def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
+    """Check every file and say who wrote it; raises DriveFileError for a missing or non-MCAP file."""
+    files = []
+    for p in map(Path, paths):
+        if not p.is_file():
+            raise DriveFileError(f"{p}: no such file")
+        try:
+            with open(p, "rb") as f:
+                magic = f.read(len(MAGIC))
+        except OSError as exc:
+            raise DriveFileError(f"{p}: cannot open ({exc.strerror or exc})") from exc
+        if magic != MAGIC:
+            raise DriveFileError(f"{p}: not an MCAP file (no MCAP magic at the start)")
+        origin = "replay" if _header_library(p) == REPLAY_LIBRARY else "live"
+        files.append(DriveFile(p, origin, is_finished(p)))
+    return files
+
+
+def cut_notes(files: list[DriveFile]) -> list[str]:
+    """One line per file that was not closed cleanly, for the user: such a file is read up to its cut."""
+    return [f"{f.path} was not closed cleanly: read up to where it was cut" for f in files if not f.finished]
+
+
+def _raw(f: DriveFile, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
+    """(log_time, order, topic, data) of the wanted topics in one file."""
+    if f.finished:
+        try:
+            return raw_messages(f.path, wanted)
+        except Exception as exc:  # the mcap package's reader raises its own kinds for a damaged file
+            raise DriveFileError(f"{f.path}: cannot be read ({type(exc).__name__}: {exc}); "
+                                 "`logger recover` may save what is left") from exc
+    try:
+        found = walk(f.path)
+    except McapFileError as exc:
+        raise DriveFileError(str(exc)) from exc
+    topics = {cid: ch.topic for cid, ch in found.channels.items() if ch.topic in wanted}
+    return [(m.log_time, i, topics[m.channel_id], m.data) for i, m in enumerate(found.messages)
+            if m.channel_id in topics]
+
+
+def _collect(files: list[DriveFile], wanted: set[str]) -> list[tuple[int, int, int, str, bytes]]:
+    """(log_time, file index, order, topic, data) of the wanted topics over the files, in log-time order (ties:
+    file order, then order within the file)."""
+    raw: list[tuple[int, int, int, str, bytes]] = []
+    for index, f in enumerate(files):
+        raw.extend((t, index, order, topic, data) for t, order, topic, data in _raw(f, wanted))
+    raw.sort()  # (log_time, index, order) is unique: the data are never compared
+    return raw
+
+
+def iter_messages(files: list[DriveFile], topics: Iterable[str]) -> Iterator[DriveMessage]:
+    """Every message of the given topics over the files, decoded, in log-time order (ties: file order)."""
+    loads = json.loads
+    for t, index, _, topic, data in _collect(files, set(topics)):
+        try:
+            msg = loads(data)
+        except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError alike
+            raise DriveFileError(f"{files[index].path}: a {topic} message at log time {t} is not JSON "
+                                 f"({exc})") from exc
+        yield DriveMessage(t, topic, index, msg)
+
+
+def read_messages(paths: Iterable[Path], topics: Iterable[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
+    :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
+    files = [DriveFile(Path(p), "live", is_finished(p)) for p in paths]
+    loads = json.loads
+    imu = _IMU.match
+    for _, _, _, topic, data in _collect(files, set(topics)):
+        if topic == IMU_TOPIC:
+            m = imu(data, 1)
+            if m is not None:
+                a, g = m.group(3).split(b","), m.group(4).split(b",")
+                if len(a) == 3 and len(g) == 3:
+                    msg = {"t_mono_ns": int(m.group(1)), "t_sync_ns": int(m.group(2)),
+                           "accel_mps2": [float(a[0]), float(a[1]), float(a[2])],
+                           "gyro_rps": [float(g[0]), float(g[1]), float(g[2])]}
+                    if m.group(5) is not None:  # die temperature: the offsets' thermal drift (thermal.py)
+                        msg["temp_degc"] = float(m.group(5))
+                    yield topic, msg
+                    continue
+        yield topic, loads(data)

@@ -1,0 +1,231 @@
+"""The record layer: where a typed value becomes a recorded message and a recorded message a typed input.
+
+Topic names and payload keys live here and in :mod:`logger.recording.topics` (the schemas) only. The sensor
+adapters build their records with these functions; the daemon and ``logger replay`` both hand records to the
+clock and to the navigation filter through :func:`clock_observer` and :func:`nav_feeder`, so neither
+:mod:`sync` nor :mod:`logger.nav` knows a topic or a payload key, and a live drive and its replay feed them the
+same inputs.
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+from logger.nav.engine import NavEngine
+from logger.nav.inputs import GnssObservation
+from logger.nav.state import N_FULL, STATE_NAMES
+from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
+from sync.inputs import FixEpoch, TimeAnnouncement
+from sync.stamp import StampClock
+
+if TYPE_CHECKING:  # the receiver driver (and pyserial behind it) is not needed to replay a drive
+    from sensors.bmp085 import BaroSample
+    from sensors.obd import ObdSpeed
+    from sensors.ublox_decode import GnssFix, TimePulse
+
+Handler = Callable[[dict[str, Any]], None]
+ClockHandler = Callable[[dict[str, Any], int], None]
+
+NAV_INPUT_TOPICS: tuple[str, ...] = (IMU, GNSS_FIX, OBD_SPEED, BARO, PPS)  # what the navigation filter takes
+
+
+# ---- sensor records ------------------------------------------------------------------------------------------
+def imu_record(accel_mps2: Sequence[float], gyro_rps: Sequence[float], temp_degc: float, fifo: bool,
+               lost: int) -> dict[str, Any]:
+    """An ``/imu`` sample: chip axes, SI units."""
+    return {"accel_mps2": accel_mps2, "gyro_rps": gyro_rps, "temp_degc": round(temp_degc, 3), "fifo": fifo,
+            "lost": lost}
+
+
+def baro_record(s: BaroSample, sea_level_pa: float) -> dict[str, Any]:
+    """A ``/baro`` reading, with the raw words kept for re-processing."""
+    return {"pressure_pa": float(s.pressure_pa), "temp_degc": float(s.temp_degc),
+            "altitude_m": round(float(s.altitude_m), 4), "sea_level_pa": sea_level_pa, "oversampling": s.oss,
+            "ut": s.ut, "up": s.up}
+
+
+def speed_record(s: ObdSpeed, interface: str) -> dict[str, Any]:
+    """An ``/obd/speed`` reading: the ECU's integer km/h as it came, m/s beside it, and who answered."""
+    ecu = f"{s.ecu_id:X}" if s.ecu_id is not None else ""
+    return {"speed_kmh": s.speed_kmh, "speed_mps": round(s.speed_mps, 4), "ecu": ecu, "interface": interface}
+
+
+def timepulse_record(tp: TimePulse) -> dict[str, Any]:
+    """A ``/gnss/timepulse`` record: UBX TIM-TP's announcement of the next pulse."""
+    return {"tow_ms": tp.tow_ms, "tow_sub_ms": tp.tow_sub_ms, "week": tp.week, "qerr_ps": tp.qerr_ps,
+            "time_base": tp.time_base}
+
+
+def raw_bytes_record(t_mono_ns: int, data: bytes) -> dict[str, Any]:
+    """A ``/gnss/raw`` record: the receiver's bytes exactly as read."""
+    return {"t_mono_ns": t_mono_ns, "data_b64": base64.b64encode(data).decode(), "n_bytes": len(data)}
+
+
+def pps_record(seqno: int, lost: int, gnss_time_ns: int | None = None) -> dict[str, Any]:
+    """A ``/pps`` edge; ``gnss_time_ns`` only from a source that names the edge's second (gpsd)."""
+    if gnss_time_ns is None:
+        return {"seqno": seqno, "lost": lost}
+    return {"seqno": seqno, "lost": lost, "gnss_time_ns": gnss_time_ns}
+
+
+def location_fix(fix: GnssFix, t_mono_ns: int) -> dict[str, Any]:
+    """A GnssFix as a foxglove.LocationFix plus the receiver's own fields."""
+    sec_ns = fix.time_utc_ns if fix.time_utc_ns is not None else 0
+    lat = fix.lat_deg if fix.lat_deg is not None else 0.0
+    lon = fix.lon_deg if fix.lon_deg is not None else 0.0
+    alt = fix.height_hae_m if fix.height_hae_m is not None else 0.0
+    cov_type = 0
+    cov = [0.0] * 9
+    if fix.h_acc_m is not None and fix.v_acc_m is not None:
+        # u-blox hAcc is a horizontal 1-sigma over both axes: each axis gets hAcc^2 / 2.
+        cov[0] = cov[4] = fix.h_acc_m**2 / 2.0
+        cov[8] = fix.v_acc_m**2
+        cov_type = 2
+    vel = None
+    if fix.vel_ned_mps is not None:
+        vel = [None if (v is None or (isinstance(v, float) and math.isnan(v))) else float(v) for v in fix.vel_ned_mps]
+    return {
+        "timestamp": {"sec": sec_ns // 1_000_000_000, "nsec": sec_ns % 1_000_000_000},
+        "frame_id": "gnss", "latitude": lat, "longitude": lon, "altitude": alt,
+        "position_covariance": cov, "position_covariance_type": cov_type,
+        "gnss_time_ns": fix.time_utc_ns if fix.time_valid else None, "itow_ms": fix.itow_ms,
+        "fix_mode": fix.fix_mode, "fix_ok": bool(fix.fix_ok), "height_msl_m": fix.height_msl_m,
+        "vel_ned_mps": vel, "h_acc_m": fix.h_acc_m, "v_acc_m": fix.v_acc_m, "s_acc_mps": fix.s_acc_mps,
+        "num_sv": fix.num_sv, "pdop": fix.pdop, "source": fix.source,
+    }
+
+
+# ---- records to the clock ------------------------------------------------------------------------------------
+def time_announcement(payload: dict[str, Any]) -> TimeAnnouncement | None:
+    """A ``/gnss/timepulse`` record as the clock's input; None when it does not name its second."""
+    try:
+        week, tow_ms = int(payload["week"]), int(payload["tow_ms"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return TimeAnnouncement(week, tow_ms, float(payload.get("tow_sub_ms") or 0.0), payload.get("qerr_ps") or 0,
+                            payload.get("time_base") == "utc")
+
+
+def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
+    """A ``/gnss/fix`` record as the clock's input; None while the receiver's time is not valid."""
+    t = payload.get("gnss_time_ns")
+    return None if t is None else FixEpoch(t, payload.get("itow_ms"))
+
+
+def clock_observer(clock: StampClock) -> dict[str, ClockHandler]:
+    """Per topic, what a record (payload, board time it was taken) tells the clock; other topics tell nothing."""
+
+    def imu(p: dict[str, Any], t: int) -> None:
+        clock.on_imu_sample(t, p.get("temp_degc"))
+
+    def pps(p: dict[str, Any], t: int) -> None:
+        clock.on_edge(t, p.get("gnss_time_ns"))  # named when the PPS source knows the edge's second (gpsd)
+
+    def timepulse(p: dict[str, Any], t: int) -> None:
+        tp = time_announcement(p)
+        if tp is not None:
+            clock.on_announcement(tp, t)
+
+    def fix(p: dict[str, Any], t: int) -> None:
+        epoch = fix_epoch(p)
+        if epoch is not None:
+            clock.on_fix_epoch(epoch, t)
+
+    return {IMU: imu, PPS: pps, TIMEPULSE: timepulse, GNSS_FIX: fix}
+
+
+def observe_clock(clock: StampClock, topic: str, payload: dict[str, Any], t_mono_ns: int) -> None:
+    """One record to the clock (for tools and tests that replay records one at a time)."""
+    handler = clock_observer(clock).get(topic)
+    if handler is not None:
+        handler(payload, t_mono_ns)
+
+
+# ---- records to the navigation filter -------------------------------------------------------------------------
+def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
+    """A ``/gnss/fix`` record as the filter's input: optional fields stay None, nothing is made up."""
+    vel = msg.get("vel_ned_mps")
+    return GnssObservation(
+        t_sync_ns=int(msg["t_sync_ns"]), t_mono_ns=int(msg["t_mono_ns"]), gnss_time_ns=msg.get("gnss_time_ns"),
+        sync_state=msg.get("sync_state", ""), fix_ok=bool(msg.get("fix_ok")), fix_mode=msg.get("fix_mode"),
+        lat_deg=msg.get("latitude", math.nan), lon_deg=msg.get("longitude", math.nan),
+        height_m=float(msg.get("altitude", math.nan)),
+        vel_ned_mps=None if vel is None else tuple(vel), h_acc_m=msg.get("h_acc_m"), v_acc_m=msg.get("v_acc_m"),
+        s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"))
+
+
+def nav_feeder(engine: NavEngine) -> dict[str, Handler]:
+    """Per topic of :data:`NAV_INPUT_TOPICS`, the engine input a record becomes."""
+
+    def imu(m: dict[str, Any]) -> None:
+        a, g = m["accel_mps2"], m["gyro_rps"]
+        engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
+
+    def fix(m: dict[str, Any]) -> None:
+        engine.gnss(gnss_observation(m))
+
+    def obd(m: dict[str, Any]) -> None:
+        engine.obd(m["t_sync_ns"], float(m["speed_mps"]))
+
+    def baro(m: dict[str, Any]) -> None:
+        engine.baro(m["t_sync_ns"], float(m["altitude_m"]))
+
+    def pps(m: dict[str, Any]) -> None:
+        engine.pps(m["t_sync_ns"])
+
+    return {IMU: imu, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
+
+
+def feed_record(feed: dict[str, Handler], topic: str, msg: dict[str, Any]) -> None:
+    """One record through a :func:`nav_feeder`; topics the filter does not take are ignored."""
+    handler = feed.get(topic)
+    if handler is not None:
+        handler(msg)
+
+
+# ---- the filter's output as records ---------------------------------------------------------------------------
+def nav_fix_record(t_ns: int, t_mono_ns: int, lat: float, lon: float, h: float, vel: tuple[float, float, float],
+                rpy: tuple[float, float, float], sigma: tuple[float, float, float], source: str,
+                mode: str) -> dict[str, Any]:
+    """A ``/nav/fix`` record: foxglove.LocationFix (ENU covariance) plus velocity, attitude and sigmas."""
+    sn, se, sd = (s if math.isfinite(s) else 1e6 for s in sigma)
+    return {
+        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns),
+        "timestamp": {"sec": int(t_ns) // 1_000_000_000, "nsec": int(t_ns) % 1_000_000_000},
+        "frame_id": "nav", "latitude": math.degrees(lat), "longitude": math.degrees(lon), "altitude": h,
+        "position_covariance": [se * se, 0.0, 0.0, 0.0, sn * sn, 0.0, 0.0, 0.0, sd * sd],
+        "position_covariance_type": 2,
+        "vel_ned_mps": [float(v) for v in vel], "rpy_deg": [math.degrees(a) for a in rpy],
+        "sigma_ned_m": [sn, se, sd], "source": source, "mode": mode,
+    }
+
+
+def nav_state_record(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: list[str] | None = None,
+                  extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A ``/nav/state`` record: what the filter believes about the sensors, and how its updates fare."""
+    s, ekf = engine.state, engine.ekf
+    c = engine.counters
+    msg: dict[str, Any] = {
+        "t_mono_ns": int(t_mono_ns), "t_sync_ns": int(t_ns), "mode": engine.mode,
+        "status": "navigating" if s is not None else ("gnss only" if engine.mode == "gnss" else "initialising"),
+        "accel_bias_mps2": [float(b) for b in s.ba] if s else None,
+        "gyro_bias_rps": [float(b) for b in s.bg] if s else None,
+        "obd_scale": 1.0 + s.sf if s and engine.n == N_FULL else None,
+        "height_offset_m": s.dh if s and engine.n == N_FULL else None,
+        "p_diag": [float(v) for v in ekf.p.diagonal()] if ekf else None,
+        "state_names": list(STATE_NAMES[: engine.n]),
+        "innovations": {k: v.last_innovation for k, v in ekf.stats.items()} if ekf else {},
+        "nis": {k: v.last_nis for k, v in ekf.stats.items()} if ekf else {},
+        "updates": {k: v.accepted for k, v in ekf.stats.items()} if ekf else {},
+        "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
+        "resets": c.resets, "reanchors": c.reanchors, "reopens": c.reopens, "repairs": ekf.repairs if ekf else 0,
+        "stopped": engine.stopped,
+        "gnss_time": engine.epoch_clock.method,
+        "verdicts": verdicts or [],
+    }
+    if extra:
+        msg.update(extra)
+    return msg

@@ -1,0 +1,95 @@
+"""The journal's side of health: each problem logged when it appears and when it clears, flapping ones rate-limited.
+
+One rate limiter serves every place that logs a recurring fault (the daemon's status problems, a sensor thread's
+errors), and one rule says when two lines are the same fault: their text with the numbers masked ("no sample for
+4.2 s" and "no sample for 5.1 s" are one problem while it lasts).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+
+PROBLEM_LOG_REPEAT_S = 60.0  # a problem that comes and goes is logged at most this often (on average)
+MAX_KEYS = 256
+_NUMBERS = re.compile(r"\d+(?:\.\d+)?")
+
+
+def problem_key(text: str) -> str:
+    """What stays of a problem's line while it lasts: the line with every number masked."""
+    return _NUMBERS.sub("#", text)
+
+
+class RateLimiter:
+    """A token bucket per key: ``burst`` lines at once, refilled at one per ``refill_s``.
+
+    A fault every few minutes is logged every time; one flapping every second is logged a few times a minute,
+    and the next line that gets through says how many were held back. Bounded whatever the keys are.
+    """
+
+    def __init__(self, burst: int, refill_s: float, max_keys: int = MAX_KEYS) -> None:
+        self.burst = burst
+        self.refill_s = refill_s
+        self.max_keys = max_keys
+        self._tokens: dict[str, tuple[float, float]] = {}  # key -> (tokens, when counted)
+        self._held: dict[str, int] = {}
+
+    def allow(self, key: str, now_s: float) -> tuple[bool, int]:
+        """Whether a line for ``key`` may go out now, and how many were held back before it (0 when refused)."""
+        tokens, when = self._tokens.get(key, (float(self.burst), now_s))
+        tokens = min(float(self.burst), tokens + (now_s - when) / self.refill_s)
+        if tokens >= 1.0:
+            self._tokens[key] = (tokens - 1.0, now_s)
+            return True, self._held.pop(key, 0)
+        self._tokens[key] = (tokens, now_s)
+        self._held[key] = self._held.get(key, 0) + 1
+        return False, 0
+
+    def prune(self, keep: set[str] | frozenset[str] = frozenset()) -> None:
+        """Forget full buckets (they would let the next line through anyway), then, if still too many, every
+        key not in ``keep``."""
+        if len(self._tokens) <= self.max_keys:
+            return
+        self._tokens = {k: v for k, v in self._tokens.items() if k in keep or v[0] < self.burst}
+        if len(self._tokens) > self.max_keys:
+            self._tokens = {k: v for k, v in self._tokens.items() if k in keep}
+            self._held = {k: v for k, v in self._held.items() if k in keep}
+
+
+class ProblemJournal:
+    """Turns the status problems of each second into journal lines: one when a problem appears, one when it clears.
+
+    A problem is keyed by its text with numbers masked ("no sample for 4.2 s" stays one problem while it lasts).
+    Each key may announce itself ``burst`` times, refilled at one per ``refill_s``: a fault every few minutes is
+    logged every time, a sensor flapping every second is logged a few times a minute with a count of the rest.
+    """
+
+    def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5) -> None:
+        self.burst = burst
+        self.refill_s = refill_s
+        self._active: dict[str, tuple[str, bool]] = {}  # key -> (text, announced)
+        self._limiter = RateLimiter(burst, refill_s)
+
+    @staticmethod
+    def key(problem: str) -> str:
+        return problem_key(problem)
+
+    def update(self, problems: list[str], now_s: float) -> list[tuple[int, str]]:
+        """The lines to log for this second's problems, as (logging level, text)."""
+        out: list[tuple[int, str]] = []
+        current = {self.key(p): p for p in problems}
+        for key, text in current.items():
+            if key in self._active:
+                self._active[key] = (text, self._active[key][1])  # "resolved" tells its last state
+                continue
+            announce, unlogged = self._limiter.allow(key, now_s)
+            if announce:
+                out.append((logging.WARNING, f"problem: {text}"
+                            + (f" (appeared {unlogged} more times, not logged)" if unlogged else "")))
+            self._active[key] = (text, announce)
+        for key in [k for k in self._active if k not in current]:
+            text, announced = self._active.pop(key)
+            if announced:
+                out.append((logging.INFO, f"resolved: {text}"))
+        self._limiter.prune(set(self._active))  # bounded whatever the problems say
+        return out

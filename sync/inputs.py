@@ -1,0 +1,29 @@
+"""What the clock observes, as named inputs: PPS edges, time announcements, fix epochs, IMU samples.
+
+The clock knows nothing of topics or record layouts: the record layer (:mod:`logger.recording.records`) turns a
+recorded or live record into one of these calls, so the same clock runs in the daemon and over a recorded drive.
+All times are the board's monotonic ns, at which the input was seen, unless a field says otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class TimeAnnouncement:
+    """The receiver's word on the GNSS time of its next pulse (UBX TIM-TP), some hundreds of ms before it."""
+
+    week: int  # GPS week of the next edge
+    tow_ms: int  # time of week of the next edge, ms
+    tow_sub_ms: float  # sub-millisecond part, ms
+    qerr_ps: int  # the pulse comes this much early of the instant announced (quantisation error), ps
+    utc: bool  # True: the pulse is aligned to UTC; False: to GNSS (GPS) time, which needs the leap seconds
+
+
+@dataclass(frozen=True, slots=True)
+class FixEpoch:
+    """The epoch of a navigation solution, as far as time goes: it arrives after the pulse of its second."""
+
+    gnss_time_ns: int  # the epoch, Unix ns UTC (only solutions whose time is valid are epochs)
+    itow_ms: int | None  # GPS time of week of the epoch, ms (UBX receivers): gives GPS-UTC with gnss_time_ns
