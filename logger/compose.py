@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from logger.config import SIM_SECTIONS, Config, ConfigError
 from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
-from logger.runtime.daemon import Daemon, Extras
+from logger.runtime.daemon import Attachments, Daemon
 from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
 from logger.runtime.navigator import attach_navigator
 from logger.runtime.sampler import Reading
@@ -49,7 +49,7 @@ def build(cfg: Config, duration_s: float | None,
     sim_gpsd = bool(cfg["sim"]["gpsd"]) and "gpsd" in (cfg["gnss"]["source"], cfg["pps"]["source"])
     vehicle = None
     tb: TimeBase = host_timebase()
-    extras = Extras()
+    attachments = Attachments()
     if any(simulated.values()):
         from sensors.sim.scenarios import SCENARIOS
         from sensors.sim.vehicle import build_vehicle
@@ -64,13 +64,13 @@ def build(cfg: Config, duration_s: float | None,
                                 gpsd=sim_gpsd)
         vehicle.start()
         tb = TimeBase(vehicle.clock.monotonic_ns, vehicle.time_scale)
-        extras.close.append(vehicle.stop)
-        extras.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
+        attachments.close.append(vehicle.stop)
+        attachments.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
                                          "time_scale": f"{vehicle.time_scale:g}",
                                          "start_utc": vehicle.timeline.start_utc.isoformat()}
         if vehicle.imu is not None and "imu_error_scale" in (scenario_options or {}):
             # A drive made with a chip other than the default says so: its IMU errors are part of what it tests.
-            extras.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
+            attachments.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
 
         def truth_clock() -> list[Reading]:
             now = tb.monotonic_ns()
@@ -81,21 +81,21 @@ def build(cfg: Config, duration_s: float | None,
             now = tb.monotonic_ns()
             return [Reading(TRUTH_NAV, vehicle.truth_nav(now), now, stamped=False)]
 
-        extras.periodic.append((0.1, truth_clock))
-        extras.periodic.append((1.0 / cfg["imu"]["rate_hz"], truth_nav))
-    extras.metadata["config"] = {f"{s}.{k}": str(v) for s, keys in cfg.values.items() for k, v in keys.items()}
+        attachments.periodic.append((0.1, truth_clock))
+        attachments.periodic.append((1.0 / cfg["imu"]["rate_hz"], truth_nav))
+    attachments.metadata["config"] = {f"{s}.{k}": str(v) for s, keys in cfg.values.items() for k, v in keys.items()}
     if vehicle is not None and simulated["gnss"]:
         # The simulated board's system clock is NTP-synchronised (to 20 ms): a check of the clock's first lock.
         clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}",
                            wall_ns=vehicle.wall_clock_ns, wall_trusted=True)
     else:
         clock = make_clock(cfg, tb, clock_id(), wall_trusted=system_clock_synchronized())
-    extras.close.append(clock.save)
+    attachments.close.append(clock.save)
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
         "partly simulated" if vehicle else "")
-    navigator = attach_navigator(cfg["nav"], extras)
-    daemon = Daemon(cfg, plans, timebase=tb, clock=clock, extras=extras, mode=mode)
+    navigator = attach_navigator(cfg["nav"], attachments)
+    daemon = Daemon(cfg, plans, timebase=tb, clock=clock, attachments=attachments, mode=mode)
     if navigator is not None:
         navigator.bind(daemon)
     return daemon, vehicle

@@ -22,7 +22,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -31,7 +30,7 @@ from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import LineFit, fit_line
 from sync.settings import SyncSettings
-from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock
+from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, TrackingReport
 from sync.tempco import TempcoEstimator
 
 log = logging.getLogger(__name__)
@@ -299,7 +298,7 @@ class PpsClock(StampClock):
                          timer_cnt)
 
     # ---- reporting and persistence ----------------------------------------------------------------------------
-    def report(self, now_ns: int | None = None) -> dict[str, Any]:
+    def report(self, now_ns: int | None = None) -> TrackingReport:
         """What ``chronyc tracking`` would show, for /sync and ``logger status``."""
         now = self._mono() if now_ns is None else now_ns
         with self._lock:
@@ -307,19 +306,16 @@ class PpsClock(StampClock):
             fit = self._fit
             since = (now - self._last_sample_ns) / NS if self._last_sample_ns is not None else None
             k = self.tempco.coefficient()
-            return {
-                "t_mono_ns": now, "state": st.state,
-                "offset_ns": self._last_offset_ns,
+            return TrackingReport(
+                t_mono_ns=now, state=st.state, offset_ns=self._last_offset_ns,
                 # The board clock's rate error (positive: it runs fast); GNSS minus board drifts the other way.
-                "freq_ppm": round(-self._current_slope(now) * 1e6, 4) if fit is not None else None,
-                "skew_ppm": round(fit.skew / NS * 1e6, 5) if fit is not None else None,
-                "rms_ns": round(fit.rms, 1) if fit is not None else None,
-                "err_ns": st.err_ns, "since_edge_s": round(since, 3) if since is not None else None,
-                "samples": fit.n_used if fit is not None else 0,
-                "tempco_ppm_per_degc": round(-k * 1e6, 4) if k is not None else None,
-                "edges": self.counts["edges"], "rejected": self.counts["rejected"],
-                "relocks": self.counts["relocks"],
-            }
+                freq_ppm=round(-self._current_slope(now) * 1e6, 4) if fit is not None else None,
+                skew_ppm=round(fit.skew / NS * 1e6, 5) if fit is not None else None,
+                rms_ns=round(fit.rms, 1) if fit is not None else None,
+                err_ns=st.err_ns, since_edge_s=round(since, 3) if since is not None else None,
+                samples=fit.n_used if fit is not None else 0,
+                tempco_ppm_per_degc=round(-k * 1e6, 4) if k is not None else None,
+                edges=self.counts["edges"], rejected=self.counts["rejected"], relocks=self.counts["relocks"])
 
     def _maybe_save(self, now_ns: int) -> None:
         if self.state_path is None or self._fit is None or not self._locked_once:

@@ -12,7 +12,6 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 from sync.inputs import FixEpoch, TimeAnnouncement
 
@@ -33,6 +32,25 @@ class Stamp:
         """The stamp as the record fields every sensor message carries."""
         return {"t_sync_ns": self.t_sync_ns, "sync_state": self.state, "sync_err_ns": self.err_ns,
                 "imu_cnt": self.imu_cnt, "timer_cnt": self.timer_cnt}
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingReport:
+    """The clock's state as ``chronyc tracking`` shows it, in the units of the names (``/sync``, ``logger status``)."""
+
+    t_mono_ns: int  # when, on the board's monotonic clock
+    state: str  # FREERUN, LOCKED or HOLDOVER
+    offset_ns: int | None  # at the last PPS edge, published time minus the edge's GNSS time
+    freq_ppm: float | None  # the board clock's rate error (positive: it runs fast)
+    skew_ppm: float | None  # uncertainty of freq_ppm
+    rms_ns: float | None  # RMS of the regression residuals
+    err_ns: int  # current error bound of stamps
+    since_edge_s: float | None  # since the last PPS edge used
+    samples: int  # edges in the regression
+    tempco_ppm_per_degc: float | None  # learned temperature coefficient of the board clock
+    edges: int  # PPS edges seen since start
+    rejected: int  # edges or time messages refused by the pairing checks
+    relocks: int  # returns from holdover to locked
 
 
 class StampClock(ABC):
@@ -59,13 +77,11 @@ class StampClock(ABC):
     def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:  # noqa: B027 - optional input
         """A navigation solution with a valid time arrived."""
 
-    def report(self, now_ns: int) -> dict[str, Any]:
+    def report(self, now_ns: int) -> TrackingReport:
         """What ``chronyc tracking`` would show, for ``/sync`` and ``logger status``; a clock that sees no edges
         reports its state and bound, and no edge."""
         st = self.stamp(now_ns)
-        return {"t_mono_ns": now_ns, "state": st.state, "offset_ns": None, "freq_ppm": None, "skew_ppm": None,
-                "rms_ns": None, "err_ns": st.err_ns, "since_edge_s": None, "samples": 0,
-                "tempco_ppm_per_degc": None, "edges": 0, "rejected": 0, "relocks": 0}
+        return TrackingReport(now_ns, st.state, None, None, None, None, st.err_ns, None, 0, None, 0, 0, 0)
 
     def save(self) -> None:  # noqa: B027 - optional: nothing to persist by default
         """Persist what should survive a restart (a frequency, a mapping); called when the daemon stops."""

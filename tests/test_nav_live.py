@@ -16,7 +16,7 @@ from test_nav_synth import records
 from logger.cli.status import render
 from logger.config import ConfigError, parse
 from logger.nav.params import NavParams
-from logger.runtime.daemon import Extras
+from logger.runtime.daemon import Attachments
 from logger.runtime.navigator import Navigator, attach_navigator
 from logger.runtime.sampler import Reading
 from sensors.sim.scenarios import make_drive
@@ -102,11 +102,11 @@ def test_nav_configuration_is_checked_and_reaches_the_filter():
         "logger.toml:3: nav.lever_arm_m = [1, 2] must be three numbers [x, y, z]",
         "logger.toml:4: nav.mounting_rpy_deg must be a list, not 'flat'",
     ]
-    extras = Extras()
-    assert attach_navigator(parse("[nav]\nenabled = false\n", "x", sim=True)["nav"], extras) is None
-    assert not extras.taps
-    nav = attach_navigator(cfg["nav"], extras)
-    assert extras.taps == [nav] and extras.sections["nav"] == nav.section and nav.stop in extras.close
+    attachments = Attachments()
+    assert attach_navigator(parse("[nav]\nenabled = false\n", "x", sim=True)["nav"], attachments) is None
+    assert not attachments.taps
+    nav = attach_navigator(cfg["nav"], attachments)
+    assert attachments.taps == [nav] and attachments.sections["nav"] == nav.section and nav.stop in attachments.close
 
 
 @pytest.fixture(scope="module")

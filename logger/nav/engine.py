@@ -36,7 +36,7 @@ from logger.nav.history import SolutionHistory
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import Observation
 from logger.nav.params import MODES, NavParams
-from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, Latest, ObdPolicy, StopPolicy
+from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
 from logger.nav.state import BA_ID, BG_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
@@ -125,15 +125,15 @@ class NavEngine:
         self.solution: Solution | None = None
         self.sigma = (math.inf, math.inf, math.inf)  # 1-sigma position N, E, D as last propagated or updated
         self.history = SolutionHistory()
-        self.latest = Latest()
+        self.last_readings = LastReadings()
         self.position_evidence = PositionEvidence()
         self.velocity_evidence = VelocityEvidence()
         self.height_evidence = HeightEvidence()
         self._stop = StopPolicy(p, self.stops, self.velocity_evidence)
-        self._gnss = GnssPolicy(p, self.epoch_clock, self.latest, self.position_evidence, self.velocity_evidence,
+        self._gnss = GnssPolicy(p, self.epoch_clock, self.last_readings, self.position_evidence, self.velocity_evidence,
                                 self.height_evidence)
-        self._obd = ObdPolicy(p, self.latest, self._stop, self.velocity_evidence)
-        self._baro = BaroPolicy(p, self.latest, self._stop, self.height_evidence)
+        self._obd = ObdPolicy(p, self.last_readings, self._stop, self.velocity_evidence)
+        self._baro = BaroPolicy(p, self.last_readings, self._stop, self.height_evidence)
         self._t_last: int | None = None
         self._dt_mean = 0.05
         self._t_mono_last = 0
@@ -208,7 +208,7 @@ class NavEngine:
             ws[1] += gyro[1]
             ws[2] += gyro[2]
             ws[3] += 1
-        if self.mode == "17" and t_ns >= self._next_idle_check_ns and not self.latest.obd_fresh(t_ns):
+        if self.mode == "17" and t_ns >= self._next_idle_check_ns and not self.last_readings.obd_fresh(t_ns):
             # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
             # and a solution that already stands, so a parked car does not drift on its IMU alone.
             self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
@@ -224,9 +224,9 @@ class NavEngine:
     def _pre_init(self, t_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
                   dt: float) -> None:
         """Before the heading is known: the start-up levels while still, then carries the attitude on the gyro."""
-        obd = self.latest.obd
+        obd = self.last_readings.obd
         still = self.stops.still and (obd is None or obd[1] == 0.0)
-        fix = self.latest.fix
+        fix = self.last_readings.fix
         if self.startup.step(t_ns, acc, gyro, dt, still, fix) == CONFIG_HEADING and fix is not None:
             self._initialise(t_ns, math.radians(self.params.initial_heading_deg), CONFIG_HEADING, fix,
                              CONFIG_HEADING_VAR)
@@ -241,7 +241,8 @@ class NavEngine:
                     heading_var: float) -> None:
         """Start the filter from what the start-up built: state, covariance, and the integration primed."""
         n = self.n
-        s, p0 = self.startup.initial(t_ns, yaw_or_none, method, fix, heading_var, n, self.lever, self.latest.baro)
+        s, p0 = self.startup.initial(t_ns, yaw_or_none, method, fix, heading_var, n, self.lever,
+                                     self.last_readings.baro)
         self.state = s
         self.ekf = ErrorStateEkf(np.ones(n), self.params.gate_probability)
         self.ekf.p = p0
@@ -356,7 +357,7 @@ class NavEngine:
         fix = self._gnss.prepare(msg, self.counters)
         if fix is None:
             return
-        self.latest.fix = fix
+        self.last_readings.fix = fix
         if self.mode == "gnss":
             self._gnss_row(fix)
             return
@@ -411,7 +412,7 @@ class NavEngine:
         if self.mode != "17":
             return
         self.counters.baro += 1
-        self.latest.baro = (t_ns, altitude_m)
+        self.last_readings.baro = (t_ns, altitude_m)
         if self.state is None:
             return
         self._baro.update(self, t_ns, altitude_m)

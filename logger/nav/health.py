@@ -46,7 +46,7 @@ class HealthJudge:
             self._gnss.extend([True] * min(d_acc, 60) + [False] * min(d_rej, 60))
         n = len(self._gnss)
         refused = n - sum(self._gnss)
-        fix = engine.latest.fix
+        fix = engine.last_readings.fix
         t_last = engine.t_last_ns
         age = (t_last - fix.t_ns) / 1e9 if fix is not None and t_last else math.inf
         if age > 5.0:

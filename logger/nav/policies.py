@@ -12,7 +12,7 @@ One class per source of updates, each with the little state its policy needs, ac
 - :class:`BaroPolicy`: barometric heights, with the height evidence, and the non-holonomic constraint when no
   fresh speed comes from the vehicle.
 
-:class:`Latest` is what the sensors said last, which more than one policy (and the start-up) goes by.
+:class:`LastReadings` is what the sensors said last, which more than one policy (and the start-up) goes by.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis:
 
 
 @dataclass
-class Latest:
+class LastReadings:
     """What the sensors said last."""
 
     fix: PreparedFix | None = None
@@ -70,11 +70,11 @@ class Latest:
 class GnssPolicy:
     """Receiver fixes: their noise, which of their rows go in, and what refusals of good ones say."""
 
-    def __init__(self, params: NavParams, epoch_clock: GnssEpochClock, latest: Latest,
+    def __init__(self, params: NavParams, epoch_clock: GnssEpochClock, last: LastReadings,
                  position: PositionEvidence, velocity: VelocityEvidence, height: HeightEvidence) -> None:
         self.params = params
         self.epoch_clock = epoch_clock
-        self.latest = latest
+        self.last_readings = last
         self.position, self.velocity, self.height = position, velocity, height
         self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s)
 
@@ -122,11 +122,11 @@ class GnssPolicy:
             snap, snap.dcm(), core.n)
         obs = self._informative(core, full_pos, P_ID)
         ok = True if obs is None else core.apply(obs)
-        latest = self.latest
+        last = self.last_readings
         if obs is not None and ok:
-            latest.pos_ok = (t_e, fix.h_acc)
+            last.pos_ok = (t_e, fix.h_acc)
             if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < 10.0:
-                latest.height_in_ns = t_e
+                last.height_in_ns = t_e
         if fix.vel is not None:
             snap = core.state_at(t_e)
             full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw, not fix.fix_3d).observe(
@@ -136,9 +136,9 @@ class GnssPolicy:
                 self.velocity.judge(core, obs, core.apply(obs), t_e,
                                     fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < 10.0)
         if fix.h_acc < GOOD_FIX_H_ACC_M and fix.fix_3d:  # a 2D fix has no height of its own to settle anything
-            latest.good_fix_ns = fix.t_ns
+            last.good_fix_ns = fix.t_ns
         sigma_max = max(core.sigma)
-        verdict = self.position.judge(core, ok, fix, full_pos.z.tolist(), latest.pos_ok, sigma_max)
+        verdict = self.position.judge(core, ok, fix, full_pos.z.tolist(), last.pos_ok, sigma_max)
         if verdict == "reanchor":
             self.height.run.clear()  # judged against the height just widened
         return verdict
@@ -201,9 +201,9 @@ class StopPolicy:
 class ObdPolicy:
     """The vehicle's speed sensor: a velocity along the vehicle's axis, in 1 km/h steps."""
 
-    def __init__(self, params: NavParams, latest: Latest, stop: StopPolicy, velocity: VelocityEvidence) -> None:
+    def __init__(self, params: NavParams, last: LastReadings, stop: StopPolicy, velocity: VelocityEvidence) -> None:
         self.params = params
-        self.latest = latest
+        self.last_readings = last
         self.stop = stop
         self.velocity = velocity
         self._run = 0  # readings in a row with the same value (within OBD_ROUNDING_HOLD_NS of the first)
@@ -212,12 +212,12 @@ class ObdPolicy:
 
     def note(self, t_ns: int, speed_mps: float) -> None:
         """Every reading, before the filter runs too: the rounding run and the latest speed."""
-        last = self.latest.obd
+        last = self.last_readings.obd
         if last is None or last[1] != speed_mps:
             self._run, self._run_t0 = 1, t_ns
         elif t_ns - self._run_t0 <= OBD_ROUNDING_HOLD_NS:
             self._run += 1
-        self.latest.obd = (t_ns, speed_mps)
+        self.last_readings.obd = (t_ns, speed_mps)
 
     def update(self, core: FilterCore, t_ns: int, speed_mps: float, t_last_ns: int) -> None:
         p = self.params
@@ -235,7 +235,7 @@ class ObdPolicy:
         snap = core.state_at(t_ns)
         obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, snap.dcm(), core.n)
         if self.velocity.judge(core, obs, core.apply(obs), t_ns, True, snap.dcm()):
-            self.latest.nhc_ns = t_ns
+            self.last_readings.nhc_ns = t_ns
             if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
                 self.mount_yaw_stat[0] += float(obs.z[1]) / speed_mps
                 self.mount_yaw_stat[1] += 1.0
@@ -244,20 +244,20 @@ class ObdPolicy:
 class BaroPolicy:
     """Barometric heights (with the barometer's offset in the 17-state filter)."""
 
-    def __init__(self, params: NavParams, latest: Latest, stop: StopPolicy, height: HeightEvidence) -> None:
+    def __init__(self, params: NavParams, last: LastReadings, stop: StopPolicy, height: HeightEvidence) -> None:
         self.params = params
-        self.latest = latest
+        self.last_readings = last
         self.stop = stop
         self.height = height
 
     def update(self, core: FilterCore, t_ns: int, altitude_m: float) -> None:
         s = core.state
         assert s is not None
-        latest = self.latest
+        last = self.last_readings
         self.height.judge(core, BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), core.n), t_ns,
-                          latest.height_in_ns, latest.good_fix_ns)
+                          last.height_in_ns, last.good_fix_ns)
         # No fresh OBD speed: the vehicle still cannot slide sideways or lift off.
-        if (self.stop.stopped is False and latest.obd is not None and t_ns - latest.obd[0] > OBD_FRESH_NS
-                and t_ns - latest.nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
+        if (self.stop.stopped is False and last.obd is not None and t_ns - last.obd[0] > OBD_FRESH_NS
+                and t_ns - last.nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
                 and core.apply(NonHolonomic(self.params.nhc_sigma_mps).observe(s, s.dcm(), core.n))):
-            latest.nhc_ns = t_ns
+            last.nhc_ns = t_ns

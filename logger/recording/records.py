@@ -19,15 +19,15 @@ from logger.nav.inputs import GnssObservation
 from logger.nav.state import N_FULL, STATE_NAMES
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
 from sync.inputs import FixEpoch, TimeAnnouncement
-from sync.stamp import StampClock
+from sync.stamp import StampClock, TrackingReport
 
 if TYPE_CHECKING:  # the receiver driver (and pyserial behind it) is not needed to replay a drive
     from sensors.bmp085 import BaroSample
     from sensors.obd import ObdSpeed
     from sensors.ublox_decode import GnssFix, TimePulse
 
-Handler = Callable[[dict[str, Any]], None]
-ClockHandler = Callable[[dict[str, Any], int], None]
+RecordInput = Callable[[dict[str, Any]], None]
+ClockInput = Callable[[dict[str, Any], int], None]
 
 NAV_INPUT_TOPICS: tuple[str, ...] = (IMU, GNSS_FIX, OBD_SPEED, BARO, PPS)  # what the navigation filter takes
 
@@ -98,6 +98,15 @@ def location_fix(fix: GnssFix, t_mono_ns: int) -> dict[str, Any]:
     }
 
 
+def sync_record(report: TrackingReport) -> dict[str, Any]:
+    """A ``/sync`` record (and the ``sync`` section of ``logger status``): the clock's tracking report."""
+    return {"t_mono_ns": report.t_mono_ns, "state": report.state, "offset_ns": report.offset_ns,
+            "freq_ppm": report.freq_ppm, "skew_ppm": report.skew_ppm, "rms_ns": report.rms_ns,
+            "err_ns": report.err_ns, "since_edge_s": report.since_edge_s, "samples": report.samples,
+            "tempco_ppm_per_degc": report.tempco_ppm_per_degc, "edges": report.edges, "rejected": report.rejected,
+            "relocks": report.relocks}
+
+
 # ---- records to the clock ------------------------------------------------------------------------------------
 def time_announcement(payload: dict[str, Any]) -> TimeAnnouncement | None:
     """A ``/gnss/timepulse`` record as the clock's input; None when it does not name its second."""
@@ -115,7 +124,7 @@ def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
     return None if t is None else FixEpoch(t, payload.get("itow_ms"))
 
 
-def clock_observer(clock: StampClock) -> dict[str, ClockHandler]:
+def clock_observer(clock: StampClock) -> dict[str, ClockInput]:
     """Per topic, what a record (payload, board time it was taken) tells the clock; other topics tell nothing."""
 
     def imu(p: dict[str, Any], t: int) -> None:
@@ -157,7 +166,7 @@ def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
         s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"))
 
 
-def nav_feeder(engine: NavEngine) -> dict[str, Handler]:
+def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
     """Per topic of :data:`NAV_INPUT_TOPICS`, the engine input a record becomes."""
 
     def imu(m: dict[str, Any]) -> None:
@@ -179,7 +188,7 @@ def nav_feeder(engine: NavEngine) -> dict[str, Handler]:
     return {IMU: imu, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
 
 
-def feed_record(feed: dict[str, Handler], topic: str, msg: dict[str, Any]) -> None:
+def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:
     """One record through a :func:`nav_feeder`; topics the filter does not take are ignored."""
     handler = feed.get(topic)
     if handler is not None:

@@ -22,7 +22,7 @@ from typing import Any
 from logger.config import Config
 from logger.recording.files import McapFileError, is_finished, recover
 from logger.recording.recorder import Recorder
-from logger.recording.records import clock_observer
+from logger.recording.records import clock_observer, sync_record
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import HEALTH, SYNC, TOPICS
 from logger.runtime.journal import ProblemJournal
@@ -45,8 +45,9 @@ READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned
 
 
 @dataclass
-class Extras:
-    """What a run adds beyond the sensors: simulation truth publishers, metadata for the file."""
+class Attachments:
+    """What a run attaches to the daemon beyond its sensors: periodic publishers (the simulation's truth), taps (the
+    navigator), status sections, metadata for the file, and what to close at the end."""
 
     periodic: list[tuple[float, Callable[[], list[Reading]]]] = field(default_factory=list)
     taps: list[Any] = field(default_factory=list)  # objects with offer(topic, payload) -> None, never blocking
@@ -75,18 +76,18 @@ def recover_unfinished(out_dir: Path) -> list[str]:
 
 class Daemon:
     def __init__(self, cfg: Config, plans: list[Plan], timebase: TimeBase | None = None,
-                 clock: StampClock | None = None, extras: Extras | None = None, out_dir: Path | None = None,
+                 clock: StampClock | None = None, attachments: Attachments | None = None, out_dir: Path | None = None,
                  status_socket: Path | None = None, mode: str = "", notifier: Notifier | None = None) -> None:
         self.cfg = cfg
         self.tb = timebase or host_timebase()
         self.clock = clock or FreeRunClock(self.tb.monotonic_ns, imu_rate_hz=cfg["imu"]["rate_hz"])
-        self.extras = extras or Extras()
+        self.attachments = attachments or Attachments()
         self.plans = plans
         self.mode = mode
         self.out_dir = Path(out_dir or cfg["logger"]["out_dir"])
         self.status_socket = Path(status_socket or cfg["logger"]["status_socket"])
         self.recorder = Recorder(
-            RecorderSettings.from_config(cfg["recorder"], self.out_dir), TOPICS, metadata=self.extras.metadata,
+            RecorderSettings.from_config(cfg["recorder"], self.out_dir), TOPICS, metadata=self.attachments.metadata,
             monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale, synced_unix_ns=self._synced_unix_ns)
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
@@ -96,7 +97,7 @@ class Daemon:
         self.status_server: Any = None
         self.startup_lines: list[str] = []
         # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
-        self.taps: list[Any] = list(self.extras.taps)
+        self.taps: list[Any] = list(self.attachments.taps)
         self._observe = clock_observer(self.clock)  # what each record tells the clock (PPS, time messages)
         self._drop_history: deque[tuple[int, int]] = deque()
         # Service manager: READY, WATCHDOG, STATUS, STOPPING (no-ops outside systemd).
@@ -143,7 +144,7 @@ class Daemon:
         for s in self.samplers:
             s.start()
         self._start_thread("health", self._health_loop)
-        for period, fn in self.extras.periodic:
+        for period, fn in self.attachments.periodic:
             self._start_thread("sim-truth", self._periodic_loop, period, fn)
         try:
             self.status_server = StatusServer(self.status_socket, self.snapshot)
@@ -170,7 +171,7 @@ class Daemon:
         if self.status_server is not None:
             self.status_server.close()
         self.recorder.stop()
-        for fn in self.extras.close:
+        for fn in self.attachments.close:
             try:
                 fn()
             except Exception:
@@ -228,16 +229,16 @@ class Daemon:
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
-            "sync": self.clock.report(now),
+            "sync": sync_record(self.clock.report(now)),
             "recorder": rec.__dict__,
-            **{name: fn() for name, fn in self.extras.sections.items()},
+            **{name: fn() for name, fn in self.attachments.sections.items()},
         }
 
     def _health_loop(self) -> None:
         while not self.tb.wait(self.stop_event, 1.0):
             snap = self.snapshot()
             now = self.tb.monotonic_ns()
-            self.sink(Reading(SYNC, self.clock.report(now), now, stamped=False))
+            self.sink(Reading(SYNC, sync_record(self.clock.report(now)), now, stamped=False))
             payload = {"t_mono_ns": now, "verdict": snap["verdict"], "problems": snap["problems"],
                        "sensors": snap["sensors"],
                        "recorder": {k: snap["recorder"][k] for k in ("state", "queue_depth", "written", "dropped",

@@ -23,6 +23,7 @@ from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE
+from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import Reading
 
 log = logging.getLogger(__name__)
@@ -154,13 +155,13 @@ class Navigator:
             return out
 
 
-def attach_navigator(section: dict[str, Any], extras: Any) -> Navigator | None:
+def attach_navigator(section: dict[str, Any], attachments: Attachments) -> Navigator | None:
     """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
     to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists."""
     if not section.get("enabled", True):
         return None
     nav = Navigator(NavParams.from_config(section))
-    extras.taps.append(nav)
-    extras.sections["nav"] = nav.section
-    extras.close.append(nav.stop)
+    attachments.taps.append(nav)
+    attachments.sections["nav"] = nav.section
+    attachments.close.append(nav.stop)
     return nav
