@@ -1,8 +1,9 @@
 """The composition root: a configuration in, a daemon with its sensors, clock, navigator and simulation out.
 
-Everything that turns the ``[imu]``, ``[gnss]``, ``[sync]``, ``[nav]``... sections into objects lives here, so the
-runtime modules (:mod:`logger.runtime`) take ready-made parts and never read the configuration's sensor sections
-themselves, and ``logger run``, the evaluation tools and the tests build a daemon in exactly one way.
+Everything that turns the sensor sections (``[imu]``, ``[baro]``, ``[obd]``, ``[gnss]``, ``[pps]``), ``[sync]``,
+``[nav]`` and ``[sim]`` into objects lives here: the sensor adapters, the clock, the navigator and the simulated
+vehicle reach the daemon ready-made, and ``logger run``, the evaluation tools and the tests build a daemon in
+exactly one way.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from logger.config import SIM_SECTIONS, Config, ConfigError
+from logger.recording.records import truth_clock_record
 from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
 from logger.runtime.daemon import Attachments, Daemon
 from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
@@ -22,7 +24,6 @@ from logger.runtime.navigator import attach_navigator
 from logger.runtime.sampler import Reading
 from logger.runtime.sources import BaroSource, GnssSource, ImuSource, ObdSource, Plan, PpsSource
 from logger.runtime.timebase import TimeBase, host_timebase
-from sensors.elm327 import Elm327
 from sensors.errors import DeviceNotFound
 from sync.chrony_sock import ChronySock
 from sync.clock import PpsClock
@@ -74,8 +75,7 @@ def build(cfg: Config, duration_s: float | None,
 
         def truth_clock() -> list[Reading]:
             now = tb.monotonic_ns()
-            return [Reading(TRUTH_CLOCK, {"t_mono_ns": now, "t_true_ns": vehicle.true_unix_ns(now)}, now,
-                            stamped=False)]
+            return [Reading(TRUTH_CLOCK, truth_clock_record(now, vehicle.true_unix_ns(now)), now, stamped=False)]
 
         def truth_nav() -> list[Reading]:
             now = tb.monotonic_ns()
@@ -149,6 +149,8 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
 
         plans.append(Plan(ObdSource(make_can, "can", tb), obd["rate_hz"], obd["rate_hz"]))
     else:
+        from sensors.elm327 import Elm327  # pyserial's driver, only for a configured adapter
+
         port = devices.elm327_path if obd["source"] == "sim" else obd["port"]
         plans.append(Plan(ObdSource(lambda: Elm327(port, baudrate=obd["baud"], protocol=obd["protocol"],
                                                    headers=obd["headers"]), "elm327", tb),

@@ -37,7 +37,6 @@ CTRL_SCO = 0x20  # BMP180: set while a conversion runs
 
 TEMPERATURE_WAIT_S = 4.5e-3
 PRESSURE_WAIT_S = (4.5e-3, 7.5e-3, 13.5e-3, 25.5e-3)  # per oversampling setting, datasheet maxima
-PRESSURE_NOISE_PA = (6.0, 5.0, 4.0, 3.0)  # RMS noise per oversampling setting (0.06 .. 0.03 hPa)
 SCO_POLL_S = 1.0e-3
 SCO_POLLS = 10
 

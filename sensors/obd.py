@@ -7,7 +7,7 @@ canyons. SAE J1979 defines it as one byte, km/h, 0..255, so the driver keeps the
 The ISO 15765-4 constants live here too: the functional request ids, the response id ranges and the
 single-frame layout, which the CAN driver uses directly and the ELM327 driver needs to read headers. So do
 the check bytes of the older buses' frames (SAE J1850 CRC-8, ISO 9141-2 / ISO 14230-4 sum), which the
-ELM327 shows with headers on and the adapter model computes.
+ELM327 shows with headers on (the adapter model computes them on its own, from the standards).
 """
 
 from __future__ import annotations

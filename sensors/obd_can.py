@@ -75,6 +75,14 @@ class ObdCan(SpeedDriver):
         except (can.CanError, OSError) as e:
             raise BusError(f"cannot set CAN receive filter on {self._where()}: {e}") from e
 
+    def close(self) -> None:
+        """Shut the bus down: it is this driver's own (its receive filters were replaced), and a reconnect opens a
+        new one."""
+        try:
+            self.bus.shutdown()
+        except (can.CanError, OSError):
+            pass  # the interface is already gone
+
     def read(self) -> ObdSpeed:
         """One request, then the engine ECU's answer, or the first other ECU's if the engine stays silent."""
         self._drop_stale()

@@ -86,7 +86,7 @@ class PpsClock(StampClock):
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0}
         self._load()
 
-    # ---- observation (called by the daemon for every record, from any thread) ------------------------------
+    # ---- observation (from the record layer, for the records that tell time; any thread) ---------------------
     def on_imu_sample(self, t_mono_ns: int, temp_degc: float | None) -> None:
         """An IMU sample: the paper's counters tick, and its die temperature drives the holdover correction."""
         with self._lock:

@@ -28,11 +28,6 @@ class Stamp:
     imu_cnt: int  # the paper's IMU counter (reset by PPS)
     timer_cnt: int  # the paper's timer counter (carries on without PPS)
 
-    def fields(self) -> dict[str, int | str]:
-        """The stamp as the record fields every sensor message carries."""
-        return {"t_sync_ns": self.t_sync_ns, "sync_state": self.state, "sync_err_ns": self.err_ns,
-                "imu_cnt": self.imu_cnt, "timer_cnt": self.timer_cnt}
-
 
 @dataclass(frozen=True, slots=True)
 class TrackingReport:
@@ -77,11 +72,10 @@ class StampClock(ABC):
     def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:  # noqa: B027 - optional input
         """A navigation solution with a valid time arrived."""
 
-    def report(self, now_ns: int) -> TrackingReport:
-        """What ``chronyc tracking`` would show, for ``/sync`` and ``logger status``; a clock that sees no edges
-        reports its state and bound, and no edge."""
-        st = self.stamp(now_ns)
-        return TrackingReport(now_ns, st.state, None, None, None, None, st.err_ns, None, 0, None, 0, 0, 0)
+    def report(self, now_ns: int) -> TrackingReport | None:
+        """What ``chronyc tracking`` would show, for ``/sync`` and ``logger status``; None for a clock that tracks
+        nothing (its stamps' state and bound are all there is to say)."""
+        return None
 
     def save(self) -> None:  # noqa: B027 - optional: nothing to persist by default
         """Persist what should survive a restart (a frequency, a mapping); called when the daemon stops."""

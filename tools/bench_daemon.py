@@ -368,7 +368,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     sim_vehicle.build_vehicle = build_vehicle  # type: ignore[assignment]
     t_start = time.monotonic()
     daemon, vehicle = build(cfg, 120.0 + warmup_s + seconds)
-    daemon.extras.periodic.clear()  # no /truth/* topics: a board records none
+    daemon.attachments.periodic.clear()  # no /truth/* topics: a board records none
     result = DaemonResult(imu_rate, seconds, 0.0, warmup_s, profile)
     snaps: list[Snapshot] = []
     rss: list[float] = []

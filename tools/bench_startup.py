@@ -55,21 +55,16 @@ def worker(spawn_ns: int, out: Path) -> dict[str, Any]:
 
     sim_vehicle.build_vehicle = build_vehicle  # type: ignore[assignment]
     daemon, _vehicle = build(sim_config(out), 120.0)
-    daemon.extras.periodic.clear()  # no /truth/* topics, as on a board
+    daemon.attachments.periodic.clear()  # no /truth/* topics, as on a board
     t_built = time.monotonic_ns()
     first: dict[str, tuple[int, float]] = {}
     all_seen = threading.Event()
-    recorder = daemon.recorder
-    write = recorder._write  # the writer thread's per-record step: note each topic's first record
+    def note_first(topic: str) -> None:  # the writer thread wrote this topic's first record
+        first[topic] = (time.monotonic_ns(), time.process_time())
+        if all(t in first for t in SENSOR_TOPICS):
+            all_seen.set()
 
-    def noting_write(item: Any) -> None:
-        write(item)
-        if item[0] not in first:
-            first[item[0]] = (time.monotonic_ns(), time.process_time())
-            if all(t in first for t in SENSOR_TOPICS):
-                all_seen.set()
-
-    recorder._write = noting_write  # type: ignore[method-assign]
+    daemon.recorder.on_first_record = note_first
 
     def watch() -> None:
         daemon.ready.wait(90.0)

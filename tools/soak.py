@@ -348,7 +348,7 @@ def worker(args: argparse.Namespace) -> int:
     if not args.truth:
         # The truth topics score the navigation filter; the soak does not need them, and at 60x their 30
         # records per drive second cost the recorder as much as all the sensors together.
-        daemon.extras.periodic.clear()
+        daemon.attachments.periodic.clear()
     journal = Journal(Path(args.journal))
     journal.write(ev="start", pid=os.getpid(), seed=args.seed, host_ns=time.monotonic_ns(),
                   drive_ns=int(daemon.tb.monotonic_ns()))

@@ -1,10 +1,11 @@
 """What the engine's rooms share: the filter core they act on, and a GNSS fix made ready for the filter.
 
-The start-up (:mod:`logger.nav.startup`), the evidence rules (:mod:`logger.nav.evidence`) and the measurement
-policies (:mod:`logger.nav.policies`) each hold their own state and act on the filter only through
-:class:`FilterCore`, which :class:`logger.nav.engine.NavEngine` implements: the nominal state, the error-state
-EKF, and the few operations that keep both consistent (bring the covariance to now and update, feed a correction
-back, look up the solution at a past instant, reopen attitude and offsets).
+The evidence rules (:mod:`logger.nav.evidence`) and the measurement policies (:mod:`logger.nav.policies`) each
+hold their own state and act on the filter only through :class:`FilterCore`, which
+:class:`logger.nav.engine.NavEngine` implements: the nominal state, the error-state EKF, and the few operations
+that keep both consistent (bring the covariance to now and update, feed a correction back, look up the solution
+at a past instant, reopen attitude and offsets). The start-up (:mod:`logger.nav.startup`) never touches the
+filter: it is given values and hands back the initial state and covariance, which the engine installs.
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ receiver's own fixes passed through, for comparison on the same data.
 This module is the loop: the strapdown step per sample, the covariance, the updates and their feedback, and the
 outputs. Its rooms are :mod:`logger.nav.startup` (levelling and the first heading), :mod:`logger.nav.policies`
 (what each sensor's reading is worth), :mod:`logger.nav.evidence` (what refusals in a row say) and
-:mod:`logger.nav.history` (the solution at a late measurement's instant); they act on the engine through
-:class:`logger.nav.core.FilterCore`. Inputs are typed (:mod:`logger.nav.inputs`): the engine knows no record.
+:mod:`logger.nav.history` (the solution at a late measurement's instant); the policies and the evidence rules
+act on the engine through :class:`logger.nav.core.FilterCore`, the start-up only hands back the initial state
+and covariance. Inputs are typed (:mod:`logger.nav.inputs`): the engine knows no record.
 """
 
 from __future__ import annotations

@@ -21,9 +21,9 @@ class GnssObservation:
     sync_state: str  # the clock's state at t_sync_ns (sync.stamp's FREERUN, LOCKED, HOLDOVER)
     fix_ok: bool  # the receiver flags the fix as valid
     fix_mode: int | None  # 1 no fix, 2 2D, 3 3D
-    lat_deg: float
-    lon_deg: float
-    height_m: float  # above the WGS-84 ellipsoid
+    lat_deg: float | None  # None: the receiver gave no position (not a fix, whatever its flags say)
+    lon_deg: float | None
+    height_m: float | None  # above the WGS-84 ellipsoid
     vel_ned_mps: tuple[float | None, float | None, float | None] | None  # an element is None when not given
     h_acc_m: float | None  # the receiver's accuracy estimates, 1 sigma
     v_acc_m: float | None

@@ -80,7 +80,8 @@ class GnssPolicy:
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
-        if not msg.fix_ok or (msg.fix_mode or 1) < 2:
+        if (not msg.fix_ok or (msg.fix_mode or 1) < 2 or msg.lat_deg is None or msg.lon_deg is None
+                or msg.height_m is None):
             counters.gnss_no_fix += 1
             return None
         counters.gnss_fixes += 1
@@ -125,7 +126,7 @@ class GnssPolicy:
         last = self.last_readings
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
-            if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < 10.0:
+            if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:
                 last.height_in_ns = t_e
         if fix.vel is not None:
             snap = core.state_at(t_e)
@@ -134,7 +135,7 @@ class GnssPolicy:
             obs = self._informative(core, full, V_ID)
             if obs is not None:
                 self.velocity.judge(core, obs, core.apply(obs), t_e,
-                                    fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < 10.0)
+                                    fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
         if fix.h_acc < GOOD_FIX_H_ACC_M and fix.fix_3d:  # a 2D fix has no height of its own to settle anything
             last.good_fix_ns = fix.t_ns
         sigma_max = max(core.sigma)

@@ -31,7 +31,6 @@ from logger.recording.topics import IMU as IMU_TOPIC
 
 REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
 
-_U8 = struct.Struct("<B")
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")
 _CHUNK = struct.Struct("<QQQI")

@@ -129,6 +129,9 @@ class Recorder:
         self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
         self._written: Counter[str] = Counter()
         self._newest_written: dict[str, int] = {}  # topic -> t_mono_ns of its newest record handed to the writer
+        # Called from the writer thread with a topic the first time one of its records is written (start-up timing).
+        self.on_first_record: Callable[[str], None] | None = None
+        self._topics_written: set[str] = set()
         self._on_disk: dict[str, int] = {}  # ... and of its newest record fsynced
         self._state = "starting"
         self._detail = ""
@@ -260,6 +263,10 @@ class Recorder:
         self._newest_written[topic] = pub_ns
         with self._lock:
             self._written[topic] += 1
+        if topic not in self._topics_written:
+            self._topics_written.add(topic)
+            if self.on_first_record is not None:
+                self.on_first_record(topic)
         if self._first_log_ns is not None and log_ns - self._first_log_ns >= self.settings.rotate_duration_s * 1e9:
             self._rotate()
 

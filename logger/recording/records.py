@@ -1,10 +1,12 @@
 """The record layer: where a typed value becomes a recorded message and a recorded message a typed input.
 
-Topic names and payload keys live here and in :mod:`logger.recording.topics` (the schemas) only. The sensor
-adapters build their records with these functions; the daemon and ``logger replay`` both hand records to the
-clock and to the navigation filter through :func:`clock_observer` and :func:`nav_feeder`, so neither
-:mod:`sync` nor :mod:`logger.nav` knows a topic or a payload key, and a live drive and its replay feed them the
-same inputs.
+Topic names are spelled in :mod:`logger.recording.topics` (with the schemas); the payloads of the sensor, clock
+and filter records are built and read here. The sensor adapters, the daemon and the navigator build their records
+with these functions, and the daemon and ``logger replay`` both hand records to the clock and to the navigation
+filter through :func:`clock_observer` and :func:`nav_feeder`, so neither :mod:`sync` nor :mod:`logger.nav`
+knows a topic or a payload key, and a live drive and its replay feed them the same inputs. Two records carry
+what another part reports as it reports it: ``/health`` the status snapshot's sensor and recorder sections, and
+a simulated drive's ``/truth/nav`` the simulator's truth.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from logger.nav.inputs import GnssObservation
 from logger.nav.state import N_FULL, STATE_NAMES
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
 from sync.inputs import FixEpoch, TimeAnnouncement
-from sync.stamp import StampClock, TrackingReport
+from sync.stamp import Stamp, StampClock, TrackingReport
 
 if TYPE_CHECKING:  # the receiver driver (and pyserial behind it) is not needed to replay a drive
     from sensors.bmp085 import BaroSample
@@ -33,6 +35,14 @@ NAV_INPUT_TOPICS: tuple[str, ...] = (IMU, GNSS_FIX, OBD_SPEED, BARO, PPS)  # wha
 
 
 # ---- sensor records ------------------------------------------------------------------------------------------
+def stamped_record(t_mono_ns: int, stamp: Stamp, seq: int, payload: dict[str, Any]) -> dict[str, Any]:
+    """A sensor's record as recorded: its acquisition time, the clock's stamp, the topic's sequence number, then
+    the sensor's own fields."""
+    return {"t_mono_ns": t_mono_ns, "t_sync_ns": stamp.t_sync_ns, "sync_state": stamp.state,
+            "sync_err_ns": stamp.err_ns, "imu_cnt": stamp.imu_cnt, "timer_cnt": stamp.timer_cnt, "seq": seq,
+            **payload}
+
+
 def imu_record(accel_mps2: Sequence[float], gyro_rps: Sequence[float], temp_degc: float, fifo: bool,
                lost: int) -> dict[str, Any]:
     """An ``/imu`` sample: chip axes, SI units."""
@@ -107,6 +117,19 @@ def sync_record(report: TrackingReport) -> dict[str, Any]:
             "relocks": report.relocks}
 
 
+def health_record(snapshot: dict[str, Any], t_mono_ns: int) -> dict[str, Any]:
+    """A ``/health`` record: the verdict, problems and sensors of the status snapshot, the recorder's counters."""
+    rec = snapshot["recorder"]
+    return {"t_mono_ns": t_mono_ns, "verdict": snapshot["verdict"], "problems": snapshot["problems"],
+            "sensors": snapshot["sensors"],
+            "recorder": {k: rec[k] for k in ("state", "queue_depth", "written", "dropped", "free_bytes")}}
+
+
+def truth_clock_record(t_mono_ns: int, t_true_ns: int) -> dict[str, Any]:
+    """A ``/truth/clock`` record of a simulated drive: a board time and the true time at that instant."""
+    return {"t_mono_ns": t_mono_ns, "t_true_ns": t_true_ns}
+
+
 # ---- records to the clock ------------------------------------------------------------------------------------
 def time_announcement(payload: dict[str, Any]) -> TimeAnnouncement | None:
     """A ``/gnss/timepulse`` record as the clock's input; None when it does not name its second."""
@@ -160,8 +183,8 @@ def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
     return GnssObservation(
         t_sync_ns=int(msg["t_sync_ns"]), t_mono_ns=int(msg["t_mono_ns"]), gnss_time_ns=msg.get("gnss_time_ns"),
         sync_state=msg.get("sync_state", ""), fix_ok=bool(msg.get("fix_ok")), fix_mode=msg.get("fix_mode"),
-        lat_deg=msg.get("latitude", math.nan), lon_deg=msg.get("longitude", math.nan),
-        height_m=float(msg.get("altitude", math.nan)),
+        lat_deg=msg.get("latitude"), lon_deg=msg.get("longitude"),
+        height_m=None if msg.get("altitude") is None else float(msg["altitude"]),
         vel_ned_mps=None if vel is None else tuple(vel), h_acc_m=msg.get("h_acc_m"), v_acc_m=msg.get("v_acc_m"),
         s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"))
 

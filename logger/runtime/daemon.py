@@ -22,7 +22,7 @@ from typing import Any
 from logger.config import Config
 from logger.recording.files import McapFileError, is_finished, recover
 from logger.recording.recorder import Recorder
-from logger.recording.records import clock_observer, sync_record
+from logger.recording.records import clock_observer, health_record, stamped_record, sync_record
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import HEALTH, SYNC, TOPICS
 from logger.runtime.journal import ProblemJournal
@@ -120,7 +120,7 @@ class Daemon:
             observe(payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
         if r.stamped:
             stamp = self.clock.stamp(r.t_mono_ns)
-            payload = {"t_mono_ns": r.t_mono_ns, **stamp.fields(), "seq": next(seq), **payload}
+            payload = stamped_record(r.t_mono_ns, stamp, next(seq), payload)
             log_ns = stamp.t_sync_ns
         else:
             log_ns = self.clock.stamp(r.t_mono_ns).t_sync_ns
@@ -229,21 +229,27 @@ class Daemon:
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
-            "sync": sync_record(self.clock.report(now)),
+            "sync": self._sync_section(now),
             "recorder": rec.__dict__,
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
+
+    def _sync_section(self, now: int) -> dict[str, Any]:
+        """The clock's part of the snapshot: its tracking report, or the state and bound of its stamps."""
+        report = self.clock.report(now)
+        if report is not None:
+            return sync_record(report)
+        st = self.clock.stamp(now)
+        return {"state": st.state, "err_ns": st.err_ns}
 
     def _health_loop(self) -> None:
         while not self.tb.wait(self.stop_event, 1.0):
             snap = self.snapshot()
             now = self.tb.monotonic_ns()
-            self.sink(Reading(SYNC, sync_record(self.clock.report(now)), now, stamped=False))
-            payload = {"t_mono_ns": now, "verdict": snap["verdict"], "problems": snap["problems"],
-                       "sensors": snap["sensors"],
-                       "recorder": {k: snap["recorder"][k] for k in ("state", "queue_depth", "written", "dropped",
-                                                                     "free_bytes")}}
-            self.sink(Reading(HEALTH, payload, now, stamped=False))
+            report = self.clock.report(now)
+            if report is not None:
+                self.sink(Reading(SYNC, sync_record(report), now, stamped=False))
+            self.sink(Reading(HEALTH, health_record(snap, now), now, stamped=False))
 
     def _periodic_loop(self, period_s: float, fn: Callable[[], list[Reading]]) -> None:
         start = self.tb.monotonic_ns()

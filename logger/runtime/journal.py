@@ -45,15 +45,19 @@ class RateLimiter:
         self._held[key] = self._held.get(key, 0) + 1
         return False, 0
 
-    def prune(self, keep: set[str] | frozenset[str] = frozenset()) -> None:
-        """Forget full buckets (they would let the next line through anyway), then, if still too many, every
-        key not in ``keep``."""
+    def prune(self, now_s: float, keep: set[str] | frozenset[str] = frozenset()) -> None:
+        """Past ``max_keys``: forget the buckets that have refilled by ``now_s`` (they would let the next line
+        through anyway), then, if still too many, every key not in ``keep``."""
         if len(self._tokens) <= self.max_keys:
             return
-        self._tokens = {k: v for k, v in self._tokens.items() if k in keep or v[0] < self.burst}
+
+        def full(v: tuple[float, float]) -> bool:
+            return v[0] + (now_s - v[1]) / self.refill_s >= self.burst
+
+        self._tokens = {k: v for k, v in self._tokens.items() if k in keep or not full(v)}
         if len(self._tokens) > self.max_keys:
             self._tokens = {k: v for k, v in self._tokens.items() if k in keep}
-            self._held = {k: v for k, v in self._held.items() if k in keep}
+        self._held = {k: v for k, v in self._held.items() if k in self._tokens}
 
 
 class ProblemJournal:
@@ -65,19 +69,13 @@ class ProblemJournal:
     """
 
     def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5) -> None:
-        self.burst = burst
-        self.refill_s = refill_s
         self._active: dict[str, tuple[str, bool]] = {}  # key -> (text, announced)
         self._limiter = RateLimiter(burst, refill_s)
-
-    @staticmethod
-    def key(problem: str) -> str:
-        return problem_key(problem)
 
     def update(self, problems: list[str], now_s: float) -> list[tuple[int, str]]:
         """The lines to log for this second's problems, as (logging level, text)."""
         out: list[tuple[int, str]] = []
-        current = {self.key(p): p for p in problems}
+        current = {problem_key(p): p for p in problems}
         for key, text in current.items():
             if key in self._active:
                 self._active[key] = (text, self._active[key][1])  # "resolved" tells its last state
@@ -91,5 +89,5 @@ class ProblemJournal:
             text, announced = self._active.pop(key)
             if announced:
                 out.append((logging.INFO, f"resolved: {text}"))
-        self._limiter.prune(set(self._active))  # bounded whatever the problems say
+        self._limiter.prune(now_s, set(self._active))  # bounded whatever the problems say
         return out

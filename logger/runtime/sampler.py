@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from logger.runtime.journal import RateLimiter, problem_key
+from logger.runtime.journal import PROBLEM_LOG_REPEAT_S, RateLimiter, problem_key
 from logger.runtime.timebase import TimeBase
 from sensors.errors import DeviceNotFound, NoData, SensorError
 
@@ -127,7 +127,7 @@ class Sampler(threading.Thread):
 
     BACKOFF_START_S = 0.5
     BACKOFF_MAX_S = 10.0
-    LOG_REPEAT_S = 60.0
+    LOG_REPEAT_S = PROBLEM_LOG_REPEAT_S
 
     def __init__(self, source: Source, sink: Sink, timebase: TimeBase, rate_hz: float | None,
                  stop: threading.Event, expected_hz: float | None = None, gap_factor: float = 2.5) -> None:
@@ -275,11 +275,13 @@ class Sampler(threading.Thread):
         h.heartbeat_mono_ns = self.tb.monotonic_ns()
 
     def _log(self, message: str) -> None:
-        """Warn once per distinct message per ``LOG_REPEAT_S``: a flapping sensor must not flood the journal."""
-        allowed, held = self._log_limiter.allow(problem_key(message), time.monotonic())
+        """Warn once per distinct message per ``LOG_REPEAT_S``: a flapping sensor must not flood the journal. The
+        line that gets through says how many repeats of that message were held back since it was last logged."""
+        key, now = problem_key(message), time.monotonic()
+        allowed, held = self._log_limiter.allow(key, now)
         if not allowed:
             return
-        self._log_limiter.prune()
+        self._log_limiter.prune(now, {key})
         extra = f" ({held} repeats not logged)" if held else ""
         log.warning("%s: %s%s", self.source.name, message, extra)
 
