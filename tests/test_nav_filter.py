@@ -18,7 +18,7 @@ from logger.nav.engine import NavEngine
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.nav.smoother import smooth_rows
-from logger.recording.records import feed_record, nav_feeder
+from logger.recording.records import feed_record, gnss_observation, nav_feeder
 from sensors.sim.scenarios import make_drive
 
 
@@ -351,3 +351,16 @@ def test_levelling_widens_the_accelerometer_prior_by_what_gravity_says():
     assert math.sqrt(wide) == pytest.approx(0.1 * earth.G0, rel=1e-6)
     # A chip within the prior leaves it as configured (one draw never narrows it).
     assert accel_offset_variance((0.3, 0.2, -g), g, prior) == prior
+
+
+def test_a_fix_record_without_a_position_is_no_fix() -> None:
+    """Whatever its flags say, a solution without latitude, longitude or height is not a fix: counted, not used."""
+    engine = NavEngine(NavParams(mode="gnss"), record=True)
+    full = {"t_sync_ns": 1_700_000_000 * 10**9, "t_mono_ns": 10**9, "gnss_time_ns": None, "sync_state": "locked",
+            "fix_ok": True, "fix_mode": 3, "latitude": 48.1, "longitude": 11.5, "altitude": 520.0,
+            "vel_ned_mps": [1.0, 0.0, None], "h_acc_m": 2.0, "v_acc_m": 3.0}
+    for missing in ("latitude", "longitude", "altitude"):
+        engine.gnss(gnss_observation({k: v for k, v in full.items() if k != missing}))
+    assert (engine.counters.gnss_no_fix, engine.counters.gnss_fixes, len(engine.rows)) == (3, 0, 0)
+    engine.gnss(gnss_observation(full))
+    assert (engine.counters.gnss_fixes, len(engine.rows)) == (1, 1)

@@ -281,3 +281,13 @@ def test_receive_filter_is_installed(channel: str) -> None:
         other.send(can.Message(arbitration_id=0x7E8, data=bytes.fromhex("03410D3255555555"), is_extended_id=False))
         got = mine.recv(timeout=1.0)
         assert got is not None and got.arbitration_id == 0x7E8
+
+
+def test_close_shuts_the_drivers_own_bus_down(channel: str) -> None:
+    """The driver owns its bus (it replaced the bus's filters): a reconnect opens a new one, so close releases it."""
+    with bus(channel) as mine:
+        driver = ObdCan(mine)
+        driver.close()
+        with pytest.raises(can.CanError):
+            mine.send(can.Message(arbitration_id=0x7DF, data=bytes(8), is_extended_id=False))
+        driver.close()  # nothing left to release: no error

@@ -199,3 +199,18 @@ def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> N
         assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 3000, 20.0), "the new record on disk"
     finally:
         rec.stop()
+
+
+def test_first_record_of_each_topic_is_announced_once_when_written(tmp_path: Path) -> None:
+    topics = {**TOPICS, "/b": TopicSpec("/b", "test.B", {"type": "object"}, "test")}
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), topics)
+    firsts: list[tuple[str, int]] = []
+    rec.on_first_record = lambda topic: firsts.append((topic, sum(rec.status().written.values())))
+    path = rec.start()
+    for i in range(50):
+        rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
+    rec.submit("/b", {}, 1_700_000_000_000_000_100, 100)
+    rec.stop()
+    assert path is not None
+    # Each topic once, and only after its record was counted as written.
+    assert firsts == [("/a", 1), ("/b", 51)]

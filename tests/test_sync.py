@@ -16,6 +16,7 @@ from sync.clock import PpsClock
 from sync.paper import PaperCounters, split_count
 from sync.regress import count_runs, critical_runs, fit_line
 from sync.settings import SyncSettings
+from sync.stamp import FreeRunClock
 
 # ---------------------------------------------------------------------------------------------- regression
 
@@ -309,3 +310,11 @@ def test_tempco_fit_is_computed_once_per_new_point_even_when_there_is_none() -> 
     assert est.coefficient() is not None and fits == 2
     est.sigma()
     assert fits == 2
+
+
+def test_a_free_running_clock_has_nothing_to_report() -> None:
+    """No tracking report (the daemon then records no /sync): its stamps' state and bound say it all."""
+    now = [5 * NS]
+    clock = FreeRunClock(lambda: now[0], lambda: 1_700_000_000 * NS)
+    assert clock.report(now[0]) is None
+    assert clock.stamp(now[0]).state == "freerun"
