@@ -175,3 +175,53 @@ def test_the_real_logger_s_errors_and_exit_code_come_through() -> None:
         theirs = run(["logger", *argv], env, executable=UTIL_LINUX)  # as a script calling `logger` runs it
         assert ours.returncode == theirs.returncode != 0
         assert ours.stderr == theirs.stderr and ours.stderr
+
+
+def test_version_names_ours_and_the_system_logger(stand_in: tuple[dict[str, str], Path]) -> None:
+    env, _ = stand_in
+    r = run([sys.executable, "-m", "logger.cli", "--version"], env)
+    assert r.returncode == 0
+    ours, theirs = r.stdout.splitlines()
+    assert ours.startswith("logger (vehicle-logger) ")
+    assert "system logger (" in theirs and "stand-in says hi" in theirs  # the stand-in prints on stderr only
+
+
+def test_a_reader_that_closes_the_pipe_early_gets_no_traceback() -> None:
+    """``logger info FILE | head -1``: the command ends quietly with the shell's SIGPIPE code."""
+    code = ("import sys, types\n"
+            "import logger.cli as cli\n"
+            "m = types.ModuleType('talkative')\n"
+            "def main(args):\n"
+            "    for i in range(200000):\n"
+            "        print('line', i)\n"
+            "    return 0\n"
+            "m.main = main\n"
+            "sys.modules['talkative'] = m\n"
+            "sys.exit(cli.run_subcommand('talkative', []))\n")
+    p = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stdout is not None and p.stdout.readline() == b"line 0\n"
+    p.stdout.close()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 141, err
+    assert b"Traceback" not in err and b"BrokenPipe" not in err
+
+
+@needs_script
+def test_a_typo_at_a_terminal_gets_a_hint_and_still_reaches_the_system_logger(
+        stand_in: tuple[dict[str, str], Path]) -> None:
+    import pty
+
+    env, got = stand_in
+    master, slave = pty.openpty()
+    os.write(master, b"\x04")  # Ctrl-D: the stand-in's read of the terminal ends
+    try:
+        r = subprocess.run([str(OUR_SCRIPT), "stauts"], stdin=slave, capture_output=True, text=True, env=env,
+                           timeout=60, cwd=ROOT)
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert r.returncode == 7  # the stand-in's exit code: it got the call
+    assert Path(f"{got}.args").read_text() == "stauts\n"
+    assert "did you mean `logger status`?" in r.stderr and "passing it to the system logger" in r.stderr
+    r = run([str(OUR_SCRIPT), "stauts"], env)  # from a script (stdin not a terminal): no hint, same hand-over
+    assert r.returncode == 7 and "did you mean" not in r.stderr

@@ -318,3 +318,25 @@ def test_bad_epochs_split_the_track_and_never_become_points(drive: Drive) -> Non
                              "repeated or out-of-order time": 1}
     (thin,) = build_tracks(stream, files, gap_s=3.0, every_s=1.0)
     assert [round((p.t_ns - t0) / 1e9, 1) for p in thin.segments[-1]] == [13, 14, 15]
+
+
+def test_gnss_decode_reads_a_recordings_raw_receiver_bytes(drive: Drive) -> None:
+    """A recording given to ``logger gnss-decode`` is decoded from its /gnss/raw bytes: the same navigation
+    solutions the daemon recorded on /gnss/fix (read independently, by the mcap package), none taken for garbage."""
+    r = run("gnss-decode", "--json", str(drive.files[0]))
+    assert r.returncode == 0, r.stderr
+    decoded = [json.loads(line) for line in r.stdout.splitlines()]
+    ms = 1_000_000  # TPV times are to the millisecond
+    epochs = {round(m["gnss_time_ns"] / ms) for _, m in recorded(drive.files[:1], "/gnss/fix")
+              if m["gnss_time_ns"] is not None}
+    assert decoded and epochs
+    decoded_times = {round(iso_ns(t["time"]) / ms) for t in decoded if "time" in t}
+    # Every recorded epoch was decoded again from the raw bytes (the first and last epochs of a rotated file may
+    # have been cut between files, so at most one at each end may be missing).
+    assert len(epochs - decoded_times) <= 2, sorted(epochs - decoded_times)[:5]
+    assert " 0 garbage bytes" in r.stderr
+
+
+def test_gnss_decode_says_when_a_recording_has_no_raw_bytes(drive: Drive, tmp_path: Path) -> None:
+    r = run("gnss-decode", str(drive.replay))  # logger replay's trajectory: no /gnss/raw
+    assert r.returncode == 1 and "without /gnss/raw" in r.stderr and "Traceback" not in r.stderr

@@ -6,15 +6,20 @@ asked for keeps ``logger status`` quick on a slow board.
 The name is shared with util-linux's ``/usr/bin/logger``, which shell scripts on the board call
 (``logger -t tag msg``, ``echo msg | logger``). Anything that is not one of our subcommands or ``--help``
 is therefore handed over unchanged to the system's logger: the process is replaced by it (``exec``), so
-it gets the same arguments, stdin, stdout, stderr and environment, and its exit code is the exit code.
+it gets the same arguments, stdin, stdout, stderr and environment, and its exit code is the exit code. A typo of
+one of our commands typed at a terminal goes there too (a script may mean util-linux), with a one-line hint.
+``--version`` names both programs.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
+import subprocess
 import sys
 from collections.abc import Sequence
+from importlib import metadata
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "run": ("logger.cli.run", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
@@ -87,6 +92,49 @@ def hand_over(args: list[str]) -> int:
     return 126
 
 
+def version() -> str:
+    """This program's version, and the system logger's that everything else goes to."""
+    try:
+        ours = metadata.version("vehicle-logger")
+    except metadata.PackageNotFoundError:
+        ours = "unknown (not installed)"
+    lines = [f"logger (vehicle-logger) {ours}"]
+    target = find_system_logger(os.environ.get("PATH"), [sys.argv[0], __file__])
+    if target is None:
+        lines.append(f"system logger: none found on PATH or at {SYSTEM_LOGGER}")
+        return "\n".join(lines)
+    try:
+        r = subprocess.run([target, "--version"], capture_output=True, text=True, timeout=5,
+                           env={**os.environ, HANDOVER_ENV: "1"})
+        theirs = (r.stdout or r.stderr).strip().splitlines()[0] if (r.stdout or r.stderr).strip() else "?"
+    except (OSError, subprocess.SubprocessError):
+        theirs = "?"
+    lines.append(f"system logger ({target}): {theirs}")
+    return "\n".join(lines)
+
+
+def near_miss(word: str) -> str | None:
+    """The one of our commands ``word`` looks like a typo of, if any ("stauts" -> "status")."""
+    if word.startswith("-"):
+        return None
+    close = difflib.get_close_matches(word, list(SUBCOMMANDS), n=1, cutoff=0.75)
+    return close[0] if close else None
+
+
+def run_subcommand(module_name: str, args: list[str]) -> int:
+    """A subcommand; a reader that closes the pipe early (``logger info F | head -1``) ends it quietly."""
+    module = importlib.import_module(module_name)
+    try:
+        code = int(module.main(args) or 0)
+        sys.stdout.flush()
+        return code
+    except BrokenPipeError:
+        # Python's own recipe: point stdout at /dev/null so the interpreter's final flush does not fail again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader went away
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run a subcommand; from the command line (``argv`` None), hand anything else to the system's logger.
 
@@ -97,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     if args and args[0] in ("-h", "--help"):
         print(usage())
         return 0
+    if args and args[0] in ("-V", "--version") and len(args) == 1:
+        print(version())
+        return 0
     entry = SUBCOMMANDS.get(args[0]) if args else None
     if entry is None:
         if argv is not None:
@@ -105,7 +156,9 @@ def main(argv: list[str] | None = None) -> int:
         if not args and sys.stdin.isatty():
             print("logger: no command: passing the terminal to the system logger (Ctrl-D ends); "
                   "`logger --help` lists the vehicle logger's commands", file=sys.stderr)
+        elif args and sys.stdin.isatty() and (guess := near_miss(args[0])) is not None:
+            print(f"logger: {args[0]!r} is not a vehicle-logger command (did you mean `logger {guess}`?); "
+                  "passing it to the system logger", file=sys.stderr)
         return hand_over(args)  # not ours, including no arguments at all (``echo msg | logger``)
-    module = importlib.import_module(entry[0])
-    return int(module.main(args[1:]) or 0)
+    return run_subcommand(entry[0], args[1:])
 

@@ -12,13 +12,18 @@ sentences are skipped too. A ``#`` inside binary data is data, not a comment.
 from __future__ import annotations
 
 import argparse
+import base64
 import datetime as dt
 import json
 import math
 import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
+from logger.recording.drive import DriveFileError, iter_messages, open_drive
+from logger.recording.files import MAGIC as MCAP_MAGIC
+from logger.recording.topics import GNSS_RAW
 from sensors.ublox_decode import GnssDecoder, GnssFix, GnssItem
 from sensors.ublox_frames import UbxNmeaFramer
 
@@ -147,12 +152,19 @@ def tpv_lines(result: DecodeResult, as_json: bool) -> Iterator[str]:
         yield json.dumps(fix_to_tpv(fix), separators=(",", ":")) if as_json else fix_to_text(fix)
 
 
+def recorded_bytes(path: Path) -> list[bytes]:
+    """The receiver's bytes a recording kept on ``/gnss/raw``, in the order they were read (cut files too)."""
+    files = open_drive([path])
+    return [base64.b64decode(m.msg["data_b64"]) for m in iter_messages(files, [GNSS_RAW])]
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="logger gnss-decode",
         description="Decode a u-blox receiver capture (UBX, NMEA, RTCM3) to one line per navigation fix.",
     )
-    parser.add_argument("file", help="capture file: raw receiver bytes, gpsd '#' comment header allowed")
+    parser.add_argument("file", help="capture file (raw receiver bytes, gpsd '#' comment header allowed), or a "
+                                     "recording (.mcap): its /gnss/raw bytes")
     parser.add_argument("--json", action="store_true", help="print gpsd-style TPV JSON objects")
     args = parser.parse_args(argv)
     try:
@@ -162,7 +174,19 @@ def main(argv: list[str]) -> int:
         reason = err.strerror or type(err).__name__
         print(f"logger gnss-decode: cannot read {args.file}: {reason}", file=sys.stderr)
         return 1
-    result = decode_pieces([strip_capture_comments(data)])
+    if data.startswith(MCAP_MAGIC):
+        try:
+            pieces = recorded_bytes(Path(args.file))
+        except DriveFileError as err:
+            print(f"logger gnss-decode: {err}", file=sys.stderr)
+            return 1
+        if not pieces:
+            print(f"logger gnss-decode: {args.file} is a recording without /gnss/raw (a receiver read through gpsd "
+                  "leaves none): nothing to decode", file=sys.stderr)
+            return 1
+        result = decode_pieces(pieces)
+    else:
+        result = decode_pieces([strip_capture_comments(data)])
     try:
         for line in tpv_lines(result, args.json):
             print(line)
