@@ -208,15 +208,9 @@ def test_sigterm_finishes_the_file_cleanly(tmp_path: Path) -> None:
 
 
 def load_report_tool():
-    import importlib.util
+    from logger.exports import sync_report
 
-    spec = importlib.util.spec_from_file_location("sync_report", Path(__file__).resolve().parents[1] / "tools" /
-                                                  "sync_report.py")
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return sync_report
 
 
 def test_the_clock_locks_and_stamps_within_microseconds(minute_drive: tuple[Path, dict], tmp_path: Path) -> None:

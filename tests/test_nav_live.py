@@ -149,8 +149,8 @@ def test_replay_writes_the_trajectory_in_every_mode(recorded: Path, tmp_path: Pa
                 "yaw_deg", "sn_m", "se_m", "sd_m"} <= set(rows[0])
         assert len(rows) > (30 if mode == "gnss" else 300)
         assert (out / "trajectory.mcap").stat().st_size > 0
-    score = subprocess.run([sys.executable, "tools/nav_score.py", str(tmp_path / "17" / "trajectory.csv"), *files,
-                            "--json"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    score = subprocess.run([sys.executable, "-m", "logger.cli", "nav-score", str(tmp_path / "17" / "trajectory.csv"),
+                            *files, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert score.returncode == 0, score.stderr
     import json
 

@@ -3,10 +3,10 @@
     python tools/bench_sync.py --duration 1500 --pps-outage 600 600 --json out.json
 
 ``tools/sync_eval.py`` records the drive through the whole daemon (the tunnel scenario, plus the PPS wire cut
-for a stretch so that the clock holds over for longer than the tunnel), then ``tools/sync_report.py``'s report
+for a stretch so that the clock holds over for longer than the tunnel), then ``logger sync-report``'s report
 of that file gives the error per topic and clock state: RMSE, largest error, and how often the error bound the
 record carries covered the true error. (The paper's Eq. 1 re-timing, which ``sync_report`` also scores, counts
-IMU samples and is only meaningful at time scale 1 with none missed: ``tools/sync_report.py`` shows it.)
+IMU samples and is only meaningful at time scale 1 with none missed: ``logger sync-report`` shows it.)
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 import sync_eval  # noqa: E402
-import sync_report  # noqa: E402
+
+from logger.exports import sync_report  # noqa: E402
 
 
 def run(duration: float, outage: tuple[float, float], time_scale: float, scenario: str) -> dict[str, Any]:

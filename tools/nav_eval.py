@@ -34,8 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from nav_score import Score, format_score, load_truth, plots, score  # noqa: E402
-
+from logger.exports.nav_score import Score, format_score, load_truth, plots, score  # noqa: E402
 from logger.exports.trajectory import run_filter  # noqa: E402
 from logger.nav.params import NavParams  # noqa: E402
 

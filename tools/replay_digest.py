@@ -1,4 +1,4 @@
-"""Digests of what ``logger replay`` and ``tools/sync_report.py`` make of recorded drives, for a behaviour check.
+"""Digests of what ``logger replay`` and ``logger sync-report`` make of recorded drives, for a behaviour check.
 
     python tools/replay_digest.py DRIVE_DIR... [--modes 17 15 gnss] [--checkout DIR] > digests.txt
 
@@ -54,8 +54,9 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     for name in ("trajectory.csv", "trajectory.mcap"):
                         print(f"{label} {name} {sha256(Path(out) / name)}")
-        r = subprocess.run([sys.executable, str(tree / "tools" / "sync_report.py"), *files], cwd=tree, env=env,
-                           capture_output=True)
+        old_tool = tree / "tools" / "sync_report.py"  # where the report lived before `logger sync-report`
+        report_cmd = [str(old_tool)] if old_tool.exists() else ["-m", "logger.cli", "sync-report"]
+        r = subprocess.run([sys.executable, *report_cmd, *files], cwd=tree, env=env, capture_output=True)
         print(f"{drive.name} sync report {hashlib.sha256(r.stdout).hexdigest()} (exit {r.returncode})")
     return 1 if failed else 0
 

@@ -4,7 +4,7 @@
 
 The long cases of the clock's acceptance (an hour without PPS) need more than the named scenarios give; this
 runs the same daemon, drivers and device models as ``logger run --sim``, with the PPS wire cut for a stretch (or
-a scenario option such as a longer tunnel), then ``tools/sync_report.py`` on the file.
+a scenario option such as a longer tunnel), then ``logger sync-report`` on the file.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from logger.cli import sync_report as sync_report_cli
 from logger.compose import build
 from logger.config import defaults
 from logger.runtime import logs
@@ -46,10 +47,8 @@ def main(argv: list[str] | None = None) -> int:
         for k in range(int(start), int(start + length)):
             vehicle.pps.inject_missed(k)
     daemon.run(args.duration)
-    import sync_report
-
     files = sorted(args.out.glob("*.mcap"))
-    return sync_report.main([*map(str, files), *(["--png-dir", str(args.png_dir)] if args.png_dir else [])])
+    return sync_report_cli.main([*map(str, files), *(["--png-dir", str(args.png_dir)] if args.png_dir else [])])
 
 
 if __name__ == "__main__":

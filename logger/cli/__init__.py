@@ -32,6 +32,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "recover": ("logger.cli.recover", "make a file cut short by a crash readable and indexed again"),
     "export": ("logger.cli.export", "a drive's /gnss/fix and /nav/fix as GPX, KML and CSV"),
     "plot": ("logger.cli.plot", "PNG plots of a drive: map, sensor rates and gaps, clock sync state"),
+    "sync-report": ("logger.cli.sync_report", "the paper's time-sync tables and the stamp error of a recorded drive"),
+    "nav-score": ("logger.cli.nav_score", "score replayed trajectories against a simulated drive's truth"),
 }
 
 

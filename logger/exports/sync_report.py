@@ -1,6 +1,6 @@
 """Time-sync report of a recorded drive: the paper's Tables 6 and 7 for both methods, and the stamp error.
 
-    python tools/sync_report.py DRIVE.mcap [--png-dir DIR]
+    logger sync-report DRIVE.mcap... [--png-dir DIR] [--json]
 
 - Table 6: the largest IMU counter value (the paper's IMU_CNT with its timer carry, and the counter as it would be
   without the carry, i.e. reset by PPS only) and the longest interval without PPS.
@@ -13,18 +13,17 @@
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # logger.exports.plotting, without installing the tree
+from logger.exports.plotting import pyplot
+from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, SYNC, TRUTH_CLOCK
 
-SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
+SENSOR_TOPICS = (IMU, BARO, OBD_SPEED, GNSS_FIX, PPS)
 NS = 1_000_000_000
 
 
@@ -40,7 +39,7 @@ class Drive:
         for p in paths:
             with open(p, "rb") as f:
                 reader = make_reader(f)
-                for _, channel, message in reader.iter_messages(topics=[*SENSOR_TOPICS, "/truth/clock", "/sync"],
+                for _, channel, message in reader.iter_messages(topics=[*SENSOR_TOPICS, TRUTH_CLOCK, SYNC],
                                                                 log_time_order=False):
                     topics.setdefault(channel.topic, []).append(json.loads(message.data))
                 for md in reader.iter_metadata():
@@ -52,13 +51,13 @@ class Drive:
 
 
 def truth_span(drive: Drive) -> tuple[int, int] | None:
-    clock = drive.topics.get("/truth/clock")
+    clock = drive.topics.get(TRUTH_CLOCK)
     return (clock[0]["t_mono_ns"], clock[-1]["t_mono_ns"]) if clock else None
 
 
 def true_time(drive: Drive, t_mono: np.ndarray) -> np.ndarray | None:
     """True time at board times inside the span of /truth/clock (outside it there is nothing to compare with)."""
-    clock = drive.topics.get("/truth/clock")
+    clock = drive.topics.get(TRUTH_CLOCK)
     if not clock:
         return None
     mono = np.array([m["t_mono_ns"] for m in clock], dtype=np.int64)
@@ -70,8 +69,8 @@ def true_time(drive: Drive, t_mono: np.ndarray) -> np.ndarray | None:
 
 def paper_times(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 1 for every IMU sample after the first labelled edge: GPS time(k) + (IMU_CNT + Timer_CNT) / Fs."""
-    imu = drive.topics.get("/imu", [])
-    pps = [m for m in drive.topics.get("/pps", []) if m["sync_state"] != "freerun"]
+    imu = drive.topics.get(IMU, [])
+    pps = [m for m in drive.topics.get(PPS, []) if m["sync_state"] != "freerun"]
     if not imu or not pps:
         return np.array([], dtype=np.int64), np.array([], dtype=np.int64)
     edge_mono = np.array([m["t_mono_ns"] for m in pps], dtype=np.int64)
@@ -99,8 +98,8 @@ def interval_stats(t_ns: np.ndarray) -> dict[str, float]:
 
 
 def report(drive: Drive) -> dict:
-    imu = drive.topics.get("/imu", [])
-    pps = drive.topics.get("/pps", [])
+    imu = drive.topics.get(IMU, [])
+    pps = drive.topics.get(PPS, [])
     out: dict = {}
     cnt = np.array([m["imu_cnt"] for m in imu]) if imu else np.array([0])
     total = np.array([m["imu_cnt"] + m["timer_cnt"] for m in imu]) if imu else np.array([0])
@@ -175,11 +174,9 @@ def render(out: dict) -> str:
 
 
 def plots(drive: Drive, out_dir: Path) -> list[Path]:
-    from logger.exports.plotting import pyplot
-
     plt = pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
-    imu = drive.topics.get("/imu", [])
+    imu = drive.topics.get(IMU, [])
     t0 = imu[0]["t_mono_ns"] if imu else 0
     t = np.array([(m["t_mono_ns"] - t0) / NS for m in imu])
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
@@ -194,7 +191,7 @@ def plots(drive: Drive, out_dir: Path) -> list[Path]:
     f18 = out_dir / "figure18_counters.png"
     fig.savefig(f18, dpi=100)
     plt.close(fig)
-    pps = [m for m in drive.topics.get("/pps", []) if m["sync_state"] != "freerun"]
+    pps = [m for m in drive.topics.get(PPS, []) if m["sync_state"] != "freerun"]
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for key, label in (("t_mono_ns", "board clock"), ("t_sync_ns", "synchronised")):
         ts = np.array([m[key] for m in pps], dtype=np.int64)
@@ -214,28 +211,3 @@ def plots(drive: Drive, out_dir: Path) -> list[Path]:
     fig.savefig(f19, dpi=100)
     plt.close(fig)
     return [f18, f19]
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("files", nargs="+", type=Path)
-    ap.add_argument("--png-dir", type=Path, help="write Figures 18 and 19 as PNG here")
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
-    drive = Drive.load(args.files)
-    out = report(drive)
-    print(json.dumps(out, indent=1) if args.json else render(out))
-    if args.png_dir:
-        from logger.exports.plotting import PlotsUnavailable
-
-        try:
-            for p in plots(drive, args.png_dir):
-                print(f"wrote {p}")
-        except PlotsUnavailable as exc:
-            print(exc, file=sys.stderr)
-            return 1
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

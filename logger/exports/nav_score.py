@@ -1,6 +1,6 @@
 """Score a navigation trajectory against the truth of a simulated drive, or against a reference trajectory.
 
-    python tools/nav_score.py DIR/trajectory.csv DRIVE.mcap... [--reference REF.csv] [--plots DIR] [--json]
+    logger nav-score DIR/trajectory.csv DRIVE.mcap... [--reference REF.csv] [--plots DIR] [--json]
 
 Prints, per north/east/down, the RMSE, mean, minimum and maximum error (the paper's Table 9), the horizontal
 drift in every GNSS outage of the drive, and how often the error stays within 3 sigma of the filter's own
@@ -11,18 +11,17 @@ installed (``pip install -e '.[plots]'``), ``--plots`` writes a map view and the
 
 from __future__ import annotations
 
-import argparse
 import csv
-import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
+from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.nav import earth
+from logger.recording.drive import read_messages
+from logger.recording.topics import GNSS_FIX, TRUTH_CLOCK, TRUTH_NAV
 
 OUTAGE_MIN_S = 5.0
 
@@ -41,21 +40,23 @@ class Truth:
         return np.interp(t_mono_ns.astype(float), self.clock_mono.astype(float), self.clock_true.astype(float))
 
 
-def load_truth(paths: list[Path]) -> Truth:
-    from logger.recording.drive import read_messages
+class NoTruth(Exception):
+    """The files are not a simulated drive: there is nothing to score against."""
 
+
+def load_truth(paths: list[Path]) -> Truth:
     nav: list[tuple[int, float, float, float]] = []
     clock: list[tuple[int, int]] = []
     fixes: list[tuple[int, bool]] = []
-    for topic, d in read_messages(paths, ("/truth/nav", "/truth/clock", "/gnss/fix")):
-        if topic == "/truth/nav":
+    for topic, d in read_messages(paths, (TRUTH_NAV, TRUTH_CLOCK, GNSS_FIX)):
+        if topic == TRUTH_NAV:
             nav.append((d["t_true_ns"], d["lat_deg"], d["lon_deg"], d["height_m"]))
-        elif topic == "/truth/clock":
+        elif topic == TRUTH_CLOCK:
             clock.append((d["t_mono_ns"], d["t_true_ns"]))
         else:
             fixes.append((d["t_mono_ns"], bool(d.get("fix_ok"))))
     if not nav or not clock:
-        raise SystemExit("no /truth/nav or /truth/clock in these files: not a simulated drive (use --reference)")
+        raise NoTruth("no /truth/nav or /truth/clock in these files: not a simulated drive (use --reference)")
     nav.sort()
     clock.sort()
     a = np.array(nav, dtype=float)
@@ -170,8 +171,6 @@ def format_score(name: str, s: Score) -> str:
 
 
 def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], truth: Truth) -> list[Path]:
-    from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
-
     try:
         plt = pyplot()
     except PlotsUnavailable as exc:
@@ -209,33 +208,3 @@ def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], 
     plt.close(fig)
     written.append(p)
     return written
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("trajectory", type=Path, nargs="+", help="trajectory.csv files, then the drive's MCAP files")
-    ap.add_argument("--reference", type=Path, help="score against this trajectory CSV instead of /truth")
-    ap.add_argument("--plots", type=Path, help="folder for map.png and error.png")
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
-    csvs = [p for p in args.trajectory if p.suffix == ".csv"]
-    drives = [p for p in args.trajectory if p.suffix == ".mcap"]
-    truth = load_reference(args.reference) if args.reference else load_truth(drives)
-    named = {}
-    for p in csvs:
-        traj = read_trajectory(p)
-        named[p.parent.name or p.stem] = (traj, score(traj, truth))
-    if args.json:
-        print(json.dumps({k: {**s.table(), "max_h": s.max_h, "coverage": s.coverage, "outages": s.outages,
-                              "within_3sigma": s.within_3sigma} for k, (_, s) in named.items()}, indent=1))
-    else:
-        for k, (_, s) in named.items():
-            print(format_score(k, s))
-    if args.plots:
-        for p in plots(args.plots, named, truth):
-            print(f"wrote {p}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
