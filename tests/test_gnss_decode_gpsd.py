@@ -27,7 +27,7 @@ from logger.cli.gnss_decode import DecodeResult, decode_pieces, fix_to_tpv, main
 from sensors.ublox_decode import GnssDecoder, GnssFix, GnssTime
 from sensors.ublox_frames import KIND_NMEA, KIND_UBX, Frame, UbxNmeaFramer
 
-DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gpsd-ublox"
+DATA_DIR = Path(__file__).resolve().parent / "data" / "gpsd-ublox"  # the GPSD project's captures (BSD-2, COPYING there)
 
 MS_PER_DAY = 86_400_000
 MS_PER_WEEK = 604_800_000
@@ -100,9 +100,6 @@ EXPECTED: dict[str, Expect] = {
         "gpsd_sol_copy": 7, "gpsd_geoid_msl": 7, "gpsd_nmea_copy": 3, "gpsd_partial_report": 1}),
 }
 
-needs_data = pytest.mark.skipif(
-    not DATA_DIR.is_dir(), reason=f"gpsd captures not found at {DATA_DIR} (shared data folder absent)"
-)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -442,12 +439,10 @@ def compare_with_gpsd(log: str, result: DecodeResult, frames: list[Frame]) -> Co
 # Tests
 
 
-@needs_data
 def test_the_36_captures_are_all_here() -> None:
     assert sorted(p.name for p in DATA_DIR.glob("*.log")) == sorted(EXPECTED)
 
 
-@needs_data
 @pytest.mark.parametrize("log", sorted(EXPECTED))
 def test_capture_agrees_with_gpsd(log: str) -> None:
     data = load_capture(log)
@@ -470,7 +465,6 @@ def _pure_ubx(log: str) -> bool:
     return any(f.kind == KIND_UBX for f in frames) and not sentences & POSITION_SENTENCES
 
 
-@needs_data
 @pytest.mark.parametrize("log", sorted(EXPECTED))
 def test_gpsd_cycle_model_predicts_every_gpsd_report(log: str) -> None:
     """The model behind 'gpsd_cycle_detection' reproduces gpsd's TPV count of every UBX epoch."""
@@ -498,7 +492,6 @@ def test_gpsd_cycle_model_predicts_every_gpsd_report(log: str) -> None:
     assert predicted == actual
 
 
-@needs_data
 def test_gnss_decode_prints_the_compared_records(capsys: pytest.CaptureFixture[str]) -> None:
     log = "ublox-neo-m8t.log"
     assert main([str(DATA_DIR / log), "--json"]) == 0
@@ -509,7 +502,6 @@ def test_gnss_decode_prints_the_compared_records(capsys: pytest.CaptureFixture[s
     assert "39 fixes" in err and err.count("\n") == 1
 
 
-@needs_data
 def test_gnss_decode_text_output(capsys: pytest.CaptureFixture[str]) -> None:
     assert main([str(DATA_DIR / "ublox-lea-4s.log")]) == 0
     lines = capsys.readouterr().out.splitlines()

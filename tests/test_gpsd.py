@@ -48,11 +48,10 @@ from sync.realtime import RealtimeMap
 from sync.settings import SyncSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA_DIR = ROOT.parent / "shared" / "data" / "gpsd-ublox"
+DATA_DIR = ROOT / "tests" / "data" / "gpsd-ublox"  # the GPSD project's captures (BSD-2, COPYING there)
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS  # 2023-11-14T22:13:20Z
 
-needs_data = pytest.mark.skipif(not DATA_DIR.is_dir(), reason=f"gpsd captures not found at {DATA_DIR}")
 
 
 def iso(unix_ns: int) -> str:
@@ -421,7 +420,6 @@ def replayed() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[str,
     return results
 
 
-@needs_data
 @pytest.mark.parametrize("log", REPLAYED)
 def test_replayed_reports_are_recorded_as_gpsd_gave_them(replayed, log: str) -> None:
     expected, records = replayed[log]
@@ -444,7 +442,6 @@ def test_replayed_reports_are_recorded_as_gpsd_gave_them(replayed, log: str) -> 
         assert vd == (-g["climb"] if "climb" in g and "velD" not in g else vd)
 
 
-@needs_data
 @pytest.mark.parametrize("log", REPLAYED)
 def test_replayed_reports_equal_our_own_decoding_of_the_capture(replayed, log: str) -> None:
     _, records = replayed[log]

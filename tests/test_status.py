@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import socket
 import stat
 from pathlib import Path
 
+import pytest
+
 from logger.cli import main
-from logger.runtime.status_socket import StatusServer, fetch
+from logger.cli import status as status_cli
+from logger.runtime.status_socket import SocketInUse, StatusServer, fetch, free_sim_socket
 
 SNAP = {
     "verdict": "degraded", "uptime_s": 3723, "pid": 42, "t_mono_ns": 50_000_000_000,
@@ -40,3 +45,53 @@ def test_status_round_trip_and_exit_codes(tmp_path: Path, capsys) -> None:
         server.close()
     assert main(["status", "--socket", str(sock)]) == 3
     assert "not running" in capsys.readouterr().err
+
+
+def test_a_socket_another_logger_answers_on_is_not_taken_over(tmp_path: Path) -> None:
+    sock = tmp_path / "status.sock"
+    first = StatusServer(sock, lambda: SNAP)
+    first.start()
+    try:
+        with pytest.raises(SocketInUse) as err:
+            StatusServer(sock, lambda: {**SNAP, "pid": 43})
+        assert err.value.pid == 42 and "in use by another logger (pid 42)" in str(err.value)
+        assert fetch(sock)["pid"] == 42  # the first one still answers
+    finally:
+        first.close()
+    stale = tmp_path / "stale.sock"  # a socket a crashed daemon left: nobody answers, so it is replaced
+    left = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    left.bind(str(stale))
+    left.close()
+    again = StatusServer(stale, lambda: SNAP)
+    again.start()
+    try:
+        assert fetch(stale)["pid"] == 42
+    finally:
+        again.close()
+
+
+def test_a_second_simulated_run_gets_its_own_socket_and_status_finds_it(tmp_path: Path, monkeypatch,
+                                                                        capsys) -> None:
+    default = tmp_path / "sim" / "status.sock"
+    assert free_sim_socket(default) == default  # nobody there
+    monkeypatch.setattr(status_cli, "DEFAULT_SIM_SOCKET", str(default))
+    monkeypatch.setattr(status_cli, "DEFAULT_PATH", tmp_path / "no-config.toml")
+    monkeypatch.delenv("LOGGER_STATUS_SOCKET", raising=False)
+    with pytest.raises(ConnectionError, match=r"nobody answers on .*status\.sock"):
+        status_cli.find_socket()
+    assert main(["status"]) == 3 and "not running (nobody answers on" in capsys.readouterr().err
+    first = StatusServer(default, lambda: SNAP)
+    first.start()
+    try:
+        own = free_sim_socket(default)
+        assert own != default and own.parent == default.parent and str(os.getpid()) in own.name
+        first.close()
+        second = StatusServer(own, lambda: {**SNAP, "pid": 77})
+        second.start()  # the first run has ended: the second one's own socket is found
+        try:
+            assert status_cli.find_socket() == own
+            assert main(["status", "--json"]) == 1 and '"pid": 77' in capsys.readouterr().out
+        finally:
+            second.close()
+    finally:
+        first.close()

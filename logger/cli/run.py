@@ -25,6 +25,7 @@ from logger.config import (
     load,
 )
 from logger.runtime import logs
+from logger.runtime.status_socket import free_sim_socket
 
 log = logging.getLogger("logger")
 
@@ -55,7 +56,8 @@ def resolve_config(args: argparse.Namespace) -> Config:
     elif args.sim:
         cfg = defaults(sim=True)
         cfg.values["logger"]["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
-        cfg.values["logger"]["status_socket"] = DEFAULT_SIM_SOCKET
+        # A second simulated run beside one already running gets a socket of its own instead of taking the other's.
+        cfg.values["logger"]["status_socket"] = str(free_sim_socket(Path(DEFAULT_SIM_SOCKET)))
         cfg.values["logger"]["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
     else:
         cfg = load(DEFAULT_PATH)

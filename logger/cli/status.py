@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
-from logger.runtime.status_socket import EXIT, NOT_RUNNING, fetch
+from logger.runtime.status_socket import EXIT, NOT_RUNNING, answering_pid, fetch, sim_sockets
 
 
 def _age(s: float | None) -> str:
@@ -79,6 +79,16 @@ def render(snap: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def find_socket() -> Path:
+    """No socket named or configured: the service's, then those of ``logger run --sim`` without a configuration
+    (a second simulated run gets one of its own), the first that answers; ConnectionError naming them all."""
+    tried = [Path(SCHEMA["logger"]["status_socket"].default), *sim_sockets(Path(DEFAULT_SIM_SOCKET))]
+    for p in tried:
+        if p.exists() and answering_pid(p) is not None:
+            return p
+    raise ConnectionError("logger is not running (nobody answers on " + ", ".join(map(str, tried)) + ")")
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="logger status", description="show the running logger's health")
     parser.add_argument("--json", action="store_true", help="print the raw snapshot")
@@ -96,15 +106,11 @@ def main(argv: list[str]) -> int:
             path = load(cfg_path)["logger"]["status_socket"] if cfg_path.exists() else None
         except ConfigError:
             path = None
-        if path is None:
-            path = SCHEMA["logger"]["status_socket"].default
-            if not Path(path).exists() and Path(DEFAULT_SIM_SOCKET).exists():
-                path = DEFAULT_SIM_SOCKET  # `logger run --sim` without a configuration
     code = NOT_RUNNING
     try:
         while True:
             try:
-                snap = fetch(path)
+                snap = fetch(path if path is not None else find_socket())
                 code = EXIT.get(snap.get("verdict", ""), 2)
                 text = json.dumps(snap, indent=1) if args.json else render(snap)
             except ConnectionError as exc:

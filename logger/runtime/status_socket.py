@@ -24,6 +24,44 @@ NOT_RUNNING = 3
 MAX_REPLY = 4 << 20
 
 
+class SocketInUse(OSError):
+    """Another logger answers on the status socket: it is not taken over (its operator would lose it)."""
+
+    def __init__(self, path: Path, pid: object) -> None:
+        super().__init__(f"in use by another logger (pid {pid})")
+        self.strerror = f"in use by another logger (pid {pid})"
+        self.path, self.pid = path, pid
+
+
+def answering_pid(path: str | os.PathLike[str], timeout_s: float = 1.0) -> object | None:
+    """The pid of the logger answering on ``path``, or None when nobody does (a socket left by a crash)."""
+    try:
+        return fetch(path, timeout_s).get("pid", "?")
+    except ConnectionError:
+        return None
+
+
+def free_sim_socket(default: Path) -> Path:
+    """``default`` unless another simulated run answers on it; then a socket of this process's own beside it, which
+    ``logger status`` also looks for (:func:`sim_sockets`)."""
+    if default.exists() and answering_pid(default) is not None:
+        return default.with_name(f"{default.stem}-{os.getpid()}{default.suffix}")
+    return default
+
+
+def sim_sockets(default: Path) -> list[Path]:
+    """Every socket a simulated run may be answering on: the default, then the per-run ones, newest first."""
+    others = sorted(default.parent.glob(f"{default.stem}-*{default.suffix}"), key=_mtime, reverse=True)
+    return [default, *others]
+
+
+def _mtime(p: Path) -> float:
+    try:
+        return p.stat().st_mtime
+    except OSError:
+        return 0.0
+
+
 class StatusServer(threading.Thread):
     """Serves ``snapshot()`` as JSON to every client that connects."""
 
@@ -35,6 +73,9 @@ class StatusServer(threading.Thread):
         self._halt = threading.Event()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists() or self.path.is_symlink():
+            pid = answering_pid(self.path)
+            if pid is not None:
+                raise SocketInUse(self.path, pid)
             self.path.unlink()  # a socket left by a crashed daemon
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o117)  # never world-accessible, not even between bind and chmod
