@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -251,3 +252,32 @@ def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_pat
         # buffer come out of one read and share its time.
         stamps = [(m["t_sync_ns"], m["t_mono_ns"]) for m in synced]
         assert all(b[0] > a[0] or (b[0] == a[0] and b[1] == a[1]) for a, b in itertools.pairwise(stamps)), topic
+
+
+def test_the_end_of_a_run_says_what_it_recorded_and_what_never_came(tmp_path: Path) -> None:
+    """The summary after a run: each file by its final name, per-topic counts the file itself holds (read by the
+    mcap package), the sensor that never delivered with its error, the clock and the filter, the next commands."""
+    cfg = tmp_path / "logger.toml"
+    cfg.write_text('[imu]\nsource = "sim"\n[baro]\nsource = "sim"\n[gnss]\nsource = "sim"\n[pps]\nsource = "sim"\n'
+                   f'[obd]\nsource = "elm327"\nport = "{tmp_path / "no-adapter"}"\n'
+                   f'[logger]\nout_dir = "{tmp_path / "rec"}"\nstatus_socket = "{tmp_path / "status.sock"}"\n'
+                   f'state_dir = "{tmp_path / "state"}"\n')
+    r = run_logger("--config", str(cfg), "--duration", "8")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
+    (path,) = sorted((tmp_path / "rec").glob("*.mcap"))
+    assert f"  {path}  " in out and is_finished(path)  # the final (dated) name, not the boot-time one
+    with open(path, "rb") as f:
+        stats = make_reader(f).get_summary()
+    assert stats is not None
+    counts = {ch.topic: stats.statistics.channel_message_counts.get(cid, 0) for cid, ch in stats.channels.items()}
+    for topic, n in counts.items():
+        assert re.search(rf"^  {re.escape(topic)} +{n} +\d+\.\d\d$", out, re.M), (topic, n, out)
+    assert re.search(r"^  ! obd never delivered: .*no-adapter", out, re.M), out
+    assert "never delivered" not in out.replace("! obd never delivered", "")  # the others did
+    assert re.search(r"^  clock (locked|holdover) at the end, error bound [\d.]+ us", out, re.M), out
+    assert re.search(r"^  navigation mode 17: ", out, re.M) and f"  logger info {path}" in out
+    info = subprocess.run([sys.executable, "-m", "logger.cli", "info", str(path)], capture_output=True, text=True,
+                          timeout=60, cwd=Path(__file__).resolve().parents[1])
+    assert info.returncode == 0 and "Silent:    obd (no /obd/speed): configured, never delivered" in info.stdout
+    assert "imu (" not in info.stdout.split("Silent:", 1)[1].splitlines()[0]  # the others delivered

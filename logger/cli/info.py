@@ -14,13 +14,22 @@ import os
 import sys
 import time
 from collections import defaultdict
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from mcap.records import Channel, MessageIndex
+from mcap.records import Channel, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
 from logger.recording.files import McapFileError, is_finished, walk
+from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS
+
+SENSOR_TOPIC = {"imu": IMU, "baro": BARO, "obd": OBD_SPEED, "gnss": GNSS_FIX, "pps": PPS}  # each sensor's samples
+
+
+def silent_sensors(config: dict[str, str], counts: dict[str, int]) -> list[str]:
+    """The sensors the recording's configuration enabled that left no sample in the file (their topic absent)."""
+    return [f"{name} (no {topic})" for name, topic in SENSOR_TOPIC.items()
+            if config.get(f"{name}.source", "none") != "none" and counts.get(topic, 0) == 0]
 
 
 @dataclass
@@ -43,6 +52,7 @@ class FileInfo:
     messages: int
     topics: list[TopicInfo]
     note: str = ""
+    silent: list[str] = field(default_factory=list)  # configured sensors of which the file holds no record
 
 
 def inspect(path: str | os.PathLike[str]) -> FileInfo:
@@ -52,6 +62,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     times: dict[int, list[int]] = defaultdict(list)
     channels: dict[int, Channel] = {}
     schemas: dict[int, str] = {}
+    config: dict[str, str] = {}  # the daemon's configuration, as the file's "config" metadata keeps it
     note = ""
     if finished:
         try:
@@ -63,6 +74,8 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
                         channels[record.id] = record
                     elif type(record).__name__ == "Schema":
                         schemas[record.id] = record.name  # type: ignore[attr-defined]
+                    elif isinstance(record, Metadata) and record.name == "config":
+                        config = dict(record.metadata)
         except Exception as exc:  # a footer present but a broken body: fall back to the walk
             finished = False
             note = f"index unreadable ({type(exc).__name__}); walked the records instead"
@@ -73,6 +86,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
         schemas = {sid: s.name for sid, s in found.schemas.items()}
         for m in found.messages:
             times[m.channel_id].append(m.log_time)
+        config = next((dict(m.metadata) for m in found.metadata if m.name == "config"), config)
         if found.stopped_at and not note:
             note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
     topics = []
@@ -86,7 +100,8 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     start = min(all_times) if all_times else None
     end = max(all_times) if all_times else None
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
-    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note)
+    silent = silent_sensors(config, {t.topic: t.count for t in topics})
+    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note, silent)
 
 
 def _utc(ns: int | None) -> str:
@@ -107,6 +122,8 @@ def render(info: FileInfo) -> str:
     ]
     if info.note:
         lines.append(f"Note:      {info.note}")
+    if info.silent:
+        lines.append(f"Silent:    {', '.join(info.silent)}: configured, never delivered in this file")
     width = max([len(t.topic) for t in info.topics] + [5])
     lines.append("")
     lines.append(f"  {'topic':<{width}}  {'count':>8}  {'rate Hz':>8}  {'max gap s':>9}  schema")

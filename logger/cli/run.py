@@ -26,6 +26,7 @@ from logger.config import (
 )
 from logger.runtime import logs
 from logger.runtime.status_socket import free_sim_socket
+from logger.runtime.summary import run_summary
 
 log = logging.getLogger("logger")
 
@@ -104,8 +105,13 @@ def main(argv: list[str]) -> int:
             print(f"logger: {line}", file=sys.stderr)
         return 2
     try:
-        return daemon.run(args.duration)
+        code = daemon.run(args.duration)
     except OSError as exc:  # the output folder or the socket cannot be created: say which, no traceback
         print(f"logger: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         daemon.stop()
         return 1
+    try:
+        print(run_summary(daemon), flush=True)
+    except Exception:  # the run is over and its files are closed: a summary that fails must not change that
+        log.exception("could not summarise the run")
+    return code

@@ -145,6 +145,7 @@ class Recorder:
         self._first_log_ns: int | None = None
         self._sequence = 0
         self._files_done = 0
+        self._files: list[Path] = []  # every file this recorder started, by its current name
         self._free: int | None = None
         self._compression = COMPRESSION[settings.compression]
         self._last_flush = 0.0
@@ -173,6 +174,12 @@ class Recorder:
         if len(q) >= self._wake_at:
             self._wake.set()
         return True
+
+    def files(self) -> list[Path]:
+        """Every file this recorder started, oldest first, by its name now (boot-time names renamed once the time
+        was known)."""
+        with self._lock:
+            return list(self._files)
 
     def status(self) -> RecorderStatus:
         with self._lock:
@@ -352,6 +359,7 @@ class Recorder:
             return
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
+            self._files.append(path)
         if self._synced_unix_ns is not None and start_unix is None:
             self._unnamed.append((path, start_mono, self._sequence))
         self._channels.clear()
@@ -396,6 +404,7 @@ class Recorder:
             with self._lock:
                 if self._path == old:
                     self._path = new
+                self._files = [new if f == old else f for f in self._files]
         self._unnamed = still
 
     def _close_file(self) -> None:

@@ -93,6 +93,7 @@ class Daemon:
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
         self._started_mono = 0
+        self._stopped_mono: int | None = None
         self._threads: list[threading.Thread] = []
         self.status_server: Any = None
         self.startup_lines: list[str] = []
@@ -159,7 +160,15 @@ class Daemon:
         t.start()
         self._threads.append(t)
 
+    @property
+    def run_span_s(self) -> float:
+        """Drive time from the start of the recording to the stop (or to now while running)."""
+        end = self._stopped_mono if self._stopped_mono is not None else self.tb.monotonic_ns()
+        return max(0.0, (end - self._started_mono) / 1e9) if self._started_mono else 0.0
+
     def stop(self) -> None:
+        if self._stopped_mono is None:
+            self._stopped_mono = self.tb.monotonic_ns()
         self.notifier.stopping("stopping: finishing the file")
         self.stop_event.set()
         for s in self.samplers:

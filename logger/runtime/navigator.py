@@ -140,8 +140,10 @@ class Navigator:
         """The ``nav`` section of ``logger status``."""
         with self._lock:
             sol = self.engine.current()
+            # Before the first solution nothing is published, so no verdict was drawn: say what the start waits for.
+            verdicts = list(self._verdicts) if sol is not None else self.judge.verdicts(self.engine, 0.0)
             out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
-                                   "source": "", "mode": self.engine.mode, "verdicts": list(self._verdicts),
+                                   "source": "", "mode": self.engine.mode, "verdicts": verdicts,
                                    "dropped": self.dropped, "processed": self.processed,
                                    "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets}
             if self.error:

@@ -1,0 +1,80 @@
+"""What a run leaves behind, said when it ends: files, topics, sensors that never delivered, clock, filter, next steps.
+
+Printed by ``logger run`` after the daemon stopped (after ``--duration`` or Ctrl-C, and in the journal under
+systemd), like ``mcap``'s and ``ros2 bag``'s summaries: every file by its final name with its size and whether it
+was finished, per-topic counts and rates over the run, each sensor that never delivered or ended unwell with its
+last error, the clock's state, the filter's, and the commands to look at the drive.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from logger.recording.files import is_finished
+from logger.recording.records import sync_record
+from logger.runtime.daemon import Daemon
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def run_summary(daemon: Daemon) -> str:
+    span_s = daemon.run_span_s
+    files = daemon.recorder.files()
+    sizes = [p.stat().st_size if p.exists() else 0 for p in files]
+    lines = [f"logger: recorded {span_s:.1f} s of drive into {_plural(len(files), 'file')}, "
+             f"{sum(sizes) / 1e6:.1f} MB"]
+    for p, size in zip(files, sizes, strict=True):
+        if not p.exists():
+            lines.append(f"  {p}  (gone)")
+        else:
+            note = "" if is_finished(p) else "  (not finished: `logger recover` it)"
+            lines.append(f"  {p}  {size / 1e6:.1f} MB{note}")
+    written = daemon.recorder.status().written
+    if written:
+        width = max(len(t) for t in written)
+        lines.append(f"  {'topic':<{width}}  {'messages':>9}  {'rate Hz':>8}")
+        for topic in sorted(written):
+            rate = written[topic] / span_s if span_s > 0 else math.nan
+            lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}")
+    now = daemon.tb.monotonic_ns()
+    for snap in (s.health.snapshot(now) for s in daemon.samplers):
+        if snap["samples"] == 0:
+            lines.append(f"  ! {snap['name']} never delivered" + (f": {snap['last_error']}" if snap["last_error"]
+                                                                  else ""))
+        elif snap["state"] not in ("ok", "stopped"):
+            lines.append(f"  ! {snap['name']} ended {snap['state']}: {snap['last_error']}")
+    lines.append("  " + clock_line(daemon))
+    nav = daemon.attachments.sections.get("nav")
+    if nav is not None:
+        lines.append("  " + nav_line(nav()))
+    if files:
+        drive = " ".join(map(str, files))
+        lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/",
+                  f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
+    return "\n".join(lines)
+
+
+def clock_line(daemon: Daemon) -> str:
+    now = daemon.tb.monotonic_ns()
+    report = daemon.clock.report(now)
+    if report is None:
+        st = daemon.clock.stamp(now)
+        return f"clock {st.state} (no PPS discipline)"
+    r = sync_record(report)
+    bound = "unknown" if r["state"] == "freerun" else f"{r['err_ns'] / 1e3:.1f} us"
+    return (f"clock {r['state']} at the end, error bound {bound}, {_plural(r['edges'], 'PPS edge')}, "
+            f"{_plural(r['relocks'], 'relock')}")
+
+
+def nav_line(nav: dict[str, Any]) -> str:
+    verdicts = nav.get("verdicts") or []
+    where = (f"last position {nav['lat_deg']:.6f} {nav['lon_deg']:.6f} ({nav['source']})"
+             if nav.get("lat_deg") is not None else
+             "no position" + (f" ({verdicts[0]})" if verdicts else ""))
+    return (f"navigation mode {nav.get('mode', '?')}: {where}; {nav.get('processed', 0)} records, "
+            f"{_plural(nav.get('resets', 0), 'restart')}")
+
+
