@@ -161,10 +161,14 @@ class Daemon:
         self._threads.append(t)
 
     @property
+    def ended_mono_ns(self) -> int:
+        """When the run was told to stop (drive time), or now while it runs."""
+        return self._stopped_mono if self._stopped_mono is not None else self.tb.monotonic_ns()
+
+    @property
     def run_span_s(self) -> float:
         """Drive time from the start of the recording to the stop (or to now while running)."""
-        end = self._stopped_mono if self._stopped_mono is not None else self.tb.monotonic_ns()
-        return max(0.0, (end - self._started_mono) / 1e9) if self._started_mono else 0.0
+        return max(0.0, (self.ended_mono_ns - self._started_mono) / 1e9) if self._started_mono else 0.0
 
     def stop(self) -> None:
         if self._stopped_mono is None:

@@ -39,8 +39,8 @@ def run_summary(daemon: Daemon) -> str:
         for topic in sorted(written):
             rate = written[topic] / span_s if span_s > 0 else math.nan
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}")
-    now = daemon.tb.monotonic_ns()
-    for snap in (s.health.snapshot(now) for s in daemon.samplers):
+    end = daemon.ended_mono_ns  # the states as they were when the run was told to stop, not as the summary runs
+    for snap in (s.health.snapshot(end) for s in daemon.samplers):
         if snap["samples"] == 0:
             lines.append(f"  ! {snap['name']} never delivered" + (f": {snap['last_error']}" if snap["last_error"]
                                                                   else ""))
@@ -58,10 +58,10 @@ def run_summary(daemon: Daemon) -> str:
 
 
 def clock_line(daemon: Daemon) -> str:
-    now = daemon.tb.monotonic_ns()
-    report = daemon.clock.report(now)
+    end = daemon.ended_mono_ns
+    report = daemon.clock.report(end)
     if report is None:
-        st = daemon.clock.stamp(now)
+        st = daemon.clock.stamp(end)
         return f"clock {st.state} (no PPS discipline)"
     r = sync_record(report)
     bound = "unknown" if r["state"] == "freerun" else f"{r['err_ns'] / 1e3:.1f} us"
