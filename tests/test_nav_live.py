@@ -143,6 +143,7 @@ def test_replay_writes_the_trajectory_in_every_mode(recorded: Path, tmp_path: Pa
         out = tmp_path / f"{mode}{'s' if smooth else ''}"
         r = _replay(*files, "--out", str(out), "--mode", mode, *(["--smooth"] if smooth else []))
         assert r.returncode == 0, r.stderr
+        assert f"wrote {out / 'trajectory.csv'}\nwrote {out / 'trajectory.mcap'}\n" in r.stdout  # every file it wrote
         with open(out / "trajectory.csv", newline="") as f:
             rows = list(csv.DictReader(f))
         assert {"t_sync_ns", "lat_deg", "lon_deg", "height_m", "vn_mps", "ve_mps", "vd_mps", "roll_deg", "pitch_deg",

@@ -16,6 +16,7 @@ from pathlib import Path
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
+from logger.words import plural
 
 FORMATS = ("gpx", "kml", "csv")
 
@@ -64,10 +65,6 @@ def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a folder")
     return formats, topics
-
-
-def plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def summary(t: Track) -> str:

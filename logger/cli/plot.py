@@ -20,13 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from logger.cli.export import drive_name, plural
+from logger.cli.export import drive_name
 from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
 from logger.recording.topics import GNSS_FIX, SYNC
+from logger.words import plural
 
 STATES = ("freerun", "holdover", "locked")
 DPI = 110
@@ -119,7 +120,7 @@ def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t
         ax_state.step(xs, [level.get(m.msg.get("state"), -1) for m in sync], where="post", lw=1.5, color="k",
                       label="/sync state")
         err_us = np.array([m.msg.get("err_ns", 0) for m in sync], dtype=float) / 1e3
-        ax_err.plot(xs, np.maximum(err_us, 1e-3), "k-", lw=1.5, label="/sync err_ns")
+        ax_err.plot(xs, np.maximum(err_us, 1e-3), "k-", lw=1.5, label="/sync error bound")
         # offset_ns is the last edge's: a report more than a second after its edge repeats an old value
         off = [(x, m.msg["offset_ns"] / 1e3) for x, m in zip(xs, sync, strict=True)
                if m.msg.get("offset_ns") is not None and (m.msg.get("since_edge_s") or 0.0) <= 1.0]
@@ -130,7 +131,7 @@ def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t
         ax_state.plot(xs, [level.get(s, -1) + 0.06 * (i + 1) for s in tt.sync_state], ".", ms=1.5,
                       color=f"C{i}", label=f"{tt.topic} sync_state")
         ax_err.plot(xs, np.maximum(tt.sync_err_ns / 1e3, 1e-3), ".", ms=1.5, color=f"C{i}",
-                    label=f"{tt.topic} sync_err_ns")
+                    label=f"{tt.topic} error bound")
     ax_state.set_yticks(range(len(STATES)), STATES)
     ax_state.set_ylim(-0.5, len(STATES) - 0.1)
     ax_state.set_title("clock state (per-message states drawn a little above their level)", fontsize=9, loc="left")

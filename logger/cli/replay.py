@@ -70,4 +70,6 @@ def main(argv: list[str]) -> int:
         stats = ", ".join(f"{k} {v.accepted}/{v.accepted + v.rejected}" for k, v in engine.ekf.stats.items())
         print(f"updates accepted: {stats}")
     print(f"wrote {args.out / 'trajectory.csv'}")
+    if states is not None:
+        print(f"wrote {args.out / 'trajectory.mcap'}")
     return 0

@@ -20,6 +20,7 @@ from xml.sax.saxutils import escape, quoteattr
 
 from logger.exports.tracks import Gap, Track, TrackPoint
 from logger.recording.topics import GNSS_FIX, NAV_FIX
+from logger.words import plural
 
 GPX_NS = "http://www.topografix.com/GPX/1/1"
 GPX_SCHEMA = "http://www.topografix.com/GPX/1/1/gpx.xsd"
@@ -126,7 +127,8 @@ def write_kml(path: Path, tracks: list[Track], which: str, title: str, gap_marks
             f.write(f"<Folder><name>{escape(t.label)}</name>\n")
             pts = t.points
             if pts:
-                desc = f"{t.n_points} points, {len(t.segments)} segments, {len(t.gaps)} gaps"
+                desc = ", ".join((plural(t.n_points, "point"), plural(len(t.segments), "segment"),
+                                  plural(len(t.gaps), "gap")))
                 f.write(f"<Placemark><name>{escape(t.label)}</name><description>{escape(desc)}</description>"
                         f"<styleUrl>#{t.key}</styleUrl><TimeSpan><begin>{utc_iso(pts[0].t_ns)}</begin>"
                         f"<end>{utc_iso(pts[-1].t_ns)}</end></TimeSpan><MultiGeometry>\n")

@@ -14,17 +14,14 @@ from typing import Any
 from logger.recording.files import is_finished
 from logger.recording.records import sync_record
 from logger.runtime.daemon import Daemon
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+from logger.words import plural
 
 
 def run_summary(daemon: Daemon) -> str:
     span_s = daemon.run_span_s
     files = daemon.recorder.files()
     sizes = [p.stat().st_size if p.exists() else 0 for p in files]
-    lines = [f"logger: recorded {span_s:.1f} s of drive into {_plural(len(files), 'file')}, "
+    lines = [f"logger: recorded {span_s:.1f} s of drive into {plural(len(files), 'file')}, "
              f"{sum(sizes) / 1e6:.1f} MB"]
     for p, size in zip(files, sizes, strict=True):
         if not p.exists():
@@ -65,8 +62,8 @@ def clock_line(daemon: Daemon) -> str:
         return f"clock {st.state} (no PPS discipline)"
     r = sync_record(report)
     bound = "unknown" if r["state"] == "freerun" else f"{r['err_ns'] / 1e3:.1f} us"
-    return (f"clock {r['state']} at the end, error bound {bound}, {_plural(r['edges'], 'PPS edge')}, "
-            f"{_plural(r['relocks'], 'relock')}")
+    return (f"clock {r['state']} at the end, error bound {bound}, {plural(r['edges'], 'PPS edge')}, "
+            f"{plural(r['relocks'], 'relock')}")
 
 
 def nav_line(nav: dict[str, Any]) -> str:
@@ -75,6 +72,6 @@ def nav_line(nav: dict[str, Any]) -> str:
              if nav.get("lat_deg") is not None else
              "no position" + (f" ({verdicts[0]})" if verdicts else ""))
     return (f"navigation mode {nav.get('mode', '?')}: {where}; {nav.get('processed', 0)} records, "
-            f"{_plural(nav.get('resets', 0), 'restart')}")
+            f"{plural(nav.get('resets', 0), 'restart')}")
 
 
