@@ -89,7 +89,7 @@ def test_a_second_simulated_run_gets_its_own_socket_and_status_finds_it(tmp_path
         second = StatusServer(own, lambda: {**SNAP, "pid": 77})
         second.start()  # the first run has ended: the second one's own socket is found
         try:
-            assert status_cli.find_socket() == own
+            assert status_cli.find_socket()[0] == own
             assert main(["status", "--json"]) == 1 and '"pid": 77' in capsys.readouterr().out
         finally:
             second.close()

@@ -187,12 +187,8 @@ def main(argv: list[str]) -> int:
         result = decode_pieces(pieces)
     else:
         result = decode_pieces([strip_capture_comments(data)])
-    try:
-        for line in tpv_lines(result, args.json):
-            print(line)
-        sys.stdout.flush()
-    except BrokenPipeError:
-        return 0  # the reader (head, less) stopped early
+    for line in tpv_lines(result, args.json):
+        print(line)  # a reader that stops early (head, less): logger.cli.run_subcommand ends it quietly
     print(
         f"logger gnss-decode: {len(result.fixes)} fixes, {result.frames_ok} frames, "
         f"{result.bad_checksum} bad checksums, {result.garbage_bytes} garbage bytes, "

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
-from logger.runtime.status_socket import EXIT, NOT_RUNNING, answering_pid, fetch, sim_sockets
+from logger.runtime.status_socket import EXIT, NOT_RUNNING, fetch, sim_sockets
 
 
 def _age(s: float | None) -> str:
@@ -79,13 +79,17 @@ def render(snap: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def find_socket() -> Path:
+def find_socket() -> tuple[Path, dict[str, Any]]:
     """No socket named or configured: the service's, then those of ``logger run --sim`` without a configuration
-    (a second simulated run gets one of its own), the first that answers; ConnectionError naming them all."""
+    (a second simulated run gets one of its own), the first that answers, with its snapshot; ConnectionError
+    naming them all."""
     tried = [Path(SCHEMA["logger"]["status_socket"].default), *sim_sockets(Path(DEFAULT_SIM_SOCKET))]
     for p in tried:
-        if p.exists() and answering_pid(p) is not None:
-            return p
+        if p.exists():
+            try:
+                return p, fetch(p, timeout_s=1.0)
+            except ConnectionError:
+                continue  # a socket a crashed run left
     raise ConnectionError("logger is not running (nobody answers on " + ", ".join(map(str, tried)) + ")")
 
 
@@ -110,7 +114,7 @@ def main(argv: list[str]) -> int:
     try:
         while True:
             try:
-                snap = fetch(path if path is not None else find_socket())
+                snap = fetch(path) if path is not None else find_socket()[1]
                 code = EXIT.get(snap.get("verdict", ""), 2)
                 text = json.dumps(snap, indent=1) if args.json else render(snap)
             except ConnectionError as exc:

@@ -222,7 +222,7 @@ def iter_messages(files: list[DriveFile], topics: Iterable[str]) -> Iterator[Dri
 def read_messages(paths: Iterable[Path], topics: Iterable[str]) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
     :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
-    files = [DriveFile(Path(p), "live", is_finished(p)) for p in paths]
+    files = open_drive(paths)
     loads = json.loads
     imu = _IMU.match
     for _, _, _, topic, data in _collect(files, set(topics)):

@@ -252,6 +252,8 @@ class Sampler(threading.Thread):
         a line opened mid-frame or an adapter's start-up is not a fault."""
         counts = self._incidents_of()
         base = self._incident_base
+        if not counts and base is not None and not base:
+            return  # a device with nothing to count (most): no work per read on the sensor thread
         self._incident_base = dict(counts)
         if base is None:
             return

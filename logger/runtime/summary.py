@@ -12,9 +12,9 @@ import math
 from typing import Any
 
 from logger.recording.files import is_finished
-from logger.recording.records import sync_record
 from logger.runtime.daemon import Daemon
 from logger.words import plural
+from sync.stamp import FREERUN
 
 
 def run_summary(daemon: Daemon) -> str:
@@ -60,10 +60,9 @@ def clock_line(daemon: Daemon) -> str:
     if report is None:
         st = daemon.clock.stamp(end)
         return f"clock {st.state} (no PPS discipline)"
-    r = sync_record(report)
-    bound = "unknown" if r["state"] == "freerun" else f"{r['err_ns'] / 1e3:.1f} us"
-    return (f"clock {r['state']} at the end, error bound {bound}, {plural(r['edges'], 'PPS edge')}, "
-            f"{plural(r['relocks'], 'relock')}")
+    bound = "unknown" if report.state == FREERUN else f"{report.err_ns / 1e3:.1f} us"
+    return (f"clock {report.state} at the end, error bound {bound}, {plural(report.edges, 'PPS edge')}, "
+            f"{plural(report.relocks, 'relock')}")
 
 
 def nav_line(nav: dict[str, Any]) -> str:
