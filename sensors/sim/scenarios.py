@@ -1,8 +1,9 @@
 """Named, seeded drives: the urban loop, a GNSS outage at a steady speed, a long tunnel.
 
-Each drive is an intro (idling with the engine running: the logger is powered with the ignition, and the
-vehicle stands still long enough for a static alignment), a body that repeats until the requested duration is
-filled, and an outro (stop, idle, engine off). A seed fixes every
+Each drive is an intro (idling with the engine running for ``intro_s``: the logger is powered with the
+ignition, and the vehicle stands still long enough for the filter to level the IMU, then moves off, so a
+one-minute run shows the filter working), a body that repeats until the requested duration is filled, and an
+outro (stop, idle, engine off). A seed fixes every
 choice (speeds, stop lengths, grades, sky in street canyons, weather) so a run can be repeated exactly; the
 body is re-drawn for each repetition from ``(seed, repetition)``, so a long drive does not repeat itself
 while a short one does not depend on how long the long one was.
@@ -26,6 +27,8 @@ from sensors.sim.gnss_errors import SkyGeometry
 
 SCENARIOS = ("urban", "outage-60s", "tunnel-130s")
 
+INTRO_S = 8.0  # standing with the engine running before moving off: levelling needs 2 s, the rest is margin
+_START_OPTIONS = ("intro_s",)
 _DRIVE_OPTIONS = ("start_lat_deg", "start_lon_deg", "start_height_m", "geoid_m", "grid_dt_s")
 _WEATHER_OPTIONS = ("ambient_start_degc", "ambient_swing_degc", "sea_level_pa", "sea_level_rate_pa_per_s")
 _SCENARIO_OPTIONS: dict[str, dict[str, Any]] = {
@@ -50,7 +53,7 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
     The body repeats while a whole repetition and the outro still fit, then the vehicle parks until
     ``duration_s``; a duration shorter than one repetition cuts the drive there instead.
 
-    Options: ``tunnel_s`` (urban: the two tunnels' dark times; tunnel-130s: its one), ``outage_s`` and
+    Options: ``intro_s`` (standing before moving off, default :data:`INTRO_S`), ``tunnel_s`` (urban: the two tunnels' dark times; tunnel-130s: its one), ``outage_s`` and
     ``speed_mps`` (outage-60s), start position (``start_lat_deg``, ``start_lon_deg``, ``start_height_m``
     ellipsoidal, ``geoid_m``) and weather (``ambient_start_degc``, ``ambient_swing_degc``,
     ``sea_level_pa``, ``sea_level_rate_pa_per_s``).
@@ -59,12 +62,15 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
         raise ValueError(f"unknown drive scenario {name!r}: choose one of {', '.join(SCENARIOS)}")
     if duration_s is not None and not duration_s > 0:
         raise ValueError(f"drive duration must be positive, got {duration_s}")
-    allowed = set(_SCENARIO_OPTIONS[name]) | set(_DRIVE_OPTIONS) | set(_WEATHER_OPTIONS)
+    allowed = set(_SCENARIO_OPTIONS[name]) | set(_START_OPTIONS) | set(_DRIVE_OPTIONS) | set(_WEATHER_OPTIONS)
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise ValueError(f"scenario {name!r} has no option {unknown[0]!r}: it takes {', '.join(sorted(allowed))}")
     scenario_opts = {**_SCENARIO_OPTIONS[name], **{k: v for k, v in options.items() if k in _SCENARIO_OPTIONS[name]}}
     drive_opts = {k: v for k, v in options.items() if k in _DRIVE_OPTIONS}
+    intro_s = float(options.get("intro_s", INTRO_S))
+    if not intro_s >= 0.0:
+        raise ValueError(f"intro_s must be 0 s or more, got {intro_s}")
 
     rng = np.random.default_rng([seed, 0])
     weather = Weather(
@@ -77,7 +83,8 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
     heading0, body, speed = _SCENARIO_BODIES[name](rng, scenario_opts)
 
     b = RouteBuilder(heading_rad=heading0, engine_on=True)
-    b.stand(30.0, "idle")
+    if intro_s > 0.0:
+        b.stand(intro_s, "idle")
     if speed > 0.0:
         b.speed_to(speed, 1.5)
     outro_s = 60.0
@@ -130,7 +137,9 @@ def _urban(rng: np.random.Generator, opts: dict[str, Any]) -> tuple[float, Body,
 
 def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], extra_n: float,
                extra_e: float, fill_s: float, fill_w: float) -> None:
-    """One lap of four blocks with right turns, from a red light heading north back to the same light."""
+    """One lap of four blocks with right turns, from a red light heading north back to the same light.
+
+    The first lap (repetition 0) moves off at once: the drive's intro was its wait at the light."""
     rng = np.random.default_rng(words)
     sky = np.random.default_rng([*words, 1])
     traffic = np.random.default_rng([*words, 2])  # speed wandering with the traffic on fixed-length stretches
@@ -147,7 +156,8 @@ def _urban_lap(b: RouteBuilder, words: list[int], tunnels: tuple[float, float], 
     fill_n, fill_e = (float(x) for x in rng.uniform(150.0, 350.0, 2))
     ramp = 2.0
 
-    b.stand(stops[0], "stop")
+    if words[-1] > 0:
+        b.stand(stops[0], "stop")
     # Northbound: street canyon with an S-curve pair, a red light, a hill.
     b.speed_to(v_n, acc)
     b.cruise_m(120.0)
