@@ -108,6 +108,16 @@ def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
     assert seqnos == list(range(seqnos[0], seqnos[0] + len(seqnos)))
 
 
+def test_the_one_minute_drive_shows_a_live_position_for_most_of_it(minute_drive: tuple[Path, dict]) -> None:
+    """README's run: the car levels, moves off and the filter publishes its position for at least 40 of 60 s."""
+    _, msgs = minute_drive
+    fixes = [m for _, _, m in msgs["/nav/fix"]]
+    assert fixes, "no /nav/fix in README's one-minute drive"
+    span_s = (fixes[-1]["t_sync_ns"] - fixes[0]["t_sync_ns"]) / 1e9
+    assert span_s >= 40.0, span_s
+    assert fixes[-1]["source"] == "ins 17-state"
+
+
 def test_every_sensor_message_is_stamped(minute_drive: tuple[Path, dict]) -> None:
     _, msgs = minute_drive
     for topic in SENSOR_TOPICS:
@@ -242,6 +252,20 @@ def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_pat
     assert held and all(s["max_us"] <= 200 and s["bound_covers"] == 1.0 for s in held.values()), held
     assert out["table6"]["longest_without_pps_s"] > 55
     msgs = read_messages(path)
+    # What the status said meanwhile (its /health records): the receiver has no fix and its row says so, the PPS
+    # line is silent and its row says so too, and the problems blame the sky, not the PPS wiring.
+    health = [m for _, _, m in msgs["/health"]]
+    outage = [m for m in health if any(p.startswith("gnss: no fix for ") for p in m["problems"])]
+    assert len(outage) > 40, [m["problems"] for m in health]
+    for m in outage:
+        rows = {h["name"]: h for h in m["sensors"]}
+        assert m["verdict"] == "degraded" and rows["gnss"]["state"] == "no fix", m
+        assert rows["gnss"]["measured_rate_hz"] > 0.5  # the receiver still reports, without a position
+    silent = [m for m in outage if any(p.startswith("pps: no pulse for ") for p in m["problems"])]
+    assert len(silent) > 30 and all(p.endswith("(the receiver pulses only with a fix)")
+                                    for m in silent for p in m["problems"] if p.startswith("pps:"))
+    assert all({h["name"]: h["state"] for h in m["sensors"]}["pps"] == "silent" for m in silent)
+    assert health[-1]["verdict"] == "ok" and not health[-1]["problems"], health[-1]  # over once the sky is back
     for topic in SENSOR_TOPICS:
         synced = [m for _, _, m in msgs[topic] if m["sync_state"] != "freerun"]
         states = {m["sync_state"] for m in synced}

@@ -30,7 +30,7 @@ from mcap.reader import make_reader
 
 from logger.cli.gnss_decode import decode_pieces, strip_capture_comments
 from logger.cli.run import resolve_config
-from logger.cli.status import render
+from logger.cli.status_view import render
 from logger.config import ConfigError, parse
 from logger.recording.records import location_fix
 from logger.runtime import gpsd_sources

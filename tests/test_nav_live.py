@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from test_nav_synth import records
 
-from logger.cli.status import render
+from logger.cli.status_view import render
 from logger.config import ConfigError, parse
 from logger.nav.params import NavParams
 from logger.runtime.daemon import Attachments
@@ -198,3 +198,23 @@ def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path
         w.finish()
     again = [m for _, m in read_messages([spaced], ("/imu",))]
     assert again and all(set(m) == {"t_mono_ns", "t_sync_ns", "accel_mps2", "gyro_rps", "temp_degc"} for m in again)
+
+
+def test_replay_of_a_drive_that_never_moves_says_why_and_fails(tmp_path: Path):
+    """A parked drive: the filter levels but never learns its heading, so there is no trajectory to write."""
+    from logger.recording.recorder import Recorder
+    from logger.recording.settings import RecorderSettings
+    from logger.recording.topics import TOPICS
+
+    parked = make_drive("urban", seed=1, duration_s=40.0, intro_s=60.0)
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "drive"), TOPICS)
+    rec.start()
+    for t, topic, msg in records(parked, 40.0, seed=1):
+        assert rec.submit(topic, msg, t, msg["t_mono_ns"])
+    rec.stop()
+    out = tmp_path / "out"
+    r = _replay(*map(str, sorted((tmp_path / "drive").glob("*.mcap"))), "--out", str(out))
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert r.stderr.strip().startswith("logger replay: no solution from 801 IMU samples and 41 GNSS fixes: ")
+    assert "waiting for the car to move to find the heading" in r.stderr and "Traceback" not in r.stderr
+    assert not (out / "trajectory.csv").exists() and r.stdout == ""

@@ -101,7 +101,7 @@ def test_a_slow_sample_is_counted_late_and_missed_periods_are_counted() -> None:
     assert s.health.gaps == 1
 
 
-def test_failure_backs_off_reconnects_and_counts() -> None:
+def test_failure_backs_off_reconnects_and_counts(caplog: pytest.LogCaptureFixture) -> None:
     tb = VirtualTime()
     src = Scripted(tb, fail_at={5}, absent_opens=2, limit=30)
     s, out = _run(src, 20.0)
@@ -109,7 +109,9 @@ def test_failure_backs_off_reconnects_and_counts() -> None:
     assert h.errors == 3  # two opens while absent, one bus error
     assert h.reconnects == 1  # the first successful open is not a reconnect
     assert h.state == "stopped"
-    assert h.last_error == "I2C transfer failed (EIO)"
+    # Recovered: the error is no present one (the status would show it as stale), the log keeps what it was.
+    assert h.last_error == ""
+    assert "imu: back after: I2C transfer failed (EIO)" in caplog.text
     assert len(out) == 29  # every read but the failed one delivered
 
 
@@ -183,12 +185,13 @@ class BrokenOpen(Scripted):
             raise ValueError("unexpected reply 0xFF")
 
 
-def test_an_unexpected_error_while_opening_is_retried_not_fatal() -> None:
+def test_an_unexpected_error_while_opening_is_retried_not_fatal(caplog: pytest.LogCaptureFixture) -> None:
     tb = VirtualTime()
     src = BrokenOpen(tb, limit=5)
     s, out = _run(src, 2.0)
     assert src.opens == 3 and len(out) == 5
-    assert s.health.errors == 2 and "ValueError: unexpected reply 0xFF" in s.health.last_error
+    assert s.health.errors == 2 and "imu: cannot open: ValueError: unexpected reply 0xFF" in caplog.text
+    assert s.health.last_error == ""  # opened in the end: no present error
 
 
 def test_a_sample_finished_over_half_a_period_late_is_counted_delayed_not_late() -> None:

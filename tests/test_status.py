@@ -38,7 +38,7 @@ def test_status_round_trip_and_exit_codes(tmp_path: Path, capsys) -> None:
         assert main(["status", "--socket", str(sock)]) == 1
         out = capsys.readouterr().out
         assert "DEGRADED" in out and "up 1h02m03s" in out and "obd: NO DATA" in out
-        assert "obd      retrying" in out and "locked" in out and "31.200 ppm" in out
+        assert "obd     retrying" in out and "locked" in out and "+31.20 ppm" in out
         assert "on disk up to 0.6 s ago" in out  # what a power cut now would lose, from the newest record on disk
         assert main(["status", "--json", "--socket", str(sock)]) == 1
     finally:

@@ -160,7 +160,7 @@ class Injector:
                     seen = visible(snap)
                     if seen is not None:
                         seen_after = (self.now() - t0) / NS
-                        from logger.cli.status import render
+                        from logger.cli.status_view import render
 
                         status_text = render(snap)
             time.sleep(POLL_REAL_S)

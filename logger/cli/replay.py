@@ -2,7 +2,8 @@
 
 The work is :mod:`logger.exports.trajectory`'s; this is the command line around it. Writes ``DIR/trajectory.csv``
 (one row per IMU sample once the filter runs; per fix in GNSS-only mode) and ``DIR/trajectory.mcap`` with
-``/nav/fix`` per row and ``/nav/state`` once a second, so Foxglove draws it next to the recording.
+``/nav/fix`` per row and ``/nav/state`` once a second, so Foxglove draws it next to the recording. A drive the
+filter could not start on writes nothing and exits 1, with what the start waited for.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from logger.config import ConfigError, load
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.recording.files import is_finished
+from logger.words import plural
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -57,15 +59,24 @@ def main(argv: list[str]) -> int:
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     engine, rows = run_filter(args.files, params, args.smooth, states)
     t1 = time.perf_counter()
+    c = engine.counters
+    if not rows:
+        # An empty trajectory is no result: say what the start waited for, write nothing, fail.
+        why = engine.waiting_for() or "the filter produced no solution"
+        print(f"logger replay: no solution from {c.imu} IMU samples and {c.gnss_fixes} GNSS fixes: {why}",
+              file=sys.stderr)
+        return 1
     write_csv(args.out / "trajectory.csv", rows)
     if states is not None:
         write_mcap(args.out / "trajectory.mcap", rows, engine, states)
-    c = engine.counters
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
-    print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {len(rows)} solutions over {span:.0f} s, "
-          f"{c.imu} IMU samples in {t1 - t0:.2f} s "
-          f"({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per sample), "
-          f"initialised by {c.init_method or 'nothing'}, {c.resets} resets")
+    if engine.mode == "gnss":
+        work = f"the receiver's fixes passed through in {t1 - t0:.2f} s"
+    else:
+        work = (f"{plural(c.imu, 'IMU sample')} in {t1 - t0:.2f} s ({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per "
+                f"sample), initialised by {c.init_method}, {plural(c.resets, 'reset')}")
+    print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {plural(len(rows), 'solution')} over "
+          f"{span:.0f} s, {work}")
     if engine.ekf is not None:
         stats = ", ".join(f"{k} {v.accepted}/{v.accepted + v.rejected}" for k, v in engine.ekf.stats.items())
         print(f"updates accepted: {stats}")

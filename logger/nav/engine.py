@@ -434,6 +434,36 @@ class NavEngine:
         """Sum of lateral/forward OBD velocity ratios and their count: a mounting turned about the vertical."""
         return self._obd.mount_yaw_stat
 
+    def waiting_for(self) -> str:
+        """What the start waits for, in words an operator can act on; "" once there is a solution.
+
+        The same sentence for ``logger status``, the end of a run and ``logger replay``, so an empty trajectory
+        always comes with its reason."""
+        c, su, fix, p = self.counters, self.startup, self.last_readings.fix, self.params
+        no_fix = ("no GNSS fix yet" if c.gnss_no_fix == 0 else
+                  f"no GNSS fix yet ({c.gnss_no_fix} epochs without one)")
+        if self.mode == "gnss":
+            return "" if self.solution is not None else f"waiting for a GNSS fix: {no_fix}"
+        if self.state is not None:
+            return ""
+        if c.imu == 0:
+            return "waiting for the IMU: no sample yet"
+        if su.prov_q is None:
+            if su.align.n:
+                return (f"levelling the IMU ({su.align.duration_s:.0f} s standing); waiting for the car to move "
+                        "to find the heading")
+            return ("waiting for the car to stand still to level the IMU (or to drive at "
+                    f"{p.heading_min_speed_mps:g} m/s or more to start from the GNSS course without levelling)")
+        if fix is None:
+            return f"levelled; waiting for a GNSS fix to find the heading: {no_fix}"
+        if p.heading_source == "config":
+            return "levelled; starting at the configured heading with the next GNSS fix"
+        if fix.vel is None or not fix.fix_3d:
+            return ("levelled; waiting for a 3D GNSS fix with a velocity to find the heading (the last fix had "
+                    + ("no velocity)" if fix.vel is None else "no 3D solution)"))
+        return (f"levelled; waiting for the car to move at {p.heading_min_speed_mps:g} m/s or more to find the "
+                "heading from the GNSS course")
+
     def close_epochs(self) -> None:
         """Bring the covariance to the last sample and close the last epoch: the backward pass starts there."""
         if self.ekf is None or not self.epochs:

@@ -35,9 +35,7 @@ class HealthJudge:
         if s is None or ekf is None:
             if engine.mode == "gnss":
                 return ["GNSS-only mode: no filter, the receiver's fixes are passed through"]
-            why = "waiting for a standstill to level the IMU" if engine.startup.prov_q is None else \
-                f"levelled; waiting for GNSS course at {engine.params.heading_min_speed_mps:g} m/s or more"
-            return [f"initialising: {why}"]
+            return [f"initialising: {engine.waiting_for()}"]
         st = ekf.stats.get("gnss_pos")
         if st is not None:
             acc, rej = st.accepted, st.rejected
@@ -50,15 +48,21 @@ class HealthJudge:
         t_last = engine.t_last_ns
         age = (t_last - fix.t_ns) / 1e9 if fix is not None and t_last else math.inf
         if age > 5.0:
-            out.append(f"no GNSS fix for {age:.0f} s: dead reckoning" + (" on IMU, OBD and baro"
-                                                                        if engine.mode == "17" else " on the IMU"))
+            on = "the IMU"
+            if engine.mode == "17":
+                on = "IMU, OBD and baro" if engine.last_readings.obd_fresh(t_last or 0) else "IMU and baro (no OBD)"
+            out.append(f"no GNSS fix for {age:.0f} s: dead reckoning on {on}")
         elif n and refused > n // 5:
             out.append(f"GNSS disagrees with the IMU: {refused} of the last {n} fixes refused")
         elif n:
             out.append(f"GNSS consistent with the IMU ({n - refused} of the last {n} fixes accepted)")
         if engine.n > SF_ID:
             sf_sigma = ekf.sigma(SF_ID)
-            if sf_sigma < 0.01:
+            obd = engine.last_readings.obd
+            if obd is None or not engine.last_readings.obd_fresh(t_last or 0):
+                since = "" if obd is None or not t_last else f" for {(t_last - obd[0]) / 1e9:.0f} s"
+                out.append(f"no OBD speed{since}: the filter runs without the vehicle's speed")
+            elif sf_sigma < 0.01:
                 high = (1.0 / (1.0 + s.sf) - 1.0) * 100.0
                 word = "high" if high >= 0 else "low"
                 out.append(f"OBD speed reads {abs(high):.1f} % {word} (+-{sf_sigma * 100:.1f} %)")
@@ -81,10 +85,10 @@ class HealthJudge:
         bad += [f"gyro {'xyz'[i]} offset {bg_dps[i]:.1f} deg/s beyond the datasheet's {GYRO_LIMIT_DPS:.0f}"
                 for i in range(3) if bg_dps[i] > GYRO_LIMIT_DPS]
         if bad:
-            out.append("IMU biases out of limits: " + "; ".join(bad))
+            out.append("IMU offsets beyond the datasheet: " + "; ".join(bad))
         else:
-            out.append(f"IMU biases within datasheet limits (accel up to {max(ba_mg):.0f} mg, "
-                       f"gyro up to {max(bg_dps):.2f} deg/s)")
+            out.append(f"IMU offsets within the datasheet: accel <= {max(ba_mg):.0f} mg, "
+                       f"gyro <= {max(bg_dps):.2f} deg/s")
         out.append(mounting_verdict(engine))
         if engine.counters.resets:
             out.append(f"filter restarted from GNSS {engine.counters.resets} times (lost itself)")

@@ -25,6 +25,7 @@ from logger.recording.recorder import Recorder
 from logger.recording.records import clock_observer, health_record, stamped_record, sync_record
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import HEALTH, SYNC, TOPICS
+from logger.runtime.gnss_watch import GnssWatch
 from logger.runtime.journal import ProblemJournal
 from logger.runtime.notify import Notifier
 from logger.runtime.sampler import Reading, Sampler
@@ -41,6 +42,7 @@ DROP_WINDOW_NS = 60 * 1_000_000_000
 # exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
 HEARTBEAT_BOUND_S = 60.0
+SILENT, NO_FIX = "silent", "no fix"  # row states the snapshot gives a running sensor: nothing comes; no position
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
 
 
@@ -98,7 +100,8 @@ class Daemon:
         self.status_server: Any = None
         self.startup_lines: list[str] = []
         # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
-        self.taps: list[Any] = list(self.attachments.taps)
+        self.gnss_watch = GnssWatch()  # the receiver's fix, satellites and accuracy for the status
+        self.taps: list[Any] = [self.gnss_watch, *self.attachments.taps]
         self._observe = clock_observer(self.clock)  # what each record tells the clock (PPS, time messages)
         self._drop_history: deque[tuple[int, int]] = deque()
         # Service manager: READY, WATCHDOG, STATUS, STOPPING (no-ops outside systemd).
@@ -218,18 +221,15 @@ class Daemon:
         if rec.state != "recording":
             problems.append(f"recorder: {rec.detail}")
             critical = True
+        no_fix = self.gnss_watch.problem(now)
         for s, snap in zip(self.samplers, sensors, strict=True):
-            if snap["state"] != "ok":
-                problems.append(f"{snap['name']}: {snap['state']}: {snap['last_error']}")
-            elif (now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale > HEARTBEAT_STALE_S:  # real seconds
-                problems.append(f"{snap['name']}: thread not responding")
-            elif snap["rate_hz"] and snap["last_sample_age_s"] is not None and \
-                    snap["last_sample_age_s"] > 3.0 / snap["rate_hz"] + 1.0:
-                problems.append(f"{snap['name']}: no sample for {snap['last_sample_age_s']:.1f} s")
+            problem = self._sensor_problem(s, snap, now, no_fix)
+            if problem:
+                problems.append(f"{snap['name']}: {problem}")
             incident = s.health.recent_incident(now)
             if incident is not None:
                 problems.append(f"{snap['name']}: {incident}")
-        if self.samplers and all(s["state"] != "ok" for s in sensors):
+        if self.samplers and all(s["state"] not in ("ok", NO_FIX) for s in sensors):
             critical = True
         dropped = sum(rec.dropped.values())
         self._drop_history.append((now, dropped))
@@ -242,10 +242,31 @@ class Daemon:
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
-            "sync": self._sync_section(now),
+            "sync": self._sync_section(now), "gnss": self.gnss_watch.section(now),
             "recorder": rec.__dict__,
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
+
+    def _sensor_problem(self, s: Sampler, snap: dict[str, Any], now: int, no_fix: str | None) -> str:
+        """What is wrong with one sensor now ("" when nothing), with its row's state made to say the same: a sensor
+        whose thread runs but that delivers nothing is ``silent`` (and shows no current rate), a receiver that
+        talks without a fix is ``no fix``."""
+        if snap["state"] != "ok":
+            snap["measured_rate_hz"] = None
+            return f"{snap['state']}: {snap['last_error']}"
+        if (now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale > HEARTBEAT_STALE_S:  # real seconds
+            snap["state"], snap["measured_rate_hz"] = "stalled", None
+            return "thread not responding"
+        age = snap["last_sample_age_s"]
+        if snap["rate_hz"] and age is not None and age > 3.0 / snap["rate_hz"] + 1.0:
+            snap["state"] = SILENT
+            what = "pulse" if snap["name"] == "pps" else "sample"
+            why = " (the receiver pulses only with a fix)" if snap["name"] == "pps" and no_fix else ""
+            return f"no {what} for {age:.0f} s{why}"
+        if snap["name"] == "gnss" and no_fix:
+            snap["state"] = NO_FIX
+            return no_fix
+        return ""
 
     def _sync_section(self, now: int) -> dict[str, Any]:
         """The clock's part of the snapshot: its tracking report, or the state and bound of its stamps."""

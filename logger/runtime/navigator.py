@@ -52,6 +52,7 @@ class Navigator:
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._next_fix_ns = 0
+        self._fix_span: tuple[int, int] | None = None  # first and last /nav/fix published (synchronised ns)
         self._next_state_ns = 0
         self._verdicts: list[str] = []
         self.error: str = ""
@@ -125,6 +126,7 @@ class Navigator:
         t = sol.t_ns
         if t >= self._next_fix_ns:
             self._next_fix_ns = t + int(1e9 / max(self.params.publish_hz, 0.1))
+            self._fix_span = (self._fix_span[0] if self._fix_span else t, t)
             msg = nav_fix_record(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
                               sol.sigma_ned, sol.source, self.engine.mode)
             self.publish(Reading(NAV_FIX, msg, sol.t_mono_ns, stamped=False))
@@ -145,7 +147,9 @@ class Navigator:
             out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
                                    "source": "", "mode": self.engine.mode, "verdicts": verdicts,
                                    "dropped": self.dropped, "processed": self.processed,
-                                   "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets}
+                                   "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets,
+                                   "live_s": round((self._fix_span[1] - self._fix_span[0]) / 1e9, 1)
+                                   if self._fix_span else 0.0}
             if self.error:
                 out["verdicts"].append(f"filter restarted after an error: {self.error}")
             if sol is not None:

@@ -168,6 +168,7 @@ class Sampler(threading.Thread):
             if opened_once:
                 self.health.reconnects += 1
                 self._log(f"back after: {self.health.last_error or 'an error'}")
+            self.health.last_error = ""  # recovered: the error is in the log and the counters, not a present one
             opened_once = True
             self._incident_base = None
             self.health.state = "ok"

@@ -67,8 +67,8 @@ def clock_line(daemon: Daemon) -> str:
 
 def nav_line(nav: dict[str, Any]) -> str:
     verdicts = nav.get("verdicts") or []
-    where = (f"last position {nav['lat_deg']:.6f} {nav['lon_deg']:.6f} ({nav['source']})"
-             if nav.get("lat_deg") is not None else
+    where = (f"live position for {nav.get('live_s', 0.0):.0f} s, last {nav['lat_deg']:.6f} {nav['lon_deg']:.6f} "
+             f"({nav['source']})" if nav.get("lat_deg") is not None else
              "no position" + (f" ({verdicts[0]})" if verdicts else ""))
     return (f"navigation mode {nav.get('mode', '?')}: {where}; {nav.get('processed', 0)} records, "
             f"{plural(nav.get('resets', 0), 'restart')}")

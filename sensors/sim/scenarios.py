@@ -53,7 +53,8 @@ def make_drive(name: str = "urban", seed: int = 0, duration_s: float | None = No
     The body repeats while a whole repetition and the outro still fit, then the vehicle parks until
     ``duration_s``; a duration shorter than one repetition cuts the drive there instead.
 
-    Options: ``intro_s`` (standing before moving off, default :data:`INTRO_S`), ``tunnel_s`` (urban: the two tunnels' dark times; tunnel-130s: its one), ``outage_s`` and
+    Options: ``intro_s`` (standing before moving off, default :data:`INTRO_S`),
+    ``tunnel_s`` (urban: the two tunnels' dark times; tunnel-130s: its one), ``outage_s`` and
     ``speed_mps`` (outage-60s), start position (``start_lat_deg``, ``start_lon_deg``, ``start_height_m``
     ellipsoidal, ``geoid_m``) and weather (``ambient_start_degc``, ``ambient_swing_degc``,
     ``sea_level_pa``, ``sea_level_rate_pa_per_s``).

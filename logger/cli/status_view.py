@@ -1,0 +1,182 @@
+"""The status snapshot as one screen for a person at a red light: the verdict and the problems first, then rows.
+
+Everything fits the terminal it is drawn on (80x24 over SSH is the case it is made for): no line reaches the
+last column (a terminal wraps there), long problems wrap under their own indent, and when the screen is short
+the least urgent lines go first (where the data come from, per-incident totals, then the filter's verdicts from
+the last), so the verdict, the problems and the sensor rows are always on screen. ``logger status --help``
+explains every column (:data:`COLUMNS`).
+"""
+
+from __future__ import annotations
+
+import textwrap
+from typing import Any
+
+from logger.words import plural
+from sync.stamp import FREERUN
+
+# Priorities: lines of a higher number are dropped first when the screen is short.
+MUST, TABLE, LINE, DETAIL, VERDICT, FOOTNOTE = range(6)
+MAX_PROBLEMS = 6  # beyond this, "+N more" (logger status --json has them all)
+COLUMNS = """columns:
+  state    ok; silent (running, nothing arrives); no fix (a receiver talking
+           without a position); starting, retrying, missing (device not
+           found), no-data, stalled (thread not responding), stopped
+  rate Hz  measured over the last 10 s / configured; - while not running
+  last     seconds since the last sample (never: none yet)
+  errors   read errors since start (each one retried)
+  gaps     silences longer than 2.5 periods
+  late     samples read after their next deadline (a host that fell behind)
+  reconn   times the device was opened again after losing it
+rows below the table:
+  gnss     fix type, satellites used, horizontal accuracy, PDOP, age
+  clock    state (locked to PPS, holdover, freerun), error bound of the
+           stamps, offset and frequency of the board clock, last PPS
+  nav      filter position and its 1-sigma, then its plain verdicts
+  rec      file, size, free disk; records written and dropped, queue,
+           and how far back everything is on disk (what a power cut loses)
+exit code: 0 ok, 1 degraded, 2 critical, 3 not running"""
+
+
+def age(s: float | None) -> str:
+    if s is None:
+        return "never"
+    return f"{s:.1f}" if s < 10 else (f"{s:.0f}" if s < 6000 else f"{s / 60:.0f}min")
+
+
+def duration(s: float) -> str:
+    s = int(s)
+    return f"{s // 3600}h{s % 3600 // 60:02d}m{s % 60:02d}s"
+
+
+class Screen:
+    """Entries (a line, wrapped to the width) with their priorities; :meth:`fit` keeps the most urgent ones."""
+
+    def __init__(self, width: int) -> None:
+        self.width = max(40, width) - 1  # never the last column: a terminal wraps there
+        self.entries: list[tuple[int, list[str]]] = []
+
+    def add(self, prio: int, text: str, indent: int = 8) -> None:
+        parts = textwrap.wrap(text, self.width, subsequent_indent=" " * indent, break_on_hyphens=False) or [""]
+        self.entries.append((prio, parts))
+
+    def fit(self, height: int | None) -> list[str]:
+        """The lines, with whole entries of the least urgent kind dropped from the bottom up until ``height``."""
+        entries = list(self.entries)
+
+        def size() -> int:
+            return sum(len(lines) for _, lines in entries)
+
+        if height is not None:
+            for prio in range(FOOTNOTE, TABLE, -1):  # the header, the problems and the table always stay
+                while size() > height and any(p == prio for p, _ in entries):
+                    del entries[max(i for i, (p, _) in enumerate(entries) if p == prio)]
+        return [line for _, lines in entries for line in lines]
+
+
+def render(snap: dict[str, Any], width: int = 80, height: int | None = None) -> str:
+    """The snapshot as text at most ``width`` columns wide (and ``height`` lines high, when given)."""
+    sc = Screen(width)
+    verdict = str(snap.get("verdict", "?")).upper()
+    head = f"logger {verdict}   up {duration(snap.get('uptime_s', 0))}   pid {snap.get('pid', '?')}"
+    sc.add(MUST, head + (f"   {snap['mode']}" if snap.get("mode") else ""))
+    problems = snap.get("problems") or []
+    shown = problems if len(problems) <= MAX_PROBLEMS else problems[:MAX_PROBLEMS - 1]
+    for p in shown:
+        sc.add(MUST, f"! {p}", indent=4)
+    if len(shown) < len(problems):
+        sc.add(MUST, f"! +{len(problems) - len(shown)} more problems (logger status --json)")
+    sc.add(DETAIL, "")
+    _sensors(sc, snap.get("sensors") or [])
+    _gnss(sc, snap.get("gnss"))
+    _clock(sc, snap.get("sync"))
+    _nav(sc, snap.get("nav"))
+    _recorder(sc, snap)
+    return "\n".join(sc.fit(height))
+
+
+def _sensors(sc: Screen, sensors: list[dict[str, Any]]) -> None:
+    sc.add(TABLE, f"{'sensor':<7} {'state':<9} {'rate Hz':>9} {'last s':>7} {'errors':>7} {'gaps':>5} "
+                  f"{'late':>5} {'reconn':>6}")
+    for h in sensors:
+        measured = h.get("measured_rate_hz")
+        now = "-" if measured is None else f"{measured:.1f}"
+        rate = f"{now}/{h['rate_hz']:g}" if h.get("rate_hz") else now
+        sc.add(TABLE, f"{h['name']:<7} {h['state']:<9} {rate:>9} {age(h.get('last_sample_age_s')):>7} "
+                      f"{h.get('errors', 0):>7} {h.get('gaps', 0):>5} {h.get('late', 0):>5} "
+                      f"{h.get('reconnects', 0):>6}")
+    for h in sensors:
+        for kind, count in (h.get("incidents") or {}).items():
+            sc.add(FOOTNOTE, f"{h['name']:<7} {kind}: {count} since start")
+    origins = [f"{h['name']} from {h['origin']}" for h in sensors if h.get("origin")]
+    if origins:
+        sc.add(FOOTNOTE, "source  " + ", ".join(origins))
+
+
+def _gnss(sc: Screen, g: dict[str, Any] | None) -> None:
+    if not g:
+        return
+    parts = [g["fix"]]
+    if g.get("num_sv") is not None:
+        parts.append(plural(g["num_sv"], "satellite"))
+    if g["fix"] != "no fix":
+        if g.get("h_acc_m") is not None:
+            parts.append(f"hAcc {g['h_acc_m']:.1f} m")
+        if g.get("pdop") is not None:
+            parts.append(f"PDOP {g['pdop']:.1f}")
+    elif g.get("last_fix_age_s") is not None:
+        parts.append(f"last fix {age(g['last_fix_age_s'])} s ago")
+    else:
+        parts.append("no fix since start")
+    parts.append(f"reported {age(g.get('age_s'))} s ago")
+    sc.add(LINE, "gnss    " + ", ".join(parts))
+
+
+def _clock(sc: Screen, sync: dict[str, Any] | None) -> None:
+    if not sync:
+        return
+    state = sync.get("state", "?")
+    bound = "unknown" if state == FREERUN or sync.get("err_ns") is None else f"{sync['err_ns'] / 1e3:.1f} us"
+    parts = [f"{state}, error bound {bound}"]
+    if sync.get("offset_ns") is not None:
+        parts.append(f"offset {sync['offset_ns'] / 1e3:+.1f} us")
+    if sync.get("freq_ppm") is not None:
+        parts.append(f"{sync['freq_ppm']:+.2f} ppm")
+    if "since_edge_s" in sync:
+        parts.append(f"PPS {age(sync.get('since_edge_s'))} s ago" if sync.get("since_edge_s") is not None
+                     else "no PPS yet")
+    sc.add(LINE, "clock   " + ", ".join(parts))
+
+
+def _nav(sc: Screen, nav: dict[str, Any] | None) -> None:
+    if not nav:
+        return
+    verdicts = list(nav.get("verdicts") or [])
+    if nav.get("lat_deg") is not None:
+        sigma = f", sigma {nav['sigma_h_m']:.1f} m" if nav.get("sigma_h_m") is not None else ""
+        sc.add(LINE, f"nav     {nav['lat_deg']:.7f} {nav['lon_deg']:.7f} h {nav['height_m']:.1f} m{sigma}"
+                     + (f" ({nav['source']})" if nav.get("source") else ""))
+        for v in verdicts:
+            sc.add(VERDICT, f"        {v}")
+    elif verdicts:  # before the first solution: what the start waits for, on the row itself
+        sc.add(LINE, f"nav     {verdicts[0]}")
+        for v in verdicts[1:]:
+            sc.add(VERDICT, f"        {v}")
+    else:
+        sc.add(LINE, f"nav     mode {nav.get('mode', '?')}: no position yet")
+
+
+def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
+    rec = snap.get("recorder") or {}
+    if not rec:
+        return
+    free = rec.get("free_bytes")
+    name = str(rec.get("file") or "-").rsplit("/", 1)[-1]
+    sc.add(LINE, f"rec     {rec.get('state', '?')} {name}, {rec.get('file_bytes', 0) / 1e6:.1f} MB, "
+                 + (f"{free / 1e9:.1f} GB free" if free is not None else "free disk unknown"))
+    dropped = sum((rec.get("dropped") or {}).values())
+    on_disk = rec.get("on_disk_mono_ns") or {}
+    at_risk = (f", on disk up to {(snap['t_mono_ns'] - max(on_disk.values())) / 1e9:.1f} s ago"
+               if on_disk and snap.get("t_mono_ns") else "")
+    sc.add(DETAIL, f"        {sum((rec.get('written') or {}).values())} written, {dropped} dropped, "
+                   f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}{at_risk}")

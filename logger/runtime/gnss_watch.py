@@ -1,0 +1,66 @@
+"""The receiver's solution as ``logger status`` shows it: fix type, satellites, accuracy, PDOP, and how long ago.
+
+What ``cgps`` shows first, and what tells an operator in a tunnel that the logger is fine and the sky is not: the
+receiver keeps talking at its rate (its row stays at 1 Hz) while it has no fix. A tap on ``/gnss/fix`` keeps the
+last record and when the last valid fix came; ``offer`` only assigns, so it never holds the sink up.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from logger.recording.topics import GNSS_FIX
+from logger.words import plural
+
+NO_FIX_PROBLEM_S = 3.0  # a receiver that reports no fix for longer than this is a problem in the status
+FIX_NAMES = {0: "fix", 1: "no fix", 2: "2D", 3: "3D"}  # gpsd's modes; 0: a position without a mode (NMEA GGA)
+
+
+def fix_name(record: dict[str, Any]) -> str:
+    """``3D``, ``2D``, ``fix`` (a position without a mode) or ``no fix``, as the record says."""
+    if not record.get("fix_ok"):
+        return "no fix"
+    return FIX_NAMES.get(record.get("fix_mode") or 0, "fix")
+
+
+class GnssWatch:
+    """The last ``/gnss/fix`` record and the receiver's last valid fix, for the status snapshot."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, Any] | None = None
+        self._last_fix_mono_ns: int | None = None
+        self._no_fix_since_ns: int | None = None  # first record of the present run without a fix
+
+    def offer(self, topic: str, payload: dict[str, Any]) -> None:
+        if topic != GNSS_FIX:
+            return
+        t = payload["t_mono_ns"]
+        if fix_name(payload) != "no fix":
+            self._last_fix_mono_ns, self._no_fix_since_ns = t, None
+        elif self._no_fix_since_ns is None:
+            self._no_fix_since_ns = t if self._last_fix_mono_ns is None else self._last_fix_mono_ns
+        self._last = payload
+
+    def no_fix_s(self, now_ns: int) -> float | None:
+        """How long the receiver has reported no fix (since its last one, or its first report), None with a fix."""
+        since = self._no_fix_since_ns
+        return None if since is None or self._last is None else (now_ns - since) / 1e9
+
+    def section(self, now_ns: int) -> dict[str, Any] | None:
+        """The ``gnss`` section of the snapshot; None before the receiver's first solution."""
+        last = self._last
+        if last is None:
+            return None
+        return {"fix": fix_name(last), "num_sv": last.get("num_sv"), "h_acc_m": last.get("h_acc_m"),
+                "pdop": last.get("pdop"), "age_s": (now_ns - last["t_mono_ns"]) / 1e9,
+                "last_fix_age_s": (now_ns - self._last_fix_mono_ns) / 1e9 if self._last_fix_mono_ns else None,
+                "no_fix_s": self.no_fix_s(now_ns)}
+
+    def problem(self, now_ns: int) -> str | None:
+        """``no fix for 42 s (0 satellites)`` once the receiver has gone without one for a few seconds."""
+        s = self.no_fix_s(now_ns)
+        if s is None or s < NO_FIX_PROBLEM_S:
+            return None
+        sv = (self._last or {}).get("num_sv")
+        used = "" if sv is None else f" ({plural(sv, 'satellite')} in use)"
+        return f"no fix for {s:.0f} s{used}"
