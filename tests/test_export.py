@@ -35,6 +35,7 @@ from logger.recording.topics import TOPICS
 ROOT = Path(__file__).resolve().parents[1]
 GPX = "{http://www.topografix.com/GPX/1/1}"
 KML = "{http://www.opengis.net/kml/2.2}"
+GX = "{http://www.google.com/kml/ext/2.2}"
 XSI = "{http://www.w3.org/2001/XMLSchema-instance}"
 # GPX 1.1 wptType: its children in the order the schema's <xsd:sequence> requires
 WPT_ORDER = ("ele", "time", "magvar", "geoidheight", "name", "cmt", "desc", "src", "link", "sym", "type", "fix",
@@ -178,12 +179,17 @@ def test_kml_and_csv_agree_with_the_gpx(drive: Drive, tmp_path: Path) -> None:
     (folder,) = root.findall(f"{KML}Document/{KML}Folder")
     assert folder.findtext(f"{KML}name") == "/gnss/fix"
     track, *gaps = folder.findall(f"{KML}Placemark")
-    geoms = list(track.find(f"{KML}MultiGeometry"))
+    multi = track.find(f"{GX}MultiTrack")
+    assert multi.findtext(f"{GX}interpolate") == "0"  # a gap is not drawn as driven
+    geoms = multi.findall(f"{GX}Track")
     assert len(geoms) == len(segs) and len(gaps) == len(segs) - 1
     for geom, seg in zip(geoms, segs, strict=True):
-        coords = [c.split(",") for c in geom.findtext(f"{KML}coordinates").split()]
-        assert geom.tag == (f"{KML}LineString" if len(seg) > 1 else f"{KML}Point")
+        # Every point with its own time, the GPX's, in order: gx:Track's <when> list and <gx:coord> list pair up.
+        whens = [w.text for w in geom.findall(f"{KML}when")]
+        coords = [c.text.split() for c in geom.findall(f"{GX}coord")]
+        assert whens == [p.findtext(f"{GPX}time") for p in seg] and len(coords) == len(seg)
         assert [(c[0], c[1]) for c in coords] == [(p.get("lon"), p.get("lat")) for p in seg]
+        assert [float(c[2]) for c in coords] == [float(p.findtext(f"{GPX}ele")) for p in seg]
     for g in gaps:
         assert re.fullmatch(r"gap \d+\.\d s", g.findtext(f"{KML}name"))
     with open(tmp_path / f"{name}_gnss_fix.csv", newline="") as f:

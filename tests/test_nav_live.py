@@ -200,18 +200,23 @@ def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path
     assert again and all(set(m) == {"t_mono_ns", "t_sync_ns", "accel_mps2", "gyro_rps", "temp_degc"} for m in again)
 
 
-def test_replay_of_a_drive_that_never_moves_says_why_and_fails(tmp_path: Path):
-    """A parked drive: the filter levels but never learns its heading, so there is no trajectory to write."""
+def write_parked_drive(folder: Path, seconds: float) -> None:
+    """A drive that never moves, written through the real recorder into ``folder``."""
     from logger.recording.recorder import Recorder
     from logger.recording.settings import RecorderSettings
     from logger.recording.topics import TOPICS
 
-    parked = make_drive("urban", seed=1, duration_s=40.0, intro_s=60.0)
-    rec = Recorder(RecorderSettings(out_dir=tmp_path / "drive"), TOPICS)
+    parked = make_drive("urban", seed=1, duration_s=seconds, intro_s=seconds + 20.0)
+    rec = Recorder(RecorderSettings(out_dir=folder), TOPICS)
     rec.start()
-    for t, topic, msg in records(parked, 40.0, seed=1):
+    for t, topic, msg in records(parked, seconds, seed=1):
         assert rec.submit(topic, msg, t, msg["t_mono_ns"])
     rec.stop()
+
+
+def test_replay_of_a_drive_that_never_moves_says_why_and_fails(tmp_path: Path):
+    """A parked drive: the filter levels but never learns its heading, so there is no trajectory to write."""
+    write_parked_drive(tmp_path / "drive", 40.0)
     out = tmp_path / "out"
     r = _replay(*map(str, sorted((tmp_path / "drive").glob("*.mcap"))), "--out", str(out))
     assert r.returncode == 1, r.stdout + r.stderr

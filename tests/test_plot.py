@@ -56,7 +56,8 @@ def without_imu_block(src: Path, dst: Path, count: int) -> list[int]:
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[int]]:
     out = tmp_path_factory.mktemp("plot")
-    r = run("run", "--sim", "--scenario", "outage-60s", "--duration", "70", "--time-scale", "10", "--out", str(out),
+    # Long enough for the scenario's 60 s outage (from about 100 s in), which the plots must show.
+    r = run("run", "--sim", "--scenario", "outage-60s", "--duration", "180", "--time-scale", "10", "--out", str(out),
             "--status-socket", str(out / "status.sock"))
     assert r.returncode == 0, r.stderr
     (original,) = sorted(out.glob("*.mcap"))
@@ -79,7 +80,7 @@ def test_lost_messages_and_the_gap_are_found_where_they_were_taken_out(recorded:
     assert n == REMOVED and at_ns == int(imu1.log_ns[imu1.seq == seqs[-1] + 1][0])
     (gap,) = [g for g in imu1.gaps if g.after_ns == at_ns]
     first = int(imu0.log_ns.searchsorted(at_ns))  # the message after the block, in the original
-    assert gap.interval_s == (imu0.mono_ns[first] - imu0.mono_ns[first - REMOVED - 1]) / 1e9
+    assert gap.interval_s == (imu0.log_ns[first] - imu0.log_ns[first - REMOVED - 1]) / 1e9
     for topic in set(STAMPED_TOPICS) - {"/imu"}:  # the other topics are untouched
         assert after[topic].summary() == before[topic].summary()
 
@@ -138,3 +139,26 @@ def test_a_restart_is_not_counted_as_loss():
     assert tt.median_interval_s == period / 1e9
     assert [(g.before_ns, g.after_ns) for g in tt.gaps] == [(1_000 + 2 * period, 1_000 + 6 * period),
                                                             (1_000 + 7 * period, 1_000 + 100 * period)]
+
+
+def test_plot_and_info_give_a_file_the_same_rates_and_gaps(recorded: tuple[Path, Path, list[int]]):
+    """One rule (logger.recording.intervals) behind both tools: the same rate and the same gaps, topic by topic."""
+    _, thinned, _ = recorded
+    info = run("info", str(thinned), "--json")
+    assert info.returncode == 0, info.stderr
+    by_info = {t["topic"]: t for t in json.loads(info.stdout)["topics"]}
+    plotted = timings(list(iter_messages(open_drive([thinned]), STAMPED_TOPICS)))
+    for topic, tt in plotted.items():
+        assert f"at {by_info[topic]['rate_hz']:.2f} Hz;" in tt.summary(), (topic, tt.summary(), by_info[topic])
+        assert by_info[topic]["gaps"] == len(tt.gaps) and by_info[topic]["count"] == len(tt.log_ns), topic
+    assert by_info["/imu"]["gaps"] >= 1  # the block taken out is a gap for both
+
+
+def test_the_plots_find_the_outage_the_receiver_reported(recorded: tuple[Path, Path, list[int]]):
+    """The receiver kept reporting once a second through the outage: its spans without a fix are what the plots
+    shade, one of about the scenario's 60 s, and the rest of the drive had a fix."""
+    original, _, _ = recorded
+    fixes = [m for m in iter_messages(open_drive([original]), ("/gnss/fix",))]
+    spans = plot_cmd.no_fix_spans(fixes, fixes[0].log_time)
+    assert [round(b - a) for a, b in spans if b - a > 5] == [pytest.approx(60, abs=3)], spans
+    assert all(b - a <= 2 for a, b in spans if b - a <= 5)  # anything else: the receiver's first epoch at most

@@ -13,6 +13,7 @@ import re
 import sys
 from pathlib import Path
 
+from logger.cli.progress import Progress
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
@@ -79,7 +80,11 @@ def summary(t: Track) -> str:
 def export(files: list[DriveFile], out: Path, formats: list[str], topics: list[str], height: str,
            gap_s: float, every_s: float, gap_marks: bool) -> tuple[list[Track], list[Path]]:
     """Read, build and write; returns the tracks written and the files made."""
-    tracks = build_tracks(iter_messages(files, EXPORT_TOPICS), files, gap_s, every_s)
+    progress = Progress("logger export")
+    try:
+        tracks = build_tracks(iter_messages(files, EXPORT_TOPICS, progress), files, gap_s, every_s)
+    finally:
+        progress.end()
     chosen = [t for t in tracks if t.topic in topics and t.n_points]
     if not chosen:
         return [t for t in tracks if t.topic in topics], []

@@ -1,6 +1,7 @@
 """``logger info FILE``: what is in a recorded file, at a glance (like ``ros2 bag info``).
 
-Per-topic counts, rates and the largest gap come from the message indexes, so the chunks need not be
+Per-topic counts, rates and gaps (by :mod:`logger.recording.intervals`, the rule ``logger plot`` uses too) come
+from the message indexes, so the chunks need not be
 decompressed: a day's file is summarised in seconds on the board. A file that was not closed cleanly is
 walked record by record instead, and says so.
 """
@@ -8,7 +9,6 @@ walked record by record instead, and says so.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import sys
@@ -21,6 +21,7 @@ from mcap.records import Channel, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
 from logger.recording.files import McapFileError, is_finished, walk
+from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS
 
 SENSOR_TOPIC = {"imu": IMU, "baro": BARO, "obd": OBD_SPEED, "gnss": GNSS_FIX, "pps": PPS}  # each sensor's samples
@@ -38,7 +39,8 @@ class TopicInfo:
     schema: str
     count: int
     rate_hz: float
-    largest_gap_s: float
+    largest_interval_s: float
+    gaps: int  # intervals over GAP_FACTOR times the usual one (logger plot shades the same ones)
 
 
 @dataclass
@@ -92,11 +94,9 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     topics = []
     all_times = [t for ts in times.values() for t in ts]
     for cid, ch in sorted(channels.items(), key=lambda kv: kv[1].topic):
-        ts = sorted(times.get(cid, []))
-        span = (ts[-1] - ts[0]) / 1e9 if len(ts) > 1 else 0.0
-        gap = max((b - a for a, b in itertools.pairwise(ts)), default=0) / 1e9
-        rate = (len(ts) - 1) / span if span > 0 else 0.0
-        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), len(ts), rate, gap))
+        reg = regularity(sorted(times.get(cid, [])))
+        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), reg.count, reg.rate_hz,
+                                reg.largest_interval_s, len(reg.gaps)))
     start = min(all_times) if all_times else None
     end = max(all_times) if all_times else None
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
@@ -126,9 +126,11 @@ def render(info: FileInfo) -> str:
         lines.append(f"Silent:    {', '.join(info.silent)}: configured, never delivered in this file")
     width = max([len(t.topic) for t in info.topics] + [5])
     lines.append("")
-    lines.append(f"  {'topic':<{width}}  {'count':>8}  {'rate Hz':>8}  {'max gap s':>9}  schema")
+    lines.append(f"  {'topic':<{width}}  {'count':>8}  {'rate Hz':>8}  {'gaps':>5}  {'longest s':>9}  schema")
     for t in info.topics:
-        lines.append(f"  {t.topic:<{width}}  {t.count:>8}  {t.rate_hz:>8.2f}  {t.largest_gap_s:>9.3f}  {t.schema}")
+        lines.append(f"  {t.topic:<{width}}  {t.count:>8}  {t.rate_hz:>8.2f}  {t.gaps:>5}  "
+                     f"{t.largest_interval_s:>9.3f}  {t.schema}")
+    lines.append(f"  (rate over each topic's span; a gap: an interval over {GAP_FACTOR:g}x the usual one)")
     return "\n".join(lines)
 
 

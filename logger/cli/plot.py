@@ -2,10 +2,13 @@
 
 - ``NAME_map.png``: the receiver's valid fixes against the filter's ``/nav/fix`` (live, and any replay given),
   in equal-aspect metres east and north of the first position, each track broken where it has gaps.
-- ``NAME_rates.png``: per sensor topic, the message rate over time, messages lost (``seq`` jumps) and gaps in
-  the acquisition stamps.
+- ``NAME_rates.png``: per sensor topic, the message rate over time, messages lost (``seq`` jumps) and gaps (the
+  rule ``logger info`` counts them by); the receiver's fixes apart from its messages (a receiver in a tunnel
+  still reports once a second, without a position) and a panel of its fix quality (satellites used, horizontal
+  accuracy); the spans without a fix shaded grey in every panel.
 - ``NAME_sync.png``: the clock's state and error bound over time, from ``/sync`` and from the sync fields
-  every stamped message carries, and the offset measured at each PPS edge.
+  every stamped message carries, and the offset measured at each PPS edge; the spans without a fix shaded grey
+  (the clock holds over through them).
 
 Needs matplotlib (the ``plots`` extra); without it the command says how to install it.
 """
@@ -21,11 +24,13 @@ from typing import Any
 import numpy as np
 
 from logger.cli.export import drive_name
+from logger.cli.progress import Progress
 from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
+from logger.recording.records import NO_FIX, fix_name
 from logger.recording.topics import GNSS_FIX, SYNC
 from logger.words import plural
 
@@ -83,28 +88,66 @@ def draw_map(plt: Any, tracks: list[Track], path: Path) -> Path | None:
     return path
 
 
-def draw_rates(plt: Any, tim: dict[str, TopicTiming], t0_ns: int, span_s: float, path: Path) -> Path:
+def no_fix_spans(fixes: list[DriveMessage], t0_ns: int) -> list[tuple[float, float]]:
+    """(start, end) in s since ``t0_ns`` of each run of receiver reports without a fix."""
+    spans: list[tuple[float, float]] = []
+    start: float | None = None
+    x = 0.0
+    for m in fixes:
+        x = (m.log_time - t0_ns) / 1e9
+        if fix_name(m.msg) == NO_FIX:
+            start = x if start is None else start
+        elif start is not None:
+            spans.append((start, x))
+            start = None
+    if start is not None:
+        spans.append((start, x))
+    return spans
+
+
+def _shade(ax: Any, spans: list[tuple[float, float]]) -> None:
+    for a, b in spans:
+        ax.axvspan(a, b, color="0.5", alpha=0.18, lw=0)
+
+
+def draw_rates(plt: Any, tim: dict[str, TopicTiming], fixes: list[DriveMessage], t0_ns: int, span_s: float,
+               path: Path) -> Path:
     base_bin_s = max(1.0, span_s / 400.0)
-    fig, axes = plt.subplots(len(tim), 1, figsize=(11, 1.9 * len(tim) + 0.8), sharex=True, squeeze=False)
-    for ax, tt in zip(axes[:, 0], tim.values(), strict=True):
+    outages = no_fix_spans(fixes, t0_ns)
+    panels = len(tim) + (1 if fixes else 0)
+    fig, axes = plt.subplots(panels, 1, figsize=(11, 1.9 * panels + 0.8), sharex=True, squeeze=False)
+    for ax, tt in zip(axes[:, 0], tim.values(), strict=False):
         bin_s = nice_step(max(base_bin_s, 5.0 * tt.median_interval_s))  # several messages a bin, not jitter
         x, rate = tt.rate(t0_ns, bin_s)
-        ax.step(x, rate, where="mid", lw=0.9, color="C0")
+        ax.step(x, rate, where="mid", lw=0.9, color="C0", label="messages")
+        if tt.topic == GNSS_FIX:
+            valid = [m.log_time for m in fixes if fix_name(m.msg) != NO_FIX]
+            if len(valid) > 1:
+                t = (np.array(valid) - t0_ns) / 1e9
+                n = max(1, int((t.max() - t.min()) // bin_s))
+                edges = (x[0] - bin_s / 2.0 if len(x) else t.min()) + bin_s * np.arange(n + 1)
+                counts, _ = np.histogram(t, bins=edges)
+                ax.step((edges[:-1] + edges[1:]) / 2.0, counts / bin_s, where="mid", lw=0.9, color="C2",
+                        label="with a fix")
+            ax.legend(fontsize=7, loc="lower right")
+        _shade(ax, outages)
         for g in tt.gaps:
             ax.axvspan((g.before_ns - t0_ns) / 1e9, (g.after_ns - t0_ns) / 1e9, color="C1", alpha=0.35, lw=0)
         if tt.lost:
             xs = _seconds([t for t, _ in tt.lost], t0_ns)
             top = float(rate.max()) if len(rate) else 1.0
             ax.plot(xs, np.full(len(xs), top), "v", color="C3", ms=6)
-            for x_lost, (_, n) in zip(xs, tt.lost, strict=True):
-                ax.annotate(f"-{n}", (x_lost, top), textcoords="offset points", xytext=(3, -10), fontsize=7,
+            for x_lost, (_, n_lost) in zip(xs, tt.lost, strict=True):
+                ax.annotate(f"-{n_lost}", (x_lost, top), textcoords="offset points", xytext=(3, -10), fontsize=7,
                             color="C3")
         for r in tt.restarts:
             ax.axvline((r - t0_ns) / 1e9, color="k", lw=0.8, ls="--")
         ax.set_ylabel(f"Hz ({bin_s:g} s bins)")
         ax.set_title(tt.summary(), fontsize=8, loc="left")
         ax.grid(alpha=0.3)
-    axes[-1, 0].set_xlabel(f"s since {utc_iso(t0_ns)} (orange: gaps in the stamps, red: messages lost by seq, "
+    if fixes:
+        draw_fix_quality(axes[-1, 0], fixes, t0_ns, outages)
+    axes[-1, 0].set_xlabel(f"s since {utc_iso(t0_ns)} (grey: no GNSS fix, orange: gaps, red: messages lost by seq, "
                            "dashed: restart)")
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
@@ -112,8 +155,31 @@ def draw_rates(plt: Any, tim: dict[str, TopicTiming], t0_ns: int, span_s: float,
     return path
 
 
-def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t0_ns: int, path: Path) -> Path:
+def draw_fix_quality(ax: Any, fixes: list[DriveMessage], t0_ns: int, outages: list[tuple[float, float]]) -> None:
+    """Satellites used (left axis) and the receiver's horizontal accuracy (right axis, m, log) per report."""
+    xs = _seconds([m.log_time for m in fixes], t0_ns)
+    sv = np.array([m.msg.get("num_sv") if m.msg.get("num_sv") is not None else np.nan for m in fixes], float)
+    ax.step(xs, sv, where="post", lw=0.9, color="C0", label="satellites used")
+    ax.set_ylabel("satellites")
+    ax.set_ylim(bottom=0)
+    acc = ax.twinx()
+    h = np.array([m.msg["h_acc_m"] if m.msg.get("h_acc_m") is not None and fix_name(m.msg) != NO_FIX else np.nan
+                  for m in fixes], float)
+    if np.isfinite(h).any():
+        acc.plot(xs, h, ".", ms=2, color="C3", label="horizontal accuracy")
+        acc.set_yscale("log")
+    acc.set_ylabel("hAcc, m", color="C3")
+    _shade(ax, outages)
+    no_fix_s = sum(b - a for a, b in outages)
+    ax.set_title(f"{GNSS_FIX} fix quality: {plural(len(outages), 'span')} without a fix, {no_fix_s:.0f} s in all",
+                 fontsize=8, loc="left")
+    ax.grid(alpha=0.3)
+
+
+def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], fixes: list[DriveMessage], t0_ns: int,
+              path: Path) -> Path:
     fig, (ax_state, ax_err, ax_off) = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    outages = no_fix_spans(fixes, t0_ns)
     level = {s: i for i, s in enumerate(STATES)}
     if sync:
         xs = _seconds([m.log_time for m in sync], t0_ns)
@@ -140,9 +206,10 @@ def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t
     ax_err.set_ylabel("error bound, us")
     ax_err.legend(fontsize=7, ncol=4, loc="upper right", markerscale=4)
     ax_off.set_ylabel("offset at PPS edge, us")
-    ax_off.set_xlabel(f"s since {utc_iso(t0_ns)}")
+    ax_off.set_xlabel(f"s since {utc_iso(t0_ns)} (grey: no GNSS fix)")
     for ax in (ax_state, ax_err, ax_off):
         ax.grid(alpha=0.3)
+        _shade(ax, outages)
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
@@ -151,13 +218,15 @@ def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], t
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
+    progress = Progress("logger plot")
     try:
         plt = pyplot()
         files = open_drive(args.files)
         if args.out.exists() and not args.out.is_dir():
             raise DriveFileError(f"--out {args.out}: exists and is not a folder")
-        messages = list(iter_messages(files, (*STAMPED_TOPICS, SYNC, *EXPORT_TOPICS)))
+        messages = list(iter_messages(files, (*STAMPED_TOPICS, SYNC, *EXPORT_TOPICS), progress))
     except (PlotsUnavailable, DriveFileError) as exc:
+        progress.end()
         print(f"logger plot: {exc}", file=sys.stderr)
         return 2
     for line in cut_notes(files):
@@ -169,15 +238,20 @@ def main(argv: list[str]) -> int:
     tracks = build_tracks(messages, files)
     tim = timings(messages)
     sync = [m for m in messages if m.topic == SYNC]
+    fixes = [m for m in messages if m.topic == GNSS_FIX]
     t0 = messages[0].log_time
     span_s = (messages[-1].log_time - t0) / 1e9
     args.out.mkdir(parents=True, exist_ok=True)
     name = drive_name([f.path for f in files])
+    progress.stage("drawing the map")
     written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
     if tim:
-        written.append(draw_rates(plt, tim, t0, span_s, args.out / f"{name}_rates.png"))
+        progress.stage("drawing the rates")
+        written.append(draw_rates(plt, tim, fixes, t0, span_s, args.out / f"{name}_rates.png"))
     if tim or sync:
-        written.append(draw_sync(plt, sync, tim, t0, args.out / f"{name}_sync.png"))
+        progress.stage("drawing the clock")
+        written.append(draw_sync(plt, sync, tim, fixes, t0, args.out / f"{name}_sync.png"))
+    progress.end()
     for tt in tim.values():
         print(tt.summary())
     for p in written:

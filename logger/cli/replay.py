@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from logger.cli.progress import Progress
 from logger.config import ConfigError, load
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
@@ -57,18 +58,22 @@ def main(argv: list[str]) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
-    engine, rows = run_filter(args.files, params, args.smooth, states)
+    progress = Progress("logger replay")
+    engine, rows = run_filter(args.files, params, args.smooth, states, progress)
     t1 = time.perf_counter()
     c = engine.counters
+    progress.end()
     if not rows:
         # An empty trajectory is no result: say what the start waited for, write nothing, fail.
         why = engine.waiting_for() or "the filter produced no solution"
         print(f"logger replay: no solution from {c.imu} IMU samples and {c.gnss_fixes} GNSS fixes: {why}",
               file=sys.stderr)
         return 1
+    progress.stage("writing the trajectory")
     write_csv(args.out / "trajectory.csv", rows)
     if states is not None:
         write_mcap(args.out / "trajectory.mcap", rows, engine, states)
+    progress.end()
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
     if engine.mode == "gnss":
         work = f"the receiver's fixes passed through in {t1 - t0:.2f} s"

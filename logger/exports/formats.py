@@ -5,8 +5,10 @@ milliseconds), ``<ele>`` the height the caller chose (ellipsoidal by default: it
 MSL through the receiver's geoid separation on request), and for receiver fixes ``<fix>``, ``<sat>`` and
 ``<pdop>``. Elements follow the order of the GPX 1.1 schema's ``wptType``, so strict readers accept them.
 
-KML: per track one Placemark whose MultiGeometry holds a LineString per segment (a Point for a segment of one
-point), clamped to the ground, with a TimeSpan; optionally a Placemark at the start of every gap.
+KML: per track one Placemark whose ``gx:MultiTrack`` holds a ``gx:Track`` per segment: every point with its own
+``<when>`` (Google Earth's time slider plays the drive as it was driven, and readers need not invent times
+between the ends), clamped to the ground, not interpolated across the gaps; optionally a Placemark at the start
+of every gap.
 
 CSV: one file per track, a header with the unit in every column name, empty cells for what a topic lacks.
 """
@@ -25,6 +27,7 @@ from logger.words import plural
 GPX_NS = "http://www.topografix.com/GPX/1/1"
 GPX_SCHEMA = "http://www.topografix.com/GPX/1/1/gpx.xsd"
 KML_NS = "http://www.opengis.net/kml/2.2"
+GX_NS = "http://www.google.com/kml/ext/2.2"  # Google's extension namespace: gx:Track, gx:MultiTrack, gx:coord
 HEIGHTS = ("ellipsoid", "msl")
 HEIGHT_TEXT = {"ellipsoid": "height above the WGS-84 ellipsoid, m",
                "msl": "height above mean sea level (the receiver's geoid), m"}
@@ -105,6 +108,13 @@ def _coord(p: TrackPoint, which: str) -> str:
     return f"{p.lon_deg:.9f},{p.lat_deg:.9f}" + ("" if h is None else f",{h:.3f}")
 
 
+def _gx_track(seg: list[TrackPoint], which: str) -> str:
+    """One segment as a gx:Track: all the ``<when>`` first, then the ``<gx:coord>`` (lon lat alt, by spaces)."""
+    whens = "".join(f"<when>{utc_iso(p.t_ns)}</when>" for p in seg)
+    coords = "".join(f"<gx:coord>{_coord(p, which).replace(',', ' ')}</gx:coord>" for p in seg)
+    return f"<gx:Track><altitudeMode>clampToGround</altitudeMode>{whens}\n{coords}</gx:Track>\n"
+
+
 def _kml_gap(g: Gap, which: str) -> str:
     text = (f"{g.reason}; stopped {utc_iso(g.before.t_ns)}, resumed {utc_iso(g.after.t_ns)} "
             f"at {g.after.lat_deg:.7f}, {g.after.lon_deg:.7f}")
@@ -116,7 +126,7 @@ def _kml_gap(g: Gap, which: str) -> str:
 def write_kml(path: Path, tracks: list[Track], which: str, title: str, gap_marks: bool = False) -> None:
     with open(path, "w", encoding="utf-8") as f:
         f.write('<?xml version="1.0" encoding="UTF-8"?>\n')
-        f.write(f'<kml xmlns="{KML_NS}"><Document><name>{escape(title)}</name>\n')
+        f.write(f'<kml xmlns="{KML_NS}" xmlns:gx="{GX_NS}"><Document><name>{escape(title)}</name>\n')
         f.write(f"<description>{escape(f'altitudes: {HEIGHT_TEXT[which]} (lines are clamped to the ground)')}"
                 "</description>\n")
         for i, t in enumerate(tracks):
@@ -130,16 +140,10 @@ def write_kml(path: Path, tracks: list[Track], which: str, title: str, gap_marks
                 desc = ", ".join((plural(t.n_points, "point"), plural(len(t.segments), "segment"),
                                   plural(len(t.gaps), "gap")))
                 f.write(f"<Placemark><name>{escape(t.label)}</name><description>{escape(desc)}</description>"
-                        f"<styleUrl>#{t.key}</styleUrl><TimeSpan><begin>{utc_iso(pts[0].t_ns)}</begin>"
-                        f"<end>{utc_iso(pts[-1].t_ns)}</end></TimeSpan><MultiGeometry>\n")
+                        f"<styleUrl>#{t.key}</styleUrl><gx:MultiTrack><gx:interpolate>0</gx:interpolate>\n")
                 for seg in t.segments:
-                    coords = " ".join(_coord(p, which) for p in seg)
-                    if len(seg) == 1:
-                        f.write(f"<Point><coordinates>{coords}</coordinates></Point>\n")
-                    else:
-                        f.write("<LineString><tessellate>1</tessellate><altitudeMode>clampToGround</altitudeMode>"
-                                f"<coordinates>{coords}</coordinates></LineString>\n")
-                f.write("</MultiGeometry></Placemark>\n")
+                    f.write(_gx_track(seg, which))
+                f.write("</gx:MultiTrack></Placemark>\n")
             if gap_marks:
                 for g in t.gaps:
                     f.write(_kml_gap(g, which))

@@ -1,9 +1,10 @@
 """How regularly each sensor topic was recorded: rate over time, messages lost, and gaps.
 
 Two independent witnesses: the per-topic ``seq`` counter (set by the sampler for every sample it produced, so
-a jump is a message that never reached the file, and a step back is a restart of the daemon) and the
-acquisition stamps ``t_mono_ns`` (a gap is an interval much longer than the topic's usual one, which also
-shows a sensor that fell silent without any message being lost).
+a jump is a message that never reached the file, and a step back is a restart of the daemon) and the message
+times (a gap is an interval much longer than the topic's usual one, which also shows a sensor that fell silent
+without any message being lost). Rate and gaps follow :mod:`logger.recording.intervals`, as ``logger info``
+does, so the two never disagree on a file.
 """
 
 from __future__ import annotations
@@ -13,17 +14,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from logger.recording.drive import DriveMessage
+from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
 
 STAMPED_TOPICS = (IMU, OBD_SPEED, BARO, GNSS_FIX, TIMEPULSE, PPS)
-GAP_FACTOR = 3.0  # an interval this many times the median one is a gap
 
 
 @dataclass
 class Gap:
     before_ns: int  # log time of the last message before
     after_ns: int  # log time of the first message after
-    interval_s: float  # by the acquisition stamps
+    interval_s: float
 
 
 @dataclass
@@ -35,6 +36,7 @@ class TopicTiming:
     sync_state: list[str]
     sync_err_ns: np.ndarray
     median_interval_s: float = 0.0
+    rate_hz: float = 0.0  # over the topic's span
     lost: list[tuple[int, int]] = field(default_factory=list)  # (log time of the message after, messages lost)
     restarts: list[int] = field(default_factory=list)  # log times where seq started again
     gaps: list[Gap] = field(default_factory=list)
@@ -55,9 +57,8 @@ class TopicTiming:
         return (edges[:-1] + edges[1:]) / 2.0, counts / bin_s
 
     def summary(self) -> str:
-        rate = 1.0 / self.median_interval_s if self.median_interval_s > 0 else 0.0
         largest = max((g.interval_s for g in self.gaps), default=0.0)
-        text = (f"{self.topic}: {len(self.log_ns)} messages at {rate:.2f} Hz; lost by seq: {self.n_lost}; "
+        text = (f"{self.topic}: {len(self.log_ns)} messages at {self.rate_hz:.2f} Hz; lost by seq: {self.n_lost}; "
                 f"gaps over {GAP_FACTOR:g}x the usual interval: {len(self.gaps)}"
                 + (f" (largest {largest:.2f} s)" if self.gaps else ""))
         return text + (f"; restarts: {len(self.restarts)}" if self.restarts else "")
@@ -71,16 +72,12 @@ def topic_timing(topic: str, rows: list[tuple[int, int, int, str, int]]) -> Topi
     if len(rows) < 2:
         return tt
     dseq = np.diff(tt.seq)
-    dmono = np.diff(tt.mono_ns)
-    forward = (dseq > 0) & (dmono > 0)
-    tt.median_interval_s = float(np.median(dmono[forward])) / 1e9 if forward.any() else 0.0
+    reg = regularity(tt.log_ns.tolist())
+    tt.median_interval_s, tt.rate_hz = reg.median_interval_s, reg.rate_hz
     for i in np.nonzero(dseq > 1)[0]:
         tt.lost.append((int(tt.log_ns[i + 1]), int(dseq[i] - 1)))
     tt.restarts = [int(tt.log_ns[i + 1]) for i in np.nonzero(dseq < 0)[0]]
-    if tt.median_interval_s > 0:
-        limit = GAP_FACTOR * tt.median_interval_s * 1e9
-        for i in np.nonzero(dmono > limit)[0]:
-            tt.gaps.append(Gap(int(tt.log_ns[i]), int(tt.log_ns[i + 1]), float(dmono[i]) / 1e9))
+    tt.gaps = [Gap(a, b, (b - a) / 1e9) for a, b in reg.gaps]
     return tt
 
 

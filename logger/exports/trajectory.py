@@ -21,7 +21,7 @@ from logger.nav.engine import NavEngine, TrajectoryRow
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm
 from logger.nav.smoother import smooth_rows
-from logger.recording.drive import REPLAY_LIBRARY, read_messages
+from logger.recording.drive import REPLAY_LIBRARY, Progress, read_messages
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
 
@@ -29,19 +29,21 @@ CSV_HEADER = ("t_sync_ns", "t_mono_ns", "lat_deg", "lon_deg", "height_m", "vn_mp
               "pitch_deg", "yaw_deg", "sn_m", "se_m", "sd_m")
 
 
-def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS) -> Iterator[tuple[str, dict[str, Any]]]:
+def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
+               progress: Progress | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over several files (a rotated drive), in log-time order."""
-    return read_messages(paths, topics)
+    return read_messages(paths, topics, progress)
 
 
 def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
-               states: list[dict[str, Any]] | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
+               states: list[dict[str, Any]] | None = None,
+               progress: Progress | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
     """Run the engine over the files; returns it and its rows (smoothed when asked). With ``states``, a
-    ``/nav/state`` record is appended to it for every second of drive."""
+    ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got."""
     engine = NavEngine(params, record=True)
     feed = nav_feeder(engine)
     next_state = 0
-    for topic, msg in read_drive(paths):
+    for topic, msg in read_drive(paths, progress=progress):
         feed[topic](msg)
         if states is not None and topic == IMU and msg["t_sync_ns"] >= next_state and engine.state is not None:
             next_state = msg["t_sync_ns"] + 1_000_000_000

@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import re
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -207,10 +207,28 @@ def _collect(files: list[DriveFile], wanted: set[str]) -> list[tuple[int, int, i
     return raw
 
 
-def iter_messages(files: list[DriveFile], topics: Iterable[str]) -> Iterator[DriveMessage]:
+Progress = Callable[[int, int], None]  # (messages done, messages in all): told every PROGRESS_EVERY messages
+PROGRESS_EVERY = 4096
+
+
+def _counted(raw: list[Any], progress: Progress | None) -> Iterable[Any]:
+    """The collected messages, telling ``progress`` how far the caller has got through them."""
+    if progress is None:
+        yield from raw
+        return
+    total = len(raw)
+    for i, item in enumerate(raw):
+        if i % PROGRESS_EVERY == 0:
+            progress(i, total)
+        yield item
+    progress(total, total)
+
+
+def iter_messages(files: list[DriveFile], topics: Iterable[str],
+                  progress: Progress | None = None) -> Iterator[DriveMessage]:
     """Every message of the given topics over the files, decoded, in log-time order (ties: file order)."""
     loads = json.loads
-    for t, index, _, topic, data in _collect(files, set(topics)):
+    for t, index, _, topic, data in _counted(_collect(files, set(topics)), progress):
         try:
             msg = loads(data)
         except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError alike
@@ -219,13 +237,14 @@ def iter_messages(files: list[DriveFile], topics: Iterable[str]) -> Iterator[Dri
         yield DriveMessage(t, topic, index, msg)
 
 
-def read_messages(paths: Iterable[Path], topics: Iterable[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+def read_messages(paths: Iterable[Path], topics: Iterable[str],
+                  progress: Progress | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
     :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
     files = open_drive(paths)
     loads = json.loads
     imu = _IMU.match
-    for _, _, _, topic, data in _collect(files, set(topics)):
+    for _, _, _, topic, data in _counted(_collect(files, set(topics)), progress):
         if topic == IMU_TOPIC:
             m = imu(data, 1)
             if m is not None:

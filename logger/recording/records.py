@@ -108,6 +108,17 @@ def location_fix(fix: GnssFix, t_mono_ns: int) -> dict[str, Any]:
     }
 
 
+NO_FIX = "no fix"
+FIX_NAMES = {0: "fix", 1: NO_FIX, 2: "2D", 3: "3D"}  # gpsd's modes; 0: a position without a mode (NMEA GGA)
+
+
+def fix_name(record: dict[str, Any]) -> str:
+    """A ``/gnss/fix`` record's fix in a word: ``3D``, ``2D``, ``fix`` (a position without a mode) or ``no fix``."""
+    if not record.get("fix_ok"):
+        return NO_FIX
+    return FIX_NAMES.get(record.get("fix_mode") or 0, "fix")
+
+
 def sync_record(report: TrackingReport) -> dict[str, Any]:
     """A ``/sync`` record (and the ``sync`` section of ``logger status``): the clock's tracking report."""
     return {"t_mono_ns": report.t_mono_ns, "state": report.state, "offset_ns": report.offset_ns,

@@ -22,7 +22,7 @@ from typing import Any
 from logger.config import Config
 from logger.recording.files import McapFileError, is_finished, recover
 from logger.recording.recorder import Recorder
-from logger.recording.records import clock_observer, health_record, stamped_record, sync_record
+from logger.recording.records import NO_FIX, clock_observer, health_record, stamped_record, sync_record
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import HEALTH, SYNC, TOPICS
 from logger.runtime.gnss_watch import GnssWatch
@@ -42,7 +42,7 @@ DROP_WINDOW_NS = 60 * 1_000_000_000
 # exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
 HEARTBEAT_BOUND_S = 60.0
-SILENT, NO_FIX = "silent", "no fix"  # row states the snapshot gives a running sensor: nothing comes; no position
+SILENT = "silent"  # the row state of a running sensor from which nothing comes (a receiver without a fix: NO_FIX)
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
 
 

@@ -9,18 +9,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from logger.recording.records import NO_FIX, fix_name
 from logger.recording.topics import GNSS_FIX
 from logger.words import plural
 
 NO_FIX_PROBLEM_S = 3.0  # a receiver that reports no fix for longer than this is a problem in the status
-FIX_NAMES = {0: "fix", 1: "no fix", 2: "2D", 3: "3D"}  # gpsd's modes; 0: a position without a mode (NMEA GGA)
-
-
-def fix_name(record: dict[str, Any]) -> str:
-    """``3D``, ``2D``, ``fix`` (a position without a mode) or ``no fix``, as the record says."""
-    if not record.get("fix_ok"):
-        return "no fix"
-    return FIX_NAMES.get(record.get("fix_mode") or 0, "fix")
 
 
 class GnssWatch:
@@ -35,7 +28,7 @@ class GnssWatch:
         if topic != GNSS_FIX:
             return
         t = payload["t_mono_ns"]
-        if fix_name(payload) != "no fix":
+        if fix_name(payload) != NO_FIX:
             self._last_fix_mono_ns, self._no_fix_since_ns = t, None
         elif self._no_fix_since_ns is None:
             self._no_fix_since_ns = t if self._last_fix_mono_ns is None else self._last_fix_mono_ns
