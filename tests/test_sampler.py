@@ -9,6 +9,8 @@ from __future__ import annotations
 import itertools
 import threading
 
+import pytest
+
 from logger.runtime.sampler import Reading, Sampler, Source, wait_until
 from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound
