@@ -42,6 +42,7 @@ DROP_WINDOW_NS = 60 * 1_000_000_000
 # exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
 HEARTBEAT_BOUND_S = 60.0
+CLOCK = "clock"  # the clock's entry among the sensors' in Daemon.time_in_state
 SILENT = "silent"  # the row state of a running sensor from which nothing comes (a receiver without a fix: NO_FIX)
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
 
@@ -112,6 +113,8 @@ class Daemon:
         self.watchdog_pings = 0
         self._started = threading.Event()
         self.problem_journal = ProblemJournal()
+        # name (a sensor's, or CLOCK) -> state -> drive seconds in it, counted by the health loop once a second
+        self.time_in_state: dict[str, dict[str, float]] = {}
 
     # ---- the sink every sampler calls: stamp, count, queue ------------------------------------------------
     def sink(self, r: Reading) -> None:
@@ -277,13 +280,25 @@ class Daemon:
         return {"state": st.state, "err_ns": st.err_ns}
 
     def _health_loop(self) -> None:
+        last = self.tb.monotonic_ns()
         while not self.tb.wait(self.stop_event, 1.0):
             snap = self.snapshot()
             now = self.tb.monotonic_ns()
+            self._count_time_in_state(snap, (now - last) / 1e9)
+            last = now
             report = self.clock.report(now)
             if report is not None:
                 self.sink(Reading(SYNC, sync_record(report), now, stamped=False))
             self.sink(Reading(HEALTH, health_record(snap, now), now, stamped=False))
+
+    def _count_time_in_state(self, snap: dict[str, Any], dt_s: float) -> None:
+        """Drive seconds each sensor and the clock spent in each state, for the end-of-run summary."""
+        for h in snap["sensors"]:
+            by_state = self.time_in_state.setdefault(h["name"], {})
+            by_state[h["state"]] = by_state.get(h["state"], 0.0) + dt_s
+        clock = self.time_in_state.setdefault(CLOCK, {})
+        state = snap["sync"].get("state", "?")
+        clock[state] = clock.get(state, 0.0) + dt_s
 
     def _periodic_loop(self, period_s: float, fn: Callable[[], list[Reading]]) -> None:
         start = self.tb.monotonic_ns()

@@ -2,8 +2,9 @@
 
 Printed by ``logger run`` after the daemon stopped (after ``--duration`` or Ctrl-C, and in the journal under
 systemd), like ``mcap``'s and ``ros2 bag``'s summaries: every file by its final name with its size and whether it
-was finished, per-topic counts and rates over the run, each sensor that never delivered or ended unwell with its
-last error, the clock's state, the filter's, and the commands to look at the drive.
+was finished, per-topic counts and rates over the run, each sensor that never delivered, ended unwell (with its
+last error) or spent time unwell (how long in which state), the clock's state and its share of the run in each,
+how long the filter had a position, and the commands to look at the drive.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import math
 from typing import Any
 
 from logger.recording.files import is_finished
-from logger.runtime.daemon import Daemon
+from logger.runtime.daemon import CLOCK, Daemon
 from logger.words import plural
 from sync.stamp import FREERUN
 
@@ -43,6 +44,12 @@ def run_summary(daemon: Daemon) -> str:
                                                                   else ""))
         elif snap["state"] not in ("ok", "stopped"):
             lines.append(f"  ! {snap['name']} ended {snap['state']}: {snap['last_error']}")
+        if snap["samples"]:
+            spent = daemon.time_in_state.get(snap["name"], {})
+            unwell = {k: v for k, v in spent.items() if k not in ("ok", "stopped", "starting")}
+            if sum(unwell.values()) >= 1.0:
+                parts = ", ".join(f"{state} {s:.0f} s" for state, s in sorted(unwell.items(), key=lambda kv: -kv[1]))
+                lines.append(f"  ! {snap['name']} was not ok for {sum(unwell.values()):.0f} s of the run ({parts})")
     lines.append("  " + clock_line(daemon))
     nav = daemon.attachments.sections.get("nav")
     if nav is not None:
@@ -61,8 +68,12 @@ def clock_line(daemon: Daemon) -> str:
         st = daemon.clock.stamp(end)
         return f"clock {st.state} (no PPS discipline)"
     bound = "unknown" if report.state == FREERUN else f"{report.err_ns / 1e3:.1f} us"
+    spent = daemon.time_in_state.get(CLOCK, {})
+    total = sum(spent.values())
+    shares = (" (" + ", ".join(f"{state} {s / total:.0%}" for state, s in sorted(spent.items(), key=lambda kv: -kv[1]))
+              + " of the run)") if total > 0 else ""
     return (f"clock {report.state} at the end, error bound {bound}, {plural(report.edges, 'PPS edge')}, "
-            f"{plural(report.relocks, 'relock')}")
+            f"{plural(report.relocks, 'relock')}{shares}")
 
 
 def nav_line(nav: dict[str, Any]) -> str:
