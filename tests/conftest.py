@@ -1,4 +1,5 @@
-"""Keeps one test's logging set-up from reaching the next.
+"""Keeps one test's logging set-up from reaching the next, and fails a run in which a test skipped for anything
+but a missing tool.
 
 Tests that run the command line in-process call ``logger.runtime.logs.setup``, which points the root logger at the
 ``sys.stderr`` of that moment: pytest's capture file for that test, closed once it ends. Without the restore,
@@ -20,3 +21,29 @@ def _restore_root_logging() -> Iterator[None]:
     yield
     root.handlers[:] = handlers
     root.setLevel(level)
+
+
+# A machine without a tool may skip the tests that need it; nothing else may skip. Data the tests need is in the
+# tree (tests/data), so a skip for anything but a missing tool is a test that silently stopped testing: the run
+# fails (CI runs exactly README's test command, so the rule lives here).
+TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "no console script")
+_unexpected_skips: list[str] = []
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if report.skipped and not hasattr(report, "wasxfail"):
+        reason = str(report.longrepr[-1]) if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        if not any(words in reason for words in TOOL_SKIP_REASONS):
+            _unexpected_skips.append(f"{report.nodeid}: {reason}")
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if _unexpected_skips and exitstatus == 0:
+        session.exitstatus = 1
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    if _unexpected_skips:
+        terminalreporter.section("skipped without a missing tool (counts as a failure)")
+        for line in _unexpected_skips:
+            terminalreporter.write_line(line)
