@@ -163,7 +163,9 @@ _add(HEALTH, "vehicle_logger.Health", {
     "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
     "verdict": ("string", "ok, degraded or critical"),
     "problems": ("array", "one line per problem"),
-    "sensors": ("array", "per sensor: state, rates, errors, gaps, late, missed, reconnects, last_error"),
+    "sensors": ("array", "per sensor: state (ok, silent, no fix, starting, retrying, missing, no-data, stalled, "
+                         "stopped), measured rate (null while not running), errors, gaps, late, missed, reconnects, "
+                         "last_error (cleared on recovery)"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
 }, "the daemon's health once a second", stamped=False)
 _add(TRUTH_CLOCK, "vehicle_logger.TruthClock", {
