@@ -385,6 +385,9 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
                 if cfg.values[section][key] is None:
                     problems.append(f"{at(section + '.source')}: {section}.{key} is required when "
                                     f"{section}.source = {source!r}")
+    chrony = chrony_problem(cfg)
+    if chrony:
+        problems.append(f"{at('sync.chrony_sock')}: {chrony}")
     rec = cfg.values["recorder"]
     chunks = rec["rotate_duration_s"] / rec["flush_interval_s"]
     if chunks > MAX_CHUNKS_PER_FILE:
@@ -394,6 +397,27 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
     if problems:
         raise ConfigError(problems)
     return cfg
+
+
+def chrony_problem(cfg: Config) -> str:
+    """Why the PPS edges must not go to chrony ("" when they may): only real time may steer a system clock.
+
+    A simulated receiver or PPS line, or a drive faster than real time, would hand chrony the simulation's time,
+    and a chronyd started without ``-x`` would set the board's clock to it. Checked by ``config check`` and again
+    by ``logger run`` once its command line has had its say (``--sim``, ``--time-scale``)."""
+    if not cfg.values["sync"]["chrony_sock"]:
+        return ""
+    sim = cfg.values["sim"]
+    simulated = [s for s in ("gnss", "pps") if cfg.values[s]["source"] == "sim"
+                 or (cfg.values[s]["source"] == "gpsd" and sim["gpsd"])]
+    if simulated:
+        return (f"sync.chrony_sock is set while {' and '.join(simulated)} "
+                f"{'is' if len(simulated) == 1 else 'are'} simulated: chrony would be given the simulation's time "
+                "(leave chrony_sock empty for simulated runs)")
+    if sim["time_scale"] != 1.0:
+        return (f"sync.chrony_sock is set with sim.time_scale = {sim['time_scale']:g}: chrony would be given time "
+                "running faster than real time")
+    return ""
 
 
 def load(path: str | os.PathLike[str], sim: bool = False) -> Config:

@@ -146,3 +146,23 @@ def test_files_too_long_for_the_boards_memory_are_refused() -> None:
     assert msg.startswith("logger.toml:2: recorder.rotate_duration_s / flush_interval_s makes 86400 chunks per file")
     cfg = parse("[recorder]\nrotate_duration_s = 86400\nflush_interval_s = 10\n", "logger.toml", sim=True)
     assert cfg["recorder"]["rotate_duration_s"] == 86400
+
+
+def test_chrony_is_only_given_real_time(tmp_path: Path) -> None:
+    """The PPS edges go to chrony only from a real receiver and PPS line at real time: config check and run agree."""
+    from logger.cli.run import parse_args, resolve_config
+
+    real = ('[obd]\nsource = "can"\n[gnss]\nsource = "serial"\nport = "/dev/ttyACM0"\n[pps]\nsource = "gpio"\n'
+            '[sync]\nchrony_sock = "/run/chrony.pps.sock"\n')
+    assert parse(real, "logger.toml").values["sync"]["chrony_sock"] == "/run/chrony.pps.sock"
+    with pytest.raises(ConfigError) as e:
+        parse(real.replace('[pps]\nsource = "gpio"', '[pps]\nsource = "sim"'), "logger.toml")
+    assert e.value.problems == ["logger.toml:9: sync.chrony_sock is set while pps is simulated: chrony would be "
+                                "given the simulation's time (leave chrony_sock empty for simulated runs)"]
+    cfg = tmp_path / "logger.toml"
+    cfg.write_text(real)
+    cfg.chmod(0o640)
+    with pytest.raises(ConfigError) as e:  # the file is fine; `--sim` makes both sources simulated
+        resolve_config(parse_args(["--config", str(cfg), "--sim"]))
+    assert e.value.problems == ["sync.chrony_sock is set while gnss and pps are simulated: chrony would be given "
+                                "the simulation's time (leave chrony_sock empty for simulated runs)"]

@@ -194,7 +194,9 @@ def test_kill_9_loses_only_what_was_not_yet_flushed_and_the_next_start_recovers(
     print("kill -9 loss per topic (s of drive):", {k: round(v, 3) for k, v in losses.items()})
 
 
-def test_sigterm_finishes_the_file_cleanly(tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_and_a_hang_up_finish_the_file_cleanly(tmp_path: Path, sig: signal.Signals) -> None:
+    """SIGTERM from systemd, SIGHUP from an SSH session dropped under a foreground run: both finish the file."""
     sock = tmp_path / "status.sock"
     proc = subprocess.Popen([sys.executable, "-m", "logger.cli", "run", "--sim", "--time-scale", "5", "--out",
                              str(tmp_path), "--status-socket", str(sock)], cwd=Path(__file__).resolve().parents[1],
@@ -208,7 +210,7 @@ def test_sigterm_finishes_the_file_cleanly(tmp_path: Path) -> None:
             except ConnectionError:
                 pass
             time.sleep(0.1)
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         assert proc.wait(30) == 0
     finally:
         proc.kill()

@@ -21,6 +21,7 @@ from logger.config import (
     SIM_SECTIONS,
     Config,
     ConfigError,
+    chrony_problem,
     defaults,
     load,
 )
@@ -83,6 +84,9 @@ def resolve_config(args: argparse.Namespace) -> Config:
     if real and sim["time_scale"] != 1.0:
         raise ConfigError([f"sim.time_scale = {sim['time_scale']:g} needs every sensor simulated; real: "
                            + ", ".join(real)])
+    chrony = chrony_problem(cfg)  # again: --sim and --time-scale may have changed what the file said
+    if chrony:
+        raise ConfigError([chrony])
     return cfg
 
 

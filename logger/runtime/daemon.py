@@ -197,9 +197,12 @@ class Daemon:
                 log.debug("closing a simulated device failed", exc_info=True)
 
     def run(self, duration_s: float | None = None) -> int:
-        """Run until SIGTERM/SIGINT or ``duration_s`` of drive time; returns the process exit code."""
+        """Run until SIGTERM/SIGINT/SIGHUP or ``duration_s`` of drive time; returns the process exit code.
+
+        SIGHUP is a dropped SSH session under ``logger run`` in the foreground: the file is finished as on SIGTERM
+        (its default would end the process like ``kill -9``, leaving the file for recovery)."""
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGTERM, signal.SIGINT):
+            for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
                 signal.signal(sig, lambda *_: self.stop_event.set())
         self.start()
         end = None if duration_s is None else self._started_mono + int(duration_s * 1e9)
