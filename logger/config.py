@@ -19,6 +19,7 @@ from typing import Any
 
 from logger.nav.params import NavParams
 from logger.recording.settings import MIB, RecorderSettings
+from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
 DEFAULT_PATH = Path("/etc/vehicle-logger/logger.toml")
@@ -56,6 +57,12 @@ def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
 
 def _one_of(*choices: Any) -> Callable[[Any], str | None]:
     return lambda v: None if v in choices else "must be one of " + ", ".join(repr(c) for c in choices)
+
+
+def _gpio_line(v: int | str) -> str | None:
+    if isinstance(v, str):
+        return None if v.strip() else "must be a line offset (0 or more) or a line name, not empty"
+    return None if v >= 0 else "must be a line offset of 0 or more (or a line name)"
 
 
 def _i2c_address(v: int) -> str | None:
@@ -191,7 +198,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "pps": {
         "source": Key(str, "gpio", _one_of("gpio", "gpsd", "sim", "none")),
         "chip": Key(str, "/dev/gpiochip0", _abs_path),
-        "line": Key((int, str), 60, None, "line offset or line name"),
+        "line": Key((int, str), 60, _gpio_line, "line offset or line name"),
     },
     "sync": _defaults_from(SyncSettings, {
         "pps_latency_us": Key(NUM, _field_default(SyncSettings, "pps_latency_ns") / NS_PER_US, _range(0, 1000),
@@ -239,7 +246,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "queue_size": Key(int, FIELD, _range(10, 1_000_000), "records waiting for the filter before drops"),
     }),
     "sim": {
-        "scenario": Key(str, "urban", None, "drive to simulate"),
+        "scenario": Key(str, "urban", _one_of(*SCENARIOS), "drive to simulate"),
         "seed": Key(int, 1, _range(0, 2**32 - 1)),
         "time_scale": Key(NUM, 1.0, _range(0.01, 1000)),
         "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
@@ -334,15 +341,33 @@ def _check_type(value: Any, kind: type | tuple[type, ...]) -> bool:
     return isinstance(value, kinds)
 
 
+def _toml_problem(msg: str, text: str, line_no: int) -> str:
+    """tomllib's complaint in the configuration's terms: a key or a table given twice is named."""
+    lines = text.splitlines()
+    if msg == "Cannot overwrite a value" and 0 < line_no <= len(lines):
+        key = lines[line_no - 1].split("=", 1)[0].strip()
+        table = next((t for t in map(_table_header, reversed(lines[:line_no - 1])) if t), None)
+        path = f"{table}.{key}" if table else key
+        return f"{_shown(path)} is set twice (a key may be given once)"
+    twice = re.fullmatch(r"Cannot declare \((.*)\) twice", msg)
+    if twice:
+        table = ".".join(part.strip().strip("'\"") for part in twice.group(1).split(",") if part.strip())
+        return f"[{_shown(table)}] appears twice (give each section once, with all its keys)"
+    return f"not valid TOML: {msg}"
+
+
 def parse(text: str, name: str = "config", sim: bool = False) -> Config:
     """Validate TOML text; raise :class:`ConfigError` listing every problem, one line each."""
+    text = text.removeprefix("\ufeff")  # a byte-order mark some Windows editors write: not part of the TOML
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
         where = f"{name}:{m.group(1)}" if m else name
         msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
-        raise ConfigError([f"{where}: not valid TOML: {msg}"]) from None
+        raise ConfigError([f"{where}: {_toml_problem(msg, text, int(m.group(1)) if m else 0)}"]) from None
+    except RecursionError:
+        raise ConfigError([f"{name}: not a configuration: arrays or tables nested hundreds deep"]) from None
     lines = _line_index(text)
     problems: list[str] = []
     cfg = defaults(sim=sim)

@@ -166,3 +166,32 @@ def test_chrony_is_only_given_real_time(tmp_path: Path) -> None:
         resolve_config(parse_args(["--config", str(cfg), "--sim"]))
     assert e.value.problems == ["sync.chrony_sock is set while gnss and pps are simulated: chrony would be given "
                                 "the simulation's time (leave chrony_sock empty for simulated runs)"]
+
+
+def test_what_toml_itself_refuses_is_said_in_the_configuration_s_terms() -> None:
+    def problems(text: str) -> list[str]:
+        with pytest.raises(ConfigError) as e:
+            parse(text, "logger.toml", sim=True)
+        return e.value.problems
+
+    assert problems("[imu]\nrate_hz = 20\nrate_hz = 30\n") == [
+        "logger.toml:3: imu.rate_hz is set twice (a key may be given once)"]
+    assert problems("[imu]\nrate_hz = 20\n[imu]\nrate_hz = 5\n") == [
+        "logger.toml:3: [imu] appears twice (give each section once, with all its keys)"]
+    assert problems("x = " + "[" * 600 + "]" * 600) == [
+        "logger.toml: not a configuration: arrays or tables nested hundreds deep"]
+    assert problems('[sim]\nscenario = "moon"\n') == [
+        "logger.toml:2: sim.scenario = 'moon' must be one of 'urban', 'outage-60s', 'tunnel-130s'"]
+    assert problems("[pps]\nline = -1\n") == ["logger.toml:2: pps.line = -1 must be a line offset of 0 or more "
+                                              "(or a line name)"]
+    # A byte-order mark (some editors on Windows write one) is no part of the file's TOML.
+    assert parse("\ufeff[imu]\nrate_hz = 50\n", "logger.toml", sim=True).values["imu"]["rate_hz"] == 50
+    assert parse('[pps]\nline = "P9_12"\n', "logger.toml", sim=True).values["pps"]["line"] == "P9_12"
+
+
+def test_the_scenario_names_the_configuration_checks_are_the_simulator_s() -> None:
+    from sensors.sim.scenarios import SCENARIOS, make_drive
+
+    for name in SCENARIOS:
+        assert parse(f'[sim]\nscenario = "{name}"\n', "x", sim=True).values["sim"]["scenario"] == name
+        assert make_drive(name, seed=1, duration_s=60.0).name == name

@@ -40,9 +40,10 @@ def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
     return out
 
 
-def run_logger(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+def run_logger(*args: str, timeout: float = 120, umask: int | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "logger.cli", "run", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=Path(__file__).resolve().parents[1])
+                          timeout=timeout, cwd=Path(__file__).resolve().parents[1],
+                          preexec_fn=None if umask is None else lambda: os.umask(umask))
 
 
 @pytest.fixture(scope="module")
@@ -296,10 +297,12 @@ def test_the_end_of_a_run_says_what_it_recorded_and_what_never_came(tmp_path: Pa
                    f'[obd]\nsource = "elm327"\nport = "{tmp_path / "no-adapter"}"\n'
                    f'[logger]\nout_dir = "{tmp_path / "rec"}"\nstatus_socket = "{tmp_path / "status.sock"}"\n'
                    f'state_dir = "{tmp_path / "state"}"\n')
-    r = run_logger("--config", str(cfg), "--duration", "8")
+    r = run_logger("--config", str(cfg), "--duration", "8", umask=0)  # a caller who lets everybody read
     assert r.returncode == 0, r.stderr
     out = r.stdout
     (path,) = sorted((tmp_path / "rec").glob("*.mcap"))
+    for made in (path, tmp_path / "rec", *(tmp_path / "state").iterdir()):
+        assert made.stat().st_mode & 0o007 == 0, (made, oct(made.stat().st_mode))  # group-only, like the service
     assert f"  {path}  " in out and is_finished(path)  # the final (dated) name, not the boot-time one
     with open(path, "rb") as f:
         stats = make_reader(f).get_summary()

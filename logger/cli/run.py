@@ -8,6 +8,7 @@ is refused then, because real devices cannot run faster than real time.
 from __future__ import annotations
 
 import argparse
+import os
 import logging
 import sys
 from pathlib import Path
@@ -90,9 +91,14 @@ def resolve_config(args: argparse.Namespace) -> Config:
     return cfg
 
 
+FILE_UMASK = 0o027  # recorded drives, the clock's state: group-readable (the operators' group), never the world's
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     logs.setup(args.verbose)
+    # Whatever the caller's umask (a shell's 022 makes a drive world-readable): the service's unit sets the same.
+    os.umask(FILE_UMASK | os.umask(FILE_UMASK))
     try:
         cfg = resolve_config(args)
     except ConfigError as exc:

@@ -24,8 +24,7 @@ import numpy as np
 
 from sensors.sim.drive import Drive, RouteBuilder, Weather, horizontal_displacement
 from sensors.sim.gnss_errors import SkyGeometry
-
-SCENARIOS = ("urban", "outage-60s", "tunnel-130s")
+from sensors.sim.scenario_names import SCENARIOS
 
 INTRO_S = 8.0  # standing with the engine running before moving off: levelling needs 2 s, the rest is margin
 _START_OPTIONS = ("intro_s",)
