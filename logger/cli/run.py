@@ -8,8 +8,8 @@ is refused then, because real devices cannot run faster than real time.
 from __future__ import annotations
 
 import argparse
-import os
 import logging
+import os
 import sys
 from pathlib import Path
 
