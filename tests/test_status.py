@@ -95,3 +95,72 @@ def test_a_second_simulated_run_gets_its_own_socket_and_status_finds_it(tmp_path
             second.close()
     finally:
         first.close()
+
+
+def test_a_full_queue_is_waited_out_then_said_busy_not_not_running(tmp_path: Path, capsys) -> None:
+    """A socket whose queue is full (a daemon that stopped accepting, or clients hammering it): logger status
+    tries again until its deadline, then says the logger is busy with exit 4, never a traceback, never 3."""
+    import time
+
+    from logger.runtime.status_socket import StatusBusy
+
+    sock = tmp_path / "status.sock"
+    stuck = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stuck.bind(str(sock))
+    stuck.listen(0)  # accepts nothing: the kernel queue fills at once
+    held = []
+    try:
+        for _ in range(8):  # fill the queue (the kernel admits backlog + 1)
+            c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            c.setblocking(False)
+            try:
+                c.connect(str(sock))
+            except BlockingIOError:
+                c.close()
+                break
+            held.append(c)
+        t0 = time.monotonic()
+        with pytest.raises(StatusBusy, match="busy"):
+            fetch(sock, timeout_s=0.6)
+        assert time.monotonic() - t0 >= 0.5  # it waited for the queue, not gave up at once
+        assert main(["status", "--socket", str(sock)]) == 4
+        err = capsys.readouterr().err
+        assert "logger is running but busy" in err and "Traceback" not in err
+    finally:
+        for c in held:
+            c.close()
+        stuck.close()
+
+
+def test_clients_polling_hard_cost_at_most_a_few_snapshots_a_second(tmp_path: Path) -> None:
+    """Four clients fetching as fast as they can for a second: every one gets answers, and the daemon computed at
+    most a handful of snapshots (one per CACHE_S), whatever the number of requests."""
+    import threading
+    import time
+
+    from logger.runtime.status_socket import CACHE_S
+
+    sock = tmp_path / "status.sock"
+    server = StatusServer(sock, lambda: SNAP)
+    server.start()
+    got = [0, 0, 0, 0]
+    stop = time.monotonic() + 1.0
+
+    def poll(i: int) -> None:
+        while time.monotonic() < stop:
+            assert fetch(sock)["pid"] == 42
+            got[i] += 1
+
+    threads = [threading.Thread(target=poll, args=(i,)) for i in range(4)]
+    t0 = time.monotonic()
+    try:
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+    finally:
+        server.close()
+    elapsed = time.monotonic() - t0
+    assert all(got) and server.answered == sum(got)
+    assert server.snapshots <= elapsed / CACHE_S + 2, (server.snapshots, sum(got), elapsed)
+    assert server.answered <= (elapsed + 0.5) * 50 + 4  # the answers are paced: the rest wait in the queue

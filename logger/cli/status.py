@@ -1,7 +1,8 @@
 """``logger status``: what an operator at a red light needs, in one screen.
 
 The daemon's snapshot comes over its status socket (:mod:`logger.runtime.status_socket`); this renders it, and
-the exit code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running. On a terminal the
+the exit code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running, 4 running but not
+answering in time (nobody can say how it is). On a terminal the
 screen is drawn to its size (:mod:`logger.cli.status_view`); ``--watch`` redraws it in place.
 """
 
@@ -18,7 +19,7 @@ from typing import Any
 
 from logger.cli.status_view import COLUMNS, render
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
-from logger.runtime.status_socket import EXIT, NOT_RUNNING, fetch, sim_sockets
+from logger.runtime.status_socket import EXIT, NOT_RUNNING, UNKNOWN, StatusBusy, fetch, sim_sockets
 
 HOME, CLEAR_SCREEN, CLEAR_LINE, CLEAR_BELOW = "\x1b[H", "\x1b[2J", "\x1b[K", "\x1b[J"
 
@@ -32,6 +33,8 @@ def find_socket() -> tuple[Path, dict[str, Any]]:
         if p.exists():
             try:
                 return p, fetch(p, timeout_s=1.0)
+            except StatusBusy:
+                raise  # a logger is there, only slow to answer: say so rather than try the next socket
             except ConnectionError:
                 continue  # a socket a crashed run left
     raise ConnectionError("logger is not running (nobody answers on " + ", ".join(map(str, tried)) + ")")
@@ -69,6 +72,8 @@ def main(argv: list[str]) -> int:
                 code = EXIT.get(snap.get("verdict", ""), 2)
                 text = json.dumps(snap, indent=1) if args.json else render(
                     snap, size.columns if tty else 80, size.lines - 1 if tty else None)
+            except StatusBusy as exc:
+                code, text = UNKNOWN, f"logger status: {exc}"
             except ConnectionError as exc:
                 code, text = NOT_RUNNING, f"logger status: {exc}"
             if args.watch:
@@ -81,7 +86,7 @@ def main(argv: list[str]) -> int:
                 first = False
                 time.sleep(max(0.2, args.watch))
                 continue
-            print(text, file=sys.stderr if code == NOT_RUNNING else sys.stdout)
+            print(text, file=sys.stderr if code in (NOT_RUNNING, UNKNOWN) else sys.stdout)
             return code
     except KeyboardInterrupt:
         return code

@@ -35,7 +35,7 @@ rows below the table:
   nav      filter position and its 1-sigma, then its plain verdicts
   rec      file, size, free disk; records written and dropped, queue,
            and how far back everything is on disk (what a power cut loses)
-exit code: 0 ok, 1 degraded, 2 critical, 3 not running"""
+exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""
 
 
 def age(s: float | None) -> str:

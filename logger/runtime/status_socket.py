@@ -3,6 +3,12 @@
 No network listener, and the socket is readable by the daemon's group only (mode 0660). The server runs in the
 daemon (:class:`StatusServer`); ``logger status`` and the tools read it with :func:`fetch`. The verdict's exit
 codes are part of the protocol, so scripts read the same numbers whoever asks.
+
+Clients cannot hurt recording: a snapshot is taken at most every :data:`CACHE_S` whoever asks how often, and the
+server answers at most :data:`MAX_ANSWERS_PER_S` connections a second, so a script polling in a loop or four
+``watch`` sessions cost the sensor threads a bounded share of the one core. A client that finds the queue full
+waits and tries again (:func:`fetch`); one that still gets no answer is told the logger is busy, not that it is
+not running.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ import logging
 import os
 import socket
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,7 +28,15 @@ log = logging.getLogger(__name__)
 
 EXIT = {"ok": 0, "degraded": 1, "critical": 2}
 NOT_RUNNING = 3
+UNKNOWN = 4  # running, but it did not answer in time: nobody can say whether it is well (LSB's "status unknown")
 MAX_REPLY = 4 << 20
+CACHE_S = 0.25  # a snapshot is this fresh at most: the daemon computes at most four a second
+MAX_ANSWERS_PER_S = 50.0
+BACKLOG = 16
+
+
+class StatusBusy(ConnectionError):
+    """The daemon is there but did not answer in time (its queue full, or it is stalled)."""
 
 
 class SocketInUse(OSError):
@@ -84,11 +99,25 @@ class StatusServer(threading.Thread):
         finally:
             os.umask(old)
         os.chmod(self.path, mode)
-        self._sock.listen(8)
+        self._sock.listen(BACKLOG)
         self._sock.settimeout(0.5)
+        self._cached: tuple[float, bytes] | None = None  # (monotonic time taken, the snapshot's JSON)
+        self.snapshots = 0  # taken since start (how often the daemon did the work)
+        self.answered = 0
+
+    def _reply(self) -> bytes:
+        now = time.monotonic()
+        if self._cached is None or now - self._cached[0] >= CACHE_S:
+            self._cached = (now, json.dumps(self.snapshot(), default=str).encode() + b"\n")
+            self.snapshots += 1
+        return self._cached[1]
 
     def run(self) -> None:
+        next_answer = 0.0
         while not self._halt.is_set():
+            wait = next_answer - time.monotonic()
+            if wait > 0 and self._halt.wait(wait):  # pace the answers; the rest wait in the queue
+                return
             try:
                 conn, _ = self._sock.accept()
             except TimeoutError:
@@ -97,11 +126,12 @@ class StatusServer(threading.Thread):
                 if self._halt.is_set():
                     return
                 continue
+            next_answer = time.monotonic() + 1.0 / MAX_ANSWERS_PER_S
             with conn:
                 try:
                     conn.settimeout(2.0)
-                    data = json.dumps(self.snapshot(), default=str).encode() + b"\n"
-                    conn.sendall(data)
+                    conn.sendall(self._reply())
+                    self.answered += 1
                 except Exception:  # a client that hangs up early, or a snapshot bug: never kill the server
                     log.debug("status client failed", exc_info=True)
 
@@ -115,12 +145,40 @@ class StatusServer(threading.Thread):
             self.join(2.0)
 
 
+def _connect_error(exc: OSError, path: str | os.PathLike[str], timeout_s: float) -> ConnectionError:
+    """Why a connection to the status socket failed, in words."""
+    if isinstance(exc, FileNotFoundError):
+        return ConnectionError(f"logger is not running (no status socket at {path})")
+    if isinstance(exc, ConnectionRefusedError):
+        return ConnectionError(f"logger is not running (nobody answers on {path})")
+    if isinstance(exc, PermissionError):
+        return ConnectionError(f"not allowed to read {path}: add yourself to the logger's group")
+    if isinstance(exc, TimeoutError):
+        return StatusBusy(f"logger did not answer on {path} within {timeout_s:g} s")
+    return ConnectionError(f"cannot reach the logger on {path}: {exc.strerror or exc}")
+
+
 def fetch(path: str | os.PathLike[str], timeout_s: float = 3.0) -> dict[str, Any]:
     """One snapshot from the daemon; raises ConnectionError with a readable reason when it is not there."""
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout_s)
+    deadline = time.monotonic() + timeout_s
+    pause = 0.01
+    while True:  # a full queue (other clients polling) refuses at once: wait and try again until the deadline
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.settimeout(timeout_s)
+        try:
+            s.connect(str(path))
+            break
+        except BlockingIOError:
+            s.close()
+            if time.monotonic() + pause > deadline:
+                raise StatusBusy(f"logger is running but busy: its status queue at {path} stayed full for "
+                                 f"{timeout_s:g} s") from None
+            time.sleep(pause)
+            pause = min(pause * 2, 0.2)
+        except OSError as exc:
+            s.close()
+            raise _connect_error(exc, path, timeout_s) from None
     try:
-        s.connect(str(path))
         chunks, size = [], 0
         while True:
             part = s.recv(65536)
@@ -130,14 +188,10 @@ def fetch(path: str | os.PathLike[str], timeout_s: float = 3.0) -> dict[str, Any
             size += len(part)
             if size > MAX_REPLY:
                 raise ConnectionError("status reply too large")
-    except FileNotFoundError:
-        raise ConnectionError(f"logger is not running (no status socket at {path})") from None
-    except ConnectionRefusedError:
-        raise ConnectionError(f"logger is not running (nobody answers on {path})") from None
-    except PermissionError:
-        raise ConnectionError(f"not allowed to read {path}: add yourself to the logger's group") from None
     except TimeoutError:
-        raise ConnectionError(f"logger did not answer on {path} within {timeout_s:g} s") from None
+        raise StatusBusy(f"logger did not answer on {path} within {timeout_s:g} s") from None
+    except OSError as exc:
+        raise ConnectionError(f"logger closed the status connection on {path}: {exc.strerror or exc}") from None
     finally:
         s.close()
     try:
