@@ -214,3 +214,110 @@ def test_first_record_of_each_topic_is_announced_once_when_written(tmp_path: Pat
     assert path is not None
     # Each topic once, and only after its record was counted as written.
     assert firsts == [("/a", 1), ("/b", 51)]
+
+
+def _records_on_disk(folder: Path) -> int:
+    return sum(len(walk(p).messages) for p in sorted(folder.glob("*.mcap")))
+
+
+def test_a_deleted_file_is_noticed_at_the_next_flush_and_a_new_one_started(tmp_path: Path) -> None:
+    """Writes and fsyncs into an unlinked file succeed: the recorder looks at the link count at every flush."""
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS)
+    first = rec.start()
+    assert first is not None
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0)
+        first.unlink()
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        assert wait_until(lambda: rec.status().file not in (None, str(first)), 20.0), rec.status()
+        assert rec.alive and rec.status().state == "recording"
+        rec.submit("/a", {"x": 3}, 1_700_000_000_000_000_003, 3000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 3000, 20.0)
+    finally:
+        rec.stop()
+    (second,) = sorted(tmp_path.glob("*.mcap"))
+    assert is_finished(second) and [m[1] for m in _read_all(second)] == [1_700_000_000_000_000_003]
+
+
+def test_a_deleted_folder_is_reported_made_again_and_recording_goes_on(tmp_path: Path, caplog) -> None:
+    out = tmp_path / "drives"
+    rec = Recorder(RecorderSettings(out_dir=out, flush_interval_s=0.05), TOPICS)
+    rec.start()
+    seen: list[str] = []
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0)
+        for p in out.iterdir():
+            p.unlink()
+        out.rmdir()
+
+        def failed_then_back() -> bool:
+            st = rec.status()
+            seen.append(st.detail)
+            return st.state == "recording" and out.is_dir() and any(out.glob("*.mcap"))
+
+        assert wait_until(failed_then_back, 20.0, poll_s=0.001), seen[-3:]
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 2000, 20.0)
+    finally:
+        rec.stop()
+    assert f"the output folder {out} was deleted while recording" in caplog.text
+    assert f"the output folder {out} was missing: made it again" in caplog.text
+    assert _records_on_disk(out) == 1 and rec.alive is False
+
+
+def test_an_unexpected_error_in_the_writer_is_a_reported_failure_not_a_dead_thread(tmp_path: Path,
+                                                                                 monkeypatch) -> None:
+    """A bug or an error nobody foresaw in the writer thread: status `failed` with the reason, the thread goes on,
+    what was flushed stays readable, and a new file is started after the back-off."""
+    import logger.recording.recorder as recorder_module
+
+    real_encode = recorder_module.encode
+    calls = {"n": 0}
+
+    def encode_once_broken(payload):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("something nobody foresaw")
+        return real_encode(payload)
+
+    monkeypatch.setattr(recorder_module, "encode", encode_once_broken)
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS)
+    first = rec.start()
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0)
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        assert wait_until(lambda: rec.status().state == "failed", 20.0)
+        assert rec.alive and "RuntimeError: something nobody foresaw" in rec.status().detail
+        assert wait_until(lambda: rec.status().state == "recording", 20.0), rec.status()  # after its back-off
+        rec.submit("/a", {"x": 3}, 1_700_000_000_000_000_003, 3000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 3000, 20.0)
+    finally:
+        rec.stop()
+    assert first is not None and len(walk(first).messages) == 1 and _records_on_disk(tmp_path) == 2
+
+
+def test_a_disk_full_while_opening_leaves_no_empty_file(tmp_path: Path, monkeypatch) -> None:
+    import errno
+
+    import logger.recording.recorder as recorder_module
+
+    class FullDisk:
+        def __getattr__(self, name: str):
+            return getattr(os, name)
+
+        @staticmethod
+        def fsync(fd: int) -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recorder_module, "os", FullDisk())
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS)
+    assert rec.start() is None
+    try:
+        st = rec.status()
+        assert st.state == "disk-full" and "No space left on device" in st.detail, st
+        assert list(tmp_path.glob("*.mcap")) == []
+    finally:
+        rec.stop()

@@ -13,6 +13,7 @@ the next flush either way and every flush first writes all that is queued.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import logging
@@ -56,6 +57,7 @@ class RecorderStatus:
     # Per topic, the board time (t_mono_ns) of the newest record the last flush put on disk: what a power cut
     # now would keep. Everything of that topic up to it survives a kill; what came later waits for the next flush.
     on_disk_mono_ns: dict[str, int] = field(default_factory=dict)
+    state_since_mono_ns: int = 0  # when the recorder entered its present state (the watchdog's "failing for")
 
 
 def _json_default(value: Any) -> Any:
@@ -135,6 +137,8 @@ class Recorder:
         self._on_disk: dict[str, int] = {}  # ... and of its newest record fsynced
         self._state = "starting"
         self._detail = ""
+        self._state_since = self._mono_ns()
+        self._dir_id: tuple[int, int] | None = None  # (device, inode) of the output folder the open file is in
         self._thread: threading.Thread | None = None
         self._writer: Writer | None = None
         self._stream: Any = None
@@ -190,7 +194,7 @@ class Recorder:
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), dropped=dict(self._dropped), unrecorded=dict(self._unrecorded),
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
-                on_disk_mono_ns=dict(self._on_disk))
+                on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since)
 
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
@@ -226,14 +230,21 @@ class Recorder:
             if not self._stopping:
                 self._wake.wait(min(wait, BATCH_WAIT_S))
                 self._wake.clear()  # before draining: a backlog reached meanwhile is drained now
-            self._drain()
-            if self._stopping:
+            try:
                 self._drain()
-                self._close_file()
-                self._set_state("stopped", "recorder stopped")
-                return
-            if self._now() - self._last_flush >= interval:
-                self._flush()
+                if self._stopping:
+                    self._drain()
+                    self._close_file()
+                    self._set_state("stopped", "recorder stopped")
+                    return
+                if self._now() - self._last_flush >= interval:
+                    self._flush()
+            except Exception as exc:  # the writer ends only at stop: anything else is a failure it reports
+                log.exception("recorder: unexpected error")
+                self._io_failed(exc)
+                if self._stopping:
+                    self._set_state("stopped", f"recorder stopped after an error: {type(exc).__name__}: {exc}")
+                    return
 
     def _drain(self) -> None:
         """Write everything queued, oldest first (producers may go on appending meanwhile)."""
@@ -306,6 +317,11 @@ class Recorder:
         except OSError as exc:
             self._io_failed(exc)
             return
+        lost = self._file_lost()
+        if lost:  # what was just flushed went to a file nobody can find: it is not on disk in any useful sense
+            self._io_failed(OSError(errno.ENOENT, lost), lost)
+            self._next_retry = self._now()  # a new file (in a recreated folder) at the next flush
+            return
         self._kept_on_disk(True)
         size = self._stream.tell()
         self._free = self._free_bytes()
@@ -318,6 +334,25 @@ class Recorder:
             return
         if size >= self.settings.rotate_size_bytes:
             self._rotate()
+
+    def _file_lost(self) -> str:
+        """Why the open file cannot be found where it is written ("" when it can): deleted, or its folder deleted or
+        replaced. Writes and fsyncs to an unlinked file succeed, so only this check notices."""
+        assert self._stream is not None
+        try:  # the folder first: deleting it deletes the file too, and the folder is the news
+            d = os.stat(self.settings.out_dir)
+        except FileNotFoundError:
+            return f"the output folder {self.settings.out_dir} was deleted while recording"
+        except OSError as exc:
+            return f"the output folder {self.settings.out_dir} cannot be checked: {exc.strerror or exc}"
+        if self._dir_id is not None and (d.st_dev, d.st_ino) != self._dir_id:
+            return f"the output folder {self.settings.out_dir} was replaced while recording"
+        try:
+            if os.fstat(self._stream.fileno()).st_nlink == 0:
+                return f"{self._path} was deleted while being written"
+        except OSError as exc:
+            return f"{self._path} cannot be checked: {exc.strerror or exc}"
+        return ""
 
     def _rotate(self) -> None:
         self._close_file()
@@ -340,11 +375,18 @@ class Recorder:
         self._sequence += 1
         start_mono = self._mono_ns()
         start_unix = self._synced_unix_ns(start_mono) if self._synced_unix_ns is not None else None
-        path = self.settings.out_dir / self._name_at_open(start_unix)
-        while path.exists():
-            self._sequence += 1
-            path = self.settings.out_dir / self._name_at_open(start_unix)
+        out = self.settings.out_dir
+        path = out / self._name_at_open(start_unix)
+        stream = None
         try:
+            if not out.is_dir() and out.parent.is_dir():
+                # Deleted under a running recorder: made again where it was (not when its parent went too: a
+                # storage that vanished must not be replaced by the root filesystem).
+                out.mkdir()
+                log.warning("the output folder %s was missing: made it again", out)
+            while path.exists():
+                self._sequence += 1
+                path = out / self._name_at_open(start_unix)
             stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
             writer = Writer(stream, chunk_size=self.settings.chunk_size_bytes, compression=self._compression)
             writer.start(profile=PROFILE, library="vehicle-logger")
@@ -352,11 +394,19 @@ class Recorder:
                 writer.add_metadata(name_, data)
             stream.flush()
             os.fsync(stream.fileno())
+            d = os.stat(out)
         except OSError as exc:
-            self._set_state("failed", f"cannot open {path}: {exc.strerror or exc}")
+            if stream is not None:  # a file that holds no record (disk full mid-header) is not left behind
+                with contextlib.suppress(OSError):
+                    stream.close()
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            full = exc.errno == errno.ENOSPC
+            self._set_state("disk-full" if full else "failed", f"cannot open {path}: {exc.strerror or exc}")
             log.error(self._detail)
             self._next_retry = self._now() + 5.0
             return
+        self._dir_id = (d.st_dev, d.st_ino)
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
             self._files.append(path)
@@ -439,8 +489,9 @@ class Recorder:
         else:
             self._newest_written = dict(self._on_disk)
 
-    def _io_failed(self, exc: OSError) -> None:
-        """A write failed: leave the file as it is (recovery keeps every flushed chunk) and stop writing."""
+    def _io_failed(self, exc: BaseException, reason: str = "") -> None:
+        """A write failed: leave the file as it is (recovery keeps every flushed chunk) and stop writing until the
+        next retry (a new file then)."""
         path = self._path
         try:
             if self._stream is not None:
@@ -451,15 +502,21 @@ class Recorder:
             self._writer = None
             self._stream = None
         self._kept_on_disk(False)
-        if exc.errno == errno.ENOSPC:
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
             self._set_state("disk-full", f"recording stopped: disk full while writing {path}")
-        else:
+        elif reason:
+            self._set_state("failed", f"recording stopped: {reason}")
+        elif isinstance(exc, OSError):
             self._set_state("failed", f"recording stopped: {exc.strerror or exc} while writing {path}")
+        else:
+            self._set_state("failed", f"recording stopped: {type(exc).__name__}: {exc} while writing {path}")
         log.error(self._detail)
         self._next_retry = self._now() + 5.0
 
     def _set_state(self, state: str, detail: str) -> None:
         with self._lock:
+            if state != self._state:
+                self._state_since = self._mono_ns()
             self._state, self._detail = state, detail
 
 

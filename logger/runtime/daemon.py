@@ -338,10 +338,15 @@ class Daemon:
                 stale.append(f"{s.name} has ended")
             elif now - s.health.heartbeat_mono_ns > bound_ns:
                 stale.append(f"{s.name} silent for {(now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale:.0f} s")
+        rec = self.recorder.status()
         if not self.recorder.alive:
             stale.append("recorder has ended")
         elif now - self.recorder.heartbeat_mono_ns > bound_ns:
             stale.append(f"recorder silent for {(now - self.recorder.heartbeat_mono_ns) / 1e9 / self.tb.scale:.0f} s")
+        elif rec.state == "failed" and now - rec.state_since_mono_ns > bound_ns:
+            # Alive but writing nothing: a restart by systemd is the one remedy left to try.
+            stale.append(f"recorder failing for {(now - rec.state_since_mono_ns) / 1e9 / self.tb.scale:.0f} s: "
+                         f"{rec.detail}")
         stale += [f"{t.name} has ended" for t in self._threads
                   if t is not threading.current_thread() and not t.is_alive()]
         return stale
