@@ -190,3 +190,40 @@ def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
     assert span_s > 2.0, (span_s, len(lost_at))
     rate = (b - 1 - a) / span_s
     assert abs(rate - 1000.0) < 2.0, rate
+
+
+def test_a_deleted_output_folder_is_critical_within_two_seconds_then_recording_resumes(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The drives folder deleted under the running daemon (a user's `rm -r`): the status is critical with the
+    reason within 2 s (its rows say so too), the journal says it, and the daemon records again in a new file."""
+    import shutil
+
+    from logger.recording.files import walk
+
+    cfg = sim_config(tmp_path)
+    cfg.values["recorder"]["flush_interval_s"] = 0.5
+    daemon, _ = build(cfg, duration_s=3600)
+    daemon.start()
+    out, sock = tmp_path / "drives", tmp_path / "status.sock"
+    try:
+        wait_for("recording", lambda: daemon.recorder.status().on_disk_mono_ns.get("/imu") is not None)
+        shutil.rmtree(out)
+        deleted = time.monotonic()
+        seen: list[dict] = []
+
+        def critical() -> bool:
+            seen.append(fetch(sock))
+            return seen[-1]["verdict"] == "critical"
+
+        wait_for("critical", critical, timeout_s=10.0)
+        assert time.monotonic() - deleted <= 2.0 + 0.5  # one flush (0.5 s) and the socket's cache, well within 2 s
+        assert any(f"the output folder {out} was deleted while recording" in p for p in seen[-1]["problems"])
+        wait_for("recording again in a new file",
+                 lambda: fetch(sock)["recorder"]["state"] == "recording" and any(out.glob("*.mcap")), 30.0)
+        wait_for("new records on disk", lambda: walk(next(out.glob("*.mcap"))).messages != [], 30.0)
+        assert fetch(sock)["verdict"] in ("ok", "degraded")
+    finally:
+        daemon.stop()
+    assert f"the output folder {out} was deleted while recording" in caplog.text
+    (again,) = sorted(out.glob("*.mcap"))
+    assert is_finished(again)

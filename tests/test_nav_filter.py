@@ -19,7 +19,7 @@ from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.nav.smoother import smooth_rows
 from logger.recording.records import feed_record, gnss_observation, nav_feeder
-from sensors.sim.scenarios import make_drive
+from sensors.sim.scenarios import INTRO_S, make_drive
 
 
 def run(recs, **params) -> NavEngine:
@@ -180,8 +180,20 @@ def test_heading_from_the_configuration_starts_at_standstill():
     heading = math.degrees(drive.state(0.0).rpy_rad[2])
     engine = run(recs, heading_source="config", initial_heading_deg=heading)
     assert engine.counters.init_method == "config heading"
-    # Levelled over the 30 s of idling, started as soon as the vehicle moves (OBD speed above 0.5 km/h).
-    assert 30.0 < (engine.counters.initialised_ns - T0_NS) / 1e9 < 34.0
+    # Levelled over the idling, started as soon as the vehicle moves (OBD speed above 0.5 km/h).
+    assert INTRO_S < (engine.counters.initialised_ns - T0_NS) / 1e9 < INTRO_S + 4.0
+    assert abs(math.degrees(math.remainder(engine.state.rpy()[2] - drive.state(60.0).rpy_rad[2], 2 * math.pi))) < 1.0
+
+
+def test_a_configured_heading_still_starts_the_filter_when_the_first_fix_comes_after_levelling() -> None:
+    """No fix yet when the car moves off (a receiver still finding its first fix): the configured heading belongs
+    to the moment levelling ended, the gyro carries it on, and the first fix starts the filter with it."""
+    drive = make_drive("outage-60s", seed=6, duration_s=60.0)
+    recs = records(drive, 60.0, seed=8, gnss_off=[(0.0, 20.0)])
+    heading = math.degrees(drive.state(0.0).rpy_rad[2])
+    engine = run(recs, heading_source="config", initial_heading_deg=heading)
+    assert engine.counters.init_method == "config heading"
+    assert 20.0 < (engine.counters.initialised_ns - T0_NS) / 1e9 < 22.0
     assert abs(math.degrees(math.remainder(engine.state.rpy()[2] - drive.state(60.0).rpy_rad[2], 2 * math.pi))) < 1.0
 
 

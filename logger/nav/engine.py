@@ -233,6 +233,9 @@ class NavEngine:
                              CONFIG_HEADING_VAR)
 
     def _try_heading_init(self, fix: PreparedFix) -> None:
+        if self.startup.late_config_heading():  # levelled before the first fix: the configured heading now
+            self._initialise(self._t_last or fix.t_ns, None, CONFIG_HEADING, fix, CONFIG_HEADING_VAR)
+            return
         heading = self.startup.heading_from_course(fix)
         if heading is not None:
             yaw, method, heading_var = heading

@@ -92,6 +92,16 @@ class Startup:
         self._prov_hist.append((t_ns, self.prov_q))
         return ""
 
+    def late_config_heading(self) -> bool:
+        """With ``heading_source = "config"``, a levelling that ended before any fix: turn the provisional attitude
+        (yaw 0 when levelling ended) to the configured heading, so the next fix can start the filter. True when
+        done; the filter then starts from the provisional attitude."""
+        if self.params.heading_source != "config" or self.prov_q is None or self.levelled is None:
+            return False
+        self._level_yaw = math.radians(self.params.initial_heading_deg)
+        self.prov_q = rotate_heading(self.prov_q, self._level_yaw)
+        return True
+
     def heading_from_course(self, fix: PreparedFix) -> tuple[float | None, str, float] | None:
         """A fix fast and sure enough to give the heading: (yaw, or None for the provisional attitude's; how the
         filter starts; heading variance), or None to wait for a better one."""
