@@ -26,11 +26,20 @@ def _restore_root_logging() -> Iterator[None]:
 # A machine without a tool may skip the tests that need it; nothing else may skip. Data the tests need is in the
 # tree (tests/data), so a skip for anything but a missing tool is a test that silently stopped testing: the run
 # fails (CI runs exactly README's test command, so the rule lives here).
-TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "no console script")
+TOOL_SKIP_REASONS = ("is not installed", "needs gcc")
 _unexpected_skips: list[str] = []
 
 
+def pytest_collectreport(report: pytest.CollectReport) -> None:
+    """A module skipped whole (a module-level skip, importorskip) counts as well."""
+    _note_skip(report)
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    _note_skip(report)
+
+
+def _note_skip(report: pytest.CollectReport | pytest.TestReport) -> None:
     if report.skipped and not hasattr(report, "wasxfail"):
         reason = str(report.longrepr[-1]) if isinstance(report.longrepr, tuple) else str(report.longrepr)
         if not any(words in reason for words in TOOL_SKIP_REASONS):

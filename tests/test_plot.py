@@ -141,7 +141,7 @@ def test_a_restart_is_not_counted_as_loss():
                                                             (1_000 + 7 * period, 1_000 + 100 * period)]
 
 
-def test_plot_and_info_give_a_file_the_same_rates_and_gaps(recorded: tuple[Path, Path, list[int]]):
+def test_plot_and_info_give_a_file_the_same_rates_and_gaps(recorded: tuple[Path, Path, list[int]]) -> None:
     """One rule (logger.recording.intervals) behind both tools: the same rate and the same gaps, topic by topic."""
     _, thinned, _ = recorded
     info = run("info", str(thinned), "--json")
@@ -154,7 +154,7 @@ def test_plot_and_info_give_a_file_the_same_rates_and_gaps(recorded: tuple[Path,
     assert by_info["/imu"]["gaps"] >= 1  # the block taken out is a gap for both
 
 
-def test_the_plots_find_the_outage_the_receiver_reported(recorded: tuple[Path, Path, list[int]]):
+def test_the_plots_find_the_outage_the_receiver_reported(recorded: tuple[Path, Path, list[int]]) -> None:
     """The receiver kept reporting once a second through the outage: its spans without a fix are what the plots
     shade, one of about the scenario's 60 s, and the rest of the drive had a fix."""
     original, _, _ = recorded

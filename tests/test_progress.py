@@ -14,10 +14,10 @@ from logger.recording.drive import PROGRESS_EVERY, _counted
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_reader_tells_how_far_it_got_and_the_meter_wipes_its_line():
+def test_the_reader_tells_how_far_it_got_and_the_meter_wipes_its_line() -> None:
     told: list[tuple[int, int]] = []
     items = list(range(3 * PROGRESS_EVERY + 5))
-    assert list(_counted(items, lambda done, total: told.append((done, total)))) == items
+    assert list(_counted(items, lambda done, total, what: told.append((done, total)))) == items
     assert told == [(0, len(items)), (PROGRESS_EVERY, len(items)), (2 * PROGRESS_EVERY, len(items)),
                     (3 * PROGRESS_EVERY, len(items)), (len(items), len(items))]
     out = io.StringIO()
@@ -35,7 +35,7 @@ def test_the_reader_tells_how_far_it_got_and_the_meter_wipes_its_line():
     assert quiet.getvalue() == ""
 
 
-def test_on_a_terminal_replay_shows_progress_and_in_a_pipe_it_does_not(tmp_path: Path):
+def test_on_a_terminal_replay_shows_progress_and_in_a_pipe_it_does_not(tmp_path: Path) -> None:
     """A real pty as the command's stderr: the meter draws there; the same command into a pipe prints none."""
     import test_nav_live
 

@@ -16,7 +16,7 @@ def _flat(text: str) -> str:
 
 
 def _sensor(name: str, state: str = "ok", rate: float | None = 1.0, measured: float | None = 1.0,
-            age: float | None = 0.4, **counts: int) -> dict:
+            age: float | None = 0.4, **counts: int) -> dict[str, object]:
     return {"name": name, "state": state, "rate_hz": rate, "measured_rate_hz": measured, "last_sample_age_s": age,
             "errors": counts.get("errors", 0), "gaps": counts.get("gaps", 0), "late": counts.get("late", 0),
             "reconnects": counts.get("reconnects", 0), "last_error": "", "origin": "", "incidents": {}}
@@ -49,7 +49,7 @@ BUSY["sensors"][0]["incidents"] = {"fifo overflow": 3}
 BUSY["sensors"][3]["origin"] = "serial /dev/serial/by-id/usb-u-blox_AG_-_www.u-blox.com_u-blox_GNSS_receiver-if00"
 
 
-def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on_screen():
+def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on_screen() -> None:
     full = render(BUSY, width=80).split("\n")
     assert max(map(len, full)) <= 79  # the last column wraps on a real terminal
     assert len(full) > 23  # this snapshot does not fit as a whole, so the screen has to choose
@@ -71,7 +71,7 @@ def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on
     assert "filter restarted from GNSS 2 times" not in "\n".join(screen)
 
 
-def test_rows_agree_with_the_problems_and_say_what_is_not_known():
+def test_rows_agree_with_the_problems_and_say_what_is_not_known() -> None:
     text = render(BUSY, width=80)
     lines = text.split("\n")
     header = next(i for i, line in enumerate(lines) if line.startswith("sensor  state"))
@@ -89,7 +89,7 @@ def test_rows_agree_with_the_problems_and_say_what_is_not_known():
     assert "gnss    3D, 18 satellites, hAcc 1.2 m, PDOP 1.3, reported 0.4 s ago" in render(fixed)
 
 
-def test_before_the_first_solution_the_nav_row_says_what_the_start_waits_for():
+def test_before_the_first_solution_the_nav_row_says_what_the_start_waits_for() -> None:
     snap = copy.deepcopy(BUSY)
     snap["nav"] = {"lat_deg": None, "mode": "17", "verdicts": [
         "initialising: levelling the IMU (6 s standing); waiting for the car to move to find the heading"]}
@@ -100,6 +100,19 @@ def test_before_the_first_solution_the_nav_row_says_what_the_start_waits_for():
     assert max(map(len, text.split("\n"))) <= 79
 
 
-def test_help_explains_every_column():
+def test_help_explains_every_column() -> None:
     for column in ("state", "rate Hz", "last", "errors", "gaps", "late", "reconn", "gnss", "clock", "nav", "rec"):
         assert f"\n  {column} " in COLUMNS, column
+
+
+def test_long_ages_keep_their_unit_and_a_silent_receiver_is_not_shown_as_fixed() -> None:
+    from logger.cli.status_view import age
+
+    assert [age(s) for s in (None, -0.01, 0.42, 35.2, 725.0, 7300.0)] == [
+        "never", "0.0 s", "0.4 s", "35 s", "12 min", "2.0 h"]
+    snap = copy.deepcopy(BUSY)
+    snap["gnss"] = {"fix": "3D", "num_sv": 18, "h_acc_m": 1.2, "pdop": 1.3, "age_s": 40.0, "last_fix_age_s": 40.0,
+                    "no_fix_s": None}
+    text = render(snap)
+    assert "gnss    nothing from the receiver for 40 s (its last report: 3D)" in text
+    assert "18 satellites" not in text

@@ -39,7 +39,7 @@ class TopicInfo:
     schema: str
     count: int
     rate_hz: float
-    largest_interval_s: float
+    largest_gap_s: float  # the longest interval between two messages (the name scripts reading --json know)
     gaps: int  # intervals over GAP_FACTOR times the usual one (logger plot shades the same ones)
 
 
@@ -129,7 +129,7 @@ def render(info: FileInfo) -> str:
     lines.append(f"  {'topic':<{width}}  {'count':>8}  {'rate Hz':>8}  {'gaps':>5}  {'longest s':>9}  schema")
     for t in info.topics:
         lines.append(f"  {t.topic:<{width}}  {t.count:>8}  {t.rate_hz:>8.2f}  {t.gaps:>5}  "
-                     f"{t.largest_interval_s:>9.3f}  {t.schema}")
+                     f"{t.largest_gap_s:>9.3f}  {t.schema}")
     lines.append(f"  (rate over each topic's span; a gap: an interval over {GAP_FACTOR:g}x the usual one)")
     return "\n".join(lines)
 

@@ -122,13 +122,11 @@ def draw_rates(plt: Any, tim: dict[str, TopicTiming], fixes: list[DriveMessage],
         ax.step(x, rate, where="mid", lw=0.9, color="C0", label="messages")
         if tt.topic == GNSS_FIX:
             valid = [m.log_time for m in fixes if fix_name(m.msg) != NO_FIX]
-            if len(valid) > 1:
-                t = (np.array(valid) - t0_ns) / 1e9
-                n = max(1, int((t.max() - t.min()) // bin_s))
-                edges = (x[0] - bin_s / 2.0 if len(x) else t.min()) + bin_s * np.arange(n + 1)
-                counts, _ = np.histogram(t, bins=edges)
-                ax.step((edges[:-1] + edges[1:]) / 2.0, counts / bin_s, where="mid", lw=0.9, color="C2",
-                        label="with a fix")
+            if valid and len(x):
+                # The messages' own bins, so the two lines share every bin and a late first fix is not cut off.
+                edges = np.append(x - bin_s / 2.0, x[-1] + bin_s / 2.0)
+                counts, _ = np.histogram((np.array(valid) - t0_ns) / 1e9, bins=edges)
+                ax.step(x, counts / bin_s, where="mid", lw=0.9, color="C2", label="with a fix")
             ax.legend(fontsize=7, loc="lower right")
         _shade(ax, outages)
         for g in tt.gaps:

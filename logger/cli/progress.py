@@ -14,7 +14,7 @@ REDRAW_S = 0.5
 
 
 class Progress:
-    """``logger replay: 42 % (1234567 of 2939201 messages)``, told (done, total) by the drive reader."""
+    """``logger replay: 42 % (1234567 of 2939201 messages)``, told (done, in all, of what) by the drive reader."""
 
     def __init__(self, label: str, stream: TextIO | None = None, on: bool | None = None) -> None:
         self.label = label
@@ -23,12 +23,12 @@ class Progress:
         self._next = 0.0
         self._width = 0
 
-    def __call__(self, done: int, total: int) -> None:
+    def __call__(self, done: int, total: int, what: str = "messages") -> None:
         now = time.monotonic()
         if not self.on or total <= 0 or (now < self._next and done < total):
             return
         self._next = now + REDRAW_S
-        line = f"{self.label}: {done * 100 // total} % ({done} of {total} messages)"
+        line = f"{self.label}: {done * 100 // total} % ({done} of {total} {what})"
         self._width = max(self._width, len(line))
         self.stream.write("\r" + line.ljust(self._width))
         self.stream.flush()

@@ -55,7 +55,6 @@ def main(argv: list[str]) -> int:
         params = NavParams()
     if args.mode is not None:
         params.mode = args.mode
-    args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
@@ -66,10 +65,11 @@ def main(argv: list[str]) -> int:
     if not rows:
         # An empty trajectory is no result: say what the start waited for, write nothing, fail.
         why = engine.waiting_for() or "the filter produced no solution"
-        print(f"logger replay: no solution from {c.imu} IMU samples and {c.gnss_fixes} GNSS fixes: {why}",
-              file=sys.stderr)
+        print(f"logger replay: no solution from {plural(c.imu, 'IMU sample')} and {c.gnss_fixes} GNSS "
+              f"fix{'' if c.gnss_fixes == 1 else 'es'}: {why}; nothing written to {args.out}", file=sys.stderr)
         return 1
     progress.stage("writing the trajectory")
+    args.out.mkdir(parents=True, exist_ok=True)
     write_csv(args.out / "trajectory.csv", rows)
     if states is not None:
         write_mcap(args.out / "trajectory.mcap", rows, engine, states)

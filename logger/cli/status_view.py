@@ -23,7 +23,7 @@ COLUMNS = """columns:
            without a position); starting, retrying, missing (device not
            found), no-data, stalled (thread not responding), stopped
   rate Hz  measured over the last 10 s / configured; - while not running
-  last     seconds since the last sample (never: none yet)
+  last     time since the last sample (never: none yet)
   errors   read errors since start (each one retried)
   gaps     silences longer than 2.5 periods
   late     samples read after their next deadline (a host that fell behind)
@@ -39,9 +39,15 @@ exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"
 
 
 def age(s: float | None) -> str:
+    """A time since, with its unit: ``0.4 s``, ``35 s``, ``12 min``, ``3.1 h`` (``never`` for None)."""
     if s is None:
         return "never"
-    return f"{s:.1f}" if s < 10 else (f"{s:.0f}" if s < 6000 else f"{s / 60:.0f}min")
+    s = max(0.0, s)  # a record taken just after the snapshot's clock was read
+    if s < 10:
+        return f"{s:.1f} s"
+    if s < 600:
+        return f"{s:.0f} s"
+    return f"{s / 60:.0f} min" if s < 6000 else f"{s / 3600:.1f} h"
 
 
 def duration(s: float) -> str:
@@ -96,13 +102,13 @@ def render(snap: dict[str, Any], width: int = 80, height: int | None = None) -> 
 
 
 def _sensors(sc: Screen, sensors: list[dict[str, Any]]) -> None:
-    sc.add(TABLE, f"{'sensor':<7} {'state':<9} {'rate Hz':>9} {'last s':>7} {'errors':>7} {'gaps':>5} "
+    sc.add(TABLE, f"{'sensor':<7} {'state':<9} {'rate Hz':>10} {'last':>7} {'errors':>7} {'gaps':>5} "
                   f"{'late':>5} {'reconn':>6}")
     for h in sensors:
         measured = h.get("measured_rate_hz")
         now = "-" if measured is None else f"{measured:.1f}"
         rate = f"{now}/{h['rate_hz']:g}" if h.get("rate_hz") else now
-        sc.add(TABLE, f"{h['name']:<7} {h['state']:<9} {rate:>9} {age(h.get('last_sample_age_s')):>7} "
+        sc.add(TABLE, f"{h['name']:<7} {h['state']:<9} {rate:>10} {age(h.get('last_sample_age_s')):>7} "
                       f"{h.get('errors', 0):>7} {h.get('gaps', 0):>5} {h.get('late', 0):>5} "
                       f"{h.get('reconnects', 0):>6}")
     for h in sensors:
@@ -113,8 +119,15 @@ def _sensors(sc: Screen, sensors: list[dict[str, Any]]) -> None:
         sc.add(FOOTNOTE, "source  " + ", ".join(origins))
 
 
+STALE_GNSS_S = 3.0  # a receiver silent this long: its last solution is history, not the present
+
+
 def _gnss(sc: Screen, g: dict[str, Any] | None) -> None:
     if not g:
+        return
+    # "no fix" is logger.recording.records.NO_FIX: the view reads the snapshot only, it imports no record code.
+    if (g.get("age_s") or 0.0) > STALE_GNSS_S:
+        sc.add(LINE, f"gnss    nothing from the receiver for {age(g.get('age_s'))} (its last report: {g['fix']})")
         return
     parts = [g["fix"]]
     if g.get("num_sv") is not None:
@@ -125,10 +138,10 @@ def _gnss(sc: Screen, g: dict[str, Any] | None) -> None:
         if g.get("pdop") is not None:
             parts.append(f"PDOP {g['pdop']:.1f}")
     elif g.get("last_fix_age_s") is not None:
-        parts.append(f"last fix {age(g['last_fix_age_s'])} s ago")
+        parts.append(f"last fix {age(g['last_fix_age_s'])} ago")
     else:
         parts.append("no fix since start")
-    parts.append(f"reported {age(g.get('age_s'))} s ago")
+    parts.append(f"reported {age(g.get('age_s'))} ago")
     sc.add(LINE, "gnss    " + ", ".join(parts))
 
 
@@ -143,7 +156,7 @@ def _clock(sc: Screen, sync: dict[str, Any] | None) -> None:
     if sync.get("freq_ppm") is not None:
         parts.append(f"{sync['freq_ppm']:+.2f} ppm")
     if "since_edge_s" in sync:
-        parts.append(f"PPS {age(sync.get('since_edge_s'))} s ago" if sync.get("since_edge_s") is not None
+        parts.append(f"PPS {age(sync.get('since_edge_s'))} ago" if sync.get("since_edge_s") is not None
                      else "no PPS yet")
     sc.add(LINE, "clock   " + ", ".join(parts))
 

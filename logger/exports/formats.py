@@ -111,7 +111,10 @@ def _coord(p: TrackPoint, which: str) -> str:
 def _gx_track(seg: list[TrackPoint], which: str) -> str:
     """One segment as a gx:Track: all the ``<when>`` first, then the ``<gx:coord>`` (lon lat alt, by spaces)."""
     whens = "".join(f"<when>{utc_iso(p.t_ns)}</when>" for p in seg)
-    coords = "".join(f"<gx:coord>{_coord(p, which).replace(',', ' ')}</gx:coord>" for p in seg)
+    # gx:coord is always three numbers; a point without the chosen height (no geoid separation for MSL) gets 0,
+    # which the track's clampToGround does not use anyway.
+    coords = "".join(f"<gx:coord>{p.lon_deg:.9f} {p.lat_deg:.9f} {_num(height(p, which), 3) or '0'}</gx:coord>"
+                     for p in seg)
     return f"<gx:Track><altitudeMode>clampToGround</altitudeMode>{whens}\n{coords}</gx:Track>\n"
 
 

@@ -21,7 +21,7 @@ from logger.nav.engine import NavEngine, TrajectoryRow
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm
 from logger.nav.smoother import smooth_rows
-from logger.recording.drive import REPLAY_LIBRARY, Progress, read_messages
+from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
 
@@ -30,14 +30,14 @@ CSV_HEADER = ("t_sync_ns", "t_mono_ns", "lat_deg", "lon_deg", "height_m", "vn_mp
 
 
 def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
-               progress: Progress | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+               progress: ProgressFn | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over several files (a rotated drive), in log-time order."""
     return read_messages(paths, topics, progress)
 
 
 def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
                states: list[dict[str, Any]] | None = None,
-               progress: Progress | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
+               progress: ProgressFn | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
     """Run the engine over the files; returns it and its rows (smoothed when asked). With ``states``, a
     ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got."""
     engine = NavEngine(params, record=True)

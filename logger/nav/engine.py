@@ -446,7 +446,8 @@ class NavEngine:
         no_fix = ("no GNSS fix yet" if c.gnss_no_fix == 0 else
                   f"no GNSS fix yet ({c.gnss_no_fix} epochs without one)")
         if self.mode == "gnss":
-            return "" if self.solution is not None else f"waiting for a GNSS fix: {no_fix}"
+            return "" if self.solution is not None else (
+                "waiting for a GNSS fix" + (f" ({c.gnss_no_fix} epochs without one)" if c.gnss_no_fix else ""))
         if self.state is not None:
             return ""
         if c.imu == 0:
@@ -464,6 +465,10 @@ class NavEngine:
         if fix.vel is None or not fix.fix_3d:
             return ("levelled; waiting for a 3D GNSS fix with a velocity to find the heading (the last fix had "
                     + ("no velocity)" if fix.vel is None else "no 3D solution)"))
+        speed = math.hypot(fix.vel[0], fix.vel[1])
+        if speed >= p.heading_min_speed_mps:
+            return (f"levelled; waiting for a GNSS course the receiver is sure of (the last: {speed:.1f} m/s, "
+                    f"+-{fix.s_vel:.1f} m/s)")
         return (f"levelled; waiting for the car to move at {p.heading_min_speed_mps:g} m/s or more to find the "
                 "heading from the GNSS course")
 

@@ -19,6 +19,7 @@ GYRO_LIMIT_DPS = 20.0  # MPU-6050 zero-rate output tolerance
 BARO_DRIFT_M_PER_MIN = 0.5  # a front passing moves pressure ~1 hPa/h (0.14 m/min); more is the sensor or its vent
 MOUNT_TILT_LIMIT_DEG = 10.0
 MOUNT_SLIP_LIMIT_DEG = 2.0
+BARO_FRESH_NS = 5_000_000_000  # a barometer heard from within this long still holds the height
 
 
 class HealthJudge:
@@ -34,7 +35,9 @@ class HealthJudge:
         ekf, s = engine.ekf, engine.state
         if s is None or ekf is None:
             if engine.mode == "gnss":
-                return ["GNSS-only mode: no filter, the receiver's fixes are passed through"]
+                waiting = engine.waiting_for()
+                return [f"GNSS-only mode: {waiting}" if waiting else
+                        "GNSS-only mode: no filter, the receiver's fixes are passed through"]
             return [f"initialising: {engine.waiting_for()}"]
         st = ekf.stats.get("gnss_pos")
         if st is not None:
@@ -50,7 +53,11 @@ class HealthJudge:
         if age > 5.0:
             on = "the IMU"
             if engine.mode == "17":
-                on = "IMU, OBD and baro" if engine.last_readings.obd_fresh(t_last or 0) else "IMU and baro (no OBD)"
+                baro = engine.last_readings.baro
+                aids = [name for name, fresh in (
+                    ("OBD", engine.last_readings.obd_fresh(t_last or 0)),
+                    ("baro", baro is not None and (t_last or 0) - baro[0] <= BARO_FRESH_NS)) if fresh]
+                on = "IMU" + "".join(f", {a}" for a in aids[:-1]) + (f" and {aids[-1]}" if aids else " alone")
             out.append(f"no GNSS fix for {age:.0f} s: dead reckoning on {on}")
         elif n and refused > n // 5:
             out.append(f"GNSS disagrees with the IMU: {refused} of the last {n} fixes refused")

@@ -197,21 +197,25 @@ def _raw(f: DriveFile, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
             if m.channel_id in topics]
 
 
-def _collect(files: list[DriveFile], wanted: set[str]) -> list[tuple[int, int, int, str, bytes]]:
+def _collect(files: list[DriveFile], wanted: set[str],
+             progress: ProgressFn | None = None) -> list[tuple[int, int, int, str, bytes]]:
     """(log_time, file index, order, topic, data) of the wanted topics over the files, in log-time order (ties:
     file order, then order within the file)."""
     raw: list[tuple[int, int, int, str, bytes]] = []
     for index, f in enumerate(files):
+        if progress is not None:
+            progress(index, len(files), "files read")
         raw.extend((t, index, order, topic, data) for t, order, topic, data in _raw(f, wanted))
     raw.sort()  # (log_time, index, order) is unique: the data are never compared
     return raw
 
 
-Progress = Callable[[int, int], None]  # (messages done, messages in all): told every PROGRESS_EVERY messages
+# Told (done, in all, of what): once per file read, then every PROGRESS_EVERY messages handed on.
+ProgressFn = Callable[[int, int, str], None]
 PROGRESS_EVERY = 4096
 
 
-def _counted(raw: list[Any], progress: Progress | None) -> Iterable[Any]:
+def _counted(raw: list[Any], progress: ProgressFn | None) -> Iterator[Any]:
     """The collected messages, telling ``progress`` how far the caller has got through them."""
     if progress is None:
         yield from raw
@@ -219,16 +223,16 @@ def _counted(raw: list[Any], progress: Progress | None) -> Iterable[Any]:
     total = len(raw)
     for i, item in enumerate(raw):
         if i % PROGRESS_EVERY == 0:
-            progress(i, total)
+            progress(i, total, "messages")
         yield item
-    progress(total, total)
+    progress(total, total, "messages")
 
 
 def iter_messages(files: list[DriveFile], topics: Iterable[str],
-                  progress: Progress | None = None) -> Iterator[DriveMessage]:
+                  progress: ProgressFn | None = None) -> Iterator[DriveMessage]:
     """Every message of the given topics over the files, decoded, in log-time order (ties: file order)."""
     loads = json.loads
-    for t, index, _, topic, data in _counted(_collect(files, set(topics)), progress):
+    for t, index, _, topic, data in _counted(_collect(files, set(topics), progress), progress):
         try:
             msg = loads(data)
         except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError alike
@@ -238,13 +242,13 @@ def iter_messages(files: list[DriveFile], topics: Iterable[str],
 
 
 def read_messages(paths: Iterable[Path], topics: Iterable[str],
-                  progress: Progress | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+                  progress: ProgressFn | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
     :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
     files = open_drive(paths)
     loads = json.loads
     imu = _IMU.match
-    for _, _, _, topic, data in _counted(_collect(files, set(topics)), progress):
+    for _, _, _, topic, data in _counted(_collect(files, set(topics), progress), progress):
         if topic == IMU_TOPIC:
             m = imu(data, 1)
             if m is not None:

@@ -264,10 +264,14 @@ class Daemon:
             snap["state"], snap["measured_rate_hz"] = "stalled", None
             return "thread not responding"
         age = snap["last_sample_age_s"]
-        if snap["rate_hz"] and age is not None and age > 3.0 / snap["rate_hz"] + 1.0:
-            snap["state"] = SILENT
+        since_ok = (now - s.health.ok_since_mono_ns) / 1e9
+        limit = 3.0 / snap["rate_hz"] + 1.0 if snap["rate_hz"] else None
+        if limit is not None and (age if age is not None else since_ok) > limit:
+            snap["state"], snap["measured_rate_hz"] = SILENT, None
             what = "pulse" if snap["name"] == "pps" else "sample"
             why = " (the receiver pulses only with a fix)" if snap["name"] == "pps" and no_fix else ""
+            if age is None:
+                return f"no {what} since it was opened {since_ok:.0f} s ago{why}"
             return f"no {what} for {age:.0f} s{why}"
         if snap["name"] == "gnss" and no_fix:
             snap["state"] = NO_FIX

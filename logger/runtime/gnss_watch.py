@@ -20,40 +20,42 @@ class GnssWatch:
     """The last ``/gnss/fix`` record and the receiver's last valid fix, for the status snapshot."""
 
     def __init__(self) -> None:
-        self._last: dict[str, Any] | None = None
-        self._last_fix_mono_ns: int | None = None
-        self._no_fix_since_ns: int | None = None  # first record of the present run without a fix
+        # (last record, board time of the last valid fix, start of the present run without one): one tuple, so a
+        # reader in another thread never sees one record's fix with another's times.
+        self._seen: tuple[dict[str, Any], int | None, int | None] | None = None
 
     def offer(self, topic: str, payload: dict[str, Any]) -> None:
         if topic != GNSS_FIX:
             return
         t = payload["t_mono_ns"]
+        _, last_fix, no_fix_since = self._seen or (None, None, None)
         if fix_name(payload) != NO_FIX:
-            self._last_fix_mono_ns, self._no_fix_since_ns = t, None
-        elif self._no_fix_since_ns is None:
-            self._no_fix_since_ns = t if self._last_fix_mono_ns is None else self._last_fix_mono_ns
-        self._last = payload
+            last_fix, no_fix_since = t, None
+        elif no_fix_since is None:
+            no_fix_since = t if last_fix is None else last_fix
+        self._seen = (payload, last_fix, no_fix_since)
 
     def no_fix_s(self, now_ns: int) -> float | None:
         """How long the receiver has reported no fix (since its last one, or its first report), None with a fix."""
-        since = self._no_fix_since_ns
-        return None if since is None or self._last is None else (now_ns - since) / 1e9
+        seen = self._seen
+        return None if seen is None or seen[2] is None else (now_ns - seen[2]) / 1e9
 
     def section(self, now_ns: int) -> dict[str, Any] | None:
         """The ``gnss`` section of the snapshot; None before the receiver's first solution."""
-        last = self._last
-        if last is None:
+        seen = self._seen
+        if seen is None:
             return None
+        last, last_fix, no_fix_since = seen
         return {"fix": fix_name(last), "num_sv": last.get("num_sv"), "h_acc_m": last.get("h_acc_m"),
                 "pdop": last.get("pdop"), "age_s": (now_ns - last["t_mono_ns"]) / 1e9,
-                "last_fix_age_s": (now_ns - self._last_fix_mono_ns) / 1e9 if self._last_fix_mono_ns else None,
-                "no_fix_s": self.no_fix_s(now_ns)}
+                "last_fix_age_s": (now_ns - last_fix) / 1e9 if last_fix is not None else None,
+                "no_fix_s": (now_ns - no_fix_since) / 1e9 if no_fix_since is not None else None}
 
     def problem(self, now_ns: int) -> str | None:
         """``no fix for 42 s (0 satellites)`` once the receiver has gone without one for a few seconds."""
         s = self.no_fix_s(now_ns)
         if s is None or s < NO_FIX_PROBLEM_S:
             return None
-        sv = (self._last or {}).get("num_sv")
+        sv = self._seen[0].get("num_sv") if self._seen else None
         used = "" if sv is None else f" ({plural(sv, 'satellite')} in use)"
         return f"no fix for {s:.0f} s{used}"

@@ -52,7 +52,8 @@ class Navigator:
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._next_fix_ns = 0
-        self._fix_span: tuple[int, int] | None = None  # first and last /nav/fix published (synchronised ns)
+        self._last_fix_mono: int | None = None  # board time of the last /nav/fix published
+        self._live_ns = 0  # how long /nav/fix was published, silences left out
         self._next_state_ns = 0
         self._verdicts: list[str] = []
         self.error: str = ""
@@ -125,8 +126,14 @@ class Navigator:
             return
         t = sol.t_ns
         if t >= self._next_fix_ns:
-            self._next_fix_ns = t + int(1e9 / max(self.params.publish_hz, 0.1))
-            self._fix_span = (self._fix_span[0] if self._fix_span else t, t)
+            period_ns = int(1e9 / max(self.params.publish_hz, 0.1))
+            self._next_fix_ns = t + period_ns
+            # Live time: the board-clock intervals between publishes, a silence (an outage in GNSS-only mode, a
+            # restart) left out; the board clock, since the synchronised one may step when it first locks.
+            last = self._last_fix_mono
+            if last is not None and 0 < sol.t_mono_ns - last <= 3 * period_ns:
+                self._live_ns += sol.t_mono_ns - last
+            self._last_fix_mono = sol.t_mono_ns
             msg = nav_fix_record(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
                               sol.sigma_ned, sol.source, self.engine.mode)
             self.publish(Reading(NAV_FIX, msg, sol.t_mono_ns, stamped=False))
@@ -148,8 +155,7 @@ class Navigator:
                                    "source": "", "mode": self.engine.mode, "verdicts": verdicts,
                                    "dropped": self.dropped, "processed": self.processed,
                                    "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets,
-                                   "live_s": round((self._fix_span[1] - self._fix_span[0]) / 1e9, 1)
-                                   if self._fix_span else 0.0}
+                                   "live_s": round(self._live_ns / 1e9, 1)}
             if self.error:
                 out["verdicts"].append(f"filter restarted after an error: {self.error}")
             if sol is not None:

@@ -92,6 +92,7 @@ class SensorHealth:
     origin: str = ""  # where the samples come from, for sensors with more than one kind of source
     last_sample_mono_ns: int | None = None
     heartbeat_mono_ns: int = 0
+    ok_since_mono_ns: int = 0  # when the device was last opened (a silence is counted from there before any sample)
     incidents: dict[str, int] = field(default_factory=dict)  # totals since start, by kind
     last_incident: str = ""
     last_incident_mono_ns: int | None = None
@@ -172,6 +173,7 @@ class Sampler(threading.Thread):
             opened_once = True
             self._incident_base = None
             self.health.state = "ok"
+            self.health.ok_since_mono_ns = self.tb.monotonic_ns()
             backoff = self.BACKOFF_START_S
             try:
                 if self.rate_hz:
@@ -231,8 +233,9 @@ class Sampler(threading.Thread):
             self._check_incidents()
             return
         self._check_incidents()
-        if self.health.state != "ok":
-            self.health.state = "ok"
+        if self.health.state != "ok":  # data again after 'no data': recovered, the error is no present one
+            self.health.state, self.health.last_error = "ok", ""
+            self.health.ok_since_mono_ns = self.tb.monotonic_ns()
         self._deliver(readings)
 
     def _deliver(self, readings: list[Reading]) -> None:
