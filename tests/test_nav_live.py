@@ -86,7 +86,7 @@ def test_navigator_thread_publishes_fixes_state_and_status():
     assert any(v.startswith("GNSS consistent with the IMU") for v in sec["verdicts"])
     assert any(v.startswith("OBD speed reads") for v in sec["verdicts"])
     text = render({"verdict": "ok", "nav": sec})
-    assert "position " in text and "  nav      GNSS consistent with the IMU" in text
+    assert f"nav     {sec['lat_deg']:.7f} " in text and "\n        GNSS consistent with the IMU" in text
 
 
 def test_nav_configuration_is_checked_and_reaches_the_filter():
