@@ -9,15 +9,23 @@ renames over it only once the copy is complete and synced, so a crash during rec
 
 from __future__ import annotations
 
+import io
+import json
+import mmap
 import os
 import struct
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
+
+from logger.recording.topics import TOPICS
+
+# Metadata the recorder writes outside the chunks: channel id -> topic, so recovery can name the messages of a
+# channel whose record was in a damaged chunk.
+CHANNEL_TABLE = "vehicle-logger.channels"
 
 MAGIC = b"\x89MCAP0\r\n"
 FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary offset start, summary crc
@@ -52,52 +60,123 @@ class Salvage:
     metadata: list[Metadata] = field(default_factory=list)
     chunks_ok: int = 0
     chunks_bad: int = 0
-    stopped_at: str = ""  # why the walk ended early, empty if it reached the footer
+    stopped_at: str = ""  # the first cut or damage the walk met, empty if it reached the footer
     profile: str = ""
+    magic: bool = True
+    resynced: list[tuple[int, int]] = field(default_factory=list)  # (damage at, walk went on at) byte offsets
+
+
+OP_HEADER, OP_FOOTER, OP_CHUNK, OP_DATA_END, OP_MAX = 0x01, 0x02, 0x06, 0x0F, 0x11
+_REC = struct.Struct("<BQ")
+_CHUNK_HEAD = struct.Struct("<QQQI")  # message start, message end, uncompressed size, uncompressed CRC
+RESYNC_LIMIT = 1 << 16  # candidate records tried after a damage before the walk gives up on the rest
 
 
 def walk(path: str | os.PathLike[str]) -> Salvage:
-    """Collect every complete, CRC-valid record of a file, stopping at the first cut or corruption."""
+    """Collect every complete, CRC-valid record of a file: past a flipped byte or a zeroed page it looks for the
+    next chunk that parses with its CRC right and goes on from there; a cut ends it.
+
+    The file is mapped, not read: a day's file on a 512 MB board stays in the page cache, not on the heap."""
     found = Salvage()
     try:
-        size = os.path.getsize(path)
-        f = open(path, "rb")  # noqa: SIM115 - closed in finally, the generator below needs it open
+        with open(path, "rb") as f:
+            if os.fstat(f.fileno()).st_size == 0:
+                raise McapFileError(f"{path}: not an MCAP file (empty)")
+            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
     except OSError as exc:
         raise McapFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
     try:
-        head = f.read(len(MAGIC))
-        if head != MAGIC:
-            raise McapFileError(f"{path}: not an MCAP file (no MCAP magic at the start)")
-        f.seek(0)
-        reader = StreamReader(f, emit_chunks=True, validate_crcs=False, record_size_limit=max(size, 1))
-        for record in _records_until_cut(reader, found):
-            if isinstance(record, Chunk):
-                try:
-                    inner = breakup_chunk(record, validate_crc=True)
-                except Exception:
-                    found.chunks_bad += 1
-                    continue
-                found.chunks_ok += 1
-                for r in inner:
-                    _keep(found, r)
-            else:
-                _keep(found, record)
+        _walk_mapped(buf, found)
     finally:
-        f.close()
+        buf.close()
+    _name_orphans(found)
+    if not found.magic and found.chunks_ok == 0:
+        raise McapFileError(f"{path}: not an MCAP file (no MCAP magic at the start, and no readable chunk)")
     return found
 
 
-def _records_until_cut(reader: StreamReader, found: Salvage) -> Iterator[object]:
-    it = iter(reader.records)
-    while True:
-        try:
-            record = next(it)
-        except StopIteration:
+def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
+    size = len(buf)
+    found.magic = buf[:len(MAGIC)] == MAGIC
+    pos = len(MAGIC) if found.magic else 0
+    record = None
+    while pos + 9 <= size:
+        record = _record_at(buf, pos, found) if pos > 0 else None
+        if record is None:
+            _, length = _REC.unpack_from(buf, pos)
+            if pos + 9 + length > size and 0 < buf[pos] <= OP_MAX:
+                found.stopped_at = found.stopped_at or f"cut at byte {size} in a record from byte {pos}"
+            else:
+                found.stopped_at = found.stopped_at or f"damaged at byte {pos}"
+            nxt = _next_chunk(buf, pos + 1)
+            if nxt is None:
+                return
+            found.resynced.append((pos, nxt))
+            pos = nxt
+            continue
+        op, pos = record
+        if op in (OP_DATA_END, OP_FOOTER):
+            if buf[size - len(MAGIC):] != MAGIC:  # the data are whole; the summary after them was cut
+                found.stopped_at = found.stopped_at or f"cut at byte {size}, after the data"
             return
-        except (EOFError, struct.error, ValueError, MemoryError, Exception) as exc:
-            found.stopped_at = f"{type(exc).__name__}: {exc}"[:200]
-            return
-        yield record
+    if pos < size and not found.stopped_at:
+        found.stopped_at = f"cut at byte {size}"
+
+
+def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | None:
+    """Parse the record at ``pos`` into ``found``; (opcode, end) or None when it does not parse (or a chunk's CRC
+    is wrong: counted as a bad chunk)."""
+    op, length = _REC.unpack_from(buf, pos)
+    end = pos + 9 + length
+    if not 0 < op <= OP_MAX or end > len(buf):
+        return None
+    try:
+        # One record on its own: the reader raises at the end of the slice after it, so only the first is taken.
+        records = [next(iter(StreamReader(io.BytesIO(buf[pos:end]), skip_magic=True, emit_chunks=True,
+                                          validate_crcs=True, record_size_limit=length + 9).records))]
+    except Exception:  # whatever a damaged record makes the parser raise
+        if op == OP_CHUNK:
+            found.chunks_bad += 1
+        return None
+    for record in records:
+        if isinstance(record, Chunk):
+            try:
+                inner = breakup_chunk(record, validate_crc=True)
+            except Exception:
+                found.chunks_bad += 1
+                return None
+            found.chunks_ok += 1
+            for r in inner:
+                _keep(found, r)
+        else:
+            _keep(found, record)
+    return op, end
+
+
+def _next_chunk(buf: mmap.mmap, start: int) -> int | None:
+    """The offset of the next chunk record that parses with its CRC right, from ``start`` on."""
+    tries = 0
+    pos = buf.find(bytes([OP_CHUNK]), start)
+    while pos >= 0 and pos + 9 + _CHUNK_HEAD.size <= len(buf) and tries < RESYNC_LIMIT:
+        _, length = _REC.unpack_from(buf, pos)
+        if pos + 9 + length <= len(buf) and length >= _CHUNK_HEAD.size + 12 and \
+                _chunk_lengths_agree(buf, pos, length):
+            tries += 1
+            probe = Salvage()
+            if _record_at(buf, pos, probe) is not None:
+                return pos
+        pos = buf.find(bytes([OP_CHUNK]), pos + 1)
+    return None
+
+
+def _chunk_lengths_agree(buf: mmap.mmap, pos: int, length: int) -> bool:
+    """A cheap test before parsing: a chunk's compression name and records length add up to its record length."""
+    at = pos + 9 + _CHUNK_HEAD.size
+    (n,) = struct.unpack_from("<I", buf, at)
+    if n > 16 or at + 4 + n + 8 > len(buf):
+        return False
+    (records_len,) = struct.unpack_from("<Q", buf, at + 4 + n)
+    return _CHUNK_HEAD.size + 4 + n + 8 + records_len == length
 
 
 def _keep(found: Salvage, record: object) -> None:
@@ -111,6 +190,29 @@ def _keep(found: Salvage, record: object) -> None:
         found.metadata.append(record)
     elif type(record).__name__ == "Header":
         found.profile = getattr(record, "profile", "")
+
+
+def _name_orphans(found: Salvage) -> None:
+    """Channels whose record was in a damaged chunk, made again from the recorder's channel tables (outside the
+    chunks) and the topic registry's schemas, so their messages keep their topic."""
+    tables: dict[int, str] = {}
+    for m in found.metadata:
+        if m.name == CHANNEL_TABLE:
+            tables.update((int(cid), topic) for cid, topic in m.metadata.items() if cid.isdigit())
+    by_name = {schema.name: sid for sid, schema in found.schemas.items()}
+    for cid, topic in sorted(tables.items()):
+        if cid in found.channels:
+            continue
+        spec = TOPICS.get(topic)
+        sid = 0
+        if spec is not None:
+            sid = by_name.get(spec.schema_name, 0)
+            if sid == 0:
+                sid = max(found.schemas, default=0) + 1
+                found.schemas[sid] = Schema(id=sid, name=spec.schema_name, encoding="jsonschema",
+                                            data=json.dumps(spec.schema).encode())
+                by_name[spec.schema_name] = sid
+        found.channels[cid] = Channel(id=cid, topic=topic, message_encoding="json", schema_id=sid, metadata={})
 
 
 @dataclass(frozen=True)
@@ -142,7 +244,8 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
             channel_ids[cid] = writer.register_channel(ch.topic, ch.message_encoding,
                                                        schema_ids.get(ch.schema_id, 0), dict(ch.metadata))
         for m in found.metadata:
-            writer.add_metadata(m.name, dict(m.metadata))
+            if m.name != CHANNEL_TABLE:
+                writer.add_metadata(m.name, dict(m.metadata))
         for msg in found.messages:
             cid = channel_ids.get(msg.channel_id)
             if cid is None:

@@ -28,6 +28,7 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
+from logger.recording.files import CHANNEL_TABLE
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import TopicSpec
 from sync.wallclock import boot_id
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 BATCH_WAIT_S = 0.5  # longest real time a record waits in the queue between flushes
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
+CHANNEL_TABLE_S = 60.0  # the channel table (files.CHANNEL_TABLE) is written again this often, s of drive
 
 
 @dataclass
@@ -153,6 +155,7 @@ class Recorder:
         self._free: int | None = None
         self._compression = COMPRESSION[settings.compression]
         self._last_flush = 0.0
+        self._table_written = 0.0
         self._next_retry = 0.0
         self.on_file_closed: Callable[[Path], None] | None = None
         # The writer thread's proof of life, on the drive's monotonic clock: the daemon stops petting systemd's
@@ -301,7 +304,16 @@ class Recorder:
             self._schemas[spec.schema_name] = sid
         cid = self._writer.register_channel(topic, "json", sid, {"description": spec.description[:200]})
         self._channels[topic] = cid
+        self._write_channel_table()
         return cid
+
+    def _write_channel_table(self) -> None:
+        """Channel ids and topics as a metadata record outside the chunks, again at every new channel and every
+        CHANNEL_TABLE_S: the channel records live in the chunk where each was first used, so without this a damaged
+        first chunk would leave every later message of the file without its topic."""
+        assert self._writer is not None
+        self._writer.add_metadata(CHANNEL_TABLE, {str(cid): topic for topic, cid in self._channels.items()})
+        self._table_written = self._now()
 
     def _flush(self) -> None:
         self._last_flush = self._now()
@@ -323,6 +335,8 @@ class Recorder:
             self._next_retry = self._now()  # a new file (in a recreated folder) at the next flush
             return
         self._kept_on_disk(True)
+        if self._channels and self._now() - self._table_written >= CHANNEL_TABLE_S:
+            self._write_channel_table()
         size = self._stream.tell()
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
