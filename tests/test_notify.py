@@ -266,7 +266,45 @@ def test_each_problem_is_logged_when_it_appears_and_clears() -> None:
     j = ProblemJournal(burst=3, refill_s=10.0)
     assert j.update(["pps: no sample for 4.1 s"], 0.0) == [(logging.WARNING, "problem: pps: no sample for 4.1 s")]
     assert j.update(["pps: no sample for 5.1 s"], 1.0) == []  # the same problem while it lasts
-    assert j.update([], 2.0) == [(logging.INFO, "resolved: pps: no sample for 5.1 s")]
+    assert j.update([], 2.0) == [(logging.INFO, "resolved: pps: no sample for 5.1 s (lasted 2 s)")]
+
+
+def test_a_lasting_problem_is_said_once_a_minute_with_how_long() -> None:
+    j = ProblemJournal(still_every_s=60.0)
+    lines = []
+    for second in range(200):
+        lines += j.update([f"gnss: no fix for {second} s (0 satellites in use)"], float(second))
+    lines += j.update([], 200.0)
+    assert [text for _, text in lines] == [
+        "problem: gnss: no fix for 0 s (0 satellites in use)",
+        "still: gnss: no fix for 60 s (0 satellites in use) (for 60 s)",
+        "still: gnss: no fix for 120 s (0 satellites in use) (for 120 s)",
+        "still: gnss: no fix for 180 s (0 satellites in use) (for 180 s)",
+        "resolved: gnss: no fix for 199 s (0 satellites in use) (lasted 200 s)"]
+
+
+def test_the_lines_that_reach_a_person_are_capped_whatever_fails() -> None:
+    """Many faults at once, each within its own limit: still at most the burst, then a few lines a second, the
+    count of those held back in the next one through; errors always pass."""
+    from logger.runtime.logs import LineCap
+
+    now = [0.0]
+    cap = LineCap(per_s=5.0, burst=20, clock=lambda: now[0])
+
+    def record(level: int, msg: str) -> logging.LogRecord:
+        return logging.LogRecord("x", level, __file__, 1, msg, None, None)
+
+    passed = [r for r in (record(logging.WARNING, f"fault {i}") for i in range(1000)) if cap.filter(r)]
+    assert len(passed) == 20  # the burst, all in the same instant
+    error = record(logging.ERROR, "the writer died")
+    assert cap.filter(error)  # an error is never held back, and it tells what was
+    assert error.getMessage() == "the writer died (980 log lines held back before this one)"
+    now[0] = 10.0  # ten seconds later the bucket is full again: another burst, no more
+    later = [r for r in (record(logging.WARNING, f"fault {i}") for i in range(1000)) if cap.filter(r)]
+    assert len(later) == 20 and later[0].getMessage() == "fault 0"
+    now[0] = 11.0  # a second on: five more, the first telling of the 980 held back meanwhile
+    again = [r for r in (record(logging.WARNING, f"fault {i}") for i in range(10)) if cap.filter(r)]
+    assert len(again) == 5 and again[0].getMessage() == "fault 0 (980 log lines held back before this one)"
 
 
 def test_a_flapping_sensor_is_rate_limited_and_counted() -> None:

@@ -11,6 +11,7 @@ import logging
 import re
 
 PROBLEM_LOG_REPEAT_S = 60.0  # a problem that comes and goes is logged at most this often (on average)
+STILL_EVERY_S = 60.0  # a problem that lasts is said again this often, with how long it has lasted
 MAX_KEYS = 256
 _NUMBERS = re.compile(r"\d+(?:\.\d+)?")
 
@@ -61,16 +62,20 @@ class RateLimiter:
 
 
 class ProblemJournal:
-    """Turns the status problems of each second into journal lines: one when a problem appears, one when it clears.
+    """Turns the status problems of each second into journal lines: one when a problem appears, one a minute while
+    it lasts (how long so far), one when it clears.
 
     A problem is keyed by its text with numbers masked ("no sample for 4.2 s" stays one problem while it lasts).
     Each key may announce itself ``burst`` times, refilled at one per ``refill_s``: a fault every few minutes is
     logged every time, a sensor flapping every second is logged a few times a minute with a count of the rest.
     """
 
-    def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5) -> None:
-        self._active: dict[str, tuple[str, bool]] = {}  # key -> (text, announced)
+    def __init__(self, burst: int = 5, refill_s: float = PROBLEM_LOG_REPEAT_S / 5,
+                 still_every_s: float = STILL_EVERY_S) -> None:
+        # key -> (text, announced, since, last said): "resolved" tells its last state, "still" how long
+        self._active: dict[str, tuple[str, bool, float, float]] = {}
         self._limiter = RateLimiter(burst, refill_s)
+        self.still_every_s = still_every_s
 
     def update(self, problems: list[str], now_s: float) -> list[tuple[int, str]]:
         """The lines to log for this second's problems, as (logging level, text)."""
@@ -78,16 +83,20 @@ class ProblemJournal:
         current = {problem_key(p): p for p in problems}
         for key, text in current.items():
             if key in self._active:
-                self._active[key] = (text, self._active[key][1])  # "resolved" tells its last state
+                _, announced, since, said = self._active[key]
+                if announced and now_s - said >= self.still_every_s:
+                    out.append((logging.WARNING, f"still: {text} (for {now_s - since:.0f} s)"))
+                    said = now_s
+                self._active[key] = (text, announced, since, said)
                 continue
             announce, unlogged = self._limiter.allow(key, now_s)
             if announce:
                 out.append((logging.WARNING, f"problem: {text}"
                             + (f" (appeared {unlogged} more times, not logged)" if unlogged else "")))
-            self._active[key] = (text, announce)
+            self._active[key] = (text, announce, now_s, now_s)
         for key in [k for k in self._active if k not in current]:
-            text, announced = self._active.pop(key)
+            text, announced, since, _ = self._active.pop(key)
             if announced:
-                out.append((logging.INFO, f"resolved: {text}"))
+                out.append((logging.INFO, f"resolved: {text} (lasted {now_s - since:.0f} s)"))
         self._limiter.prune(now_s, set(self._active))  # bounded whatever the problems say
         return out
