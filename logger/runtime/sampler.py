@@ -91,6 +91,7 @@ class SensorHealth:
     last_error: str = ""
     origin: str = ""  # where the samples come from, for sensors with more than one kind of source
     last_sample_mono_ns: int | None = None
+    first_sample_mono_ns: int | None = None
     heartbeat_mono_ns: int = 0
     ok_since_mono_ns: int = 0  # when the device was last opened (a silence is counted from there before any sample)
     incidents: dict[str, int] = field(default_factory=dict)  # totals since start, by kind
@@ -247,6 +248,8 @@ class Sampler(threading.Thread):
                 if last is not None and self._gap_ns and r.t_mono_ns - last > self._gap_ns:
                     h.gaps += 1
                 h.last_sample_mono_ns = r.t_mono_ns
+                if h.first_sample_mono_ns is None:
+                    h.first_sample_mono_ns = r.t_mono_ns
                 h._recent.append(r.t_mono_ns)
                 h.samples += 1
             self.sink(r)

@@ -50,6 +50,8 @@ def run_summary(daemon: Daemon) -> str:
             if sum(unwell.values()) >= 1.0:
                 parts = ", ".join(f"{state} {s:.0f} s" for state, s in sorted(unwell.items(), key=lambda kv: -kv[1]))
                 lines.append(f"  ! {snap['name']} was not ok for {sum(unwell.values()):.0f} s of the run ({parts})")
+    for line in shortfalls(daemon):
+        lines.append(f"  ! {line}")
     lines.append("  " + clock_line(daemon))
     nav = daemon.attachments.sections.get("nav")
     if nav is not None:
@@ -59,6 +61,27 @@ def run_summary(daemon: Daemon) -> str:
         lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/",
                   f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
     return "\n".join(lines)
+
+
+RATE_HELD = 0.99  # a periodic sensor delivering less than this share of its rate in drive time fell behind
+
+
+def shortfalls(daemon: Daemon) -> list[str]:
+    """The periodic sensors that did not hold their configured rate in drive time, one line each: the samples
+    they delivered over their own span against the rate (a host that fell behind, a bus too slow)."""
+    out = []
+    for s in daemon.samplers:
+        h = s.health
+        if not s.rate_hz or h.samples < 2 or h.first_sample_mono_ns is None or h.last_sample_mono_ns is None:
+            continue
+        span_s = (h.last_sample_mono_ns - h.first_sample_mono_ns) / 1e9
+        if span_s <= 0:
+            continue
+        achieved = (h.samples - 1) / span_s
+        if achieved < RATE_HELD * s.rate_hz:
+            out.append(f"{h.name} delivered {achieved:.2f} Hz of drive time, {achieved / s.rate_hz:.1%} of its "
+                       f"{s.rate_hz:g} Hz ({plural(h.missed, 'period')} passed unsampled)")
+    return out
 
 
 def clock_line(daemon: Daemon) -> str:

@@ -1,0 +1,27 @@
+"""The end-of-run summary's judgement of the rates: a periodic sensor that fell behind in drive time is named."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from logger.runtime.sampler import SensorHealth
+from logger.runtime.summary import shortfalls
+
+NS = 1_000_000_000
+
+
+def _sampler(name: str, rate_hz: float | None, samples: int, span_s: float, missed: int = 0) -> SimpleNamespace:
+    h = SensorHealth(name, rate_hz, samples=samples, missed=missed)
+    h.first_sample_mono_ns, h.last_sample_mono_ns = 5 * NS, 5 * NS + int(span_s * NS)
+    return SimpleNamespace(rate_hz=rate_hz, health=h)
+
+
+def test_a_sensor_that_fell_behind_in_drive_time_is_named_and_one_that_kept_up_is_not() -> None:
+    daemon = SimpleNamespace(samplers=[
+        _sampler("imu", 20.0, 35_501, 1800.0, missed=499),  # 19.72 Hz: a host that could not keep up
+        _sampler("baro", 1.0, 1800, 1799.0),  # every second
+        _sampler("gnss", None, 1700, 1799.0),  # an event sensor: its rate is the receiver's, and outages are real
+        _sampler("obd", 2.0, 0, 0.0),  # never delivered: said elsewhere
+    ])
+    assert shortfalls(daemon) == [
+        "imu delivered 19.72 Hz of drive time, 98.6% of its 20 Hz (499 periods passed unsampled)"]
