@@ -69,6 +69,9 @@ def build(cfg: Config, duration_s: float | None,
         attachments.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
                                          "time_scale": f"{vehicle.time_scale:g}",
                                          "start_utc": vehicle.timeline.start_utc.isoformat()}
+        drive_options = {k: v for k, v in (scenario_options or {}).items() if k != "imu_error_scale"}
+        if drive_options:  # a drive made with options says so: its plan cannot be made again without them
+            attachments.metadata["simulation"]["drive_options"] = json.dumps(drive_options)
         if vehicle.imu is not None and "imu_error_scale" in (scenario_options or {}):
             # A drive made with a chip other than the default says so: its IMU errors are part of what it tests.
             attachments.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
