@@ -17,6 +17,19 @@ from logger.runtime.sampler import wait_until
 TOPICS = {"/a": TopicSpec("/a", "test.A", {"type": "object", "properties": {"x": {"type": "integer"}}}, "test")}
 
 
+class FsyncFails:
+    """The ``os`` module as the recorder sees it, with every fsync failing (a dying card, a full disk)."""
+
+    def __init__(self, code: int, text: str) -> None:
+        self._error = (code, text)
+
+    def __getattr__(self, name: str):
+        return getattr(os, name)
+
+    def fsync(self, fd: int) -> None:
+        raise OSError(*self._error)
+
+
 def _read_all(path: Path) -> list[tuple[str, int]]:
     with open(path, "rb") as f:
         reader = make_reader(f)
@@ -174,20 +187,12 @@ def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> N
 
     import logger.recording.recorder as recorder_module
 
-    class DyingCard:
-        def __getattr__(self, name: str):
-            return getattr(os, name)
-
-        @staticmethod
-        def fsync(fd: int) -> None:
-            raise OSError(errno.EIO, "Input/output error")
-
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
     rec.start()
     try:
         rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
         assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0), "the first record on disk"
-        monkeypatch.setattr(recorder_module, "os", DyingCard())
+        monkeypatch.setattr(recorder_module, "os", FsyncFails(errno.EIO, "Input/output error"))
         rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
         assert wait_until(lambda: rec.status().state == "failed", 20.0), "the failed fsync noticed"
         assert rec.status().on_disk_mono_ns == {"/a": 1000}
@@ -304,15 +309,7 @@ def test_a_disk_full_while_opening_leaves_no_empty_file(tmp_path: Path, monkeypa
 
     import logger.recording.recorder as recorder_module
 
-    class FullDisk:
-        def __getattr__(self, name: str):
-            return getattr(os, name)
-
-        @staticmethod
-        def fsync(fd: int) -> None:
-            raise OSError(errno.ENOSPC, "No space left on device")
-
-    monkeypatch.setattr(recorder_module, "os", FullDisk())
+    monkeypatch.setattr(recorder_module, "os", FsyncFails(errno.ENOSPC, "No space left on device"))
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS)
     assert rec.start() is None
     try:

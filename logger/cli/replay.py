@@ -65,8 +65,9 @@ def main(argv: list[str]) -> int:
     if not rows:
         # An empty trajectory is no result: say what the start waited for, write nothing, fail.
         why = engine.waiting_for() or "the filter produced no solution"
-        print(f"logger replay: no solution from {plural(c.imu, 'IMU sample')} and {c.gnss_fixes} GNSS "
-              f"fix{'' if c.gnss_fixes == 1 else 'es'}: {why}; nothing written to {args.out}", file=sys.stderr)
+        print(f"logger replay: no solution from {plural(c.imu, 'IMU sample')} and "
+              f"{plural(c.gnss_fixes, 'GNSS fix', 'GNSS fixes')}: {why}; nothing written to {args.out}",
+              file=sys.stderr)
         return 1
     progress.stage("writing the trajectory")
     args.out.mkdir(parents=True, exist_ok=True)

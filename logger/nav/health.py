@@ -19,7 +19,6 @@ GYRO_LIMIT_DPS = 20.0  # MPU-6050 zero-rate output tolerance
 BARO_DRIFT_M_PER_MIN = 0.5  # a front passing moves pressure ~1 hPa/h (0.14 m/min); more is the sensor or its vent
 MOUNT_TILT_LIMIT_DEG = 10.0
 MOUNT_SLIP_LIMIT_DEG = 2.0
-BARO_FRESH_NS = 5_000_000_000  # a barometer heard from within this long still holds the height
 
 
 class HealthJudge:
@@ -53,10 +52,9 @@ class HealthJudge:
         if age > 5.0:
             on = "the IMU"
             if engine.mode == "17":
-                baro = engine.last_readings.baro
-                aids = [name for name, fresh in (
-                    ("OBD", engine.last_readings.obd_fresh(t_last or 0)),
-                    ("baro", baro is not None and (t_last or 0) - baro[0] <= BARO_FRESH_NS)) if fresh]
+                last = engine.last_readings
+                aids = [name for name, fresh in (("OBD", last.obd_fresh(t_last or 0)),
+                                                 ("baro", last.baro_fresh(t_last or 0))) if fresh]
                 on = "IMU" + "".join(f", {a}" for a in aids[:-1]) + (f" and {aids[-1]}" if aids else " alone")
             out.append(f"no GNSS fix for {age:.0f} s: dead reckoning on {on}")
         elif n and refused > n // 5:

@@ -43,6 +43,7 @@ from logger.nav.stops import StopDetector
 
 NS = 1_000_000_000
 OBD_FRESH_NS = int(1.2 * NS)
+BARO_FRESH_NS = 5 * NS  # a barometer heard from within this long still holds the height (it runs at 1-2 Hz)
 OBD_MIN_SPEED_MPS = 0.5  # below this the 1 km/h steps of PID 0x0D say little
 OBD_STEP_MPS = 1.0 / 3.6  # PID 0x0D's resolution, whatever the interface
 OBD_ROUNDING_HOLD_NS = 10 * NS  # how long one rounding error is taken to last: a speed leaves its step by then
@@ -65,6 +66,9 @@ class LastReadings:
 
     def obd_fresh(self, t_ns: int) -> bool:
         return self.obd is not None and t_ns - self.obd[0] <= OBD_FRESH_NS
+
+    def baro_fresh(self, t_ns: int) -> bool:
+        return self.baro is not None and t_ns - self.baro[0] <= BARO_FRESH_NS
 
 
 class GnssPolicy:

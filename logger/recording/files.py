@@ -63,7 +63,6 @@ class Salvage:
     stopped_at: str = ""  # the first cut or damage the walk met, empty if it reached the footer
     profile: str = ""
     magic: bool = True
-    resynced: list[tuple[int, int]] = field(default_factory=list)  # (damage at, walk went on at) byte offsets
 
 
 OP_HEADER, OP_FOOTER, OP_CHUNK, OP_DATA_END, OP_MAX = 0x01, 0x02, 0x06, 0x0F, 0x11
@@ -111,7 +110,6 @@ def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
             nxt = _next_chunk(buf, pos + 1)
             if nxt is None:
                 return
-            found.resynced.append((pos, nxt))
             pos = nxt
             continue
         op, pos = record
