@@ -62,9 +62,14 @@ def build(cfg: Config, duration_s: float | None,
                                 scenario_options=scenario_options,
                                 imu=simulated["imu"], baro=simulated["baro"], obd=simulated["obd"],
                                 gnss=cfg["gnss"]["source"] == "sim", pps=cfg["pps"]["source"] == "sim",
-                                gpsd=sim_gpsd)
+                                gpsd=sim_gpsd, paced=all(simulated.values()))
         vehicle.start()
-        tb = TimeBase(vehicle.clock.monotonic_ns, vehicle.time_scale)
+        drive_clock, governor = vehicle.clock, vehicle.governor
+        if governor is not None:  # the daemon's threads report how late they run; the drive slows to suit them
+            tb = TimeBase(drive_clock.monotonic_ns, lambda: drive_clock.time_scale, late=governor.late,
+                          pace=lambda: governor.report().as_dict())
+        else:
+            tb = TimeBase(drive_clock.monotonic_ns, drive_clock.time_scale)
         attachments.close.append(vehicle.stop)
         attachments.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
                                          "time_scale": f"{vehicle.time_scale:g}",

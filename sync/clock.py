@@ -13,6 +13,7 @@ States: FREERUN (no GNSS time yet: the wall clock read once at start), LOCKED, H
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import logging
 import math
@@ -38,6 +39,10 @@ log = logging.getLogger(__name__)
 NS = 1_000_000_000
 WALL_TOLERANCE_NS = 500_000_000
 WALL_PATIENCE_NS = 60 * NS
+# A solution for second T is computed after T's pulse, so it is never read before T; a TIM-TP for T is sent after
+# the pulse before it. Read earlier than that by this clock (beyond this margin), the clock is whole seconds off.
+READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
+ANNOUNCEMENT_LEAD_NS = 1_500_000_000  # a TIM-TP comes at most this long before the edge it announces
 
 
 class PpsClock(StampClock):
@@ -83,7 +88,8 @@ class PpsClock(StampClock):
         self._restored = False
         self._last_offset_ns: int | None = None
         self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
-        self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0}
+        self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0, "late_reads": 0,
+                       "mislabels": 0}
         self._load()
 
     # ---- observation (from the record layer, for the records that tell time; any thread) ---------------------
@@ -107,18 +113,48 @@ class PpsClock(StampClock):
     def on_announcement(self, announcement: TimeAnnouncement, t_mono_ns: int) -> None:
         """The receiver announced the GNSS time of its next pulse (seen at ``t_mono_ns``)."""
         with self._lock:
+            label = self.labeller.timepulse_unix_ns(announcement)
+            if label is not None:
+                self._check_read_after(label - ANNOUNCEMENT_LEAD_NS, t_mono_ns, "time pulse announcement", label)
             self._take(self.labeller.on_timepulse(announcement, t_mono_ns, self._predict_unix_ns))
 
     def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:
         """A navigation solution for a valid GNSS second arrived (at ``t_mono_ns``, after that second's pulse)."""
         with self._lock:
+            self._check_read_after(epoch.gnss_time_ns, t_mono_ns, "fix", epoch.gnss_time_ns)
             self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
+
+    def _check_read_after(self, earliest_unix_ns: int, t_mono_ns: int, what: str, epoch_unix_ns: int) -> None:
+        """A message cannot be read before the GNSS time it could first be sent: when this clock says it was,
+        the edges were paired with the wrong seconds (a host that read every message late as the chain began,
+        then caught up). Every sample is as wrong as the stamps since: drop them and pair again, freerunning."""
+        if self._fit is None or self._state_at(t_mono_ns) == FREERUN:
+            return
+        now_unix = t_mono_ns + self._offset_at(t_mono_ns)
+        early_ns = earliest_unix_ns - now_unix
+        if early_ns <= READ_BEFORE_EPOCH_MARGIN_NS:
+            return
+        self.counts["mislabels"] += 1
+        when = dt.datetime.fromtimestamp(epoch_unix_ns / NS, dt.UTC).strftime("%H:%M:%S")
+        log.error("clock: a %s for %s UTC was read %.1f s before this clock allows: the PPS edges were paired with "
+                  "the wrong seconds; pairing again (stamps freerun until then)", what, when, early_ns / NS)
+        self._edges.clear()
+        self._offsets.clear()
+        self._fit = None
+        self._locked_once = False
+        self._restored = False
+        self._last_sample_ns = None
+        self._slew_from_ns = None
+        self._slew_ns = 0.0
+        self._wall_disagree_since = None
+        self.labeller.restart_chain()
 
     def _take(self, pairs: list[tuple[int, int]]) -> None:
         for edge_ns, label_ns in pairs:
             self._add_sample(edge_ns, label_ns)
         self.counts["rejected"] = self.labeller.rejected
         self.counts["unlabelled"] = self.labeller.unlabelled
+        self.counts["late_reads"] = self.labeller.late_reads
 
     # ---- samples and the fit ---------------------------------------------------------------------------------
     def _add_sample(self, edge_ns: int, label_ns: int) -> None:

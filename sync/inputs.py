@@ -19,6 +19,7 @@ class TimeAnnouncement:
     tow_sub_ms: float  # sub-millisecond part, ms
     qerr_ps: int  # the pulse comes this much early of the instant announced (quantisation error), ps
     utc: bool  # True: the pulse is aligned to UTC; False: to GNSS (GPS) time, which needs the leap seconds
+    late_read: bool = False  # read together with a later second's messages: when it arrived is not known
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,3 +28,4 @@ class FixEpoch:
 
     gnss_time_ns: int  # the epoch, Unix ns UTC (only solutions whose time is valid are epochs)
     itow_ms: int | None  # GPS time of week of the epoch, ms (UBX receivers): gives GPS-UTC with gnss_time_ns
+    late_read: bool = False  # read together with a later second's messages: when it arrived is not known

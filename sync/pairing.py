@@ -6,7 +6,9 @@ from other threads, a little late and in any order, so edges and messages wait h
 
 Checks: a label must fall on a whole second; once the clock has a prediction, the label must agree with it
 (a message of the previous second, a false edge or a doubled edge otherwise); before that, consecutive pairs
-must agree with each other (labels one second apart for edges one second apart).
+must agree with each other (labels one second apart for edges one second apart). A message the host read late
+(in one read with a later second's: ``late_read``) labels nothing, since the edge before its read may be a later
+second's; the clock itself catches a mislabel that got through once a message is read before its own second.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ class EdgeLabeller:
         self.leap_s: int | None = None
         self.rejected = 0
         self.unlabelled = 0
+        self.late_reads = 0  # messages not used because the host read them late (with a later second's)
         self._edges: deque[int] = deque()
         self._announced: deque[tuple[int, int]] = deque()  # (received at, label of the next edge)
         self._reported: deque[tuple[int, int]] = deque()  # (received at, epoch just past)
@@ -55,8 +58,10 @@ class EdgeLabeller:
         return [(edge_ns, label_ns)]
 
     def on_timepulse(self, tp: TimeAnnouncement, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
-        label = self._timepulse_unix_ns(tp)
-        if label is not None:
+        label = self.timepulse_unix_ns(tp)
+        if tp.late_read:
+            self.late_reads += 1  # when it came is not known: which edge follows it is not either
+        elif label is not None:
             self._announced.append((received_ns, label))
         return self._match(predict)
 
@@ -69,11 +74,14 @@ class EdgeLabeller:
             if 0 <= leap < 100:
                 self.leap_s = leap
         whole = round(utc / NS) * NS
-        if abs(utc - whole) <= WHOLE_SECOND_TOLERANCE_NS:
+        if fix.late_read:
+            self.late_reads += 1  # read a second or more after it came: the edge before its read is not its own
+        elif abs(utc - whole) <= WHOLE_SECOND_TOLERANCE_NS:
             self._reported.append((received_ns, whole))
         return self._match(predict)
 
-    def _timepulse_unix_ns(self, tp: TimeAnnouncement) -> int | None:
+    def timepulse_unix_ns(self, tp: TimeAnnouncement) -> int | None:
+        """The Unix time (ns, UTC) of the edge a TIM-TP announces; None while GPS-UTC is unknown for a GPS pulse."""
         sub_ns = round(tp.tow_sub_ms * 1e6)
         t = UNIX_NS_AT_GPS_EPOCH + tp.week * WEEK_NS + tp.tow_ms * 1_000_000 + sub_ns
         if not tp.utc:

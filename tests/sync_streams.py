@@ -37,8 +37,11 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
                 latency_mean_us: float = 7.0, latency_sd_us: float = 2.0, timepulse: bool = True,
                 fixes: bool = True, double_edges: tuple[int, ...] = (), spurious: tuple[float, ...] = (),
                 late_fix_at: tuple[int, ...] = (), swing_period_s: float | None = None,
-                stall_until_s: float = 0.0, stall_s: float = 0.0) -> Stream:
-    """A drive of ``duration_s`` true seconds; PPS (and time messages) missing inside ``outages`` (start, end)."""
+                stall_until_s: float = 0.0, stall_s: float = 0.0, flag_late_reads: bool = False) -> Stream:
+    """A drive of ``duration_s`` true seconds; PPS (and time messages) missing inside ``outages`` (start, end).
+
+    ``stall_s``: messages before ``stall_until_s`` are seen that late; with ``flag_late_reads`` those late by half a
+    second or more say so (``late_read``), as the receiver's source does when one read holds two seconds of them."""
     rng = np.random.default_rng(seed)
     period = swing_period_s or 2 * duration_s
 
@@ -64,17 +67,18 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
             ev.append((edge + 3_000_000, "/pps", {"seqno": k}))
         utc = START_UTC_NS + k * NS
         late = int(stall_s * NS) if k < stall_until_s else 0  # the reading thread stalled: messages seen late
+        flag = {"late_read": True} if flag_late_reads and late >= NS // 2 else {}
         if timepulse and not blocked(k - 1):
             gps = utc - UNIX_AT_GPS + LEAP_S * NS
             week, tow = divmod(gps, 604_800 * NS)
             ev.append((osc.board_ns(k * NS - 400_000_000 + late), "/gnss/timepulse",
                        {"tow_ms": int(tow // 1_000_000), "tow_sub_ms": 0.0, "week": int(week), "qerr_ps": 0,
-                        "time_base": "gnss"}))
+                        "time_base": "gnss", **flag}))
         if fixes:
             delay = 1_300_000_000 if k in late_fix_at else int(rng.uniform(40e6, 390e6))
             gps_tow_ms = ((utc - UNIX_AT_GPS + LEAP_S * NS) % (604_800 * NS)) // 1_000_000
             ev.append((osc.board_ns(k * NS + delay + late), "/gnss/fix",
-                       {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms)}))
+                       {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms), **flag}))
     for t in spurious:
         ev.append((osc.board_ns(int(t * NS)), "/pps", {"seqno": -1}))
     n_imu = int(duration_s * imu_rate_hz)

@@ -7,43 +7,23 @@ is in drive time (the board's monotonic clock as the simulation runs it).
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
 
 import pytest
+from helpers_drive import read_messages, run_logger
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 
 from logger.recording.files import is_finished
 from logger.runtime.status_socket import fetch
 
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
 STAMP_FIELDS = ("t_mono_ns", "t_sync_ns", "sync_state", "sync_err_ns", "imu_cnt", "timer_cnt", "seq")
-
-
-def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
-    """topic -> [(log_time, publish_time, message)] after a CRC-validated walk of the whole file."""
-    with open(path, "rb") as f:
-        for _ in StreamReader(f, validate_crcs=True).records:
-            pass
-    out: dict[str, list[tuple[int, int, dict]]] = defaultdict(list)
-    with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            out[channel.topic].append((message.log_time, message.publish_time, json.loads(message.data)))
-    return out
-
-
-def run_logger(*args: str, timeout: float = 120, umask: int | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "logger.cli", "run", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=Path(__file__).resolve().parents[1],
-                          preexec_fn=None if umask is None else lambda: os.umask(umask))
 
 
 @pytest.fixture(scope="module")

@@ -524,3 +524,41 @@ def test_the_pps_line_model_puts_its_edges_where_tim_tp_says(rig: Rig) -> None:
     assert any(not model.time_pulse_locked(s - model.timeline.start_gps_ns / NS) for s in announced)
     assert not model.time_pulse_locked(1.0) and model.time_pulse_locked(2.0)  # time to first fix
     assert not model.time_pulse_locked(5.0)  # two satellites: no time solution
+
+
+def test_a_read_that_holds_two_seconds_says_its_messages_were_read_late() -> None:
+    """A host that reads the port a second late gets two seconds of messages in one read: their stamps say nothing
+    of when they came, so the receiver's source marks them ``late_read`` and the clock pairs no PPS edge with them.
+    Read on time, nothing is marked."""
+    from logger.recording.topics import GNSS_FIX, TIMEPULSE
+    from logger.runtime.sources import GnssSource
+    from logger.runtime.timebase import TimeBase
+
+    rig = Rig()
+    model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0).start()
+    rig.models.append(model)
+    source = GnssSource(rig.port.path, model.baud, configure=False, tb=TimeBase(rig.clock.now_ns, 1.0))
+    source.open()
+    try:
+        def read_all() -> list:
+            out = []
+            while True:
+                got = source.read()
+                out += [r for r in got if r.topic in (GNSS_FIX, TIMEPULSE)]
+                if not got:
+                    return out
+        rig.step(2.5)  # the first solutions (start-up) come out together
+        read_all()
+        on_time = []
+        for _ in range(3):  # each second read as it comes
+            rig.step(1.0)
+            on_time += read_all()
+        assert on_time and not any(r.payload["late_read"] for r in on_time), [r.payload for r in on_time]
+        rig.step(2.0)  # two seconds without a read
+        backlog = read_all()
+        fixes = [r for r in backlog if r.topic == GNSS_FIX and r.payload["gnss_time_ns"] is not None]
+        assert len({r.payload["gnss_time_ns"] for r in fixes}) >= 2
+        assert all(r.payload["late_read"] for r in backlog), [r.payload for r in backlog]
+    finally:
+        source.close()
+        model.stop()

@@ -28,7 +28,7 @@ from logger.config import (
 )
 from logger.runtime import logs
 from logger.runtime.status_socket import free_sim_socket
-from logger.runtime.summary import run_summary
+from logger.runtime.summary import run_summary, shortfalls
 
 log = logging.getLogger("logger")
 
@@ -91,6 +91,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
     return cfg
 
 
+RATES_NOT_HELD = 3  # exit code of a simulated drive whose sensors fell short of their rates
 FILE_UMASK = 0o027  # recorded drives, the clock's state: group-readable (the operators' group), never the world's
 
 
@@ -124,4 +125,9 @@ def main(argv: list[str]) -> int:
         print(run_summary(daemon), flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
+    if code == 0 and daemon.tb.pace() is not None and shortfalls(daemon):
+        # A simulated drive is paced to the host: one that still lost samples measured the host, not the code.
+        print("logger: the simulated drive did not hold its sensors' rates (see above): this host is too slow "
+              "or too busy for it; the recording is not one a real drive would give", file=sys.stderr)
+        return RATES_NOT_HELD
     return code

@@ -35,6 +35,8 @@ rows below the table:
   nav      filter position and its 1-sigma, then its plain verdicts
   rec      file, size, free disk; records written and dropped, queue,
            and how far back everything is on disk (what a power cut loses)
+  sim      a simulated drive's pace now against the --time-scale asked for
+           (it slows when the daemon falls behind), and on average
 exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""
 
 
@@ -98,6 +100,7 @@ def render(snap: dict[str, Any], width: int = 80, height: int | None = None) -> 
     _clock(sc, snap.get("sync"))
     _nav(sc, snap.get("nav"))
     _recorder(sc, snap)
+    _pace(sc, snap.get("pace"))
     return "\n".join(sc.fit(height))
 
 
@@ -193,3 +196,11 @@ def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
                if on_disk and snap.get("t_mono_ns") else "")
     sc.add(DETAIL, f"        {sum((rec.get('written') or {}).values())} written, {dropped} dropped, "
                    f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}{at_risk}")
+
+
+def _pace(sc: Screen, pace: dict[str, Any] | None) -> None:
+    if not pace:
+        return
+    held = " (the host sets the pace)" if pace["now"] < pace["ceiling"] else ""
+    sc.add(LINE, f"sim     drive at {pace['now']:.1f}x of {pace['ceiling']:g}x asked, "
+                 f"{pace['achieved']:.1f}x on average{held}")

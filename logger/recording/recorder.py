@@ -105,13 +105,13 @@ class Recorder:
     def __init__(self, settings: RecorderSettings, topics: Mapping[str, TopicSpec],
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
                  file_name: Callable[[str, int | None, int], str] = default_file_name,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns, time_scale: float = 1.0,
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, time_scale: float | Callable[[], float] = 1.0,
                  synced_unix_ns: Callable[[int], int | None] | None = None) -> None:
         self.settings = settings
         # Flush cadence and retries run on the drive's clock, so a simulated drive at 60x still closes its
         # chunk every drive second: what is lost at a cut is measured in the data's own time.
         self._mono_ns = monotonic_ns
-        self._scale = time_scale
+        self._scale = time_scale if callable(time_scale) else (lambda fixed=float(time_scale): fixed)
         self.topics = dict(topics)
         self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
         self._file_name = file_name
@@ -229,7 +229,7 @@ class Recorder:
         interval = self.settings.flush_interval_s
         while True:
             self.heartbeat_mono_ns = self._mono_ns()
-            wait = max(0.0, self._last_flush + interval - self._now()) / self._scale
+            wait = max(0.0, self._last_flush + interval - self._now()) / self._scale()
             if not self._stopping:
                 self._wake.wait(min(wait, BATCH_WAIT_S))
                 self._wake.clear()  # before draining: a backlog reached meanwhile is drained now

@@ -63,10 +63,10 @@ def speed_record(s: ObdSpeed, interface: str) -> dict[str, Any]:
     return {"speed_kmh": s.speed_kmh, "speed_mps": round(s.speed_mps, 4), "ecu": ecu, "interface": interface}
 
 
-def timepulse_record(tp: TimePulse) -> dict[str, Any]:
+def timepulse_record(tp: TimePulse, late_read: bool = False) -> dict[str, Any]:
     """A ``/gnss/timepulse`` record: UBX TIM-TP's announcement of the next pulse."""
     return {"tow_ms": tp.tow_ms, "tow_sub_ms": tp.tow_sub_ms, "week": tp.week, "qerr_ps": tp.qerr_ps,
-            "time_base": tp.time_base}
+            "time_base": tp.time_base, "late_read": late_read}
 
 
 def raw_bytes_record(t_mono_ns: int, data: bytes) -> dict[str, Any]:
@@ -81,8 +81,9 @@ def pps_record(seqno: int, lost: int, gnss_time_ns: int | None = None) -> dict[s
     return {"seqno": seqno, "lost": lost, "gnss_time_ns": gnss_time_ns}
 
 
-def location_fix(fix: GnssFix, t_mono_ns: int) -> dict[str, Any]:
-    """A GnssFix as a foxglove.LocationFix plus the receiver's own fields."""
+def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[str, Any]:
+    """A GnssFix as a foxglove.LocationFix plus the receiver's own fields; ``late_read`` when the host read it
+    together with a later second's fix, so that its arrival (``t_mono_ns``) is known only as an upper bound."""
     sec_ns = fix.time_utc_ns if fix.time_utc_ns is not None else 0
     lat = fix.lat_deg if fix.lat_deg is not None else 0.0
     lon = fix.lon_deg if fix.lon_deg is not None else 0.0
@@ -104,7 +105,7 @@ def location_fix(fix: GnssFix, t_mono_ns: int) -> dict[str, Any]:
         "gnss_time_ns": fix.time_utc_ns if fix.time_valid else None, "itow_ms": fix.itow_ms,
         "fix_mode": fix.fix_mode, "fix_ok": bool(fix.fix_ok), "height_msl_m": fix.height_msl_m,
         "vel_ned_mps": vel, "h_acc_m": fix.h_acc_m, "v_acc_m": fix.v_acc_m, "s_acc_mps": fix.s_acc_mps,
-        "num_sv": fix.num_sv, "pdop": fix.pdop, "source": fix.source,
+        "num_sv": fix.num_sv, "pdop": fix.pdop, "source": fix.source, "late_read": late_read,
     }
 
 
@@ -129,11 +130,13 @@ def sync_record(report: TrackingReport) -> dict[str, Any]:
 
 
 def health_record(snapshot: dict[str, Any], t_mono_ns: int) -> dict[str, Any]:
-    """A ``/health`` record: the verdict, problems and sensors of the status snapshot, the recorder's counters."""
+    """A ``/health`` record: the verdict, problems and sensors of the status snapshot, the recorder's counters, and
+    a simulated drive's pace (null otherwise)."""
     rec = snapshot["recorder"]
     return {"t_mono_ns": t_mono_ns, "verdict": snapshot["verdict"], "problems": snapshot["problems"],
             "sensors": snapshot["sensors"],
-            "recorder": {k: rec[k] for k in ("state", "queue_depth", "written", "dropped", "free_bytes")}}
+            "recorder": {k: rec[k] for k in ("state", "queue_depth", "written", "dropped", "free_bytes")},
+            "pace": snapshot.get("pace")}
 
 
 def truth_clock_record(t_mono_ns: int, t_true_ns: int) -> dict[str, Any]:
@@ -149,13 +152,13 @@ def time_announcement(payload: dict[str, Any]) -> TimeAnnouncement | None:
     except (KeyError, TypeError, ValueError):
         return None
     return TimeAnnouncement(week, tow_ms, float(payload.get("tow_sub_ms") or 0.0), payload.get("qerr_ps") or 0,
-                            payload.get("time_base") == "utc")
+                            payload.get("time_base") == "utc", bool(payload.get("late_read")))
 
 
 def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
     """A ``/gnss/fix`` record as the clock's input; None while the receiver's time is not valid."""
     t = payload.get("gnss_time_ns")
-    return None if t is None else FixEpoch(t, payload.get("itow_ms"))
+    return None if t is None else FixEpoch(t, payload.get("itow_ms"), bool(payload.get("late_read")))
 
 
 def clock_observer(clock: StampClock) -> dict[str, ClockInput]:

@@ -93,6 +93,8 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     "num_sv": ("integer?", "satellites used in the solution"),
     "pdop": ("number?", "position dilution of precision"),
     "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA, or gpsd (its TPV and SKY reports)"),
+    "late_read": ("boolean?", "read together with a later second's messages (a host that fell behind): when it "
+                              "arrived is not known, and the clock does not pair PPS edges with it"),
 }
 
 TOPICS: dict[str, TopicSpec] = {}
@@ -132,6 +134,8 @@ _add(TIMEPULSE, "vehicle_logger.TimePulse", {
     "week": ("integer", "GPS week of the next edge"),
     "qerr_ps": ("integer", "quantisation error of the next edge, ps"),
     "time_base": ("string", "gnss or utc: the time scale the pulse is aligned to"),
+    "late_read": ("boolean?", "read together with a later second's messages (a host that fell behind): when it "
+                              "arrived is not known, and the clock does not pair PPS edges with it"),
 }, "UBX TIM-TP: the GNSS time of the next PPS edge")
 _add(GNSS_RAW, "vehicle_logger.RawBytes", {
     "t_mono_ns": ("integer", "board monotonic time when these bytes were read, ns"),
@@ -167,6 +171,8 @@ _add(HEALTH, "vehicle_logger.Health", {
                          "stopped), measured rate (null while not running), errors, gaps, late, missed, reconnects, "
                          "last_error (cleared on recovery)"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
+    "pace": ("object?", "a simulated drive's pace: ceiling (the --time-scale asked), now, achieved (on average), "
+                        "slowest, held_back_s (host seconds below the ceiling); null for a real drive"),
 }, "the daemon's health once a second", stamped=False)
 _add(TRUTH_CLOCK, "vehicle_logger.TruthClock", {
     "t_mono_ns": ("integer", "board monotonic time, ns"),

@@ -57,6 +57,9 @@ class Attachments:
     sections: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)  # extra status sections
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     close: list[Callable[[], None]] = field(default_factory=list)
+    # Queues beside the recorder's (the navigator's): (depth, size) now, so that a simulated drive slows down
+    # before one of them fills and drops records.
+    backlogs: list[Callable[[], tuple[int, int]]] = field(default_factory=list)
 
 
 def recover_unfinished(out_dir: Path) -> list[str]:
@@ -91,7 +94,7 @@ class Daemon:
         self.status_socket = Path(status_socket or cfg["logger"]["status_socket"])
         self.recorder = Recorder(
             RecorderSettings.from_config(cfg["recorder"], self.out_dir), TOPICS, metadata=self.attachments.metadata,
-            monotonic_ns=self.tb.monotonic_ns, time_scale=self.tb.scale, synced_unix_ns=self._synced_unix_ns)
+            monotonic_ns=self.tb.monotonic_ns, time_scale=lambda: self.tb.scale, synced_unix_ns=self._synced_unix_ns)
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
@@ -249,7 +252,7 @@ class Daemon:
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
             "sync": self._sync_section(now), "gnss": self.gnss_watch.section(now),
-            "recorder": rec.__dict__,
+            "recorder": rec.__dict__, "pace": self.tb.pace(),
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
 
@@ -310,13 +313,18 @@ class Daemon:
     def _periodic_loop(self, period_s: float, fn: Callable[[], list[Reading]]) -> None:
         start = self.tb.monotonic_ns()
         n = 0
+        period_ns = int(period_s * 1e9)
         while not self.stop_event.is_set():
             n += 1
             due = start + int(n * period_s * 1e9)
-            if self.tb.wait(self.stop_event, (due - self.tb.monotonic_ns()) / 1e9):
-                return
+            now = self.tb.monotonic_ns()
+            while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
+                if self.tb.wait(self.stop_event, (due - now) / 1e9):
+                    return
+                now = self.tb.monotonic_ns()
             for r in fn():
                 self.sink(r)
+            self.tb.late(self.tb.monotonic_ns() - due, period_ns)
 
     # ---- the service manager: readiness, watchdog, status line, problems in the journal ---------------------
     def _synced_unix_ns(self, t_mono_ns: int) -> int | None:
@@ -365,7 +373,6 @@ class Daemon:
         interval = self.notifier.watchdog_interval_s
         # Once a second of drive, so that the journal sees what `logger status` sees (a simulated drive at 60x
         # included, within reason: never more often than every 50 ms of the host's time).
-        tick = max(0.05, min(interval or 1.0, 1.0 / self.tb.scale))
         t0 = time.monotonic()
         last_ping = -1e18
         last_status = ""
@@ -399,8 +406,17 @@ class Daemon:
                 if self.notifier.watchdog():
                     self.watchdog_pings += 1
                 last_ping = now
-            if self.stop_event.wait(tick):
+            self._report_backlogs()
+            if self.stop_event.wait(max(0.05, min(interval or 1.0, 1.0 / self.tb.scale))):
                 return
+
+    def _report_backlogs(self) -> None:
+        """The recorder's and the navigator's queues as lateness: a queue's depth against its size is the share
+        of its slack used, which a simulated drive keeps low by slowing down (the host's clock ignores it)."""
+        rec = self.recorder.status()
+        self.tb.late(rec.queue_depth, rec.queue_size)
+        for backlog in self.attachments.backlogs:
+            self.tb.late(*backlog())
 
     @staticmethod
     def _status_line(snap: dict[str, Any]) -> str:

@@ -176,4 +176,5 @@ def attach_navigator(section: dict[str, Any], attachments: Attachments) -> Navig
     attachments.taps.append(nav)
     attachments.sections["nav"] = nav.section
     attachments.close.append(nav.stop)
+    attachments.backlogs.append(lambda: (nav.queued, nav.params.queue_size))
     return nav

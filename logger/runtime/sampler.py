@@ -205,11 +205,14 @@ class Sampler(threading.Thread):
         while not self.stop_event.is_set():
             due = start + n * period_ns
             now = self.tb.monotonic_ns()
-            if due > now and self.tb.wait(self.stop_event, (due - now) / 1e9):
-                return
+            while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
+                if self.tb.wait(self.stop_event, (due - now) / 1e9):
+                    return
+                now = self.tb.monotonic_ns()
             self._read_once()
             n += 1
             after = self.tb.monotonic_ns()
+            self.tb.late(after - due, period_ns)  # a read that ends a period after its due time loses the next
             if after - due > period_ns // 2:
                 # Its stamp may then sit more than 1.5 periods after the previous one: say so, so that the
                 # irregularity a loaded host causes is counted rather than found later in the file.

@@ -33,6 +33,7 @@ DIRECT_CHIP_RATE_HZ = 1000.0
 # only sets how often an idle thread wakes (to beat its heartbeat and see a stop): once a second is plenty for a
 # 10 s staleness limit and a 5 s stop, and five times fewer wake-ups than 0.2 s on a one-core board.
 EVENT_WAIT_S = 1.0
+LATE_READ_SPAN_NS = 500_000_000  # epochs this far apart in one read: the older ones were read late
 
 
 def _i2c_bus(path_or_number: str | int) -> Any:
@@ -219,13 +220,20 @@ class GnssSource(Source):
         out: list[Reading] = []
         if got.raw:
             out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw), t, stamped=False))
+        # Epochs half a second or more apart in one read (or two time pulses): the host read the older messages
+        # that long after they came, so their stamp says nothing of when; paired with PPS edges they could name
+        # the wrong second.
+        epochs = [item.time_utc_ns for item in got.items
+                  if isinstance(item, GnssFix) and item.time_valid and item.time_utc_ns is not None]
+        pulses = sum(1 for item in got.items if isinstance(item, TimePulse))
+        late = (bool(epochs) and max(epochs) - min(epochs) >= LATE_READ_SPAN_NS) or pulses > 1
         for item in got.items:
             if isinstance(item, GnssFix):
                 if item.source == "HNR-PVT":
                     continue  # already fused with the receiver's own sensors: not a GNSS measurement
-                out.append(Reading(GNSS_FIX, location_fix(item, t), t))
+                out.append(Reading(GNSS_FIX, location_fix(item, t, late), t))
             elif isinstance(item, TimePulse):
-                out.append(Reading(TIMEPULSE, timepulse_record(item), t))
+                out.append(Reading(TIMEPULSE, timepulse_record(item, late), t))
         return out
 
     def incidents(self) -> dict[str, int]:

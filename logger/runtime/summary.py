@@ -52,6 +52,9 @@ def run_summary(daemon: Daemon) -> str:
                 lines.append(f"  ! {snap['name']} was not ok for {sum(unwell.values()):.0f} s of the run ({parts})")
     for line in shortfalls(daemon):
         lines.append(f"  ! {line}")
+    pace = daemon.tb.pace()
+    if pace is not None:
+        lines.append("  " + pace_line(pace))
     lines.append("  " + clock_line(daemon))
     nav = daemon.attachments.sections.get("nav")
     if nav is not None:
@@ -82,6 +85,13 @@ def shortfalls(daemon: Daemon) -> list[str]:
             out.append(f"{h.name} delivered {achieved:.2f} Hz of drive time, {achieved / s.rate_hz:.1%} of its "
                        f"{s.rate_hz:g} Hz ({plural(h.missed, 'period')} passed unsampled)")
     return out
+
+
+def pace_line(pace: dict[str, Any]) -> str:
+    """A governed simulated drive: how fast it ran against the time scale asked for."""
+    held = (f"; slowed to {pace['slowest']:.1f}x at the slowest, below the ceiling for {pace['held_back_s']:.0f} s "
+            "of host time" if pace["held_back_s"] >= 1.0 else "")
+    return f"simulated drive at {pace['achieved']:.1f}x on average of {pace['ceiling']:g}x asked{held}"
 
 
 def clock_line(daemon: Daemon) -> str:

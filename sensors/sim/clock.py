@@ -26,6 +26,11 @@ class DriveClock(Protocol):
         """Let ``seconds`` of drive time pass."""
         ...
 
+    def late(self, lateness_ns: int, tolerance_ns: int) -> None:
+        """A model ran ``lateness_ns`` behind its schedule, which loses data at ``tolerance_ns``: a paced drive
+        slows down on it (:mod:`sensors.sim.governor`); a clock that is not paced ignores it."""
+        ...
+
 
 class ManualClock:
     """A clock that moves only when told to: ``sleep`` advances it instantly, so tests never wait."""
@@ -47,6 +52,9 @@ class ManualClock:
     def sleep(self, seconds: float) -> None:
         self.advance(max(0.0, seconds))
 
+    def late(self, lateness_ns: int, tolerance_ns: int) -> None:
+        """Nothing to slow: this clock moves only when told to."""
+
 
 class ScaledClock:
     """Drive time running ``time_scale`` times faster than the host's monotonic clock."""
@@ -64,3 +72,6 @@ class ScaledClock:
     def sleep(self, seconds: float) -> None:
         if seconds > 0:
             time.sleep(seconds / self.time_scale)
+
+    def late(self, lateness_ns: int, tolerance_ns: int) -> None:
+        """A fixed scale: lateness is the test's to measure, not this clock's to act on."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -141,7 +142,12 @@ class OscillatorClock:
     At time scale X the board's CLOCK_MONOTONIC advances X ns per host ns from ``oscillator.board_start_ns``;
     true drive time is what the oscillator says that board time corresponds to. With X = 1 and an
     oscillator whose ``board_start_ns`` is the host's monotonic time at start, the board clock is the host's.
+
+    The scale may change while the drive runs (:class:`sensors.sim.governor.Governor` slows the drive when the
+    daemon falls behind): board time is then piecewise linear in host time, continuous and never backwards.
     """
+
+    SLEEP_CHUNK_S = 0.05  # longest host sleep: a sleeper notices a new scale within this
 
     def __init__(self, oscillator: Oscillator, time_scale: float = 1.0,
                  host_monotonic_ns: Callable[[], int] = time.monotonic_ns,
@@ -149,23 +155,53 @@ class OscillatorClock:
         if not time_scale > 0.0:
             raise ValueError("time scale must be positive")
         self.oscillator = oscillator
-        self.time_scale = float(time_scale)
         self._host_ns = host_monotonic_ns
         self._host_sleep = host_sleep
-        self._host_origin_ns = host_monotonic_ns()
+        # (host ns, board ns, scale) of the current segment, replaced whole under the lock; a reader takes the
+        # host time and the segment together, so a change of scale between the two cannot send time back.
+        self._segment = (host_monotonic_ns(), oscillator.board_start_ns, float(time_scale))
+        self._lock = threading.Lock()
+        # Who to tell that a device model is late against its own schedule (the governor, when there is one).
+        self.on_late: Callable[[int, int], None] | None = None
+
+    @property
+    def time_scale(self) -> float:
+        """Board ns per host ns now."""
+        return self._segment[2]
+
+    def set_time_scale(self, time_scale: float) -> None:
+        """Run at a new scale from now on; the board time so far is kept."""
+        if not time_scale > 0.0:
+            raise ValueError("time scale must be positive")
+        with self._lock:
+            host = self._host_ns()
+            h0, b0, x = self._segment
+            self._segment = (host, b0 + round((host - h0) * x), float(time_scale))
 
     def monotonic_ns(self) -> int:
         """The board's CLOCK_MONOTONIC now: what the daemon must read for acquisition stamps."""
-        return self.oscillator.board_start_ns + round((self._host_ns() - self._host_origin_ns) * self.time_scale)
+        with self._lock:
+            host = self._host_ns()
+            h0, b0, x = self._segment
+        return b0 + round((host - h0) * x)
 
     def now_ns(self) -> int:
         return self.oscillator.true_ns(self.monotonic_ns())
 
+    def late(self, lateness_ns: int, tolerance_ns: int) -> None:
+        """A device model ran ``lateness_ns`` of board time behind its schedule, which tolerates ``tolerance_ns``."""
+        hook = self.on_late
+        if hook is not None:
+            hook(lateness_ns, tolerance_ns)
+
     def sleep(self, seconds: float) -> None:
-        """Let ``seconds`` of true drive time pass (the board clock runs a few ppm off meanwhile)."""
+        """Let ``seconds`` of true drive time pass (the board clock runs a few ppm off meanwhile). Sleeps in
+        short host chunks, so that a drive slowed or sped up meanwhile still wakes the sleeper on time."""
         if seconds <= 0.0:
             return
         target = self.oscillator.board_ns(self.now_ns() + round(seconds * NS_PER_S))
-        remaining = target - self.monotonic_ns()
-        if remaining > 0:
-            self._host_sleep(remaining / self.time_scale / NS_PER_S)
+        while True:
+            remaining = target - self.monotonic_ns()
+            if remaining <= 0:
+                return
+            self._host_sleep(min(remaining / self.time_scale / NS_PER_S, self.SLEEP_CHUNK_S))

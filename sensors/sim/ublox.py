@@ -87,6 +87,9 @@ _HOST_BUFFER_BYTES = 4095  # Linux n_tty read buffer: beyond it a host that does
 _MIN_MOVING_MPS = 0.5  # below this speed the receiver keeps its last heading of motion
 _CLOCK_HOLDOVER_NS_PER_S = 100.0  # growth of tAcc without a fix: a TCXO known to 0.1 ppm
 _UBX_HDR = b"\xb5\x62"
+# An epoch served this late (by a model thread the host woke late) puts its messages out late: past a quarter
+# of a second, fixes bunch and a paced drive slows down (DriveClock.late).
+EPOCH_LATE_TOLERANCE_NS = 250_000_000
 
 
 @dataclass(slots=True)
@@ -382,6 +385,7 @@ class UbloxReceiverModel:
                 return
             if t_epoch <= t_tx:
                 self._next_epoch_ns = self._epoch_after(t_epoch)
+                self.clock.late(now - t_epoch, EPOCH_LATE_TOLERANCE_NS)
                 self._epoch(t_epoch)
             else:
                 item = heapq.heappop(self._tx)

@@ -22,6 +22,7 @@ from sensors.sim.bmp085 import Bmp085Model
 from sensors.sim.drive import Drive
 from sensors.sim.elm327 import Elm327Model
 from sensors.sim.gnss_time import GnssTimeline
+from sensors.sim.governor import Governor
 from sensors.sim.i2c import SimI2cAdapter
 from sensors.sim.mpu6050 import Mpu6050Errors, Mpu6050Model
 from sensors.sim.obd_ecu import engine_ecu, transmission_ecu
@@ -80,12 +81,14 @@ class SimVehicle:
     pps: PpsSignal | None = None
     gpio: Any = None
     gpsd: Any = None
+    governor: Governor | None = None  # paces the drive when every device is simulated (``paced``)
     realtime_offset_ns: int = 0  # the board's system clock minus its monotonic clock (no NTP step during a drive)
     _stack: list[Any] = field(default_factory=list)
 
     @property
     def time_scale(self) -> float:
-        return self.clock.time_scale
+        """The time scale asked for: the pace itself when the drive is not governed, its ceiling when it is."""
+        return self.governor.ceiling if self.governor is not None else self.clock.time_scale
 
     def true_unix_ns(self, board_ns: int) -> int:
         """True UTC time (Unix ns) at a board monotonic time: what a perfect stamp would say."""
@@ -108,6 +111,9 @@ class SimVehicle:
                 "rpy_deg": [math.degrees(float(a)) for a in s.rpy_rad]}
 
     def start(self) -> None:
+        if self.governor is not None:
+            self.governor.start()
+            self._stack.append(self.governor.stop)
         if self.elm327 is not None:
             self.elm327.start()
             self._stack.append(self.elm327.stop)
@@ -141,7 +147,8 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
                   duration_s: float | None = None, imu: bool = True, baro: bool = True, obd: bool = True,
                   gnss: bool = True, pps: bool = True, start_utc: dt.datetime | None = None,
                   host_monotonic_ns: Any = time.monotonic_ns,
-                  scenario_options: dict[str, Any] | None = None, gpsd: bool = False) -> SimVehicle:
+                  scenario_options: dict[str, Any] | None = None, gpsd: bool = False,
+                  paced: bool = False) -> SimVehicle:
     """Build the drive and the models asked for. Board time starts at the host's monotonic clock, so at time
     scale 1 simulated and real devices share one clock; the drive starts at the current UTC second.
 
@@ -150,7 +157,11 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
 
     ``scenario_options`` go to the drive (:func:`sensors.sim.scenarios.make_drive`), except ``imu_error_scale``:
     a factor on the MPU-6050's error terms, or a mapping of term to factor (:meth:`Mpu6050Errors.scaled`), for
-    testing the filter on a chip worse than its configuration assumes."""
+    testing the filter on a chip worse than its configuration assumes.
+
+    With ``paced`` the drive is governed (:mod:`sensors.sim.governor`): ``time_scale`` is then a ceiling, and
+    the drive runs as fast as the threads reporting to ``clock.late`` keep up with. Only for a daemon whose
+    devices are all simulated: a real device keeps the host's time."""
     horizon = duration_s if duration_s is not None else 8 * 3600.0
     options = dict(scenario_options or {})
     imu_scale = options.pop("imu_error_scale", None)
@@ -165,6 +176,8 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
     timeline = GnssTimeline(start_utc=start_utc)
     devices = VehicleDevices()
     v = SimVehicle(scenario, seed, drive, oscillator, clock, timeline, devices)
+    if paced:
+        v.governor = Governor(clock, time_scale, host_monotonic_ns=host_monotonic_ns)
     child = np.random.SeedSequence([seed, 11]).spawn(5)
     if imu or baro:
         v.i2c = SimI2cAdapter()
