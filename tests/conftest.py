@@ -26,7 +26,7 @@ def _restore_root_logging() -> Iterator[None]:
 # A machine without a tool may skip the tests that need it; nothing else may skip. Data the tests need is in the
 # tree (tests/data), so a skip for anything but a missing tool is a test that silently stopped testing: the run
 # fails (CI runs exactly README's test command, so the rule lives here).
-TOOL_SKIP_REASONS = ("is not installed", "needs gcc")
+TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "needs root")  # root: to mount a small disk of its own
 _unexpected_skips: list[str] = []
 
 

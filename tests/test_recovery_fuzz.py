@@ -120,3 +120,50 @@ def test_a_file_with_nothing_readable_is_still_not_an_mcap_file(tmp_path: Path) 
     p.write_bytes(random.Random(1).randbytes(20_000))
     with pytest.raises(McapFileError, match="not an MCAP file"):
         walk(p)
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path):
+    """A 1 MiB tmpfs of its own (root only, as CI and the board's service run): a disk this test can fill."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("needs root to mount a tmpfs")
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], check=True)
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", str(mnt)], check=False)
+
+
+def test_the_next_start_on_a_full_disk_keeps_the_cut_file_and_says_why(original, small_disk: Path) -> None:
+    import os
+
+    from logger.runtime.daemon import recover_unfinished
+
+    data, chunks = original
+    cut_at = chunks[len(chunks) // 2][0] + 10  # halfway, mid-chunk
+    cut = small_disk / "drive_20261202T000000Z_0001.mcap"
+    cut.write_bytes(data[:cut_at])
+    filler = small_disk / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)  # another program fills the disk
+    try:
+        while os.write(fd, b"\0" * 4096):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    (line,) = recover_unfinished(small_disk)
+    assert line.startswith(f"could not recover {cut.name}: no space left on the disk"), line
+    assert cut.read_bytes() == data[:cut_at]  # untouched, and no half copy left to take the space
+    assert not list(small_disk.glob("*.recovering"))
+    filler.unlink()  # room again: the next start recovers it
+    (line,) = recover_unfinished(small_disk)
+    assert line.startswith(f"recovered {cut.name}"), line
+    with open(cut, "rb") as f:
+        kept = {(ch.topic, m.log_time) for _, ch, m in make_reader(f).iter_messages()}
+    assert _intact(chunks, cut_at, len(data) + 1) <= kept

@@ -38,6 +38,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sensors.sim.governor import FLOOR
+
 NS = 1_000_000_000
 SENSOR_TOPICS = {"/imu": 20.0, "/baro": 1.0, "/obd/speed": 2.0, "/gnss/fix": 1.0, "/pps": 1.0}
 WARM_UP_S = 120.0  # drive seconds after a start: receiver's first fix, clock lock, first opens
@@ -322,6 +324,17 @@ def sample_loop(daemon: Any, journal: Journal, every_real_s: float) -> None:
             return
 
 
+def end_at(daemon: Any, drive_s: float, how: str) -> None:
+    """Send this process SIGTERM (a service stop) or SIGKILL (a power cut, as kill -9) once ``drive_s`` of drive
+    time have passed since the recording started."""
+    daemon.ready.wait()
+    end = daemon.tb.monotonic_ns() + int(drive_s * NS)
+    while (left := end - daemon.tb.monotonic_ns()) > 0:
+        if daemon.tb.wait(daemon.stop_event, left / NS):
+            return
+    os.kill(os.getpid(), signal.SIGTERM if how == "sigterm" else signal.SIGKILL)
+
+
 def worker(args: argparse.Namespace) -> int:
     from logger.compose import build
     from logger.config import defaults
@@ -358,6 +371,8 @@ def worker(args: argparse.Namespace) -> int:
     for target in (injector.run, lambda: pps_off_watch(daemon, vehicle, journal),
                    lambda: sample_loop(daemon, journal, args.sample_real_s)):
         threading.Thread(target=target, daemon=True, name="soak").start()
+    if args.end_by:
+        threading.Thread(target=end_at, args=(daemon, args.end_at, args.end_by), daemon=True, name="soak").start()
     code = daemon.run(args.duration)
     # The counters once every sampler has stopped: the last /health record comes before the samplers' last
     # records, and only these can tell whether a silence in that tail was counted.
@@ -391,8 +406,11 @@ def run_segment(seg: Segment, args: argparse.Namespace, out: Path, journal: Path
            "--mean-fault-gap-s", str(args.mean_fault_gap_s), "--faults", args.faults,
            "--sample-real-s", str(args.sample_real_s)] + (["--nav"] if args.nav else []) + \
         (["--truth"] if args.truth else []) + (["--light-imu"] if args.light_imu else [])
-    # A worker ended by a signal runs past its planned end; one ended by its duration gets exactly that.
+    # A worker ended by its duration gets exactly that; one ended by a signal sends it to itself at that drive
+    # time (the drive's pace follows the host, so only the worker knows when its drive time has passed).
     cmd += ["--duration", str(seg.drive_s if seg.ends_by == "duration" else seg.drive_s * 2 + 600)]
+    if seg.ends_by != "duration":
+        cmd += ["--end-by", seg.ends_by, "--end-at", str(seg.drive_s)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, bufsize=1)
     seg.pid = proc.pid
 
@@ -404,18 +422,8 @@ def run_segment(seg: Segment, args: argparse.Namespace, out: Path, journal: Path
     reader = threading.Thread(target=pump, daemon=True)
     reader.start()
     started = time.monotonic()
-    if seg.ends_by == "duration":
-        seg.exit_code = proc.wait(seg.drive_s / args.time_scale + 600)
-    else:
-        planned = started + seg.drive_s / args.time_scale
-        while time.monotonic() < planned and proc.poll() is None:
-            time.sleep(0.2)
-        if seg.ends_by == "sigterm":
-            proc.send_signal(signal.SIGTERM)
-            seg.exit_code = proc.wait(120)
-        else:
-            proc.send_signal(signal.SIGKILL)
-            seg.exit_code = proc.wait(30)
+    # At the slowest pace a drive is paced to (the governor's floor) plus start-up and the finish.
+    seg.exit_code = proc.wait(seg.drive_s / FLOOR + 600)
     reader.join(10)
     print(f"segment {seg.index}: {seg.drive_s / 3600:.2f} h of drive, ended by {seg.ends_by}, exit {seg.exit_code}, "
           f"{time.monotonic() - started:.0f} s", flush=True)
@@ -680,7 +688,8 @@ def orchestrate(args: argparse.Namespace) -> int:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--hours", type=float, default=8.0, help="hours of drive in all (default 8)")
-    p.add_argument("--time-scale", type=float, default=60.0, help="drive seconds per real second (default 60)")
+    p.add_argument("--time-scale", type=float, default=60.0,
+                   help="drive seconds per real second at most (default 60): the drive runs as fast as the host allows")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--scenario", default="urban")
     p.add_argument("--out", default="soak-out", help="empty folder for files, journals, logs and the report")
@@ -695,6 +704,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--journal", help=argparse.SUPPRESS)
     p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--end-by", choices=("sigterm", "kill9"), help=argparse.SUPPRESS)
+    p.add_argument("--end-at", type=float, default=0.0, help=argparse.SUPPRESS)
     return p.parse_args(argv)
 
 

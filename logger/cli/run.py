@@ -27,6 +27,7 @@ from logger.config import (
     load,
 )
 from logger.runtime import logs
+from logger.runtime.daemon import Daemon
 from logger.runtime.status_socket import free_sim_socket
 from logger.runtime.summary import run_summary, shortfalls
 
@@ -121,12 +122,17 @@ def main(argv: list[str]) -> int:
         print(f"logger: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         daemon.stop()
         return 1
+    return finish(daemon, code)
+
+
+def finish(daemon: Daemon, code: int) -> int:
+    """After the daemon stopped: the run's summary on stdout, and the exit code (``RATES_NOT_HELD`` for a paced
+    simulated drive that still fell short of a sensor's rate: it measured the host, not the code)."""
     try:
         print(run_summary(daemon), flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
     if code == 0 and daemon.tb.pace() is not None and shortfalls(daemon):
-        # A simulated drive is paced to the host: one that still lost samples measured the host, not the code.
         print("logger: the simulated drive did not hold its sensors' rates (see above): this host is too slow "
               "or too busy for it; the recording is not one a real drive would give", file=sys.stderr)
         return RATES_NOT_HELD

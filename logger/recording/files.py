@@ -230,6 +230,19 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
     found = walk(src)
     dst = Path(out) if out is not None else src
     tmp = dst.with_name(dst.name + ".recovering")
+    try:
+        orphans = _rewrite(found, src, tmp, compression)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a full disk: the source is untouched, and no half copy takes its space
+        raise
+    os.replace(tmp, dst)
+    _fsync_dir(dst.parent)
+    return RecoveryReport(dst, len(found.messages) - orphans, found.chunks_ok, found.chunks_bad, orphans,
+                          found.stopped_at)
+
+
+def _rewrite(found: Salvage, src: Path, tmp: Path, compression: CompressionType) -> int:
+    """Write what the walk found into ``tmp`` as a finished file; returns the messages without a channel."""
     orphans = 0
     with open(tmp, "wb") as f:
         writer = Writer(f, compression=compression, chunk_size=4 * 1024 * 1024)
@@ -256,10 +269,7 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
         writer.finish()
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, dst)
-    _fsync_dir(dst.parent)
-    return RecoveryReport(dst, len(found.messages) - orphans, found.chunks_ok, found.chunks_bad, orphans,
-                          found.stopped_at)
+    return orphans
 
 
 def _fsync_dir(folder: Path) -> None:

@@ -7,6 +7,7 @@ threads start. Stop order is the reverse, and the recorder drains its queue befo
 
 from __future__ import annotations
 
+import errno
 import itertools
 import logging
 import os
@@ -70,7 +71,15 @@ def recover_unfinished(out_dir: Path) -> list[str]:
             continue
         try:
             report = recover(path)
-        except (McapFileError, OSError) as exc:
+        except OSError as exc:
+            if exc.errno == errno.ENOSPC:
+                lines.append(f"could not recover {path.name}: no space left on the disk for its recovered copy "
+                             f"({path.stat().st_size / 1e6:.1f} MB at most); it is kept as it was, for "
+                             "`logger recover` once there is room")
+            else:
+                lines.append(f"could not recover {path.name}: {exc.strerror or exc}")
+            continue
+        except McapFileError as exc:
             lines.append(f"could not recover {path.name}: {exc}")
             continue
         lines.append(f"recovered {path.name}: {report.messages} messages from {report.chunks_ok} chunks"
@@ -317,14 +326,14 @@ class Daemon:
         while not self.stop_event.is_set():
             n += 1
             due = start + int(n * period_s * 1e9)
-            now = self.tb.monotonic_ns()
+            now = woke = self.tb.monotonic_ns()
             while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
                 if self.tb.wait(self.stop_event, (due - now) / 1e9):
                     return
-                now = self.tb.monotonic_ns()
+                now = woke = self.tb.monotonic_ns()
             for r in fn():
                 self.sink(r)
-            self.tb.late(self.tb.monotonic_ns() - due, period_ns)
+            self.tb.late(woke - due, period_ns)  # how late the host woke it: a period of that loses a record
 
     # ---- the service manager: readiness, watchdog, status line, problems in the journal ---------------------
     def _synced_unix_ns(self, t_mono_ns: int) -> int | None:

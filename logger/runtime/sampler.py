@@ -205,14 +205,19 @@ class Sampler(threading.Thread):
         while not self.stop_event.is_set():
             due = start + n * period_ns
             now = self.tb.monotonic_ns()
+            woke = due
             while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
                 if self.tb.wait(self.stop_event, (due - now) / 1e9):
                     return
-                now = self.tb.monotonic_ns()
-            self._read_once()
+                now = woke = self.tb.monotonic_ns()
+            if self.tb.paced:
+                cpu0 = time.thread_time_ns()
+                self._read_once()
+                self._report_lateness(woke - due, time.thread_time_ns() - cpu0, period_ns)
+            else:
+                self._read_once()
             n += 1
             after = self.tb.monotonic_ns()
-            self.tb.late(after - due, period_ns)  # a read that ends a period after its due time loses the next
             if after - due > period_ns // 2:
                 # Its stamp may then sit more than 1.5 periods after the previous one: say so, so that the
                 # irregularity a loaded host causes is counted rather than found later in the file.
@@ -223,6 +228,13 @@ class Sampler(threading.Thread):
                 next_n = int((after - start) // period_ns) + 1  # first deadline still ahead
                 self.health.missed += next_n - n
                 n = next_n
+
+    def _report_lateness(self, woke_late_ns: int, cpu_ns: int, period_ns: int) -> None:
+        """What the host made this sample late by, for a paced simulated drive: how late the thread woke, or the
+        processor time its read took (host ns, so at the drive's scale), whichever is more. Not the read's whole
+        duration: a device's own waits (a conversion, an adapter's answer) are drive time, which no pace shortens.
+        A period of either loses the next sample."""
+        self.tb.late(max(woke_late_ns, round(cpu_ns * self.tb.scale)), period_ns)
 
     def _events(self) -> None:
         while not self.stop_event.is_set():

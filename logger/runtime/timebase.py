@@ -26,6 +26,11 @@ class TimeBase:
         self._pace = pace
 
     @property
+    def paced(self) -> bool:
+        """A simulated drive whose pace follows the daemon: worth measuring lateness for."""
+        return self._late is not None
+
+    @property
     def scale(self) -> float:
         """Drive seconds per host second now."""
         return self._scale()
