@@ -204,4 +204,5 @@ class OscillatorClock:
             remaining = target - self.monotonic_ns()
             if remaining <= 0:
                 return
-            self._host_sleep(min(remaining / self.time_scale / NS_PER_S, self.SLEEP_CHUNK_S))
+            host_ns = math.ceil(remaining / self.time_scale)  # at least a host ns: a sleep that always moves on
+            self._host_sleep(min(host_ns / NS_PER_S, self.SLEEP_CHUNK_S))
