@@ -87,6 +87,7 @@ class PpsClock(StampClock):
         self._saved_at: int | None = None
         self._restored = False
         self._last_offset_ns: int | None = None
+        self.last_mislabel: tuple[int, str] | None = None  # (board ns, what) of the last pairing found wrong
         self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0, "late_reads": 0,
                        "mislabels": 0}
@@ -136,6 +137,8 @@ class PpsClock(StampClock):
             return
         self.counts["mislabels"] += 1
         when = dt.datetime.fromtimestamp(epoch_unix_ns / NS, dt.UTC).strftime("%H:%M:%S")
+        self.last_mislabel = (t_mono_ns, f"PPS edges were paired with the wrong second until {when} UTC (messages "
+                                         "read late); stamps before it are off by whole seconds, pairing again")
         log.error("clock: a %s for %s UTC was read %.1f s before this clock allows: the PPS edges were paired with "
                   "the wrong seconds; pairing again (stamps freerun until then)", what, when, early_ns / NS)
         self._edges.clear()

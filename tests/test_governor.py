@@ -110,7 +110,7 @@ def test_lateness_slows_the_drive_and_the_report_says_so() -> None:
         g.step()
     r = g.report()
     assert r.slowest == pytest.approx(8.0 * gov.FALL * gov.PLUNGE) and r.held_back_s == pytest.approx(5 * gov.WINDOW_S)
-    for _ in range(200):  # a host that never keeps up: the drive slows to its floor, not to a stop
+    for _ in range(200):  # a host that never keeps up: the drive slows to real time, never below
         g.late(NS, 50_000_000)
         host.ns += round(gov.WINDOW_S * NS)
         g.step()
@@ -133,31 +133,34 @@ def _busy(seconds: float) -> None:
         pass
 
 
-def test_a_drive_asked_faster_than_the_host_goes_comes_out_as_at_real_time(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("scale", "drive_s"), [(1000, 60), (1, 30)], ids=["1000x", "1x"])
+def test_a_drive_under_two_busy_loops_comes_out_as_at_real_time(tmp_path: Path, scale: int, drive_s: int) -> None:
     # 1000x with two busy loops on a two-core host: without the governor this gave a file without IMU and GNSS.
+    # At 1x (never slower: a board cannot be) beside the same loops, the rates hold as well.
     ctx = multiprocessing.get_context("spawn")
     loops = [ctx.Process(target=_busy, args=(600.0,), daemon=True) for _ in range(2)]
     for p in loops:
         p.start()
     try:
-        r = run_logger("--sim", "--duration", "60", "--time-scale", "1000", "--out", str(tmp_path),
-                       "--status-socket", str(tmp_path / "status.sock"))
+        r = run_logger("--sim", "--duration", str(drive_s), "--time-scale", str(scale), "--out", str(tmp_path),
+                       "--status-socket", str(tmp_path / "status.sock"), timeout=600)
     finally:
         for p in loops:
             p.terminate()
     assert r.returncode == 0, r.stdout + r.stderr
-    pace = re.search(r"^  simulated drive at ([\d.]+)x on average of 1000x asked", r.stdout, re.M)
-    assert pace and 0.1 <= float(pace.group(1)) < 1000, r.stdout
-    assert " delivered " not in r.stdout, r.stdout  # every periodic sensor held its rate in drive time
+    pace = re.search(rf"^  simulated drive at ([\d.]+)x on average of {scale}x asked", r.stdout, re.M)
+    assert pace and 0.99 <= float(pace.group(1)) <= scale * 1.01, r.stdout
+    assert " pass unsampled " not in r.stdout, r.stdout  # every periodic sensor held its rate in drive time
     (path,) = sorted(tmp_path.glob("*.mcap"))
     msgs = read_messages(path)
-    assert len(msgs["/imu"]) >= 0.99 * 20 * 60 and len(msgs["/gnss/fix"]) >= 55, {k: len(v) for k, v in msgs.items()}
+    counts = {k: len(v) for k, v in msgs.items()}
+    assert counts["/imu"] >= 0.99 * 20 * drive_s and counts["/gnss/fix"] >= drive_s - 5, counts
     out = sync_report.report(sync_report.Drive.load([path]))
     for key, s in out["stamp_error"].items():
         assert s["bound_covers"] == 1.0, (key, s)
     # What status said meanwhile: the pace is in every /health record, never above the ceiling.
     paces = [m["pace"] for _, _, m in msgs["/health"]]
-    assert paces and all(p["ceiling"] == 1000 and 0 < p["now"] <= 1000 for p in paces), paces[:3]
+    assert paces and all(p["ceiling"] == scale and 0 < p["now"] <= scale for p in paces), paces[:3]
 
 
 def test_status_shows_the_pace_of_a_simulated_drive() -> None:

@@ -17,7 +17,7 @@ FAULTS = "imu_unplugged,elm327_can_error,pps_outage,disk_nearly_full"
 
 def test_short_soak(tmp_path: Path) -> None:
     out = tmp_path / "soak"
-    r = subprocess.run([sys.executable, str(ROOT / "tools" / "soak.py"), "--hours", "0.2", "--time-scale", "60",
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "soak.py"), "--hours", "0.15", "--time-scale", "60",
                         "--mean-fault-gap-s", "20", "--faults", FAULTS, "--seed", "3", "--sample-real-s", "0.5",
                         "--out", str(out)],
                        capture_output=True, text=True, timeout=900, cwd=ROOT)

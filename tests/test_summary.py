@@ -10,18 +10,25 @@ from logger.runtime.summary import shortfalls
 NS = 1_000_000_000
 
 
-def _sampler(name: str, rate_hz: float | None, samples: int, span_s: float, missed: int = 0) -> SimpleNamespace:
-    h = SensorHealth(name, rate_hz, samples=samples, missed=missed)
+def _sampler(name: str, rate_hz: float | None, samples: int, span_s: float, missed: int = 0,
+             missed_host: int = 0) -> SimpleNamespace:
+    h = SensorHealth(name, rate_hz, samples=samples, missed=missed, missed_host=missed_host)
     h.first_sample_mono_ns, h.last_sample_mono_ns = 5 * NS, 5 * NS + int(span_s * NS)
     return SimpleNamespace(rate_hz=rate_hz, health=h)
 
 
 def test_a_sensor_that_fell_behind_in_drive_time_is_named_and_one_that_kept_up_is_not() -> None:
     daemon = SimpleNamespace(samplers=[
-        _sampler("imu", 20.0, 35_501, 1800.0, missed=499),  # 19.72 Hz: a host that could not keep up
-        _sampler("baro", 1.0, 1800, 1799.0),  # every second
+        _sampler("imu", 20.0, 35_501, 1800.0, missed=499, missed_host=450),  # a host that could not keep up
+        _sampler("baro", 1.0, 8, 7.14),  # every second: stamps a little irregular over a short run are no shortfall
         _sampler("gnss", None, 1700, 1799.0),  # an event sensor: its rate is the receiver's, and outages are real
         _sampler("obd", 2.0, 0, 0.0),  # never delivered: said elsewhere
+        _sampler("obd2", 2.0, 3500, 1799.0, missed=100),  # a slow adapter, not the host
     ])
     assert shortfalls(daemon) == [
-        "imu delivered 19.72 Hz of drive time, 98.6% of its 20 Hz (499 periods passed unsampled)"]
+        "imu let 499 of its 36000 periods pass unsampled (1.4%, 450 while the host ran late), 19.72 Hz of drive time "
+        "against 20 Hz",
+        "obd2 let 100 of its 3600 periods pass unsampled (2.8%), 1.94 Hz of drive time against 2 Hz"]
+    # What a paced simulated drive's exit code goes by: only what the host caused.
+    assert shortfalls(daemon, host_only=True) == [
+        "imu let 450 of its 36000 periods pass unsampled (1.2%), 19.72 Hz of drive time against 20 Hz"]

@@ -132,8 +132,9 @@ def finish(daemon: Daemon, code: int) -> int:
         print(run_summary(daemon), flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
-    if code == 0 and daemon.tb.pace() is not None and shortfalls(daemon):
-        print("logger: the simulated drive did not hold its sensors' rates (see above): this host is too slow "
-              "or too busy for it; the recording is not one a real drive would give", file=sys.stderr)
+    if code == 0 and daemon.tb.pace() is not None and shortfalls(daemon, host_only=True):
+        print("logger: the simulated drive did not hold its sensors' rates even at real time (see above): this "
+              "host is too slow or too busy for it; the recording is not one a real drive would give",
+              file=sys.stderr)
         return RATES_NOT_HELD
     return code

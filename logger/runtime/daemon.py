@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 
 HEARTBEAT_STALE_S = 10.0
 DROP_WINDOW_NS = 60 * 1_000_000_000
+MISLABEL_SHOW_S = 600  # drive seconds a pairing found wrong stays a problem: the operator must see it
 # systemd's watchdog is pinged only while every thread proved it is alive within this many real seconds. It must
 # exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
@@ -247,6 +248,9 @@ class Daemon:
             incident = s.health.recent_incident(now)
             if incident is not None:
                 problems.append(f"{snap['name']}: {incident}")
+        mislabel = getattr(self.clock, "last_mislabel", None)
+        if mislabel is not None and now - mislabel[0] <= MISLABEL_SHOW_S * 1e9:
+            problems.append(f"clock: {mislabel[1]}")
         if self.samplers and all(s["state"] not in ("ok", NO_FIX) for s in sensors):
             critical = True
         dropped = sum(rec.dropped.values())

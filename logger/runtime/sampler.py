@@ -85,6 +85,9 @@ class SensorHealth:
     errors: int = 0
     late: int = 0
     missed: int = 0
+    # Of those, periods missed after a read the host made late by half a period or more (a simulated drive only:
+    # paced, it measures that): what a faster host, or a slower pace, would have sampled.
+    missed_host: int = 0
     delayed: int = 0  # samples finished more than half a period after their deadline (host scheduling)
     gaps: int = 0
     reconnects: int = 0
@@ -210,10 +213,11 @@ class Sampler(threading.Thread):
                 if self.tb.wait(self.stop_event, (due - now) / 1e9):
                     return
                 now = woke = self.tb.monotonic_ns()
+            host_late = 0
             if self.tb.paced:
                 cpu0 = time.thread_time_ns()
                 self._read_once()
-                self._report_lateness(woke - due, time.thread_time_ns() - cpu0, period_ns)
+                host_late = self._report_lateness(woke - due, time.thread_time_ns() - cpu0, period_ns)
             else:
                 self._read_once()
             n += 1
@@ -227,14 +231,18 @@ class Sampler(threading.Thread):
                 self.health.late += 1
                 next_n = int((after - start) // period_ns) + 1  # first deadline still ahead
                 self.health.missed += next_n - n
+                if 2 * host_late >= period_ns:
+                    self.health.missed_host += next_n - n
                 n = next_n
 
-    def _report_lateness(self, woke_late_ns: int, cpu_ns: int, period_ns: int) -> None:
+    def _report_lateness(self, woke_late_ns: int, cpu_ns: int, period_ns: int) -> int:
         """What the host made this sample late by, for a paced simulated drive: how late the thread woke, or the
         processor time its read took (host ns, so at the drive's scale), whichever is more. Not the read's whole
         duration: a device's own waits (a conversion, an adapter's answer) are drive time, which no pace shortens.
-        A period of either loses the next sample."""
-        self.tb.late(max(woke_late_ns, round(cpu_ns * self.tb.scale)), period_ns)
+        A period of either loses the next sample. Returns that lateness (drive ns)."""
+        late = max(woke_late_ns, round(cpu_ns * self.tb.scale))
+        self.tb.late(late, period_ns)
+        return late
 
     def _events(self) -> None:
         while not self.stop_event.is_set():

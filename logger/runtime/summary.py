@@ -66,24 +66,27 @@ def run_summary(daemon: Daemon) -> str:
     return "\n".join(lines)
 
 
-RATE_HELD = 0.99  # a periodic sensor delivering less than this share of its rate in drive time fell behind
+RATE_HELD = 0.99  # a periodic sensor that let more than 1 % of its periods pass unsampled fell behind
 
 
-def shortfalls(daemon: Daemon) -> list[str]:
-    """The periodic sensors that did not hold their configured rate in drive time, one line each: the samples
-    they delivered over their own span against the rate (a host that fell behind, a bus too slow)."""
+def shortfalls(daemon: Daemon, host_only: bool = False) -> list[str]:
+    """The periodic sensors that did not hold their configured rate, one line each: the periods their sampler
+    let pass unsampled (a read that ended after the next was due: a host that fell behind, a bus too slow)
+    against all it was due, and the rate in drive time. ``host_only``: only misses after a read the host made
+    late (a paced simulated drive measures that), the ones a faster host would not have had."""
     out = []
     for s in daemon.samplers:
         h = s.health
         if not s.rate_hz or h.samples < 2 or h.first_sample_mono_ns is None or h.last_sample_mono_ns is None:
             continue
-        span_s = (h.last_sample_mono_ns - h.first_sample_mono_ns) / 1e9
-        if span_s <= 0:
+        missed = h.missed_host if host_only else h.missed
+        due = h.samples + h.missed
+        if missed <= (1.0 - RATE_HELD) * due:
             continue
-        achieved = (h.samples - 1) / span_s
-        if achieved < RATE_HELD * s.rate_hz:
-            out.append(f"{h.name} delivered {achieved:.2f} Hz of drive time, {achieved / s.rate_hz:.1%} of its "
-                       f"{s.rate_hz:g} Hz ({plural(h.missed, 'period')} passed unsampled)")
+        span_s = (h.last_sample_mono_ns - h.first_sample_mono_ns) / 1e9
+        rate = f", {(h.samples - 1) / span_s:.2f} Hz of drive time against {s.rate_hz:g} Hz" if span_s > 0 else ""
+        cause = f", {h.missed_host} while the host ran late" if h.missed_host and not host_only else ""
+        out.append(f"{h.name} let {missed} of its {due} periods pass unsampled ({missed / due:.1%}{cause}){rate}")
     return out
 
 

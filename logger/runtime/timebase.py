@@ -14,6 +14,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+PACED_STEP_S = 0.05  # longest host wait on a paced drive between looks at its clock
+
 
 class TimeBase:
     def __init__(self, monotonic_ns: Callable[[], int] = time.monotonic_ns,
@@ -46,14 +48,21 @@ class TimeBase:
         return self._pace() if self._pace is not None else None
 
     def wait(self, event: threading.Event, seconds: float) -> bool:
-        """Wait ``seconds`` of drive time, or until ``event`` is set (returns True then)."""
+        """Wait ``seconds`` of drive time, or until ``event`` is set (returns True then). On a paced drive in short
+        host steps, each against the drive clock: a wait begun at real time ends on time when the pace rises."""
         if seconds <= 0:
             return event.is_set()
-        return event.wait(seconds / self.scale)
+        if not self.paced:
+            return event.wait(seconds / self.scale)
+        end = self.monotonic_ns() + round(seconds * 1e9)
+        while (left := end - self.monotonic_ns()) > 0:
+            if event.wait(min(left / 1e9 / self.scale, PACED_STEP_S)):
+                return True
+        return event.is_set()
 
     def sleep(self, seconds: float) -> None:
         if seconds > 0:
-            time.sleep(seconds / self.scale)
+            self.wait(threading.Event(), seconds)
 
 
 def host_timebase() -> TimeBase:

@@ -7,8 +7,10 @@ late the daemon's threads and the device models run against their schedules (eac
 lateness its schedule tolerates before data are lost) and, every ``WINDOW_S`` of host time, sets the drive
 clock's scale from the worst share seen: above ``SLOW_AT`` it slows the drive, below ``FAST_AT`` it speeds up
 towards the ceiling, in between it holds. The drive starts at no more than real time and climbs, so the start
-loses nothing either; it may run slower than real time (down to ``FLOOR``) on a host that cannot keep up even
-then. What it achieved is in :meth:`Governor.report`, shown by ``logger status`` and at the end of the run.
+loses nothing either. It never goes below real time (``FLOOR``): a recording is to be as good as one made at
+real time, not better, so a host that cannot keep up even then loses data as a board would, and the run says
+so at its end. What it achieved is in :meth:`Governor.report`, shown by ``logger status`` and at the end of the
+run.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ SLOW_AT = 0.5  # worst lateness share of its tolerance above which the drive slo
 FAST_AT = 0.25  # ... below which it speeds up
 PLUNGE_AT = 1.0  # a share at which data were lost: slow hard
 RISE, FALL, PLUNGE = 1.1, 0.75, 0.5  # factors on the scale per window
-FLOOR = 0.1  # slowest pace: a tenth of real time
+FLOOR = 1.0  # slowest pace: real time (what a board does, no better)
 MIN_SWITCH_S = 0.0002  # shortest interpreter switch interval: below it the switching itself eats the host
 
 
