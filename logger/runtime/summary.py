@@ -66,14 +66,16 @@ def run_summary(daemon: Daemon) -> str:
     return "\n".join(lines)
 
 
-RATE_HELD = 0.99  # a periodic sensor that let more than 1 % of its periods pass unsampled fell behind
+RATE_HELD = 0.99  # a periodic sensor that let more than 1 % of its periods pass unsampled fell behind ...
+SHORTFALL_MIN_S = 1.0  # ... and more than a second's worth: a short run's one hiccup is not a rate not held
 
 
 def shortfalls(daemon: Daemon, host_only: bool = False) -> list[str]:
     """The periodic sensors that did not hold their configured rate, one line each: the periods their sampler
     let pass unsampled (a read that ended after the next was due: a host that fell behind, a bus too slow)
-    against all it was due, and the rate in drive time. ``host_only``: only misses after a read the host made
-    late (a paced simulated drive measures that), the ones a faster host would not have had."""
+    against all it was due, and the rate in drive time; more than 1 % of them and more than a second's worth.
+    ``host_only``: only misses after a read the host made late (a paced simulated drive measures that), the
+    ones a faster host would not have had."""
     out = []
     for s in daemon.samplers:
         h = s.health
@@ -81,7 +83,7 @@ def shortfalls(daemon: Daemon, host_only: bool = False) -> list[str]:
             continue
         missed = h.missed_host if host_only else h.missed
         due = h.samples + h.missed
-        if missed <= (1.0 - RATE_HELD) * due:
+        if missed <= max((1.0 - RATE_HELD) * due, SHORTFALL_MIN_S * s.rate_hz):
             continue
         span_s = (h.last_sample_mono_ns - h.first_sample_mono_ns) / 1e9
         rate = f", {(h.samples - 1) / span_s:.2f} Hz of drive time against {s.rate_hz:g} Hz" if span_s > 0 else ""
