@@ -425,7 +425,9 @@ class Daemon:
 
     def _report_backlogs(self) -> None:
         """The recorder's and the navigator's queues as lateness: a queue's depth against its size is the share
-        of its slack used, which a simulated drive keeps low by slowing down (the host's clock ignores it)."""
+        of its slack used, which a simulated drive keeps low by slowing down (nothing to do on the host's clock)."""
+        if not self.tb.paced:
+            return
         rec = self.recorder.status()
         self.tb.late(rec.queue_depth, rec.queue_size)
         for backlog in self.attachments.backlogs:
