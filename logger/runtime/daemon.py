@@ -330,11 +330,9 @@ class Daemon:
         while not self.stop_event.is_set():
             n += 1
             due = start + int(n * period_s * 1e9)
-            now = woke = self.tb.monotonic_ns()
-            while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
-                if self.tb.wait(self.stop_event, (due - now) / 1e9):
-                    return
-                now = woke = self.tb.monotonic_ns()
+            if self.tb.wait_until(self.stop_event, due):
+                return
+            woke = self.tb.monotonic_ns()
             for r in fn():
                 self.sink(r)
             self.tb.late(woke - due, period_ns)  # how late the host woke it: a period of that loses a record

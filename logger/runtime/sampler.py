@@ -208,11 +208,11 @@ class Sampler(threading.Thread):
         while not self.stop_event.is_set():
             due = start + n * period_ns
             now = self.tb.monotonic_ns()
-            woke = due
-            while due > now:  # again after each wait: a simulated drive may have changed its pace meanwhile
-                if self.tb.wait(self.stop_event, (due - now) / 1e9):
+            woke = due  # already overdue: the previous read's overrun, counted below, is no late wake-up
+            if due > now:
+                if self.tb.wait_until(self.stop_event, due):
                     return
-                now = woke = self.tb.monotonic_ns()
+                woke = self.tb.monotonic_ns()
             host_late = 0
             if self.tb.paced:
                 cpu0 = time.thread_time_ns()

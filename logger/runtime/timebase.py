@@ -3,8 +3,7 @@
 Sampler threads read the monotonic clock and sleep only through a :class:`TimeBase`, so the same threads run
 a drive at 60x speed under ``--time-scale 60`` and every ``*_ns`` field is in drive time. A simulated drive's
 scale may change while it runs (its governor slows it when the daemon falls behind), so ``scale`` is read each
-time, waits are re-checked by their callers against the clock, and the threads tell ``late`` how far behind
-their schedule they ran.
+time, waits follow the drive clock, and the threads tell ``late`` how far behind their schedule they ran.
 """
 
 from __future__ import annotations
@@ -57,6 +56,13 @@ class TimeBase:
         end = self.monotonic_ns() + round(seconds * 1e9)
         while (left := end - self.monotonic_ns()) > 0:
             if event.wait(min(left / 1e9 / self.scale, PACED_STEP_S)):
+                return True
+        return event.is_set()
+
+    def wait_until(self, event: threading.Event, t_ns: int) -> bool:
+        """Wait until the drive clock reads ``t_ns``, or until ``event`` is set (returns True then)."""
+        while (left := t_ns - self.monotonic_ns()) > 0:
+            if self.wait(event, left / 1e9):
                 return True
         return event.is_set()
 

@@ -15,7 +15,6 @@ run.
 
 from __future__ import annotations
 
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -29,7 +28,6 @@ FAST_AT = 0.25  # ... below which it speeds up
 PLUNGE_AT = 1.0  # a share at which data were lost: slow hard
 RISE, FALL, PLUNGE = 1.1, 0.75, 0.5  # factors on the scale per window
 FLOOR = 1.0  # slowest pace: real time (what a board does, no better)
-MIN_SWITCH_S = 0.0002  # shortest interpreter switch interval: below it the switching itself eats the host
 
 
 @dataclass(frozen=True)
@@ -67,8 +65,7 @@ class Governor:
         self._last_step_ns = self._host0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._switch_s = sys.getswitchinterval()
-        self._set(min(self.ceiling, 1.0))
+        clock.set_time_scale(min(self.ceiling, 1.0))
         clock.on_late = self.late
 
     def late(self, lateness_ns: int, tolerance_ns: int) -> None:
@@ -101,14 +98,8 @@ class Governor:
         if self._ramped:
             self._slowest = min(self._slowest, new)
         if new != x:
-            self._set(new)
+            self.clock.set_time_scale(new)
         return new
-
-    def _set(self, x: float) -> None:
-        self.clock.set_time_scale(x)
-        # A thread the host wakes waits for the interpreter lock up to the switch interval (5 ms): 300 ms of drive
-        # at 60x, six IMU periods. Shortened by the scale, a wait costs the drive what it costs at real time.
-        sys.setswitchinterval(max(MIN_SWITCH_S, self._switch_s / max(1.0, x)))
 
     def report(self) -> PaceReport:
         host_s = (self._host_ns() - self._host0) / 1e9
@@ -127,7 +118,6 @@ class Governor:
         if self._thread is not None:
             self._thread.join()
             self._thread = None
-        sys.setswitchinterval(self._switch_s)
 
     def _run(self) -> None:
         while not self._stop.wait(WINDOW_S):
