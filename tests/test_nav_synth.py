@@ -33,9 +33,16 @@ class SynthErrors:
 
 def records(trajectory: Any, duration_s: float, seed: int = 0, imu_hz: float = 20.0,
             errors: SynthErrors | None = None, gnss_off: list[tuple[float, float]] | None = None,
-            latency_s: float = 0.2) -> list[tuple[int, str, dict[str, Any]]]:
-    """(log time, topic, message) sorted by time: IMU at ``imu_hz``, GNSS 1 Hz (arriving ``latency_s`` late,
-    with its epoch time), OBD 2 Hz in whole km/h, baro 1 Hz; ``gnss_off`` lists (start, end) s without fix."""
+            latency_s: float = 0.2, gnss_hz: float = 1.0, receiver: str = "ubx", epoch_time: bool = True,
+            gnss_corr_s: float = 0.0) -> list[tuple[int, str, dict[str, Any]]]:
+    """(log time, topic, message) sorted by time: IMU at ``imu_hz``, GNSS at ``gnss_hz`` (arriving ``latency_s``
+    late, with its epoch time unless ``epoch_time`` is False), OBD 2 Hz in whole km/h, baro 1 Hz; ``gnss_off``
+    lists (start, end) s without fix.
+
+    ``receiver``: "ubx" reports accuracy figures, PDOP and a 3D velocity (NAV-PVT); "nmea" what RMC and GGA
+    give: position, height, speed and course (no vertical velocity), satellites, no accuracy, no DOP; "gsa" the
+    same with GSA's PDOP. ``gnss_corr_s``: the position error is first-order Gauss-Markov with this correlation
+    time (0: white), as a receiver's errors are once fixes come faster than its error changes."""
     e = errors or SynthErrors()
     rng = np.random.default_rng(seed)
     out: list[tuple[int, str, dict[str, Any]]] = []
@@ -49,25 +56,39 @@ def records(trajectory: Any, duration_s: float, seed: int = 0, imu_hz: float = 2
         ts = T0_NS + round(t * NS)
         out.append((ts, "/imu", {"t_sync_ns": ts, "t_mono_ns": ts - T0_NS, "sync_state": "locked",
                                  "accel_mps2": a.tolist(), "gyro_rps": w.tolist()}))
-    for k in range(int(duration_s) + 1):
-        t = float(k)
+    sig = np.array((e.gnss_h_sigma, e.gnss_h_sigma, e.gnss_v_sigma))
+    err = rng.standard_normal(3) * sig if gnss_corr_s > 0.0 else sig * 0.0
+    baro_with_fix = gnss_hz == 1.0  # one loop for both, in the order the 1 Hz tests' random draws were made
+    for k in range(int(duration_s * gnss_hz) + 1):
+        t = k / gnss_hz
         s = trajectory.state(t)
         ts = T0_NS + round((t + latency_s) * NS)
         ok = not any(a <= t < b for a, b in (gnss_off or []))
         rm, rn = _radii(s.lat_rad)
-        dn, de, dd = rng.standard_normal(3) * (e.gnss_h_sigma, e.gnss_h_sigma, e.gnss_v_sigma)
+        if gnss_corr_s > 0.0:
+            rho = math.exp(-1.0 / (gnss_hz * gnss_corr_s))
+            err = rho * err + math.sqrt(1.0 - rho * rho) * rng.standard_normal(3) * sig
+        else:
+            err = rng.standard_normal(3) * sig
+        dn, de, dd = err
         vel = s.vel_ned_mps + rng.standard_normal(3) * e.gnss_vel_sigma
-        out.append((ts, "/gnss/fix", {
-            "t_sync_ns": ts, "t_mono_ns": ts - T0_NS, "sync_state": "locked", "gnss_time_ns": T0_NS + round(t * NS),
+        msg = {
+            "t_sync_ns": ts, "t_mono_ns": ts - T0_NS, "sync_state": "locked",
+            "gnss_time_ns": T0_NS + round(t * NS) if epoch_time else None,
             "fix_ok": ok, "fix_mode": 3 if ok else 1,
             "latitude": math.degrees(s.lat_rad + dn / (rm + s.height_m)),
             "longitude": math.degrees(s.lon_rad + de / ((rn + s.height_m) * math.cos(s.lat_rad))),
             "altitude": s.height_m - dd, "vel_ned_mps": vel.tolist() if ok else None,
             "h_acc_m": e.gnss_h_sigma * math.sqrt(2.0), "v_acc_m": e.gnss_v_sigma, "s_acc_mps": e.gnss_vel_sigma,
-            "pdop": 1.2, "num_sv": 18 if ok else 0}))
-        ts_b = T0_NS + round((t + 0.3) * NS)
-        out.append((ts_b, "/baro", {"t_sync_ns": ts_b, "t_mono_ns": ts_b - T0_NS,
-                                    "altitude_m": s.height_m + e.baro_offset + rng.standard_normal() * e.baro_sigma}))
+            "pdop": 1.2, "num_sv": 18 if ok else 0}
+        if receiver in ("nmea", "gsa"):
+            msg.update(h_acc_m=None, v_acc_m=None, s_acc_mps=None, pdop=1.2 if receiver == "gsa" else None,
+                       vel_ned_mps=[vel[0], vel[1], None] if ok else None, source="NMEA")
+        out.append((ts, "/gnss/fix", msg))
+        if baro_with_fix:
+            _baro(out, trajectory, t, e, rng)
+    for k in range(0 if baro_with_fix else int(duration_s) + 1):
+        _baro(out, trajectory, float(k), e, rng)
     for k in range(int(duration_s * 2) + 1):
         t = k / 2.0 + 0.1
         s = trajectory.state(t)
@@ -77,6 +98,14 @@ def records(trajectory: Any, duration_s: float, seed: int = 0, imu_hz: float = 2
                                        "speed_mps": kmh / 3.6}))
     out.sort(key=lambda r: r[0])
     return out
+
+
+def _baro(out: list[tuple[int, str, dict[str, Any]]], trajectory: Any, t: float, e: SynthErrors,
+          rng: np.random.Generator) -> None:
+    s = trajectory.state(t)
+    ts_b = T0_NS + round((t + 0.3) * NS)
+    out.append((ts_b, "/baro", {"t_sync_ns": ts_b, "t_mono_ns": ts_b - T0_NS,
+                                "altitude_m": s.height_m + e.baro_offset + rng.standard_normal() * e.baro_sigma}))
 
 
 def _radii(lat: float) -> tuple[float, float]:

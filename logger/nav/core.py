@@ -51,11 +51,13 @@ class PreparedFix:
     lat: float  # rad
     lon: float  # rad
     h: float  # m above the ellipsoid
-    vel: np.ndarray | None  # NED m/s, None unless the receiver gave all three
+    vel: np.ndarray | None  # NED m/s (north and east given; down 0.0 unless vel_3d), None without a velocity
+    vel_3d: bool  # the receiver gave the vertical velocity too (NMEA-only receivers do not)
     sigma: tuple[float, float, float]  # position noise N, E, D, m
     s_vel: float  # velocity noise, m/s
     fix_3d: bool
-    h_acc: float  # the receiver's horizontal accuracy (or the DOP's stand-in), m
+    h_acc: float  # the receiver's horizontal accuracy (or the error model's, see accuracy), m
+    accuracy: str = "receiver"  # where h_acc came from: receiver, dop or nominal (logger.nav.gnss_noise)
 
 
 class FilterCore(Protocol):

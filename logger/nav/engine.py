@@ -380,7 +380,7 @@ class NavEngine:
         dx = np.zeros(self.n)
         dx[P_ID:P_ID + 3] = (dn, de, dd)
         if fix.vel is not None:
-            dx[V_ID:V_ID + 3] = (s.vn - fix.vel[0], s.ve - fix.vel[1], s.vd - fix.vel[2])
+            dx[V_ID:V_ID + 3] = (s.vn - fix.vel[0], s.ve - fix.vel[1], s.vd - fix.vel[2] if fix.vel_3d else 0.0)
         self.feedback(dx)
         self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, fix.sigma[2] ** 2,
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])

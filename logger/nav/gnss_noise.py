@@ -11,12 +11,24 @@ excess over it; the excess is multiplied by (1 + rho) / (1 - rho), rho = exp(-dt
 first-order correlated error sampled every dt shrinks more slowly under averaging than a white one
 (``gnss_multipath_corr_s`` = tau). In open sky the excess is near zero and the receiver's figure is used as
 is; a canyon's fixes count, together, about as much as one fix per correlation time.
+
+The floor itself (atmosphere, orbits) changes over minutes, not between two epochs a tenth of a second apart:
+a receiver giving fixes at 5, 10 or 25 Hz does not know the position 10 or 25 times better than at 1 Hz, it
+reports the same error more often (its own navigation filter even smooths one epoch into the next). The floor's
+variance is therefore multiplied by the fix rate over ``gnss_independent_hz`` (1 Hz by default, what the
+figures of a receiver's data sheet are stated at), so a second of fixes weighs what one independent fix does,
+whatever the rate.
+
+Receivers that give no accuracy figure at all (an NMEA-only receiver without GST, a u-blox set to RMC and GGA)
+are not uninformative: :class:`AccuracyModel` gives them a documented error model (below), and learns from
+the fixes' own scatter how good this receiver on this drive is.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass
 
 FLOOR_WINDOW = 300  # fixes (5 min at 1 Hz) over which the receiver's floor is the lowest figure it gave
 MAX_GAP_S = 10.0  # epochs further apart than this are taken as independent
@@ -44,27 +56,168 @@ class RunningMin:
 class CorrelatedGnssNoise:
     """Per-fix variances for position (per axis, from hAcc and vAcc) and velocity (from sAcc)."""
 
-    def __init__(self, corr_s: float) -> None:
+    def __init__(self, corr_s: float, independent_hz: float = 1.0) -> None:
         self.corr_s = corr_s
+        self.independent_s = 1.0 / independent_hz if independent_hz > 0.0 else 0.0
         self._floors = (RunningMin(), RunningMin(), RunningMin())
         self._t_last_ns: int | None = None
+        self._dt_last = 0.0
+        self.interval_s = 0.0  # the receiver's usual interval between fixes (0 until two have come)
 
     def factor(self, t_ns: int) -> float:
         """How much more slowly a correlated error averages out than a white one at this fix spacing."""
         last, self._t_last_ns = self._t_last_ns, t_ns
-        if self.corr_s <= 0.0 or last is None:
-            return 1.0
-        dt = (t_ns - last) / 1e9
-        if not 0.0 < dt < MAX_GAP_S:
+        dt = 0.0 if last is None else (t_ns - last) / 1e9
+        self._dt_last = dt
+        if 0.0 < dt < MAX_GAP_S:
+            # The usual interval, not this one: a fix that came late does not make the next one worth less.
+            self.interval_s = dt if self.interval_s == 0.0 else self.interval_s + 0.1 * (dt - self.interval_s)
+        if self.corr_s <= 0.0 or not 0.0 < dt < MAX_GAP_S:
             return 1.0
         rho = math.exp(-dt / self.corr_s)
         return (1.0 + rho) / (1.0 - rho)
 
+    def rate_factor(self) -> float:
+        """The fix rate over the rate of independent fixes: how many epochs report one error (1 at 1 Hz)."""
+        if self.interval_s <= 0.0 or not 0.0 < self._dt_last < MAX_GAP_S:
+            return 1.0
+        return max(1.0, self.independent_s / self.interval_s)
+
     def sigmas(self, t_ns: int, h_acc: float, v_acc: float, s_acc: float) -> tuple[float, float, float]:
         """1-sigma horizontal per axis, vertical and speed, with the excess over the floor widened."""
         c = self.factor(t_ns)
+        r = self.rate_factor()
         out = []
         for value, floor in zip((h_acc, v_acc, s_acc), self._floors, strict=True):
             low = floor.add(value)
-            out.append(math.sqrt(low * low + c * (value * value - low * low)))
+            out.append(math.sqrt(r * low * low + c * (value * value - low * low)))
         return out[0] / math.sqrt(2.0), out[1], out[2]
+
+
+# ---- receivers without accuracy figures -------------------------------------------------------------------
+RECEIVER = "receiver"  # the fix's own figures (UBX hAcc/vAcc/sAcc, NMEA GST, gpsd's eph/epv)
+DOP = "dop"  # a DOP (NMEA GSA, NAV-DOP) times a range error
+NOMINAL = "nominal"  # nothing from the receiver: the configured nominal figures, scaled by what was learnt
+LEARN_TAU_S = 120.0  # the scatter is averaged over this much drive time
+LEARN_MIN_S = 30.0  # ... and used once this much has been seen
+LEARN_SCALE = (1.0, 25.0)  # the learnt variance stays between the nominal sigma and 5 times it (see below)
+LEARN_CLIP = 16.0  # an innovation counts for at most 4 sigma of its prediction (one reflection is not scatter)
+
+
+@dataclass(frozen=True, slots=True)
+class FixFigures:
+    """A fix's accuracy (1 sigma: horizontal as hAcc, the 2D RMS; vertical; speed) and where it came from."""
+
+    h_acc: float
+    v_acc: float
+    s_acc: float
+    source: str  # RECEIVER, DOP or NOMINAL
+    scale: tuple[float, float]  # learnt variance scale (horizontal, vertical) applied; 1.0 when not learnt
+
+
+class ScatterLearner:
+    """The variance of a receiver's fixes about the truth, learnt from the filter's innovations (Mehra's rule).
+
+    An innovation z (fix minus the filter's prediction) has E[z^2] = P + R: the filter's own variance plus the
+    fix's. Averaged over a couple of minutes, mean(z^2) - mean(P) is this receiver's R on this drive, and its
+    ratio to the nominal R is the scale the nominal figures need. Bounded (a nominal model that is wrong by more
+    than 5x is a configuration to fix, not something to learn) and clipped per innovation, so a reflection or the
+    end of an outage (when P is large, which the subtraction takes out) does not teach it that the receiver is bad.
+
+    It only ever widens the nominal figures. Mehra's rule assumes white errors; a receiver's are correlated over
+    seconds to minutes, the filter's prediction follows them, and the innovations then read smaller than the
+    errors are (on the simulated 10 Hz fixes with a 20 s correlation it learnt a quarter of the true variance, and
+    the filter was inside its 3 sigma half the time). A scatter larger than the nominal figure admits is proof
+    that the receiver is worse; a smaller one is not proof that it is better.
+    """
+
+    def __init__(self, tau_s: float = LEARN_TAU_S) -> None:
+        self.tau_s = tau_s
+        self.seen_s = 0.0
+        self._z2 = [0.0, 0.0]  # horizontal (per axis), vertical: mean innovation squared
+        self._p = [0.0, 0.0]  # mean filter variance
+        self._r = [0.0, 0.0]  # mean nominal variance
+        self._t_last_ns: int | None = None
+        self._n = 0
+
+    def add(self, t_ns: int, z: list[float], p: list[float], r_nominal: list[float]) -> None:
+        """One fix's innovation (N, E[, D], m), the filter's variances and the nominal variances it was given."""
+        dt = 0.0 if self._t_last_ns is None else (t_ns - self._t_last_ns) / 1e9
+        self._t_last_ns = t_ns
+        if not 0.0 <= dt < MAX_GAP_S:
+            dt = 0.0
+        self.seen_s += dt
+        self._n += 1
+        # A plain mean while short, then an exponential one over tau of drive time (whatever the fix rate).
+        a = max(1.0 / self._n, 1.0 - math.exp(-dt / self.tau_s))
+        groups = [(0, 1)] + ([(2,)] if len(z) > 2 else [])
+        k = self._current()
+        for g, axes in enumerate(groups):
+            # Clipped at 4 sigma of what is expected with the scale learnt so far, so that the scale can grow.
+            z2 = sum(min(z[i] ** 2, LEARN_CLIP * (p[i] + k[g] * r_nominal[i])) for i in axes) / len(axes)
+            pm = sum(p[i] for i in axes) / len(axes)
+            rm = sum(r_nominal[i] for i in axes) / len(axes)
+            self._z2[g] += a * (z2 - self._z2[g])
+            self._p[g] += a * (pm - self._p[g])
+            self._r[g] += a * (rm - self._r[g])
+
+    def scale(self) -> tuple[float, float]:
+        """Variance scale for the nominal horizontal and vertical figures (1.0 until enough was seen)."""
+        if self.seen_s < LEARN_MIN_S:
+            return 1.0, 1.0
+        return self._current()
+
+    def _current(self) -> tuple[float, float]:
+        lo, hi = LEARN_SCALE
+        out = []
+        for g in range(2):
+            if self._r[g] <= 0.0:
+                out.append(1.0)
+                continue
+            out.append(min(hi, max(lo, (self._z2[g] - self._p[g]) / self._r[g])))
+        return out[0], out[1]
+
+
+class AccuracyModel:
+    """A fix's accuracy figures, from the receiver when it gives them and from the error model when not.
+
+    In order: the receiver's own figures (UBX hAcc/vAcc/sAcc, NMEA GST's standard deviations, gpsd's eph/epv);
+    a DOP (NMEA GSA's PDOP, UBX NAV-DOP) times ``gnss_uere_m``, the user range error; and with neither, the
+    nominal figures ``gnss_nominal_h_acc_m`` / ``gnss_nominal_v_acc_m`` / ``gnss_nominal_s_acc_mps`` (see
+    :class:`logger.nav.params.NavParams` for where their defaults come from). A missing vertical figure is the
+    horizontal one times the nominal ratio. DOP-based and nominal figures are guesses about this receiver, so
+    their variance is scaled by what :class:`ScatterLearner` learnt of the fixes' scatter (``gnss_learn_scatter``).
+    """
+
+    def __init__(self, uere_m: float, nominal: tuple[float, float, float], learn: bool) -> None:
+        self.uere_m = uere_m
+        self.nominal = nominal
+        self.learn = learn
+        self.learner = ScatterLearner()
+
+    def figures(self, h_acc: float | None, v_acc: float | None, s_acc: float | None,
+                pdop: float | None) -> FixFigures:
+        nh, nv, ns = self.nominal
+        if h_acc is not None:
+            source = RECEIVER
+            v = v_acc if v_acc is not None else h_acc * nv / nh
+            scale = (1.0, 1.0)
+            h = h_acc
+        else:
+            if pdop is not None and pdop > 0.0:
+                # HDOP and VDOP are about 0.6 and 0.8 of PDOP for a typical sky; hAcc is the 2D RMS.
+                source, h, v = DOP, self.uere_m * pdop * 0.6 * math.sqrt(2.0), self.uere_m * pdop * 0.8
+            else:
+                source, h, v = NOMINAL, nh, nv
+            scale = self.learner.scale() if self.learn else (1.0, 1.0)
+            h, v = h * math.sqrt(scale[0]), v * math.sqrt(scale[1])
+        return FixFigures(h, v, s_acc if s_acc is not None else ns, source, scale)
+
+    def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
+        """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
+        if not self.learn or figures.source == RECEIVER:
+            return
+        kh, kv = figures.scale
+        rh = (figures.h_acc**2 / kh) / 2.0
+        rv = figures.v_acc**2 / kv
+        self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)])

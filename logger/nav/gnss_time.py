@@ -17,6 +17,8 @@ from collections import deque
 
 NS = 1_000_000_000
 NOMINAL_LATENCY_NS = 100_000_000
+ARRIVAL_SIGMA_S = 0.1  # spread of a receiver's solution and output latency (u-blox: some tens to 300 ms)
+MIN_LATENCY_SIGMA_S = 0.02  # the least spread taken for latencies learnt while the time was valid
 PPS_STALE_NS = 10 * NS
 
 
@@ -24,8 +26,10 @@ class GnssEpochClock:
     def __init__(self) -> None:
         self._pps: deque[tuple[int, int]] = deque(maxlen=5)  # (t_sync_ns, offset modulo 1 s)
         self._delays: deque[int] = deque(maxlen=60)
+        self._latencies: deque[int] = deque(maxlen=60)  # arrival delays while the clock was locked (on UTC)
         self.method = "none"
         self.offset_ns = 0
+        self.uncertainty_s = 0.0  # 1 sigma of the last epoch placed, s: 0 when the receiver stated its epoch
 
     def pps(self, t_sync_ns: int) -> None:
         self._pps.append((t_sync_ns, (t_sync_ns + NS // 2) % NS - NS // 2))
@@ -33,11 +37,24 @@ class GnssEpochClock:
     def epoch_time(self, t_sync_ns: int, gnss_time_ns: int | None, sync_state: str) -> int:
         """The fix's epoch on the logger's clock (t_sync scale), ns."""
         if gnss_time_ns is None:
+            # No valid epoch time (a receiver without a date yet, GGA alone): the fix is placed by its arrival,
+            # less the latency its predecessors showed while their time was valid and the clock on UTC, or less a
+            # nominal solution latency when none ever had a time.
+            if self._latencies and sync_state == "locked":
+                lat = sorted(self._latencies)
+                n = len(lat)
+                # The spread of the latencies seen (their interquartile range / 1.35, a robust sigma).
+                self.uncertainty_s = max(MIN_LATENCY_SIGMA_S, (lat[(3 * n) // 4] - lat[n // 4]) / 1.35e9)
+                self.method = "arrival, usual latency"
+                return t_sync_ns - lat[n // 2]
             self.method = "arrival"
+            self.uncertainty_s = ARRIVAL_SIGMA_S
             return t_sync_ns - NOMINAL_LATENCY_NS
+        self.uncertainty_s = 0.0
         delay = t_sync_ns - gnss_time_ns
         self._delays.append(delay)
         if sync_state == "locked":
+            self._latencies.append(delay)
             self.method, self.offset_ns = "clock locked", 0
             return gnss_time_ns
         if self._pps and t_sync_ns - self._pps[-1][0] < PPS_STALE_NS:

@@ -24,7 +24,7 @@ import numpy as np
 
 from logger.nav.core import EngineCounters, FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
-from logger.nav.gnss_noise import CorrelatedGnssNoise
+from logger.nav.gnss_noise import AccuracyModel, CorrelatedGnssNoise, FixFigures
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
@@ -80,7 +80,10 @@ class GnssPolicy:
         self.epoch_clock = epoch_clock
         self.last_readings = last
         self.position, self.velocity, self.height = position, velocity, height
-        self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s)
+        self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s, params.gnss_independent_hz)
+        self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
+                                                           params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
+        self.last_figures: FixFigures | None = None  # the last fix's accuracy figures, for the learner
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
@@ -92,22 +95,29 @@ class GnssPolicy:
         p = self.params
         t_sync = msg.t_sync_ns
         t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state)
-        h_acc, v_acc = msg.h_acc_m, msg.v_acc_m
-        if h_acc is None or v_acc is None:
-            pdop = msg.pdop or 99.0
-            h_acc = p.gnss_uere_m * pdop * 0.6 * math.sqrt(2.0)
-            v_acc = p.gnss_uere_m * pdop * 0.8
+        fig = self.accuracy.figures(msg.h_acc_m, msg.v_acc_m, msg.s_acc_mps, msg.pdop)
         k = p.gnss_acc_scale
-        s_acc = msg.s_acc_mps
-        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, float(h_acc), float(v_acc),
-                                                 float(s_acc) if s_acc is not None else 0.5)
+        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, fig.h_acc, fig.v_acc, fig.s_acc)
         sig_h, sig_v, s_vel = max(0.1, k * sig_h), max(0.2, k * sig_v), max(0.03, k * s_vel)
         vel = msg.vel_ned_mps
-        vel_arr = None if vel is None or any(v is None for v in vel) else np.array(vel, float)
+        vel_arr, vel_3d = None, False
+        if vel is not None and vel[0] is not None and vel[1] is not None:
+            # North and east without down (NMEA's speed and course): a horizontal velocity, nothing made up.
+            vel_3d = vel[2] is not None
+            vel_arr = np.array((vel[0], vel[1], vel[2] if vel_3d else 0.0), float)
+        tu = self.epoch_clock.uncertainty_s
+        if tu > 0.0:
+            # An epoch placed by its arrival is uncertain by the latency's spread: so is where the car was then.
+            moving = vel_arr if vel_arr is not None else (self.last_readings.fix.vel if self.last_readings.fix
+                                                          is not None else None)
+            if moving is not None:
+                d = tu * float(np.hypot(moving[0], moving[1]))
+                sig_h, sig_v = math.hypot(sig_h, d), math.hypot(sig_v, tu * abs(float(moving[2])))
         fix_3d = (msg.fix_mode or 0) >= 3
+        self.last_figures = fig
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
-                           math.radians(msg.lon_deg), msg.height_m, vel_arr, (sig_h, sig_h, sig_v), s_vel,
-                           fix_3d, float(h_acc))
+                           math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
+                           fix_3d, fig.h_acc, fig.source)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray) -> str:
         """Position and velocity updates of a running filter; returns what the position evidence said ("",
@@ -125,6 +135,10 @@ class GnssPolicy:
         snap = core.state_at(t_e)
         full_pos = GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, core.lever, not fix.fix_3d).observe(
             snap, snap.dcm(), core.n)
+        fig = self.last_figures
+        if fig is not None and core.ekf is not None:
+            pd = core.ekf.p.diagonal()
+            self.accuracy.observe(t_e, fig, full_pos.z.tolist(), [float(pd[P_ID + i]) for i in range(len(full_pos.z))])
         obs = self._informative(core, full_pos, P_ID)
         ok = True if obs is None else core.apply(obs)
         last = self.last_readings
@@ -134,8 +148,8 @@ class GnssPolicy:
                 last.height_in_ns = t_e
         if fix.vel is not None:
             snap = core.state_at(t_e)
-            full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw, not fix.fix_3d).observe(
-                snap, snap.dcm(), core.n)
+            full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw,
+                                not (fix.fix_3d and fix.vel_3d)).observe(snap, snap.dcm(), core.n)
             obs = self._informative(core, full, V_ID)
             if obs is not None:
                 self.velocity.judge(core, obs, core.apply(obs), t_e,

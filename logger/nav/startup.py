@@ -165,6 +165,8 @@ class Startup:
             p0[P_ID + i, P_ID + i] = fix.sigma[i] ** 2 + (abs(vel[i]) * 0.05) ** 2
             p0[V_ID + i, V_ID + i] = max(fix.s_vel, 0.1) ** 2 + 0.1
             p0[BG_ID + i, BG_ID + i] = bg_var
+        if fix.vel is None or not fix.vel_3d:  # no vertical velocity given: a car on a road climbs a few m/s at most
+            p0[V_ID + 2, V_ID + 2] = max(float(p0[V_ID + 2, V_ID + 2]), 1.0)
         self.accel_bias_var = p.accel_bias_sigma**2
         if self.levelled is not None and c_level is not None:
             self.accel_bias_var = accel_offset_variance(self.levelled[3], earth.gravity(fix.lat, fix.h),

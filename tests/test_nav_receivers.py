@@ -1,0 +1,157 @@
+"""The filter on what real receivers send: no vertical velocity, no accuracy figures, fixes at 0.5-25 Hz, no epoch
+time. Each is a normal input: the filter starts on it, stays inside its own 3 sigma, and still notices when it
+has lost itself."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_nav_filter import errors, fed_with_upset, run
+from test_nav_synth import SynthErrors, records
+
+from logger.nav.gnss_noise import DOP, NOMINAL, RECEIVER, AccuracyModel, CorrelatedGnssNoise, ScatterLearner
+from logger.nav.gnss_time import GnssEpochClock
+from logger.nav.params import NavParams
+from sensors.sim.scenarios import make_drive
+
+NS = 1_000_000_000
+T0 = 1_700_000_000 * NS
+
+
+@pytest.fixture(scope="module")
+def outage_drive():
+    drive = make_drive("outage-60s", seed=1, duration_s=270.0)
+    (span,) = drive.spans_of("outage")
+    return drive, span
+
+
+def _scores(drive, span, engine) -> tuple[np.ndarray, np.ndarray, float]:
+    """RMSE N, E, D outside the outage, the share of rows within 3 sigma per axis, the largest outage error."""
+    t, e, s = errors(drive, engine.rows)
+    out = (t >= span.start_s) & (t < span.end_s)
+    return (np.sqrt((e[~out] ** 2).mean(axis=0)), (np.abs(e) <= 3.0 * s).mean(axis=0),
+            float(np.hypot(e[out, 0], e[out, 1]).max()))
+
+
+@pytest.mark.parametrize("mode", ["17", "15"])
+def test_an_nmea_only_receiver_starts_the_filter_and_the_filter_knows_its_height(outage_drive, mode):
+    drive, span = outage_drive
+    # RMC and GGA: speed and course but no vertical velocity, no accuracy and no DOP; 2 m per axis in truth.
+    recs = records(drive, 270.0, seed=2, gnss_off=[(span.start_s, span.end_s)], receiver="nmea",
+                   errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=2.0, gnss_v_sigma=3.5))
+    engine = run(recs, mode=mode)
+    assert engine.counters.init_method == "gnss course" and engine.counters.resets == 0
+    assert engine._gnss.last_figures.source == NOMINAL
+    rmse, within, _ = _scores(drive, span, engine)
+    assert rmse[0] < 1.0 and rmse[1] < 1.0
+    assert (within >= 0.95).all(), within  # the height too: no vertical velocity was made up
+
+
+def test_a_dop_without_accuracy_is_used_as_such(outage_drive):
+    drive, _ = outage_drive
+    recs = records(drive, 60.0, seed=2, receiver="gsa")
+    engine = run(recs)
+    assert engine.state is not None and engine._gnss.last_figures.source == DOP
+
+
+def _ten_hz(drive, span, **params):
+    # Errors that last a few seconds, as a receiver's own navigation filter and multipath make them: ten fixes a
+    # second report much the same error ten times.
+    recs = records(drive, 270.0, seed=3, gnss_off=[(span.start_s, span.end_s)], receiver="nmea", gnss_hz=10.0,
+                   gnss_corr_s=3.0, errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=2.0, gnss_v_sigma=3.5))
+    return run(recs, **params)
+
+
+def test_ten_fixes_a_second_weigh_what_their_shared_error_leaves_them(outage_drive):
+    drive, span = outage_drive
+    engine = _ten_hz(drive, span)
+    assert engine.counters.init_method == "gnss course" and engine.counters.resets == 0
+    _, within, _ = _scores(drive, span, engine)
+    assert (within >= 0.95).all(), within
+    # Taken as ten independent fixes a second, the same fixes make the filter far too sure of itself.
+    _, within_white, _ = _scores(drive, span, _ten_hz(drive, span, gnss_independent_hz=10.0))
+    assert within_white.min() < 0.5, within_white
+
+
+def test_the_rate_factor_follows_the_receivers_usual_interval():
+    noise = CorrelatedGnssNoise(corr_s=0.0, independent_hz=1.0)
+    for k in range(50):
+        h, _, _ = noise.sigmas(k * NS // 10, 3.0, 5.0, 0.3)  # 10 Hz
+    assert noise.rate_factor() == pytest.approx(10.0)
+    assert h == pytest.approx(3.0 / math.sqrt(2.0) * math.sqrt(10.0))
+    noise.sigmas(60 * NS, 3.0, 5.0, 0.3)  # after a long gap, the first fix is an independent one
+    assert noise.rate_factor() == 1.0
+
+
+def test_half_hertz_fixes_are_taken_in_full(outage_drive):
+    drive, span = outage_drive
+    recs = records(drive, 270.0, seed=4, gnss_off=[(span.start_s, span.end_s)], receiver="nmea", gnss_hz=0.5,
+                   errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=2.0, gnss_v_sigma=3.5))
+    engine = run(recs)
+    rmse, within, worst = _scores(drive, span, engine)
+    assert engine.counters.resets == 0 and rmse[:2].max() < 1.2 and (within >= 0.95).all() and worst < 10.0
+
+
+def test_without_accuracy_figures_a_filter_that_lost_itself_still_restarts():
+    def teleport(engine) -> None:
+        engine.state.lat += 300.0 / 6.36e6  # 300 m off, with the covariance still confident
+
+    drive = make_drive("outage-60s", seed=3, duration_s=160.0)
+    engine, done = fed_with_upset(records(drive, 160.0, seed=5, receiver="nmea"), 90.0, teleport)
+    assert done and engine.counters.resets == 1
+    _, e, _ = errors(drive, engine.rows)
+    assert np.hypot(e[-1, 0], e[-1, 1]) < 3.0
+
+
+def test_fixes_without_an_epoch_time_are_placed_by_their_arrival(outage_drive):
+    drive, span = outage_drive
+    recs = records(drive, 270.0, seed=2, gnss_off=[(span.start_s, span.end_s)], receiver="nmea",
+                   epoch_time=False, latency_s=0.1, errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=1.0))
+    engine = run(recs)
+    assert engine.counters.init_method == "gnss course" and engine.epoch_clock.method == "arrival"
+    rmse, within, _ = _scores(drive, span, engine)
+    assert rmse[:2].max() < 1.0 and (within >= 0.95).all(), (rmse, within)
+
+
+def test_an_epoch_without_time_takes_the_latency_its_predecessors_showed():
+    clock = GnssEpochClock()
+    for k in range(20):  # locked, fixes arriving 180-220 ms after their epochs
+        clock.epoch_time(T0 + k * NS + 180_000_000 + (k % 5) * 10_000_000, T0 + k * NS, "locked")
+    t = clock.epoch_time(T0 + 30 * NS + 200_000_000, None, "locked")
+    assert clock.method == "arrival, usual latency" and t == T0 + 30 * NS
+    assert 0.02 <= clock.uncertainty_s < 0.05
+    clock.epoch_time(T0 + 31 * NS + 200_000_000, None, "holdover")  # off UTC: the latency says nothing
+    assert clock.method == "arrival" and clock.uncertainty_s == 0.1
+
+
+def test_figures_come_from_the_receiver_then_the_dop_then_the_nominal_model():
+    model = AccuracyModel(3.0, (3.0, 5.0, 0.3), learn=True)
+    assert model.figures(0.8, 1.2, 0.05, 1.1) == pytest.approx(model.figures(0.8, 1.2, 0.05, None))
+    fig = model.figures(0.8, None, None, None)  # GST without its vertical, no speed accuracy
+    assert fig.source == RECEIVER and fig.v_acc == pytest.approx(0.8 * 5.0 / 3.0) and fig.s_acc == 0.3
+    assert model.figures(None, None, None, 2.0).source == DOP
+    fig = model.figures(None, None, None, None)
+    assert (fig.source, fig.h_acc, fig.v_acc, fig.s_acc) == (NOMINAL, 3.0, 5.0, 0.3)
+    assert NavParams().gnss_nominal_h_acc_m == 3.0  # the model's defaults are NavParams' (one place)
+
+
+@pytest.mark.parametrize(("true_scale", "learnt"), [(9.0, 9.0), (4.0, 4.0), (0.25, 1.0), (100.0, 25.0)])
+def test_the_scatter_widens_nominal_figures_and_never_narrows_them(true_scale, learnt):
+    rng = np.random.default_rng(1)
+    learner = ScatterLearner()
+    r = [4.5, 4.5, 25.0]  # the nominal figures' variances (hAcc 3 m, vAcc 5 m)
+    p = [0.3, 0.3, 0.6]
+    for k in range(600):  # ten minutes at 1 Hz
+        z = [float(rng.standard_normal()) * math.sqrt(p[i] + true_scale * r[i]) for i in range(3)]
+        learner.add(T0 + k * NS, z, p, r)
+    kh, kv = learner.scale()
+    assert kh == pytest.approx(learnt, rel=0.35) and kv == pytest.approx(learnt, rel=0.35)
+
+
+def test_nothing_is_learnt_from_a_short_drive():
+    learner = ScatterLearner()
+    for k in range(20):
+        learner.add(T0 + k * NS, [30.0, 30.0, 30.0], [0.3, 0.3, 0.6], [4.5, 4.5, 25.0])
+    assert learner.scale() == (1.0, 1.0)
