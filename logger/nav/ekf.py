@@ -35,6 +35,7 @@ class ErrorStateEkf:
         self._gates = {m: chi2_gate(m, gate_probability) for m in range(1, 7)}
         self.stats: dict[str, UpdateStats] = {}
         self.repairs = 0
+        self.inflations = 0  # times inflate() forgot something (restarts, re-anchors, reopenings, widenings)
         self._eye = np.eye(self.n)
 
     def propagate(self, phi: np.ndarray, qd: np.ndarray) -> None:
@@ -97,6 +98,7 @@ class ErrorStateEkf:
 
     def inflate(self, indices: slice, variances: np.ndarray) -> None:
         """Forget what is known about some states (a divergence reset): zero their correlations, set P."""
+        self.inflations += 1
         self.p[indices, :] = 0.0
         self.p[:, indices] = 0.0
         idx = range(*indices.indices(self.n))

@@ -77,6 +77,7 @@ class Epoch:
     p_minus: np.ndarray
     p_plus: np.ndarray | None = None
     dx: np.ndarray | None = None  # sum of the corrections fed back at this epoch
+    cut: bool = False  # the filter forgot something here (a restart, a re-anchor, a reopening): see smoother.py
 
 
 @dataclass
@@ -146,6 +147,7 @@ class NavEngine:
         self._cov_dt = 0.0
         self._f_acc = [0.0, 0.0, 0.0]
         self._next_idle_check_ns = 0
+        self._inflations_seen = 0
 
     # ---- IMU ---------------------------------------------------------------------------------------------
     def imu(self, t_ns: int, t_mono_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
@@ -250,6 +252,7 @@ class NavEngine:
         self.state = s
         self.ekf = ErrorStateEkf(np.ones(n), self.params.gate_probability)
         self.ekf.p = p0
+        self._inflations_seen = 0
         self.thermal.restart()
         self.sigma = tuple(math.sqrt(p0[P_ID + i, P_ID + i]) for i in range(3))
         self.mech.reset()
@@ -273,7 +276,7 @@ class NavEngine:
         f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
         phi, qd = discretize(error_dynamics(s, s.dcm(), f_mean, self.n), self.q_diag, dt)
         if self.record:
-            self.epochs[-1].p_plus = self.ekf.p.copy()
+            self._close_epoch()
         self.ekf.propagate(phi, qd)
         owed = self.thermal.take()
         if owed > 0.0:
@@ -477,7 +480,16 @@ class NavEngine:
         if self.ekf is None or not self.epochs:
             return
         self.propagate()
-        self.epochs[-1].p_plus = self.ekf.p.copy()
+        self._close_epoch()
+
+    def _close_epoch(self) -> None:
+        """The covariance after the last epoch's updates, and whether the filter forgot something meanwhile."""
+        assert self.ekf is not None
+        ep = self.epochs[-1]
+        ep.p_plus = self.ekf.p.copy()
+        if self.ekf.inflations != self._inflations_seen:
+            self._inflations_seen = self.ekf.inflations
+            ep.cut = True
 
     def current(self) -> Solution | None:
         s = self.state

@@ -135,13 +135,15 @@ class GnssPolicy:
         snap = core.state_at(t_e)
         full_pos = GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, core.lever, not fix.fix_3d).observe(
             snap, snap.dcm(), core.n)
-        fig = self.last_figures
-        if fig is not None and core.ekf is not None:
-            pd = core.ekf.p.diagonal()
-            self.accuracy.observe(t_e, fig, full_pos.z.tolist(), [float(pd[P_ID + i]) for i in range(len(full_pos.z))])
+        assert core.ekf is not None
+        p_prior = [float(core.ekf.p[P_ID + i, P_ID + i]) for i in range(len(full_pos.z))]
         obs = self._informative(core, full_pos, P_ID)
         ok = True if obs is None else core.apply(obs)
         last = self.last_readings
+        if obs is not None and ok and self.last_figures is not None:
+            # Learnt from fixes the gate let in only: a filter that lost itself must not teach the model that the
+            # receiver scatters by hundreds of metres (its fixes' figures would then be too poor to restart it).
+            self.accuracy.observe(t_e, self.last_figures, full_pos.z.tolist(), p_prior)
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
             if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:

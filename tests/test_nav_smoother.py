@@ -1,0 +1,62 @@
+"""The smoother never makes the trajectory worse: where the forward filter restarted or widened, or where the
+backward pass disagrees with it beyond their covariances, the forward solution is kept and said so."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_nav_filter import errors, fed_with_upset
+from test_nav_synth import records
+
+import logger.nav.smoother as smoother
+from logger.nav.smoother import SmoothingReport, smooth_rows
+from sensors.sim.scenarios import make_drive
+
+
+def teleport(engine) -> None:
+    engine.state.lat += 300.0 / 6.36e6  # 300 m off with the covariance still confident: the filter restarts
+
+
+@pytest.fixture(scope="module", params=["ubx", "nmea"])
+def restarted(request):
+    """A drive whose filter lost itself a minute in and restarted, then crossed a 60 s GNSS outage."""
+    drive = make_drive("outage-60s", seed=3, duration_s=200.0)
+    (span,) = drive.spans_of("outage")
+    engine, done = fed_with_upset(records(drive, 200.0, seed=5, receiver=request.param,
+                                          gnss_off=[(span.start_s, span.end_s)]), 60.0, teleport)
+    assert done and engine.counters.resets == 1
+    engine.close_epochs()
+    return drive, span, engine
+
+
+def test_a_restart_is_not_spread_back_over_the_minute_before_it(restarted):
+    drive, span, engine = restarted
+    report = SmoothingReport()
+    smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p, report)
+    t, ef, _ = errors(drive, engine.rows)
+    _, es, _ = errors(drive, smoothed)
+    hf, hs = np.hypot(ef[:, 0], ef[:, 1]), np.hypot(es[:, 0], es[:, 1])
+    assert report.cuts >= 1 and "kept the forward solution" in report.summary()
+    assert not (hs > hf + 0.5).any()  # nowhere worse than the forward solution by more than its noise
+    inside = (t >= span.start_s) & (t < span.end_s)
+    assert hs[inside].max() < 0.5 * hf[inside].max()  # and the outage after the restart is still smoothed
+
+
+def test_without_the_cut_the_restart_would_be_spread_back(restarted, monkeypatch):
+    """The same drive with the rules off: what they prevent (so the test above can fail)."""
+    drive, _, engine = restarted
+    epochs = [type(ep)(ep.t_ns, ep.phi, ep.p_minus, ep.p_plus, ep.dx, cut=False) for ep in engine.epochs]
+    monkeypatch.setattr(smoother, "DISAGREE_CHI2", float("inf"))
+    smoothed = smooth_rows(engine.rows, epochs, engine.ekf.p)
+    _, ef, _ = errors(drive, engine.rows)
+    _, es, _ = errors(drive, smoothed)
+    assert (np.hypot(es[:, 0], es[:, 1]) > np.hypot(ef[:, 0], ef[:, 1]) + 0.5).sum() > 100
+
+
+def test_a_backward_pass_that_disagrees_beyond_the_covariances_keeps_the_forward_solution(restarted, monkeypatch):
+    _, _, engine = restarted
+    monkeypatch.setattr(smoother, "DISAGREE_CHI2", 0.0)  # every smoothed correction counts as a disagreement
+    report = SmoothingReport()
+    smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p, report)
+    assert report.disagreements + report.cuts == report.epochs - 1
+    assert [r[2:5] for r in smoothed] == [r[2:5] for r in engine.rows]
