@@ -85,7 +85,7 @@ def run_bare(stream: list[Item], path: Path, settings: RecorderSettings, flush_s
             cid = ids.get(topic)
             if cid is None:
                 spec = TOPICS.get(topic) or TopicSpec(topic, topic, {"type": "object"}, "")
-                sid = writer.register_schema(spec.schema_name, "jsonschema", json.dumps(spec.schema).encode())
+                sid = writer.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
                 cid = ids[topic] = writer.register_channel(topic, "json", sid)
             writer.add_message(cid, log_ns, encode(payload), pub_ns)
             if flush_s is not None and time.monotonic() >= next_flush:

@@ -4,10 +4,24 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from logger.recording.topics import TOPICS
+
+
+def kind_text(prop: dict[str, Any]) -> str:
+    """A property's JSON-schema type as the table shows it: ``number[3] or null``, ``(number or null)[3]``,
+    ``object {sec, nsec}``."""
+    kinds = prop["type"] if isinstance(prop["type"], list) else [prop["type"]]
+    text = kinds[0]
+    if text == "array" and "items" in prop:
+        item = kind_text(prop["items"])
+        text = f"{f'({item})' if ' ' in item else item}[{prop.get('maxItems', '')}]"
+    elif text == "object" and "properties" in prop:
+        text = f"object {{{', '.join(prop['properties'])}}}"
+    return f"{text} or null" if "null" in kinds else text
 
 
 def render() -> str:
@@ -16,19 +30,16 @@ def render() -> str:
            "Every message is a JSON object (MCAP message encoding `json`, schema encoding `jsonschema`). The MCAP",
            "`log_time` is the synchronised time (`t_sync_ns`, Unix ns UTC) for sensor messages and the board's",
            "monotonic time mapped through the clock for reports; `publish_time` is the acquisition time on the",
-           "board's monotonic clock (`t_mono_ns`).", ""]
+           "board's monotonic clock (`t_mono_ns`). A field marked (optional) may be null or left out; every other",
+           "field is in every message. Each topic's channel has a schema record of its own in the file, the one",
+           "below: `/gnss/fix` and `/nav/fix` both name theirs `foxglove.LocationFix`, with different fields.", ""]
     for spec in TOPICS.values():
         out += [f"## `{spec.topic}`", "", f"{spec.description}. Schema `{spec.schema_name}`.", "",
                 "| field | type | meaning |", "| --- | --- | --- |"]
         required = set(spec.schema.get("required", []))
         for name, prop in spec.schema["properties"].items():
-            kind = prop["type"]
-            if isinstance(kind, list):
-                kind = f"{kind[0]} or null"
-            if prop.get("items"):
-                kind = f"{prop['items']['type']}[{prop['maxItems']}]" + (" or null" if "null" in prop["type"] else "")
             opt = "" if name in required else " (optional)"
-            out.append(f"| `{name}` | {kind}{opt} | {prop['description']} |")
+            out.append(f"| `{name}` | {kind_text(prop)}{opt} | {prop['description']} |")
         out.append("")
     return "\n".join(out)
 

@@ -78,7 +78,7 @@ def write_mcap(path: Path, rows: list[TrajectoryRow], engine: NavEngine, states:
         ids = {}
         for topic in (NAV_FIX, NAV_STATE):
             spec = TOPICS[topic]
-            sid = w.register_schema(spec.schema_name, "jsonschema", json.dumps(spec.schema).encode())
+            sid = w.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
             ids[topic] = w.register_channel(topic, "json", sid)
         for row in rows:
             t, t_mono, lat, lon, h, vn, ve, vd, q, sig, _ = row

@@ -10,7 +10,6 @@ renames over it only once the copy is complete and synced, so a crash during rec
 from __future__ import annotations
 
 import io
-import json
 import mmap
 import os
 import struct
@@ -197,19 +196,21 @@ def _name_orphans(found: Salvage) -> None:
     for m in found.metadata:
         if m.name == CHANNEL_TABLE:
             tables.update((int(cid), topic) for cid, topic in m.metadata.items() if cid.isdigit())
-    by_name = {schema.name: sid for sid, schema in found.schemas.items()}
+    # By name and content: /gnss/fix and /nav/fix share a schema name, each with its own fields.
+    known = {(schema.name, bytes(schema.data)): sid for sid, schema in found.schemas.items()}
     for cid, topic in sorted(tables.items()):
         if cid in found.channels:
             continue
         spec = TOPICS.get(topic)
         sid = 0
         if spec is not None:
-            sid = by_name.get(spec.schema_name, 0)
+            key = (spec.schema_name, spec.schema_data)
+            sid = known.get(key, 0)
             if sid == 0:
                 sid = max(found.schemas, default=0) + 1
                 found.schemas[sid] = Schema(id=sid, name=spec.schema_name, encoding="jsonschema",
-                                            data=json.dumps(spec.schema).encode())
-                by_name[spec.schema_name] = sid
+                                            data=spec.schema_data)
+                known[key] = sid
         found.channels[cid] = Channel(id=cid, topic=topic, message_encoding="json", schema_id=sid, metadata={})
 
 

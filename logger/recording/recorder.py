@@ -146,7 +146,8 @@ class Recorder:
         self._stream: Any = None
         self._path: Path | None = None
         self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
+        # (name, content) -> schema id: two topics may share a schema's name (foxglove.LocationFix) but not its fields
+        self._schemas: dict[tuple[str, bytes], int] = {}
         self._file_started_mono = 0.0
         self._first_log_ns: int | None = None
         self._sequence = 0
@@ -298,10 +299,10 @@ class Recorder:
         assert self._writer is not None
         spec = self.topics.get(topic) or TopicSpec(topic, topic.strip("/").replace("/", "."), {"type": "object"},
                                                     "unregistered topic")
-        sid = self._schemas.get(spec.schema_name)
+        key = (spec.schema_name, spec.schema_data)
+        sid = self._schemas.get(key)
         if sid is None:
-            sid = self._writer.register_schema(spec.schema_name, "jsonschema", json.dumps(spec.schema).encode())
-            self._schemas[spec.schema_name] = sid
+            sid = self._schemas[key] = self._writer.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
         cid = self._writer.register_channel(topic, "json", sid, {"description": spec.description[:200]})
         self._channels[topic] = cid
         self._write_channel_table()

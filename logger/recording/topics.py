@@ -3,11 +3,14 @@
 Field names carry their units (``_mps``, ``_ns``, ``_deg``...) so a reader needs no other document;
 ``docs/topics.md`` is generated from this module by ``tools/topics_doc.py`` (a test keeps it current).
 ``/gnss/fix`` and ``/nav/fix`` use the well-known schema name ``foxglove.LocationFix`` with its fields, so
-Foxglove's map panel draws the drive; the extra fields ride along in the same JSON object.
+Foxglove's map panel draws the drive; the extra fields ride along in the same JSON object. Each of the two has a
+schema record of its own under that name (MCAP allows several schemas of one name), since their extra fields
+differ: a channel's schema is always its own topic's, which the messages validate against.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +21,13 @@ class TopicSpec:
     schema_name: str
     schema: dict[str, Any]
     description: str
+
+    @property
+    def schema_data(self) -> bytes:
+        """The schema as a file embeds it (MCAP schema encoding ``jsonschema``): every writer puts the same bytes
+        under a topic, so a reader (recovery among them) can tell two topics' schemas apart by content even where
+        they share a name."""
+        return json.dumps(self.schema).encode()
 
 
 # The topic names, for code that writes or picks records by topic (the record layer, the recorder's readers).
@@ -35,7 +45,13 @@ TRUTH_NAV = "/truth/nav"
 NAV_FIX = "/nav/fix"
 NAV_STATE = "/nav/state"
 
-Field = tuple[str, str]  # (JSON type or "number[3]", description with unit)
+# A field: (kind, description with its unit). The kind is a JSON type ("integer", "number", "string",
+# "boolean", "object"), "time" (Foxglove's {sec, nsec}), or an array of one such type ("number[3]": exactly three,
+# "string[]": any number). A "?" after the whole kind makes the field optional: null, or left out, where a record
+# may have no value ("integer?", "number[3]?"); a "?" after an array's item type lets items be null
+# ("number?[3]?": three numbers, any of which may be null, or null as a whole). Optional means null in practice,
+# not just in theory: a value every record carries is required, so a reader can count on it.
+Field = tuple[str, str]
 
 STAMP: dict[str, Field] = {
     "t_mono_ns": ("integer", "acquisition time on the board's monotonic clock, ns, taken next to the bus transfer"),
@@ -47,17 +63,33 @@ STAMP: dict[str, Field] = {
     "seq": ("integer", "per-topic message counter since the daemon started; a jump is a lost message"),
 }
 
+# Foxglove's time: whole seconds and nanoseconds, as its schemas define it.
+FOXGLOVE_TIME: dict[str, Any] = {
+    "type": "object", "required": ["sec", "nsec"],
+    "properties": {"sec": {"type": "integer", "minimum": 0},
+                   "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
+
+
+def _value(kind: str) -> dict[str, Any]:
+    """One value's schema: a JSON type or ``time``, nullable with a trailing ``?``."""
+    base = kind.removesuffix("?")
+    prop: dict[str, Any] = dict(FOXGLOVE_TIME) if base == "time" else {"type": base}
+    if base != kind:
+        prop["type"] = [prop["type"], "null"]
+    return prop
+
 
 def _prop(kind: str, text: str) -> dict[str, Any]:
-    nullable = kind.endswith("?")
-    kind = kind.rstrip("?")
-    if kind.endswith("]"):
-        base, n = kind[:-1].split("[")
-        prop: dict[str, Any] = {"type": "array", "items": {"type": base}, "minItems": int(n), "maxItems": int(n)}
+    whole = kind.removesuffix("?")
+    if whole.endswith("]"):
+        item, n = whole[:-1].split("[")
+        prop: dict[str, Any] = {"type": "array", "items": _value(item)}
+        if n:
+            prop["minItems"] = prop["maxItems"] = int(n)
+        if whole != kind:
+            prop["type"] = ["array", "null"]
     else:
-        prop = {"type": kind}
-    if nullable:
-        prop["type"] = [prop["type"], "null"]
+        prop = _value(kind)
     prop["description"] = text
     return prop
 
@@ -69,8 +101,11 @@ def _schema(title: str, fields: dict[str, Field], stamped: bool = True) -> dict[
             "required": [k for k, (kind, _) in allf.items() if not kind.endswith("?")]}
 
 
+LATE_READ: Field = ("boolean", "read together with a later second's messages (a host that fell behind): when it "
+                               "arrived is not known, and the clock does not pair PPS edges with it")
+
 LOCATION_FIX_FIELDS: dict[str, Field] = {
-    "timestamp": ("object", "foxglove.LocationFix time: {sec, nsec} of the fix, Unix UTC"),
+    "timestamp": ("time", "foxglove.LocationFix time: {sec, nsec} of the fix, Unix UTC"),
     "frame_id": ("string", "foxglove.LocationFix frame: 'gnss' antenna or 'nav' filter output"),
     "latitude": ("number", "latitude, deg, WGS-84"),
     "longitude": ("number", "longitude, deg, WGS-84"),
@@ -83,18 +118,19 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     **LOCATION_FIX_FIELDS,
     "gnss_time_ns": ("integer?", "the receiver's epoch time, Unix ns UTC, null while not valid"),
     "itow_ms": ("integer?", "GPS time of week of the epoch, ms (UBX receivers)"),
-    "fix_mode": ("integer", "1 no fix, 2 2D, 3 3D (gpsd's convention)"),
-    "fix_ok": ("boolean", "the receiver flags the fix as valid (gnssFixOK / NMEA status A)"),
+    "fix_mode": ("integer", "1 no fix, 2 2D, 3 3D, 0 a position without a mode (gpsd's convention)"),
+    "fix_ok": ("boolean", "the receiver flags the fix as valid (gnssFixOK / NMEA status A); a record without a "
+                          "position has latitude, longitude and altitude 0 (foxglove.LocationFix has no null)"),
     "height_msl_m": ("number?", "height above mean sea level, m"),
-    "vel_ned_mps": ("number[3]?", "velocity north, east, down, m/s; null when the receiver gives none"),
+    "vel_ned_mps": ("number?[3]?", "velocity north, east, down, m/s; null when the receiver gives none, down null "
+                                   "when it gives only speed and course (NMEA, HNR-PVT, gpsd without climb)"),
     "h_acc_m": ("number?", "horizontal accuracy estimate, m"),
     "v_acc_m": ("number?", "vertical accuracy estimate, m"),
     "s_acc_mps": ("number?", "speed accuracy estimate, m/s"),
     "num_sv": ("integer?", "satellites used in the solution"),
     "pdop": ("number?", "position dilution of precision"),
     "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA, or gpsd (its TPV and SKY reports)"),
-    "late_read": ("boolean?", "read together with a later second's messages (a host that fell behind): when it "
-                              "arrived is not known, and the clock does not pair PPS edges with it"),
+    "late_read": LATE_READ,
 }
 
 TOPICS: dict[str, TopicSpec] = {}
@@ -134,8 +170,7 @@ _add(TIMEPULSE, "vehicle_logger.TimePulse", {
     "week": ("integer", "GPS week of the next edge"),
     "qerr_ps": ("integer", "quantisation error of the next edge, ps"),
     "time_base": ("string", "gnss or utc: the time scale the pulse is aligned to"),
-    "late_read": ("boolean?", "read together with a later second's messages (a host that fell behind): when it "
-                              "arrived is not known, and the clock does not pair PPS edges with it"),
+    "late_read": LATE_READ,
 }, "UBX TIM-TP: the GNSS time of the next PPS edge")
 _add(GNSS_RAW, "vehicle_logger.RawBytes", {
     "t_mono_ns": ("integer", "board monotonic time when these bytes were read, ns"),
@@ -166,10 +201,10 @@ _add(SYNC, "vehicle_logger.Sync", {
 _add(HEALTH, "vehicle_logger.Health", {
     "t_mono_ns": ("integer", "board monotonic time of this report, ns"),
     "verdict": ("string", "ok, degraded or critical"),
-    "problems": ("array", "one line per problem"),
-    "sensors": ("array", "per sensor: state (ok, silent, no fix, starting, retrying, missing, no-data, stalled, "
-                         "stopped), measured rate (null while not running), errors, gaps, late, missed, reconnects, "
-                         "last_error (cleared on recovery)"),
+    "problems": ("string[]", "one line per problem"),
+    "sensors": ("object[]", "per sensor: state (ok, silent, no fix, starting, retrying, missing, no-data, "
+                            "stalled, stopped), measured rate (null while not running), errors, gaps, late, missed, "
+                            "reconnects, last_error (cleared on recovery)"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
     "pace": ("object?", "a simulated drive's pace: ceiling (the --time-scale asked), now, achieved (on average), "
                         "slowest, held_back_s (host seconds below the ceiling); null for a real drive"),
@@ -205,8 +240,9 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "gyro_bias_rps": ("number[3]?", "estimated gyro offset, vehicle x y z, rad/s"),
     "obd_scale": ("number?", "true speed divided by OBD speed (1 + the scale factor state)"),
     "height_offset_m": ("number?", "ellipsoidal height minus barometric altitude, m"),
-    "p_diag": ("array?", "covariance diagonal in state_names order: m^2, (m/s)^2, rad^2, (m/s^2)^2, (rad/s)^2, 1, m^2"),
-    "state_names": ("array", "names of the error states, in covariance order"),
+    "p_diag": ("number[]?", "covariance diagonal in state_names order: m^2, (m/s)^2, rad^2, (m/s^2)^2, (rad/s)^2, 1, "
+                            "m^2"),
+    "state_names": ("string[]", "names of the error states, in covariance order"),
     "innovations": ("object", "last innovation (predicted minus measured) per update type, SI units of that type"),
     "nis": ("object", "last normalised innovation squared per update type (chi-square distributed when consistent)"),
     "updates": ("object", "accepted updates per type since the start"),
@@ -217,8 +253,9 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
                            "IMU offsets"),
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
-    "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay"),
-    "verdicts": ("array", "plain health verdicts, one sentence each (live only)"),
+    "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay, "
+                            "by arrival for a fix without a valid time, none before the first fix"),
+    "verdicts": ("string[]", "plain health verdicts, one sentence each (live only)"),
     "dropped": ("integer?", "records the live navigator skipped because it was behind (live only)"),
     "cpu_s": ("number?", "CPU time the live navigator thread has used since the start, s (live only)"),
 }, "navigation filter state once a second: biases, scale factor, height offset, covariance, innovations",
