@@ -18,6 +18,7 @@ from logger.cli.progress import Progress
 from logger.config import ConfigError, load
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
+from logger.nav.smoother import SmoothingReport
 from logger.recording.files import is_finished
 from logger.words import plural
 
@@ -58,7 +59,8 @@ def main(argv: list[str]) -> int:
     t0 = time.perf_counter()
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
-    engine, rows = run_filter(args.files, params, args.smooth, states, progress)
+    smoothing = SmoothingReport()
+    engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing)
     t1 = time.perf_counter()
     c = engine.counters
     progress.end()
@@ -86,6 +88,8 @@ def main(argv: list[str]) -> int:
     if engine.ekf is not None:
         stats = ", ".join(f"{k} {v.accepted}/{v.accepted + v.rejected}" for k, v in engine.ekf.stats.items())
         print(f"updates accepted: {stats}")
+    if args.smooth and smoothing.epochs:
+        print(smoothing.summary())
     print(f"wrote {args.out / 'trajectory.csv'}")
     if states is not None:
         print(f"wrote {args.out / 'trajectory.mcap'}")

@@ -20,7 +20,7 @@ from mcap.writer import CompressionType, Writer
 from logger.nav.engine import NavEngine, TrajectoryRow
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm
-from logger.nav.smoother import smooth_rows
+from logger.nav.smoother import SmoothingReport, smooth_rows
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
@@ -37,9 +37,11 @@ def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
 
 def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
                states: list[dict[str, Any]] | None = None,
-               progress: ProgressFn | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
+               progress: ProgressFn | None = None,
+               smoothing: SmoothingReport | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
     """Run the engine over the files; returns it and its rows (smoothed when asked). With ``states``, a
-    ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got."""
+    ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got;
+    ``smoothing`` hears where the backward pass kept the forward solution."""
     engine = NavEngine(params, record=True)
     feed = nav_feeder(engine)
     next_state = 0
@@ -51,7 +53,7 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
     rows = engine.rows
     if smooth and engine.mode != "gnss" and engine.ekf is not None and engine.epochs:
         engine.close_epochs()
-        rows = smooth_rows(rows, engine.epochs, engine.ekf.p)
+        rows = smooth_rows(rows, engine.epochs, engine.ekf.p, smoothing)
     return engine, rows
 
 
