@@ -25,6 +25,7 @@ from logger.runtime.sampler import Reading
 from logger.runtime.sources import BaroSource, GnssSource, ImuSource, ObdSource, Plan, PpsSource
 from logger.runtime.timebase import TimeBase, host_timebase
 from sensors.errors import DeviceNotFound
+from sensors.sim.profile import SimProfile
 from sync.chrony_sock import ChronySock
 from sync.clock import PpsClock
 from sync.settings import SyncSettings
@@ -58,11 +59,19 @@ def build(cfg: Config, duration_s: float | None,
         sim = cfg["sim"]
         if sim["scenario"] not in SCENARIOS:
             raise ConfigError([f"unknown scenario {sim['scenario']!r}: choose one of {', '.join(SCENARIOS)}"])
+        try:
+            profile = SimProfile.from_config(sim)
+        except ValueError as exc:  # the schema checks a file; this catches a configuration built in code
+            raise ConfigError([f"sim.{exc}"]) from None
+        if simulated["imu"] and profile.imu_rate_hz is not None and "imu.rate_hz" not in cfg.explicit:
+            # A phone's IMU comes at its own rate (100 Hz, through the FIFO): the board reads it at that rate
+            # unless the file says otherwise. Set before anything reads the rate (clock, truth, sampler).
+            cfg.values["imu"]["rate_hz"] = profile.imu_rate_hz
         vehicle = build_vehicle(sim["scenario"], sim["seed"], time_scale=sim["time_scale"], duration_s=duration_s,
                                 scenario_options=scenario_options,
                                 imu=simulated["imu"], baro=simulated["baro"], obd=simulated["obd"],
                                 gnss=cfg["gnss"]["source"] == "sim", pps=cfg["pps"]["source"] == "sim",
-                                gpsd=sim_gpsd, paced=all(simulated.values()))
+                                gpsd=sim_gpsd, paced=all(simulated.values()), profile=profile)
         vehicle.start()
         drive_clock, governor = vehicle.clock, vehicle.governor
         if governor is not None:  # the daemon's threads report how late they run; the drive slows to suit them
@@ -71,13 +80,15 @@ def build(cfg: Config, duration_s: float | None,
         else:
             tb = TimeBase(drive_clock.monotonic_ns, drive_clock.time_scale)
         attachments.close.append(vehicle.stop)
+        # What was driven, with which hardware: replay, nav_eval and nav-score read it back (SimProfile).
         attachments.metadata["simulation"] = {"scenario": vehicle.scenario, "seed": str(vehicle.seed),
                                          "time_scale": f"{vehicle.time_scale:g}",
-                                         "start_utc": vehicle.timeline.start_utc.isoformat()}
+                                         "start_utc": vehicle.timeline.start_utc.isoformat(),
+                                         **vehicle.profile.metadata()}
         drive_options = {k: v for k, v in (scenario_options or {}).items() if k != "imu_error_scale"}
         if drive_options:  # a drive made with options says so: its plan cannot be made again without them
             attachments.metadata["simulation"]["drive_options"] = json.dumps(drive_options)
-        if vehicle.imu is not None and "imu_error_scale" in (scenario_options or {}):
+        if vehicle.imu is not None and ("imu_error_scale" in (scenario_options or {}) or profile.imu != "mpu6050"):
             # A drive made with a chip other than the default says so: its IMU errors are part of what it tests.
             attachments.metadata["simulation"]["imu_errors"] = json.dumps(dataclasses.asdict(vehicle.imu.errors))
 
@@ -171,7 +182,11 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
     else:
         g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
         g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
-        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb), None, 1.0))
+        # A simulated receiver keeps the navigation rate it runs at (its profile's), as its baud rate; hardware is
+        # set to one fix a second.
+        meas_ms = devices.gnss_meas_period_ms if gnss["source"] == "sim" else None
+        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb, meas_ms), None,
+                          1000.0 / meas_ms if meas_ms else 1.0))
     if pps["source"] == "gpsd":
         realtime = devices.realtime_ns if sim_gpsd else time.time_ns  # the clock gpsd stamps edges with
         # Any device's PPS: a /dev/ppsN given to gpsd beside the receiver reports as a device of its own.

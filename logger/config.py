@@ -19,6 +19,7 @@ from typing import Any
 
 from logger.nav.params import NavParams
 from logger.recording.settings import MIB, RecorderSettings
+from sensors.sim.profile import GNSS_RATES_HZ, IMUS, MAX_GNSS_LATENCY_S, RECEIVERS, SimProfile
 from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
@@ -252,12 +253,19 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "publish_hz": Key(NUM, FIELD, _range(0.1, 1000), "rate of /nav/fix while running live"),
         "queue_size": Key(int, FIELD, _range(10, 1_000_000), "records waiting for the filter before drops"),
     }),
-    "sim": {
+    "sim": _defaults_from(SimProfile, {  # the drive's keys have their own defaults; the hardware's are SimProfile's
         "scenario": Key(str, "urban", _one_of(*SCENARIOS), "drive to simulate"),
         "seed": Key(int, 1, _range(0, 2**32 - 1)),
         "time_scale": Key(NUM, 1.0, _range(0.01, 1000)),
         "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
-    },
+        "receiver": Key(str, FIELD, _one_of(*RECEIVERS),
+                        "'ubx' (u-blox: UBX and NMEA) or 'nmea' (GGA, RMC, GSA only; answers no UBX)"),
+        "gnss_rate_hz": Key(NUM, FIELD, _one_of(*GNSS_RATES_HZ), "the simulated receiver's fixes per second"),
+        "gnss_latency_s": Key(NUM, FIELD, _range(0, MAX_GNSS_LATENCY_S), "least delay of a fix after its epoch"),
+        "imu": Key(str, FIELD, _one_of(*IMUS), "'mpu6050' (datasheet errors) or 'phone' (phone-grade, 100 Hz)"),
+        "mounting_rpy_deg": Key(list, FIELD, _vector3(180.0),
+                                "simulated IMU board against the vehicle; the filter is not told"),
+    }),
 }
 
 # Keys that a source makes necessary: (section, source value) -> keys that must be set.
@@ -363,8 +371,13 @@ def _toml_problem(msg: str, text: str, line_no: int) -> str:
     return f"not valid TOML: {msg}"
 
 
-def parse(text: str, name: str = "config", sim: bool = False) -> Config:
-    """Validate TOML text; raise :class:`ConfigError` listing every problem, one line each."""
+def parse(text: str, name: str = "config", sim: bool = False, devices: bool = True) -> Config:
+    """Validate TOML text; raise :class:`ConfigError` listing every problem, one line each.
+
+    With ``sim`` the sensors the file leaves unsaid are simulated. ``devices`` False is for a caller that opens
+    no device the file names (``logger replay`` takes only ``[nav]``; ``logger run --sim`` simulates every
+    sensor): every key is still checked, but the keys a source makes necessary (its serial port) are not
+    demanded, so a file with only the sections the command uses is a whole configuration for it."""
     text = text.removeprefix("\ufeff")  # a byte-order mark some Windows editors write: not part of the TOML
     try:
         raw = tomllib.loads(text)
@@ -412,7 +425,7 @@ def parse(text: str, name: str = "config", sim: bool = False) -> Config:
             cfg.values[section][key] = float(value) if spec.kind == NUM else value
             cfg.explicit.add(path)
     for (section, source), needed in REQUIRED_FOR_SOURCE.items():
-        if cfg.values[section]["source"] == source:
+        if devices and cfg.values[section]["source"] == source:
             for key in needed:
                 if cfg.values[section][key] is None:
                     problems.append(f"{at(section + '.source')}: {section}.{key} is required when "
@@ -452,8 +465,9 @@ def chrony_problem(cfg: Config) -> str:
     return ""
 
 
-def load(path: str | os.PathLike[str], sim: bool = False) -> Config:
-    """Read and validate a file; refuse one that anybody may write, as it steers a root-started service."""
+def load(path: str | os.PathLike[str], sim: bool = False, devices: bool = True) -> Config:
+    """Read and validate a file (``sim``, ``devices``: as :func:`parse`); refuse one that anybody may write, as
+    it steers a root-started service."""
     p = Path(path)
     try:
         # O_NONBLOCK: a FIFO given by mistake must not block the start; its type is refused right after.
@@ -479,6 +493,6 @@ def load(path: str | os.PathLike[str], sim: bool = False) -> Config:
         raise ConfigError([f"{p}: too large for a configuration file"])
     if st.st_mode & stat.S_IWOTH:
         raise ConfigError([f"{p}: refusing a world-writable configuration file (chmod o-w {p})"])
-    cfg = parse(text, str(p), sim=sim)
+    cfg = parse(text, str(p), sim=sim, devices=devices)
     cfg.path = p
     return cfg

@@ -30,9 +30,9 @@ import serial
 from pyubx2 import POLL, SET, SET_LAYER_RAM, TXN_NONE, UBX_CONFIG_DATABASE, UBX_MSGIDS, UBXMessage
 
 from sensors.errors import BusError, NoData, ProtocolError
-from sensors.ublox_frames import KIND_UBX, UbxNmeaFramer
+from sensors.ublox_frames import KIND_NMEA, KIND_UBX, UbxNmeaFramer
 
-__all__ = ["ReceiverSetup", "SetupResult", "configure_receiver", "message_id"]
+__all__ = ["NoUbxAnswer", "ReceiverSetup", "SetupResult", "configure_receiver", "message_id"]
 
 # Message names as pyubx2 spells them ("NAV-PVT", "TIM-TP"; NMEA sentences by their id, "GGA").
 _ID_BY_NAME: dict[str, bytes] = {}
@@ -106,6 +106,17 @@ class SetupResult:
     acknowledged: tuple[str, ...] = field(default=())
 
 
+class NoUbxAnswer(NoData):
+    """The receiver did not answer a UBX poll at all. ``nmea_sentences`` counts the checksum-valid NMEA sentences
+    it sent meanwhile: some means the line and the baud rate are right and the receiver speaks NMEA only (one
+    that is not a u-blox, such as an ST TESEO, or a u-blox with UBX input turned off), none that nothing is
+    heard at this rate."""
+
+    def __init__(self, message: str, nmea_sentences: int) -> None:
+        super().__init__(message)
+        self.nmea_sentences = nmea_sentences
+
+
 class _Session:
     """One setup conversation: commands out, ACKs and poll answers in, through the reader's framer."""
 
@@ -120,6 +131,7 @@ class _Session:
         self.framer = UbxNmeaFramer()
         self.interface = "legacy"
         self.acknowledged: list[str] = []
+        self.nmea_sentences = 0  # checksum-valid NMEA heard while waiting for answers
 
     # -- bytes
 
@@ -140,7 +152,9 @@ class _Session:
             return self.port.read(waiting) if waiting else b""
 
         data = self._io(take, "reading")
-        return [f for f in self.framer.feed(data)  # type: ignore[arg-type]
+        frames = self.framer.feed(data)  # type: ignore[arg-type]
+        self.nmea_sentences += sum(1 for f in frames if f.kind == KIND_NMEA)
+        return [f for f in frames
                 if f.kind == KIND_UBX and f.message is not None
                 and len(f.raw) - 8 >= _MIN_REPLY_PAYLOAD.get(str(getattr(f.message, "identity", "")), 0)]
 
@@ -240,8 +254,9 @@ def configure_receiver(
 ) -> SetupResult:
     """Configure the receiver on ``link`` (a pyserial port or a GnssReceiver) and confirm every step.
 
-    Raises NoData when the receiver does not answer (wrong baud rate, not a u-blox), ProtocolError when it
-    refuses a setting by both interfaces, BusError when the port fails.
+    Raises NoUbxAnswer (a NoData) when the receiver does not answer the first poll (wrong baud rate, not a
+    u-blox: its ``nmea_sentences`` tells the two apart), NoData when it stops answering later, ProtocolError when
+    it refuses a setting by both interfaces, BusError when the port fails.
     """
     setup = setup or ReceiverSetup()
     port, path = _port_of(link)
@@ -250,10 +265,11 @@ def configure_receiver(
 
     version = s.poll(UBXMessage("MON", "MON-VER", POLL), "MON-VER")
     if version is None:
-        raise NoData(
+        heard = (f"though it sent {s.nmea_sentences} NMEA sentences: not a u-blox receiver, or UBX input disabled"
+                 if s.nmea_sentences else "and sent no NMEA either: wrong baud rate, or nothing on the line")
+        raise NoUbxAnswer(
             f"GNSS receiver on {path} did not answer UBX-MON-VER within {reply_timeout_s:g} s ({tries} tries) "
-            f"at {port.baudrate} baud: wrong baud rate, not a u-blox receiver, or UBX input disabled"
-        )
+            f"at {port.baudrate} baud, {heard}", s.nmea_sentences)
     extensions = tuple(_text(v) for k, v in sorted(vars(version).items()) if k.startswith("extension"))
 
     time_ref = _TIME_REF[setup.time_ref]

@@ -47,7 +47,8 @@ def main(argv: list[str]) -> int:
         return 2
     if args.config is not None:
         try:
-            params = NavParams.from_config(load(args.config)["nav"])
+            # Only [nav] is used: a file with that section alone will do (no serial port is demanded).
+            params = NavParams.from_config(load(args.config, devices=False)["nav"])
         except ConfigError as exc:
             for line in exc.problems:
                 print(f"logger replay: {line}", file=sys.stderr)

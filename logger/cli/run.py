@@ -50,19 +50,19 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def resolve_config(args: argparse.Namespace) -> Config:
     if args.config:
-        cfg = load(args.config)
+        # With --sim no device of the file is opened: its serial ports are not demanded, so a file with only a
+        # [sim] section (or [sim] and [nav]) is enough.
+        cfg = load(args.config, sim=args.sim, devices=not args.sim)
         if args.sim:
             for s in SIM_SECTIONS:
                 if cfg.values[s]["source"] == "gpsd":
                     cfg.values["sim"]["gpsd"] = True  # keep reading gpsd: a simulated one, fed by the simulation
                 else:
                     cfg.values[s]["source"] = "sim"
+            sim_places(cfg)
     elif args.sim:
         cfg = defaults(sim=True)
-        cfg.values["logger"]["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
-        # A second simulated run beside one already running gets a socket of its own instead of taking the other's.
-        cfg.values["logger"]["status_socket"] = str(free_sim_socket(Path(DEFAULT_SIM_SOCKET)))
-        cfg.values["logger"]["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
+        sim_places(cfg)
     else:
         cfg = load(DEFAULT_PATH)
     sim = cfg.values["sim"]
@@ -77,7 +77,7 @@ def resolve_config(args: argparse.Namespace) -> Config:
         sim["time_scale"] = float(args.time_scale)
     if args.out:
         cfg.values["logger"]["out_dir"] = str(Path(args.out).resolve())
-        if args.sim and not args.config:
+        if args.sim and "logger.state_dir" not in cfg.explicit:
             cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
     if args.status_socket:
         cfg.values["logger"]["status_socket"] = args.status_socket
@@ -90,6 +90,19 @@ def resolve_config(args: argparse.Namespace) -> Config:
     if chrony:
         raise ConfigError([chrony])
     return cfg
+
+
+def sim_places(cfg: Config) -> None:
+    """Where a simulated run writes, unless its file says: files under ./drives, the clock's state beside them, a
+    status socket where ``logger status`` looks (the board's /var/lib and /run are not a user's to write)."""
+    places = cfg.values["logger"]
+    if "logger.out_dir" not in cfg.explicit:
+        places["out_dir"] = str(Path(DEFAULT_SIM_OUT).resolve())
+    if "logger.status_socket" not in cfg.explicit:
+        # A second simulated run beside one already running gets a socket of its own instead of taking the other's.
+        places["status_socket"] = str(free_sim_socket(Path(DEFAULT_SIM_SOCKET)))
+    if "logger.state_dir" not in cfg.explicit:
+        places["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
 
 
 RATES_NOT_HELD = 3  # exit code of a simulated drive whose sensors fell short of their rates

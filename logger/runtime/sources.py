@@ -7,6 +7,7 @@ of clocks and threads; samplers stay free of sensor knowledge.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +27,8 @@ from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, SensorError
 from sensors.obd import SpeedDriver
 from sync.fifo import FifoClock
+
+log = logging.getLogger(__name__)
 
 FIFO_THRESHOLD_HZ = 50.0  # above this the IMU is read through its FIFO in batches
 DIRECT_CHIP_RATE_HZ = 1000.0
@@ -188,29 +191,52 @@ class ObdSource(Source):
 
 
 class GnssSource(Source):
-    """The u-blox receiver: every byte kept for post-processing, each decoded fix and time pulse recorded."""
+    """The u-blox receiver: every byte kept for post-processing, each decoded fix and time pulse recorded.
+
+    ``meas_period_ms`` is the navigation rate the setup asks for (None: the driver's one fix a second). A
+    receiver that answers no UBX but sends NMEA (one that is not a u-blox, such as the paper's ST TESEO, or a
+    u-blox with UBX input off) is recorded as it is, unconfigured: its fixes carry their UTC time, which the
+    clock pairs with the PPS edges as it does a u-blox's, only without TIM-TP's announcement.
+    """
 
     name = "gnss"
     sample_topic = GNSS_FIX
 
-    def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase) -> None:
+    def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase, meas_period_ms: int | None = None) -> None:
         self.path, self.baud, self.configure, self.tb = path, baud, configure, tb
+        self.meas_period_ms = meas_period_ms
         self.origin = f"serial {path}"
         self.receiver: Any = None
         self.setup: Any = None
+        self.nmea_only = False  # the receiver answered no UBX when last opened, but spoke NMEA
 
     def open(self) -> None:
         from sensors.ublox import GnssReceiver
 
         self.receiver = GnssReceiver.open(self.path, self.baud)
         if self.configure:
-            from sensors.ublox_config import configure_receiver
+            from sensors.ublox_config import NoUbxAnswer, ReceiverSetup, configure_receiver
 
+            setup = ReceiverSetup() if self.meas_period_ms is None else ReceiverSetup(
+                meas_period_ms=self.meas_period_ms)
             try:
-                self.setup = configure_receiver(self.receiver, sleep=self.tb.sleep)
+                self.setup = configure_receiver(self.receiver, setup, sleep=self.tb.sleep)
+            except NoUbxAnswer as exc:
+                if not exc.nmea_sentences:  # nothing heard at all: a wrong baud rate or no receiver; retry later
+                    _close_quietly(self.receiver)
+                    raise
+                # Refusing it would record nothing, forever: a working receiver that does not know UBX.
+                if not self.nmea_only:
+                    log.warning("gnss: %s; recording its NMEA unconfigured, as it comes (no UBX: no accuracy figures "
+                                "unless it sends GST, no vertical velocity, no TIM-TP: the clock pairs PPS edges "
+                                "with the NMEA fixes' UTC times)", exc)
+                self.nmea_only = True
+                self.setup = None
             except SensorError:
                 _close_quietly(self.receiver)
                 raise
+            else:
+                self.nmea_only = False
 
     def read(self) -> list[Reading]:
         from sensors.ublox import GnssFix, TimePulse

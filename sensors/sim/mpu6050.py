@@ -25,11 +25,20 @@ states to follow with GNSS.
 The filter is modelled as a first-order low-pass whose discrete form keeps the noise density at low
 frequency exactly, since that density is what a navigation filter's tuning rests on.
 
+A phone-grade part (:meth:`Mpu6050Errors.phone_grade`, the simulator's ``imu = "phone"``) is the same register
+map with a worse error budget: ten times the noise densities, a larger turn-on gyro offset that also wanders
+(a first-order Gauss-Markov process on top of the random walk: the offset of a consumer part drifts with its
+die and package stress over minutes, by tenths of a deg/s), and vibration while the car moves, which a phone
+in a holder picks up and a board bolted to the chassis mostly does not: broadband acceleration and rate growing
+with speed, the body's bounce on its springs (about 1.3 Hz, vertical) and the engine's firing frequency (25 Hz
+at idle, rising with speed), each through the chip's low-pass filter like any motion.
+
 Samples are produced lazily: each bus access first brings the chip up to the drive clock's present time,
 all pending samples at once. A reader that stays away for long only costs the last FIFO's worth.
 
 Mounting: ``chip_from_body`` rotates body FRD vectors into chip axes; the default (identity) is a chip
-mounted face-down with x forward, so a parked level vehicle reads -1 g on chip z.
+mounted face-down with x forward, so a parked level vehicle reads -1 g on chip z. :func:`chip_from_body` makes
+it from the board's roll, pitch and yaw against the vehicle, the angles ``[nav] mounting_rpy_deg`` states.
 """
 
 from __future__ import annotations
@@ -40,6 +49,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from sensors.sim import earth
 from sensors.sim.clock import DriveClock
 from sensors.sim.i2c import RegisterChip
 from sensors.sim.truth import Trajectory
@@ -100,6 +110,11 @@ GYRO_LSB_PER_DPS = (131.0, 65.5, 32.8, 16.4)
 # FIFO_EN bit -> columns of the 7 data words (accel x y z, temp, gyro x y z) it puts into each frame
 FIFO_SOURCES = ((0x08, (0, 1, 2)), (0x80, (3,)), (0x40, (4,)), (0x20, (5,)), (0x10, (6,)))
 MAX_SAMPLES_PER_CATCH_UP = 600  # more than one full FIFO even of 2-byte frames: older ones are never seen
+BOUNCE_HZ = 1.3  # a passenger car's body on its springs
+ENGINE_IDLE_HZ = 25.0  # firing frequency of a four-cylinder engine at 750 rpm (two firings a revolution)
+ENGINE_HZ_PER_MPS = 1.0  # ... rising with speed through the gears (about 40 Hz at 50 km/h)
+VIBRATION_AXES = np.array([0.6, 0.6, 1.0])  # broadband vibration: mostly vertical, less along and across
+ENGINE_AXES = np.array([0.0, 0.5, 1.0])  # the engine's tone: vertical and across
 
 
 @dataclass(frozen=True)
@@ -114,11 +129,36 @@ class Mpu6050Errors:
     gyro_bias_walk_dps_per_rts: float = 1.0e-4  # Allan-variance figures above, not the datasheet
     temp_noise_degc: float = 0.02
     self_heating_degc: float = 0.0
+    # Beyond the datasheet's part (all off for it): a wandering gyro offset and the vehicle's vibration.
+    gyro_bias_gm_dps: float = 0.0  # 1-sigma of a first-order Gauss-Markov gyro offset, per axis
+    gyro_bias_gm_tau_s: float = 300.0  # its correlation time
+    vibration_accel_mps2_per_mps: float = 0.0  # broadband acceleration RMS per m/s of speed (vertical; 0.6 across)
+    vibration_gyro_dps_per_mps: float = 0.0  # broadband rate RMS per m/s of speed, per axis
+    bounce_mps2_per_mps: float = 0.0  # body bounce (BOUNCE_HZ, vertical) amplitude per m/s of speed
+    engine_vibration_mps2: float = 0.0  # amplitude of the engine's firing-frequency tone while it runs
 
     @classmethod
     def ideal(cls) -> Mpu6050Errors:
         """No noise and no bias: what is left is quantisation, saturation and the filter delay."""
         return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    @classmethod
+    def phone_grade(cls) -> Mpu6050Errors:
+        """A phone-grade MEMS IMU in a holder: ten times the MPU-6050's noise densities (what such a part gives
+        in a car, mount and all, against the datasheet's bench figure), a turn-on gyro offset of 5 deg/s with a
+        ten times faster random walk and a Gauss-Markov wander of 0.3 deg/s over 200 s, accelerometer offsets
+        of 50 mg walking four times faster; vibration while moving of 0.015 m/s^2 and 0.01 deg/s RMS per m/s
+        of speed (0.2 m/s^2 at 50 km/h), a body bounce of 0.01 m/s^2 per m/s, and the engine's tone at
+        0.05 m/s^2."""
+        return cls(accel_noise_ug_per_rthz=4000.0, gyro_noise_dps_per_rthz=0.05, accel_turn_on_bias_mg=50.0,
+                   gyro_turn_on_bias_dps=5.0, accel_bias_walk_mg_per_rts=0.2, gyro_bias_walk_dps_per_rts=1.0e-3,
+                   gyro_bias_gm_dps=0.3, gyro_bias_gm_tau_s=200.0, vibration_accel_mps2_per_mps=0.015,
+                   vibration_gyro_dps_per_mps=0.01, bounce_mps2_per_mps=0.01, engine_vibration_mps2=0.05)
+
+    @property
+    def vibrates(self) -> bool:
+        return bool(self.vibration_accel_mps2_per_mps or self.vibration_gyro_dps_per_mps
+                    or self.bounce_mps2_per_mps or self.engine_vibration_mps2)
 
     def scaled(self, scale: float | Mapping[str, float]) -> Mpu6050Errors:
         """A worse (or better) chip: every noise density, turn-on bias and bias walk times ``scale``, or each
@@ -137,6 +177,25 @@ class Mpu6050Errors:
 
 SCALABLE_TERMS = ("accel_noise_ug_per_rthz", "gyro_noise_dps_per_rthz", "accel_turn_on_bias_mg",
                   "gyro_turn_on_bias_dps", "accel_bias_walk_mg_per_rts", "gyro_bias_walk_dps_per_rts")
+
+
+def _first_order(pole: float | np.ndarray, x: np.ndarray, drive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A first-order process over the rows of ``drive`` (x = pole * x + drive): every step, and the last state."""
+    out = np.empty_like(drive)
+    for i in range(len(drive)):
+        x = pole * x + drive[i]
+        out[i] = x
+    return out, x
+
+
+def chip_from_body(mounting_rpy_deg: tuple[float, float, float] | list[float]) -> np.ndarray:
+    """The rotation from vehicle (FRD) axes to the chip's, for a board mounted at roll, pitch, yaw (deg).
+
+    The angles are the chip frame's attitude in the vehicle frame, as a vehicle's attitude is given in NED: the
+    chip's axes are the vehicle's turned by yaw, then pitch, then roll. A filter that multiplies the chip's
+    readings by the direction cosine matrix of the same angles (C_bn of roll, pitch, yaw) gets the vehicle's
+    readings back, so this is that matrix's transpose."""
+    return earth.dcm_body_to_ned(np.radians(np.asarray(mounting_rpy_deg, float))).T
 
 
 class Mpu6050Model(RegisterChip):
@@ -171,6 +230,11 @@ class Mpu6050Model(RegisterChip):
                          + [math.radians(e.gyro_turn_on_bias_dps)] * 3)
         self._bias_on = self.rng.standard_normal(6) * scale
         self._bias_walk = np.zeros(6)
+        # The wandering offset starts anywhere in its stationary spread (no draw when there is none, so a chip
+        # without it keeps its random sequence).
+        self._gyro_gm = (self.rng.standard_normal(3) * math.radians(e.gyro_bias_gm_dps) if e.gyro_bias_gm_dps
+                         else np.zeros(3))
+        self._engine_phase = 0.0
         self._device_reset()
 
     def _device_reset(self) -> None:
@@ -240,6 +304,10 @@ class Mpu6050Model(RegisterChip):
         walk_sigma, noise_sigma, _ = self._noise_params(period_s)
         self._bias_walk += self.rng.standard_normal(6) * walk_sigma * math.sqrt(count)
         self._noise = self.rng.standard_normal(6) * noise_sigma
+        if self.errors.gyro_bias_gm_dps:
+            phi = math.exp(-count * period_s / self.errors.gyro_bias_gm_tau_s)
+            self._gyro_gm = (phi * self._gyro_gm + self.rng.standard_normal(3)
+                             * math.radians(self.errors.gyro_bias_gm_dps) * math.sqrt(1 - phi * phi))
         frame = self._fifo_frame_columns()
         if self.regs[USER_CTRL] & USER_FIFO_EN and frame:
             self.fifo_bytes_dropped += len(self.fifo) + 2 * len(frame) * count
@@ -267,25 +335,32 @@ class Mpu6050Model(RegisterChip):
         f = np.empty((m, 3))
         w = np.empty((m, 3))
         ambient = np.empty(m)
+        vibrates = self.errors.vibrates
+        speed = np.zeros(m)
+        engine = np.zeros(m, bool)
         for i, t in enumerate(times_s):
             sa = self.trajectory.state(max(float(t) - a_delay, 0.0))
             sg = sa if g_delay == a_delay else self.trajectory.state(max(float(t) - g_delay, 0.0))
             f[i] = sa.f_body_mps2
             w[i] = sg.w_body_rps
             ambient[i] = sg.ambient_degc
+            if vibrates:
+                speed[i] = math.sqrt(float(sa.vel_ned_mps @ sa.vel_ned_mps))
+                engine[i] = sa.engine_on
+        if vibrates:
+            vib_f, vib_w = self._vibration(times_s, period_s, speed, engine)
+            f += vib_f
+            w += vib_w
         truth = np.hstack((f @ self.chip_from_body.T, w @ self.chip_from_body.T))
 
         walk_step, sigma, pole = self._noise_params(period_s)
         walk = self._bias_walk + np.cumsum(self.rng.standard_normal((m, 6)) * walk_step, axis=0)
         self._bias_walk = walk[-1].copy()
         drive = self.rng.standard_normal((m, 6)) * sigma * np.sqrt(1 - pole**2)
-        noise = np.empty((m, 6))
-        x = self._noise
-        for i in range(m):
-            x = pole * x + drive[i]
-            noise[i] = x
-        self._noise = x
+        noise, self._noise = _first_order(pole, self._noise, drive)
         measured = truth + self._bias_on + walk + noise
+        if self.errors.gyro_bias_gm_dps:
+            measured[:, 3:6] += self._gyro_wander(m, period_s)
 
         accel_sens = ACCEL_LSB_PER_G[(self.regs[ACCEL_CONFIG] >> 3) & 3]
         gyro_sens = GYRO_LSB_PER_DPS[(self.regs[GYRO_CONFIG] >> 3) & 3]
@@ -311,6 +386,36 @@ class Mpu6050Model(RegisterChip):
         if self.regs[INT_ENABLE] & INT_DATA_RDY:
             self.regs[INT_STATUS] |= INT_DATA_RDY
         self.samples_generated += m
+
+    def _gyro_wander(self, m: int, period_s: float) -> np.ndarray:
+        """The Gauss-Markov part of the gyro offset at each of ``m`` samples (rad/s, chip axes)."""
+        e = self.errors
+        phi = math.exp(-period_s / e.gyro_bias_gm_tau_s)
+        drive = self.rng.standard_normal((m, 3)) * math.radians(e.gyro_bias_gm_dps) * math.sqrt(1 - phi * phi)
+        out, self._gyro_gm = _first_order(phi, self._gyro_gm, drive)
+        return out
+
+    def _vibration(self, times_s: np.ndarray, period_s: float, speed: np.ndarray,
+                   engine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the vehicle's vibration adds to the specific force and the rate (body axes) at each sample.
+
+        Real motion, so it passes the chip's low-pass filter: the tones by its gain at their frequency, the
+        broadband part as white noise at the output rate (the filter's band is at least the Nyquist band at
+        the rates the phone profile runs)."""
+        e = self.errors
+        m = len(times_s)
+        a_bw, _, _, _, _ = DLPF[self.regs[CONFIG] & 0x07]
+        vib_f = self.rng.standard_normal((m, 3)) * VIBRATION_AXES * (e.vibration_accel_mps2_per_mps * speed)[:, None]
+        vib_w = self.rng.standard_normal((m, 3)) * (math.radians(e.vibration_gyro_dps_per_mps) * speed)[:, None]
+        gain_bounce = 1.0 / math.hypot(1.0, BOUNCE_HZ / a_bw)
+        vib_f[:, 2] += (e.bounce_mps2_per_mps * gain_bounce) * speed * np.sin(2 * math.pi * BOUNCE_HZ * times_s)
+        # The engine's tone keeps its phase from sample to sample while its frequency follows the speed.
+        f_engine = ENGINE_IDLE_HZ + ENGINE_HZ_PER_MPS * speed
+        phase = self._engine_phase + 2 * math.pi * np.cumsum(f_engine) * period_s
+        self._engine_phase = float(phase[-1] % (2 * math.pi))
+        tone = e.engine_vibration_mps2 / np.hypot(1.0, f_engine / a_bw) * np.sin(phase) * engine
+        vib_f += tone[:, None] * ENGINE_AXES
+        return vib_f, vib_w
 
     def _fifo_frame_columns(self) -> list[int]:
         enabled = self.regs[FIFO_EN]

@@ -7,10 +7,14 @@ schedule on the true drive time of a :class:`~sensors.sim.clock.DriveClock`, so 
 
 What it does, as the hardware does:
 
-- a navigation epoch every ``measRate`` ms aligned to the configured time scale (UBX-CFG-RATE), the
-  solution computed some tens to a few hundred ms later; per epoch UBX NAV-PVT and NAV-TIMEGPS, NMEA GGA
-  and RMC, and once a second a UBX TIM-TP announcing the next time pulse, each at the rate UBX-CFG-MSG
-  (or the configuration keys) set on the port;
+- a navigation epoch every ``measRate`` ms aligned to the configured time scale (UBX-CFG-RATE; the
+  receiver boots with ``meas_period_ms``), the solution computed some tens to a few hundred ms later and
+  put out in epoch order; per epoch UBX NAV-PVT and NAV-TIMEGPS, NMEA GGA, RMC and GSA, and once a second a
+  UBX TIM-TP announcing the next time pulse, each at the rate UBX-CFG-MSG (or the configuration keys) set on
+  the port;
+- with ``ubx=False``, a receiver that speaks NMEA only (an ST TESEO such as the paper's AEK-4T): no UBX
+  output at all, and UBX input ignored, so configuration commands and polls go unanswered, as a receiver
+  that does not know the protocol leaves them. It still drives its time pulse;
 - the UART at its baud rate: messages take their transmission time, a full transmit buffer drops
   messages, and a host listening at another baud rate receives what a real UART would (see
   :mod:`sensors.sim.uart_line`);
@@ -57,6 +61,7 @@ from sensors.sim.gnss_errors import (
     satellites_tracked,
 )
 from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline, PulseQuantisation
+from sensors.sim.profile import SOLUTION_JITTER_S, SOLUTION_LATENCY_S
 from sensors.sim.pty import PtyPort
 from sensors.sim.truth import Trajectory
 from sensors.sim.uart_line import STANDARD_BAUDS, HostSide, resample
@@ -70,18 +75,22 @@ from sensors.sim.ublox_commands import (
     Reply,
     UbxInputScanner,
 )
-from sensors.sim.ublox_encode import MESSAGE_IDS, EpochRecord, gga, nav_pvt, nav_timegps, rmc, tim_tp
+from sensors.sim.ublox_encode import MESSAGE_IDS, EpochRecord, gga, gsa, nav_pvt, nav_timegps, rmc, tim_tp
 
 __all__ = [
     "DEFAULT_MESSAGES",
     "FACTORY_MESSAGES",
+    "NMEA_ONLY_MESSAGES",
     "ModelCounters",
     "UbloxReceiverModel",
     "has_time_fix",
 ]
 
 DEFAULT_MESSAGES = ("NAV-PVT", "TIM-TP", "GGA", "RMC")  # a receiver whose flash holds the logger's setup
-FACTORY_MESSAGES = ("GGA", "RMC")  # fresh from the factory: NMEA only (GSA, GSV, GLL, VTG not modelled)
+FACTORY_MESSAGES = ("GGA", "RMC")  # fresh from the factory: NMEA only (GSV, GLL, VTG not modelled)
+# An NMEA-only receiver's output: position, speed and course, and the DOPs; no GST, so no accuracy figures, and
+# no vertical velocity (NMEA has none).
+NMEA_ONLY_MESSAGES = ("GGA", "RMC", "GSA")
 
 _HOST_BUFFER_BYTES = 4095  # Linux n_tty read buffer: beyond it a host that does not read loses bytes
 _MIN_MOVING_MPS = 0.5  # below this speed the receiver keeps its last heading of motion
@@ -145,7 +154,9 @@ class UbloxReceiverModel:
         max_satellites: int = MAX_SATELLITES,
         tx_buffer_bytes: int = 4096,
         min_meas_period_ms: int = 25,
-        latency_s: tuple[float, float] = (0.04, 0.06),
+        meas_period_ms: int = 1000,
+        ubx: bool = True,
+        latency_s: tuple[float, float] = (SOLUTION_LATENCY_S, SOLUTION_JITTER_S),
         history_len: int = 3600,
         poll_s: float = 0.002,
     ) -> None:
@@ -170,6 +181,7 @@ class UbloxReceiverModel:
         # most 10 Hz with two constellations NAKs anything below 100 ms.
         self.min_meas_period_ms = max(25, min_meas_period_ms)
         self.latency_s = latency_s  # (minimum, mean of the exponential excess) of the solution delay
+        self.ubx = ubx
         self.poll_s = poll_s
         rng_err, rng_lat, rng_cmd, rng_garbage, rng_pulse = _child_rngs(seed, 5)
         self.errors = error_model or GnssErrorModel(rng_err)
@@ -184,7 +196,11 @@ class UbloxReceiverModel:
         start_baud = baud if baud is not None else DEFAULT_BAUD[generation]
         if start_baud not in STANDARD_BAUDS:
             raise ValueError(f"{start_baud} is not a baud rate a u-blox UART offers")
-        startup = RamConfig(PortConfig(start_baud), rates={MESSAGE_IDS[m]: 1 for m in messages})
+        if not self.min_meas_period_ms <= meas_period_ms <= 65535:
+            raise ValueError(f"meas_period_ms must be {self.min_meas_period_ms}..65535, not {meas_period_ms}")
+        # An NMEA-only receiver neither takes nor sends UBX: its port is NMEA in and out, for good.
+        uart = PortConfig(start_baud) if ubx else PortConfig(start_baud, in_ubx=False, out_ubx=False)
+        startup = RamConfig(uart, meas_ms=meas_period_ms, rates={MESSAGE_IDS[m]: 1 for m in messages})
         self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms)
         self.history: deque[EpochRecord] = deque(maxlen=history_len)
         self.counters = ModelCounters()
@@ -339,6 +355,7 @@ class UbloxReceiverModel:
         self._last_solution_ns: int | None = None
         self._head_mot_deg = 0.0
         self._last_pulse_second = -1
+        self._last_ready_ns = 0
         self._next_epoch_ns = self._epoch_after(now_ns)
 
     # ------------------------------------------------------------------ thread
@@ -461,6 +478,9 @@ class UbloxReceiverModel:
         rec = self._solve(t_ns, gps_ns)
         excess = self._rng_latency.exponential(self.latency_s[1])
         ready = t_ns + round((self.latency_s[0] + min(excess, 0.35)) * NS_PER_S)
+        # One navigation engine: a solution is never put out before the previous epoch's, which matters once
+        # epochs come faster than the latency varies (10 Hz).
+        ready = self._last_ready_ns = max(ready, self._last_ready_ns)
         rates = self._cfg.rates
 
         def due(name: str, count: int) -> bool:
@@ -480,6 +500,8 @@ class UbloxReceiverModel:
             self._enqueue_nmea(ready, gga(rec, utc_ns if known else None, talker=self.nmea_talker), "GGA")
         if due("RMC", solution_index):
             self._enqueue_nmea(ready, rmc(rec, utc_ns if known else None, talker=self.nmea_talker), "RMC")
+        if due("GSA", solution_index):
+            self._enqueue_nmea(ready, gsa(rec, talker=self.nmea_talker), "GSA")
         second = gps_ns // NS_PER_S
         if second != self._last_pulse_second:
             self._last_pulse_second = second

@@ -62,6 +62,7 @@ _MSGOUT_KEYS = {  # configuration keys of the modelled messages on UART1 (u-blox
     "CFG_MSGOUT_UBX_TIM_TP_UART1": "TIM-TP",
     "CFG_MSGOUT_NMEA_ID_GGA_UART1": "GGA",
     "CFG_MSGOUT_NMEA_ID_RMC_UART1": "RMC",
+    "CFG_MSGOUT_NMEA_ID_GSA_UART1": "GSA",
 }
 _PROTOCOL_KEYS = {  # UART1 protocol switches: key -> PortConfig field
     "CFG_UART1INPROT_UBX": "in_ubx",

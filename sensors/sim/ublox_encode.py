@@ -1,8 +1,8 @@
 """The periodic output of the simulated u-blox receiver: one navigation solution as UBX and NMEA messages.
 
 The counterpart of :mod:`sensors.ublox_decode` on the device side. :class:`EpochRecord` is what the
-receiver model computed for one epoch; the encoders turn it into NAV-PVT, NAV-TIMEGPS, GGA and RMC, and a
-pulse second into TIM-TP, with the fields, scalings and "no estimate" conventions of the u-blox M8
+receiver model computed for one epoch; the encoders turn it into NAV-PVT, NAV-TIMEGPS, GGA, RMC and GSA, and
+a pulse second into TIM-TP, with the fields, scalings and "no estimate" conventions of the u-blox M8
 protocol specification. They are plain functions of their arguments, so the receiver model decides what it
 knows (a time solution, a position since power-on) and the encoders only say it as the firmware would.
 
@@ -20,11 +20,11 @@ import numpy as np
 from pynmeagps import NMEAMessage
 from pyubx2 import GET, UBXMessage
 
-from sensors.sim.gnss_errors import EpochError
+from sensors.sim.gnss_errors import NO_DOP, EpochError
 from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline
 from sensors.sim.truth import TruthState
 
-__all__ = ["MESSAGE_IDS", "EpochRecord", "gga", "nav_pvt", "nav_timegps", "rmc", "tim_tp"]
+__all__ = ["MESSAGE_IDS", "EpochRecord", "gga", "gsa", "nav_pvt", "nav_timegps", "rmc", "tim_tp"]
 
 # Class and id of the output messages the model produces (u-blox M8 protocol spec; NMEA class 0xF0).
 MESSAGE_IDS: dict[str, tuple[int, int]] = {
@@ -33,6 +33,7 @@ MESSAGE_IDS: dict[str, tuple[int, int]] = {
     "TIM-TP": (0x0D, 0x01),
     "GGA": (0xF0, 0x00),
     "RMC": (0xF0, 0x04),
+    "GSA": (0xF0, 0x02),
 }
 
 _U4_MAX = 0xFFFF_FFFF
@@ -164,6 +165,19 @@ def rmc(rec: EpochRecord, utc_ns: int | None, *, talker: str) -> NMEAMessage:
     else:
         fields = [hhmmss, "V", "", "", "", "", "", "", ddmmyy, "", "", "N", "V"]
     return NMEAMessage(talker, "RMC", GET, payload=fields)
+
+
+def gsa(rec: EpochRecord, *, talker: str) -> NMEAMessage:
+    """NMEA GSA: the fix's dimension (1 none, 2 2D, 3 3D) and its DOPs, in automatic 2D/3D mode.
+
+    The satellite fields are left empty: the error model knows how many satellites a solution used, not which
+    (NMEA allows null fields, and a reader of GSA wants the mode and the DOPs). Without a fix the DOPs are
+    99.99, as u-blox sends them."""
+    mode = rec.fix_type if rec.fix_type in (2, 3) else 1
+    d = rec.error.dops
+    dops = (d.pdop, d.hdop, d.vdop) if mode >= 2 else (NO_DOP,) * 3
+    return NMEAMessage(talker, "GSA", GET, payload=["A", str(mode), *[""] * 12,
+                                                     *(f"{min(x, NO_DOP):.2f}" for x in dops)])
 
 
 def _nearest_second(utc_ns: int) -> tuple[int, int]:

@@ -24,13 +24,14 @@ from sensors.sim.elm327 import Elm327Model
 from sensors.sim.gnss_time import GnssTimeline
 from sensors.sim.governor import Governor
 from sensors.sim.i2c import SimI2cAdapter
-from sensors.sim.mpu6050 import Mpu6050Errors, Mpu6050Model
+from sensors.sim.mpu6050 import Mpu6050Errors, Mpu6050Model, chip_from_body
 from sensors.sim.obd_ecu import engine_ecu, transmission_ecu
 from sensors.sim.oscillator import Oscillator, OscillatorClock
 from sensors.sim.pps import PpsSignal, pps_chip
+from sensors.sim.profile import SOLUTION_JITTER_S, SimProfile
 from sensors.sim.pty import PtyPort
 from sensors.sim.scenarios import make_drive
-from sensors.sim.ublox import UbloxReceiverModel
+from sensors.sim.ublox import DEFAULT_MESSAGES, NMEA_ONLY_MESSAGES, UbloxReceiverModel
 
 NS_PER_S = 1_000_000_000
 MPU6050_ADDRESS = 0x68
@@ -41,6 +42,9 @@ WALL_CLOCK_ERROR_NS = 20_000_000
 
 # How far the vehicle's speed sensor reads high in each scenario (OBD speed = factor * true speed).
 OBD_SPEED_FACTOR = {"urban": 1.02, "outage-60s": 1.02, "tunnel-130s": 1.03}
+# A receiver set up for more than two fixes a second is set up for a faster line too: at 9600 baud four
+# epochs of NAV-PVT, GGA and RMC already fill the UART (its transmit buffer then drops messages).
+FAST_RECEIVER_BAUD = 115200
 
 
 @dataclass
@@ -53,6 +57,7 @@ class VehicleDevices:
     elm327_path: str | None = None
     gnss_path: str | None = None
     gnss_baud: int = 9600
+    gnss_meas_period_ms: int | None = None  # the receiver's measurement period, which a setup should keep
     gpio_chip: str | None = None
     pps_line: int = PPS_LINE
     gpsd_host: str | None = None  # a simulated gpsd reading the receiver and its PPS
@@ -66,6 +71,7 @@ class SimVehicle:
 
     scenario: str
     seed: int
+    profile: SimProfile
     drive: Drive
     oscillator: Oscillator
     clock: OscillatorClock
@@ -148,7 +154,7 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
                   gnss: bool = True, pps: bool = True, start_utc: dt.datetime | None = None,
                   host_monotonic_ns: Any = time.monotonic_ns,
                   scenario_options: dict[str, Any] | None = None, gpsd: bool = False,
-                  paced: bool = False) -> SimVehicle:
+                  paced: bool = False, profile: SimProfile | None = None) -> SimVehicle:
     """Build the drive and the models asked for. Board time starts at the host's monotonic clock, so at time
     scale 1 simulated and real devices share one clock; the drive starts at the current UTC second.
 
@@ -157,15 +163,20 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
 
     ``scenario_options`` go to the drive (:func:`sensors.sim.scenarios.make_drive`), except ``imu_error_scale``:
     a factor on the MPU-6050's error terms, or a mapping of term to factor (:meth:`Mpu6050Errors.scaled`), for
-    testing the filter on a chip worse than its configuration assumes.
+    testing the filter on a chip worse than its configuration assumes (applied to the profile's chip).
+
+    ``profile`` says which hardware the vehicle carries (:class:`~sensors.sim.profile.SimProfile`: the kind of
+    receiver, its rate and latency, the IMU's grade and its mounting); by default the logger's own board.
 
     With ``paced`` the drive is governed (:mod:`sensors.sim.governor`): ``time_scale`` is then a ceiling, and
     the drive runs as fast as the threads reporting to ``clock.late`` keep up with. Only for a daemon whose
     devices are all simulated: a real device keeps the host's time."""
     horizon = duration_s if duration_s is not None else 8 * 3600.0
     options = dict(scenario_options or {})
+    profile = profile if profile is not None else SimProfile()
     imu_scale = options.pop("imu_error_scale", None)
-    imu_errors = Mpu6050Errors().scaled(imu_scale) if imu_scale is not None else None
+    chip = Mpu6050Errors.phone_grade() if profile.imu == "phone" else Mpu6050Errors()
+    imu_errors = chip.scaled(imu_scale) if imu_scale is not None else chip
     drive = make_drive(scenario, seed=seed, duration_s=horizon + 60.0, **options)
     rng = np.random.default_rng([seed, 7])
     oscillator = Oscillator.for_trajectory(drive, horizon_s=horizon + 60.0, board_start_ns=host_monotonic_ns(),
@@ -175,7 +186,7 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         start_utc = dt.datetime.fromtimestamp(math.floor(time.time()), dt.UTC)
     timeline = GnssTimeline(start_utc=start_utc)
     devices = VehicleDevices()
-    v = SimVehicle(scenario, seed, drive, oscillator, clock, timeline, devices)
+    v = SimVehicle(scenario, seed, profile, drive, oscillator, clock, timeline, devices)
     if paced:
         v.governor = Governor(clock, time_scale, host_monotonic_ns=host_monotonic_ns)
     child = np.random.SeedSequence([seed, 11]).spawn(5)
@@ -183,7 +194,8 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         v.i2c = SimI2cAdapter()
         devices.i2c_path = v.i2c.path
         if imu:
-            v.imu = Mpu6050Model(clock, drive, seed=np.random.default_rng(child[0]), errors=imu_errors)
+            v.imu = Mpu6050Model(clock, drive, seed=np.random.default_rng(child[0]), errors=imu_errors,
+                                 chip_from_body=chip_from_body(profile.mounting_rpy_deg))
             v.i2c.attach(MPU6050_ADDRESS, v.imu)
         if baro:
             v.baro = Bmp085Model(clock, drive, seed=np.random.default_rng(child[1]))
@@ -197,10 +209,16 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         devices.elm327_path = v.elm327_port.path
     if gnss or pps or gpsd:
         v.gnss_port = PtyPort()
+        nmea_only = profile.receiver == "nmea"
         v.gnss = UbloxReceiverModel(v.gnss_port, clock, drive, seed=np.random.default_rng(child[3]),
-                                    timeline=timeline)
+                                    timeline=timeline, ubx=not nmea_only,
+                                    messages=NMEA_ONLY_MESSAGES if nmea_only else DEFAULT_MESSAGES,
+                                    meas_period_ms=profile.meas_period_ms,
+                                    baud=FAST_RECEIVER_BAUD if profile.gnss_rate_hz > 2 else None,
+                                    latency_s=(profile.gnss_latency_s, SOLUTION_JITTER_S))
         devices.gnss_path = v.gnss_port.path
         devices.gnss_baud = v.gnss.baud
+        devices.gnss_meas_period_ms = v.gnss.meas_period_ms
     if (pps or gpsd) and v.gnss is not None:
         v.pps = PpsSignal(oscillator, v.gnss.time_pulse_locked, seed=int(child[4].generate_state(1)[0]),
                           gnss_ns_at_start=timeline.start_gps_ns,
