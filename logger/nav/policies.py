@@ -24,7 +24,7 @@ import numpy as np
 
 from logger.nav.core import EngineCounters, FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
-from logger.nav.gnss_noise import AccuracyModel, CorrelatedGnssNoise, FixFigures
+from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise, FixFigures
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
@@ -137,7 +137,7 @@ class GnssPolicy:
             snap, snap.dcm(), core.n)
         assert core.ekf is not None
         p_prior = [float(core.ekf.p[P_ID + i, P_ID + i]) for i in range(len(full_pos.z))]
-        obs = self._informative(core, full_pos, P_ID)
+        obs = self._informative(core, full_pos, P_ID, fix.accuracy != RECEIVER)
         ok = True if obs is None else core.apply(obs)
         last = self.last_readings
         if obs is not None and ok and self.last_figures is not None:
@@ -164,15 +164,20 @@ class GnssPolicy:
             self.height.run.clear()  # judged against the height just widened
         return verdict
 
-    def _informative(self, core: FilterCore, obs: Observation, block: int) -> Observation | None:
+    def _informative(self, core: FilterCore, obs: Observation, block: int,
+                     height_on_its_own: bool = False) -> Observation | None:
         """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO."""
         assert core.ekf is not None
         p = core.ekf.p
         keep = [i for i in range(min(2, len(obs.z)))
                 if obs.r[i] <= UNINFORMATIVE_RATIO * float(p[block + i, block + i])]
         # The height row stays while the fix is any good horizontally: the barometer's offset is learnt from the
-        # GNSS height over minutes. A fix useless horizontally is a canyon's, and its height goes with it.
-        if len(obs.z) > 2 and keep:
+        # GNSS height over minutes. A fix useless horizontally is a canyon's (its receiver's figures say so), and
+        # its height goes with it. A fix with guessed figures (no accuracy from the receiver) says nothing of a
+        # canyon: a filter held tight horizontally by its speeds leaves its height to the fixes, judged alone
+        # (the 15-state filter, without a barometer, drifted 64 m in height when it went with the horizontal).
+        if len(obs.z) > 2 and (keep or (height_on_its_own
+                                        and obs.r[2] <= UNINFORMATIVE_RATIO * float(p[block + 2, block + 2]))):
             keep.append(2)
         if len(keep) < len(obs.z):
             core.counters.gnss_skipped += len(obs.z) - len(keep)
