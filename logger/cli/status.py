@@ -64,14 +64,15 @@ def main(argv: list[str]) -> int:
     try:
         while True:
             # The screen's size, taken again for every frame (a resized window redraws to its new size); a pipe
-            # gets the 80 columns of the terminal the text will most likely be read on, and every line. One line is
-            # left for the prompt (or the cursor of --watch).
+            # gets the 80 columns of the terminal the text will most likely be read on, and every line. --watch
+            # leaves one line for its cursor; a single screen two, for the command typed above it and the prompt
+            # after it, so that the verdict on the first line is still on screen when the prompt comes back.
             size = shutil.get_terminal_size((80, 24))
             try:
                 snap = fetch(path) if path is not None else find_socket()[1]
                 code = EXIT.get(snap.get("verdict", ""), 2)
                 text = json.dumps(snap, indent=1) if args.json else render(
-                    snap, size.columns if tty else 80, size.lines - 1 if tty else None)
+                    snap, size.columns if tty else 80, size.lines - (1 if args.watch else 2) if tty else None)
             except StatusBusy as exc:
                 code, text = UNKNOWN, f"logger status: {exc}"
             except ConnectionError as exc:
