@@ -189,7 +189,8 @@ def test_fixes_come_at_the_receivers_rate_in_epoch_order_after_their_latency(ben
     delays = [(t + drive_to_utc - e) / NS for t, e in got]
     # The least delay is the latency asked for (plus the line: a GGA is 7 ms at 115200 baud; reads every 10 ms).
     assert min(delays) >= latency_s and min(delays) < latency_s + 0.03
-    assert max(delays) <= latency_s + 0.35 + 0.1
+    # ... and its computing time never takes longer than the solution period (0.35 s at most, at 1 Hz).
+    assert max(delays) <= latency_s + meas_ms / 1000 + 0.03
 
 
 def test_the_setup_keeps_a_fast_receiver_at_its_rate(bench) -> None:
@@ -372,6 +373,9 @@ def test_the_daemon_records_a_phone_grade_imu_and_a_10_hz_receiver(tmp_path: Pat
     epochs = [m["gnss_time_ns"] for _, _, m in msgs["/gnss/fix"] if m["gnss_time_ns"] is not None]
     assert all(round((b - a) / 1e6) == 100 for a, b in itertools.pairwise(epochs)) and len(epochs) > 150
     assert {m["source"] for _, _, m in msgs["/gnss/fix"]} == {"NAV-PVT"}
+    # The daemon expects ten a second and finds no silence of 2.5 periods in how they arrive.
+    gnss = next(h for h in msgs["/health"][-1][2]["sensors"] if h["name"] == "gnss")
+    assert gnss["rate_hz"] == 10.0 and gnss["gaps"] == 0
     imu = [m for _, _, m in msgs["/imu"]]
     t = [m["t_mono_ns"] for m in imu]
     assert (len(t) - 1) / ((t[-1] - t[0]) / 1e9) == pytest.approx(PHONE_IMU_RATE_HZ, rel=0.02)

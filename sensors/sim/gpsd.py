@@ -455,7 +455,8 @@ class ReceiverFeed:
     def _schedule_epoch(self, rec: EpochRecord) -> None:
         lo, mean = self.receiver.latency_s
         uart_s = 100 * 10 / self.receiver.baud  # a NAV-PVT frame on the line, 8N1
-        ready = rec.drive_ns + round((lo + min(float(self._rng.exponential(mean)), 0.35) + uart_s) * NS_PER_S)
+        excess = min(float(self._rng.exponential(mean)), self.receiver.latency_cap_s)
+        ready = rec.drive_ns + round((lo + excess + uart_s) * NS_PER_S)
         tpv, sky = self._tpv(rec), self._sky(rec)
         self._push(ready, sky)
         self._push(ready + NS_PER_MS, tpv)

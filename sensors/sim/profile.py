@@ -25,11 +25,13 @@ IMUS = ("mpu6050", "phone")  # the datasheet's MPU-6050, or phone-grade MEMS err
 # milliseconds that divide 1000 ms): the clock pairs each PPS edge with the fix of its second.
 GNSS_RATES_HZ = (1, 2, 4, 5, 8, 10)
 # The u-blox solution comes this long after its epoch at the least, plus an exponential excess of this mean
-# (capped at 0.35 s), as NAV-PVT arrival times of M8 receivers on a UART show.
+# capped at SOLUTION_JITTER_MAX_S (or the solution period, when shorter), as NAV-PVT arrival times of M8
+# receivers on a UART show.
 SOLUTION_LATENCY_S = 0.04
 SOLUTION_JITTER_S = 0.06
+SOLUTION_JITTER_MAX_S = 0.35
 # A fix must still reach the host within the second after its epoch's PPS edge (sync.pairing's report window),
-# after the latency, the jitter (at most 0.35 s) and the line: 0.6 s leaves that.
+# after the latency, the jitter and the line: 0.6 s leaves that.
 MAX_GNSS_LATENCY_S = 0.6
 PHONE_IMU_RATE_HZ = 100.0  # a phone's sensor framework delivers its IMU at about 100 Hz
 

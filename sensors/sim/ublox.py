@@ -61,7 +61,7 @@ from sensors.sim.gnss_errors import (
     satellites_tracked,
 )
 from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline, PulseQuantisation
-from sensors.sim.profile import SOLUTION_JITTER_S, SOLUTION_LATENCY_S
+from sensors.sim.profile import SOLUTION_JITTER_MAX_S, SOLUTION_JITTER_S, SOLUTION_LATENCY_S
 from sensors.sim.pty import PtyPort
 from sensors.sim.truth import Trajectory
 from sensors.sim.uart_line import STANDARD_BAUDS, HostSide, resample
@@ -323,6 +323,12 @@ class UbloxReceiverModel:
     def meas_period_ms(self) -> int:
         return self._cfg.meas_ms
 
+    @property
+    def latency_cap_s(self) -> float:
+        """The longest a solution takes beyond the least latency: what M8s are seen to need at most at 1 Hz, but
+        never more than the solution period (a receiver that took longer would fall behind its own rate)."""
+        return min(SOLUTION_JITTER_MAX_S, self._cfg.meas_ms * self._cfg.nav_rate / 1000)
+
     def rate(self, message: str) -> int:
         """Output rate of a modelled message on the port (0 = off), as configured now."""
         return self._cfg.rates.get(MESSAGE_IDS[message], 0)
@@ -477,7 +483,7 @@ class UbloxReceiverModel:
         solution_index = index // self._cfg.nav_rate
         rec = self._solve(t_ns, gps_ns)
         excess = self._rng_latency.exponential(self.latency_s[1])
-        ready = t_ns + round((self.latency_s[0] + min(excess, 0.35)) * NS_PER_S)
+        ready = t_ns + round((self.latency_s[0] + min(excess, self.latency_cap_s)) * NS_PER_S)
         # One navigation engine: a solution is never put out before the previous epoch's, which matters once
         # epochs come faster than the latency varies (10 Hz).
         ready = self._last_ready_ns = max(ready, self._last_ready_ns)
