@@ -16,6 +16,17 @@ replays each with ``logger replay``'s engine and scores against the recorded tru
   filter: restarts, covariance repairs, how often the error is within 3 sigma, RMSE.
 
 Everything printed is measured on these files; nothing is carried over from an earlier run.
+
+    python tools/nav_eval.py --matrix [--profiles NAME...] [--scenarios NAME...] [--seeds 1] [--write-docs]
+    python tools/nav_eval.py --matrix --quick          # a short drive of each: does every cell run at all
+
+runs the hardware matrix instead: every profile of :data:`PROFILES` (the ``[sim]`` keys a drive is recorded with:
+an NMEA-only receiver, a phone-grade IMU with 10 Hz fixes, a board mounted at an angle the filter is not told,
+fixes arriving late) on every scenario, each replayed with the default 17-state filter, forward and smoothed.
+Per cell: how much of the drive was parked, the RMSE north / east / vertical while the car moves, the largest
+horizontal error in the longest outage (forward / smoothed), the share within 3 sigma per axis, the restarts.
+``--write-docs`` puts the table into ``docs/nav.md`` between its markers (a ``--quick`` run never does: its drives
+are too short to be figures).
 """
 
 from __future__ import annotations
@@ -47,11 +58,29 @@ PAPER_TABLE9 = {
                  "rmse": [0.671, 0.562, 0.478]},
 }
 DURATIONS = {"outage-60s": 400.0, "tunnel-130s": 420.0}
+URBAN_DEFAULT_S = 1800.0
 # The paper's drive starts from a static alignment: the urban drives, Table 9's conditions, stand 30 s before they
 # move off, not the default 8 s of a first minute (a short standstill averages the gyro offset over less: on urban
 # seed 1 the 17-state RMSE goes from 0.339 / 0.381 / 0.421 m to 0.445 / 0.476 / 0.404 m, docs/nav.md).
 URBAN_INTRO_S = 30.0
 OBD_HIGH = {"urban": 0.02, "outage-60s": 0.02, "tunnel-130s": 0.03}  # what sensors/sim/vehicle.py builds
+
+
+# The hardware profiles of the matrix: [sim] keys (sensors/sim/profile.py), on top of the default board.
+PROFILES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "nmea": {"receiver": "nmea"},  # NMEA-only: no accuracy figures, no vertical velocity, no TIM-TP
+    "phone": {"imu": "phone", "gnss_rate_hz": 10},  # phone-grade IMU at 100 Hz, fixes at 10 Hz
+    "mounted": {"mounting_rpy_deg": [5.0, -4.0, 30.0]},  # the filter is not told
+    "late": {"gnss_latency_s": 0.3},  # fixes at least 0.3 s after their epoch
+}
+MATRIX_SCENARIOS = ("urban", "outage-60s", "tunnel-130s")
+MATRIX_URBAN_S = 600.0  # ten minutes of urban drive: what the mounting's alignment is judged after
+QUICK_S = 90.0  # --quick: every scenario this long (the outages are not reached: no figures)
+MOVING_MPS = 0.5  # the car moves above this true speed; below, it is parked or at a light
+DOC = ROOT / "docs" / "nav.md"
+MATRIX_BEGIN = "<!-- nav_eval --matrix: begin (written by tools/nav_eval.py --matrix --write-docs) -->"
+MATRIX_END = "<!-- nav_eval --matrix: end -->"
 
 
 IMU_TERMS = {  # simulated chip's error term -> the [nav] key that assumes it
@@ -71,9 +100,10 @@ def imu_error_scale(times_config: float) -> dict[str, float]:
 
 
 def record(drives: Path, scenario: str, seed: int, duration: float, time_scale: float,
-           options: dict[str, Any] | None = None, tag: str = "") -> list[Path]:
+           options: dict[str, Any] | None = None, tag: str = "", profile: dict[str, Any] | None = None) -> list[Path]:
     """The drive's files in ``drives``, recorded by the daemon first if missing (``options``: scenario options,
-    e.g. ``imu_error_scale``, which ``logger run`` has no flag for: the daemon is then built in a child)."""
+    e.g. ``imu_error_scale``, which ``logger run`` has no flag for: the daemon is then built in a child;
+    ``profile``: ``[sim]`` keys of the hardware, given to ``logger run --sim`` as a file with only ``[sim]``)."""
     out = drives / f"{scenario}{tag}-{seed}-{duration:g}"
     files = sorted(out.glob("*.mcap"))
     if files:
@@ -82,11 +112,16 @@ def record(drives: Path, scenario: str, seed: int, duration: float, time_scale: 
     if options:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--record-child",
                json.dumps({"scenario": scenario, "seed": seed, "duration": duration, "time_scale": time_scale,
-                           "out": str(out), "options": options})]
+                           "out": str(out), "options": options, "profile": profile or {}})]
     else:
         cmd = [sys.executable, "-m", "logger.cli", "run", "--sim", "--scenario", scenario, "--seed", str(seed),
                "--duration", f"{duration:g}", "--time-scale", f"{time_scale:g}", "--out", str(out),
                "--status-socket", str(out / "status.sock")]
+        if profile:
+            sim_file = out / "sim.toml"
+            sim_file.write_text("[sim]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in profile.items()))
+            sim_file.chmod(0o644)
+            cmd += ["--config", str(sim_file)]
     print(f"recording {scenario}{tag} seed {seed}, {duration:g} s at up to x{time_scale:g} ...", flush=True)
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if r.returncode != 0:
@@ -281,7 +316,8 @@ def record_child(spec: dict[str, Any]) -> int:
     cfg = defaults(sim=True)
     cfg.values["logger"].update(out_dir=str(out), status_socket=str(out / "status.sock"),
                                 state_dir=str(out / ".state"))
-    cfg.values["sim"].update(scenario=spec["scenario"], seed=int(spec["seed"]), time_scale=float(spec["time_scale"]))
+    cfg.values["sim"].update(scenario=spec["scenario"], seed=int(spec["seed"]), time_scale=float(spec["time_scale"]),
+                             **spec.get("profile", {}))
     daemon, _ = build(cfg, float(spec["duration"]), scenario_options=spec["options"])
     return finish(daemon, daemon.run(float(spec["duration"])))
 
@@ -304,6 +340,107 @@ def consistency(files: list[Path], times_config: float) -> list[str]:
             f"{s.within_3sigma_all * 100:.1f} %"]
 
 
+def moving(files: list[Path], s: Score, truth: Any) -> np.ndarray:
+    """Which of a score's solutions fall while the car truly moves (``/truth/nav`` speed over MOVING_MPS)."""
+    from logger.recording.drive import read_messages
+    from logger.recording.topics import TRUTH_NAV
+
+    t, v = [], []
+    for _, m in read_messages(files, [TRUTH_NAV]):
+        t.append(m["t_true_ns"])
+        v.append(float(np.hypot(m["vel_ned_mps"][0], m["vel_ned_mps"][1])))
+    order = np.argsort(t)
+    speed = np.interp(truth.t_ns[0] + s.t_s * 1e9, np.asarray(t, float)[order], np.asarray(v)[order])
+    return speed > MOVING_MPS
+
+
+def matrix_cell(files: list[Path]) -> dict[str, Any]:
+    """One drive through the default 17-state filter, forward and smoothed: what the matrix's table shows."""
+    truth = load_truth(files)
+    engine, traj, _ = replay(files, "17")
+    cell: dict[str, Any] = {"started": len(traj["t_sync_ns"]) > 0, "restarts": engine.counters.resets}
+    if not cell["started"]:
+        cell["why"] = engine.waiting_for() or "no solution"
+        return cell
+    s = score(traj, truth)
+    move = moving(files, s, truth)
+    err = s.err[move]
+    cell.update(parked=1.0 - float(move.mean()), rmse_moving=[float(x) for x in np.sqrt((err**2).mean(axis=0))]
+                if len(err) else [float("nan")] * 3, within_3sigma=s.within_3sigma)
+    _, straj, _ = replay(files, "17", smooth=True)
+    ss = score(straj, truth)
+    longest = max(s.outages, key=lambda o: o["duration_s"]) if s.outages else None
+    if longest is not None:
+        same = [o for o in ss.outages if abs(o["start_s"] - longest["start_s"]) < 1.0]
+        cell["outage"] = {"duration_s": longest["duration_s"], "max_h_m": longest["max_h_m"],
+                          "smoothed_max_h_m": same[0]["max_h_m"] if same else float("nan")}
+    # Smoothed never worse than forward in any outage (issue 12): the outages where it was.
+    forward = {round(o["start_s"]): o["max_h_m"] for o in s.outages}
+    cell["smoothed_worse"] = [o["start_s"] for o in ss.outages
+                              if o["max_h_m"] > forward.get(round(o["start_s"]), float("inf")) + 0.01]
+    return cell
+
+
+def matrix_row(profile: str, scenario: str, seed: int, duration_s: float, cell: dict[str, Any]) -> str:
+    head = f"| {profile} | {scenario}, seed {seed}, {duration_s:g} s |"
+    if not cell["started"]:
+        return head + f" the filter never started: {cell['why']} | | | | |"
+    r, w = cell["rmse_moving"], cell["within_3sigma"]
+    out = cell.get("outage")
+    outage = (f"{out['max_h_m']:.2f} / {out['smoothed_max_h_m']:.2f} ({out['duration_s']:.0f} s)" if out else "none")
+    if cell["smoothed_worse"]:
+        outage += f"; smoothed worse in {len(cell['smoothed_worse'])}"
+    return (head + f" {cell['parked'] * 100:.0f} % | {r[0]:.2f} / {r[1]:.2f} / {r[2]:.2f} | {outage} | "
+            f"{w[0] * 100:.1f} / {w[1] * 100:.1f} / {w[2] * 100:.1f} % | {cell['restarts']} |")
+
+
+MATRIX_HEADER = ("| profile | drive | parked | 17-state RMSE N / E / V while moving, m | longest outage: max "
+                 "horizontal forward / smoothed, m | within 3 sigma N / E / D | restarts |\n"
+                 "| --- | --- | --- | --- | --- | --- | --- |")
+
+
+def write_matrix(doc: Path, rows: list[str], command: str) -> None:
+    """The table between the markers of ``doc`` (a section of its own at the end when it has none yet)."""
+    import datetime as dt
+
+    table = "\n".join([f"Measured {dt.date.today().isoformat()} by `{command}`:", "", MATRIX_HEADER, *rows])
+    text = doc.read_text()
+    if MATRIX_BEGIN in text and MATRIX_END in text:
+        before, rest = text.split(MATRIX_BEGIN, 1)
+        after = rest.split(MATRIX_END, 1)[1]
+    else:
+        before, after = text.rstrip("\n") + "\n\n## Hardware profiles (`tools/nav_eval.py --matrix`)\n\n", "\n"
+    doc.write_text(f"{before}{MATRIX_BEGIN}\n{table}\n{MATRIX_END}{after}")
+
+
+def run_matrix(args: argparse.Namespace) -> int:
+    unknown = sorted(set(args.profiles) - set(PROFILES)) + sorted(set(args.scenarios) - set(MATRIX_SCENARIOS))
+    if unknown:
+        raise SystemExit(f"nav_eval: unknown profile or scenario: {', '.join(unknown)} (profiles: "
+                         f"{', '.join(PROFILES)}; scenarios: {', '.join(MATRIX_SCENARIOS)})")
+    rows = []
+    for profile in args.profiles:
+        for scenario in args.scenarios:
+            for seed in args.seeds:
+                duration = QUICK_S if args.quick else (args.urban_s if scenario == "urban" else DURATIONS[scenario])
+                tag = "" if profile == "default" else f"-{profile}"
+                files = record(args.drives, scenario, seed, duration, args.time_scale, tag=tag,
+                               profile=PROFILES[profile])
+                cell = matrix_cell(files)
+                rows.append(matrix_row(profile, scenario, seed, duration, cell))
+                print(rows[-1], flush=True)
+    print("\n".join([MATRIX_HEADER, *rows]))
+    if args.write_docs and not args.quick:
+        command = "python tools/nav_eval.py --matrix " + " ".join(
+            [f"--profiles {' '.join(args.profiles)}", f"--scenarios {' '.join(args.scenarios)}",
+             f"--seeds {' '.join(map(str, args.seeds))}", f"--urban-s {args.urban_s:g}", "--write-docs"])
+        write_matrix(args.doc, rows, command)
+        print(f"wrote the table into {args.doc}")
+    elif args.write_docs:
+        print("nav_eval: --quick drives are too short to be figures; docs not written", file=sys.stderr)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--drives", type=Path, default=Path("/tmp/nav-eval2"), help="where drives are kept and reused")
@@ -311,14 +448,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--urban-seeds", type=int, nargs="*", help="seeds of the urban drives (default: --seeds)")
     ap.add_argument("--time-scale", type=float, default=60.0,
                     help="recording speed at most: the drive is paced to what the host keeps up with")
-    ap.add_argument("--urban-s", type=float, default=1800.0, help="length of the urban drive, s")
+    ap.add_argument("--urban-s", type=float,
+                    help=f"length of the urban drive, s (default {URBAN_DEFAULT_S:g}; matrix: {MATRIX_URBAN_S:g})")
     ap.add_argument("--plots", type=Path)
     ap.add_argument("--imu-x", type=float, default=2.0,
                     help="consistency drives: simulated IMU errors this many times the configuration's (0: skip)")
+    ap.add_argument("--matrix", action="store_true", help="run the hardware matrix (profiles x scenarios) instead")
+    ap.add_argument("--profiles", nargs="*", default=list(PROFILES), help="matrix: profiles to run")
+    ap.add_argument("--scenarios", nargs="*", default=list(MATRIX_SCENARIOS), help="matrix: scenarios to run")
+    ap.add_argument("--quick", action="store_true", help=f"matrix: drives of {QUICK_S:g} s (runs, but no figures)")
+    ap.add_argument("--write-docs", action="store_true", help="matrix: write the table into --doc")
+    ap.add_argument("--doc", type=Path, default=DOC, help=argparse.SUPPRESS)
     ap.add_argument("--record-child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.record_child:
         return record_child(json.loads(args.record_child))
+    if args.matrix:
+        args.urban_s = MATRIX_URBAN_S if args.urban_s is None else args.urban_s
+        return run_matrix(args)
+    args.urban_s = URBAN_DEFAULT_S if args.urban_s is None else args.urban_s
     lines: list[str] = []
     for seed in args.seeds if args.urban_seeds is None else args.urban_seeds:
         lines.append(f"== urban, seed {seed}, {args.urban_s:g} s")
