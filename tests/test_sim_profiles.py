@@ -358,6 +358,7 @@ def test_the_daemon_records_an_nmea_only_receiver_at_5_hz(tmp_path: Path) -> Non
     assert msgs["/sync"][-1][2]["state"] == "locked" and msgs["/sync"][-1][2]["rejected"] == 0
     meta = simulation_metadata(path)
     assert (meta["receiver"], meta["gnss_rate_hz"], meta["gnss_latency_s"]) == ("nmea", "5", "0.3")
+    assert SimProfile.from_metadata(meta) == SimProfile(receiver="nmea", gnss_rate_hz=5, gnss_latency_s=0.3)
     # logger replay takes a file with only [nav] (no serial port demanded).
     nav = tmp_path / "nav.toml"
     nav.write_text('[nav]\nmode = "17"\n')
@@ -388,4 +389,5 @@ def test_the_daemon_records_a_phone_grade_imu_and_a_10_hz_receiver(tmp_path: Pat
     assert rest[:, 0].std() == pytest.approx(sigma, rel=0.15)
     meta = simulation_metadata(path)
     assert (meta["imu"], meta["gnss_rate_hz"], json.loads(meta["mounting_rpy_deg"])) == ("phone", "10", [5, -4, 30])
+    assert SimProfile.from_metadata(meta) == SimProfile(gnss_rate_hz=10, imu="phone", mounting_rpy_deg=(5, -4, 30))
     assert json.loads(meta["imu_errors"])["gyro_bias_gm_dps"] == Mpu6050Errors.phone_grade().gyro_bias_gm_dps

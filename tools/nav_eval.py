@@ -354,6 +354,18 @@ def moving(files: list[Path], s: Score, truth: Any) -> np.ndarray:
     return speed > MOVING_MPS
 
 
+def driven_profile(files: list[Path]) -> Any:
+    """The hardware a recording was driven with, from its ``simulation`` metadata (the default board's for a file
+    from before profiles were recorded)."""
+    from mcap.reader import make_reader
+
+    from sensors.sim.profile import SimProfile
+
+    with open(files[0], "rb") as f:
+        sim = next((dict(m.metadata) for m in make_reader(f).iter_metadata() if m.name == "simulation"), {})
+    return SimProfile.from_metadata(sim)
+
+
 def matrix_cell(files: list[Path]) -> dict[str, Any]:
     """One drive through the default 17-state filter, forward and smoothed: what the matrix's table shows."""
     truth = load_truth(files)
@@ -414,6 +426,8 @@ def write_matrix(doc: Path, rows: list[str], command: str) -> None:
 
 
 def run_matrix(args: argparse.Namespace) -> int:
+    from sensors.sim.profile import SimProfile
+
     unknown = sorted(set(args.profiles) - set(PROFILES)) + sorted(set(args.scenarios) - set(MATRIX_SCENARIOS))
     if unknown:
         raise SystemExit(f"nav_eval: unknown profile or scenario: {', '.join(unknown)} (profiles: "
@@ -426,6 +440,10 @@ def run_matrix(args: argparse.Namespace) -> int:
                 tag = "" if profile == "default" else f"-{profile}"
                 files = record(args.drives, scenario, seed, duration, args.time_scale, tag=tag,
                                profile=PROFILES[profile])
+                driven, wanted = driven_profile(files), SimProfile.from_config(PROFILES[profile])
+                if driven != wanted:  # a folder reused from another run: its drive is not this cell's
+                    raise SystemExit(f"nav_eval: {files[0].parent} was driven with {driven}, not {wanted}: "
+                                     "remove it, or use another --drives")
                 cell = matrix_cell(files)
                 rows.append(matrix_row(profile, scenario, seed, duration, cell))
                 print(rows[-1], flush=True)
