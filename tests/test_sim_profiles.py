@@ -79,6 +79,31 @@ def test_a_file_for_replay_or_a_simulated_run_needs_no_serial_port() -> None:
         parse("[nav]\nmod = \"15\"\n", "nav.toml", devices=False)
 
 
+def test_a_simulated_run_from_a_sim_only_file_writes_where_a_run_without_one_does(tmp_path: Path,
+                                                                                   monkeypatch) -> None:
+    """``logger run --sim --config FILE``: every sensor simulated, and files under ./drives as ``logger run --sim``
+    puts them, unless the file says where (the board's /var/lib is not a user's to write)."""
+    from logger.cli.run import parse_args, resolve_config
+
+    monkeypatch.chdir(tmp_path)
+    only_sim = tmp_path / "sim.toml"
+    only_sim.write_text('[sim]\nreceiver = "nmea"\n[obd]\nsource = "elm327"\n')  # no port: --sim opens none
+    placed = tmp_path / "placed.toml"
+    placed.write_text(f'[logger]\nout_dir = "{tmp_path / "mine"}"\n[sim]\nimu = "phone"\n')
+    for f in (only_sim, placed):
+        f.chmod(0o644)
+    cfg = resolve_config(parse_args(["--sim", "--config", str(only_sim)]))
+    assert all(cfg[s]["source"] == "sim" for s in ("imu", "baro", "obd", "gnss", "pps"))
+    assert cfg["sim"]["receiver"] == "nmea"
+    assert cfg["logger"]["out_dir"] == str(tmp_path / "drives")
+    assert cfg["logger"]["state_dir"] == str(tmp_path / "drives" / ".state")
+    cfg = resolve_config(parse_args(["--sim", "--config", str(placed)]))
+    assert cfg["logger"]["out_dir"] == str(tmp_path / "mine")
+    assert cfg["logger"]["state_dir"] == str(tmp_path / "mine" / ".state")
+    with pytest.raises(ConfigError, match=r"obd\.port is required"):  # without --sim the file names a device
+        resolve_config(parse_args(["--config", str(only_sim)]))
+
+
 # ---- the receiver: an NMEA-only one, its rate and its latency -------------------------------------------------
 class Bench:
     """A receiver model on a pty and the host's port, both on a ManualClock the test (or the setup's sleep) moves."""

@@ -102,7 +102,7 @@ def sim_places(cfg: Config) -> None:
         # A second simulated run beside one already running gets a socket of its own instead of taking the other's.
         places["status_socket"] = str(free_sim_socket(Path(DEFAULT_SIM_SOCKET)))
     if "logger.state_dir" not in cfg.explicit:
-        places["state_dir"] = str(Path(DEFAULT_SIM_OUT).resolve() / ".state")
+        places["state_dir"] = str(Path(places["out_dir"]) / ".state")
 
 
 RATES_NOT_HELD = 3  # exit code of a simulated drive whose sensors fell short of their rates
