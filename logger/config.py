@@ -214,6 +214,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mode": Key(str, FIELD, _one_of("17", "15", "gnss"), "17 (GNSS, IMU, OBD, baro), 15 (GNSS + IMU), gnss"),
         "lever_arm_m": Key(list, FIELD, _vector3(5.0), "GNSS antenna from the IMU, vehicle x y z (FRD), m"),
         "mounting_rpy_deg": Key(list, FIELD, _vector3(180.0), "IMU chip axes against the vehicle"),
+        "mount_align": Key(bool, FIELD, None, "estimate the mounting from the drive, mounting_rpy_deg the first guess"),
         "accel_noise_ug_rthz": Key(NUM, FIELD, _range(1, 100000), "accelerometer noise density (datasheet)"),
         "gyro_noise_dps_rthz": Key(NUM, FIELD, _range(1e-5, 10), "gyro noise density (datasheet)"),
         "accel_bias_mg": Key(NUM, FIELD, _range(0.01, 1000), "initial accelerometer offset uncertainty"),

@@ -38,6 +38,7 @@ class EngineCounters:
     resets: int = 0
     reanchors: int = 0  # times good fixes or baro heights, refused in a row, made it widen its position uncertainty
     reopens: int = 0  # times trusted velocities, refused in a row, made it reopen velocity, attitude and offsets
+    remounts: int = 0  # times the mount alignment, settled, replaced the mounting in use
     initialised_ns: int | None = None
     init_method: str = ""
 

@@ -36,6 +36,7 @@ from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import Observation
+from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler
@@ -50,6 +51,8 @@ IMU_GAP_S = 0.5  # samples further apart than this are a gap: counted, and still
 UPDATE_STALE_S = 0.2  # an update uses the covariance as last propagated if that is less than this old
 CONING_MAX_DT_S = 0.0105  # mean sample interval below which coning/sculling corrections are applied
 CONFIG_HEADING_VAR = math.radians(2.0) ** 2
+REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
+REMOUNT_MIN_DEG = 0.2  # a settled estimate further from the mounting in use than this replaces it
 
 
 class TrajectoryRow(NamedTuple):
@@ -108,8 +111,10 @@ class NavEngine:
             raise ValueError(f"unknown navigation mode {p.mode!r}: choose one of {', '.join(MODES)}")
         self.mode = p.mode
         self.n = N_FULL if p.mode == "17" else N_INS
-        m = dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg))
-        self._mount = None if np.allclose(m, np.eye(3)) else tuple(tuple(float(v) for v in row) for row in m)
+        self._set_mount(dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg)))
+        self.alignment = MountAlignment(p.mounting_rpy_deg) if p.mount_align and p.mode != "gnss" else None
+        self.mount_applied: tuple[float, float, float] = tuple(float(a) for a in p.mounting_rpy_deg)
+        self._next_remount_ns = 0
         self.lever = np.array(p.lever_arm_m, float)
         self.mech = Strapdown(coning=False)
         self.stops = StopDetector(p.still_accel_mps2)
@@ -157,6 +162,9 @@ class NavEngine:
             self.thermal.add(t_ns, float(temp_degc))
         if self.mode == "gnss":
             return
+        al = self.alignment
+        if al is not None:
+            al.sample(t_ns, acc, gyro)
         mt = self._mount
         if mt is not None:
             acc = (mt[0][0] * acc[0] + mt[0][1] * acc[1] + mt[0][2] * acc[2],
@@ -290,6 +298,57 @@ class NavEngine:
         self._cov_dt = 0.0
         self._f_acc = [0.0, 0.0, 0.0]
         self.refresh_sigma()
+        if self.alignment is not None:
+            self._follow_alignment()
+
+    # ---- the mounting ----------------------------------------------------------------------------------
+    def _set_mount(self, m: np.ndarray) -> None:
+        self._mount_m = m
+        self._mount = None if np.allclose(m, np.eye(3)) else tuple(tuple(float(v) for v in row) for row in m)
+
+    def _follow_alignment(self) -> None:
+        """Give the alignment the offsets on the chip's axes, and take its estimate once it has settled."""
+        al, s = self.alignment, self.state
+        assert al is not None and s is not None
+        al.gyro_offset = self._mount_m.T @ np.array(s.bg)
+        t = self._t_last or 0
+        if t < self._next_remount_ns:
+            return
+        self._next_remount_ns = t + REMOUNT_INTERVAL_NS
+        est = al.estimate()
+        if est.state != SETTLED:
+            return
+        d = mount_matrix(est.rpy_deg) @ self._mount_m.T  # new body from old body
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(d)) - 1.0) / 2.0))))
+        if angle >= REMOUNT_MIN_DEG:
+            self.remount(est)
+
+    def remount(self, est: MountEstimate) -> None:
+        """Take a new mounting: the samples are turned the new way from now on.
+
+        The filter's attitude is kept: it is the vehicle's, since the GNSS course, the OBD speed and the
+        non-holonomic rows pulled the body axes onto the vehicle's while the samples came in turned the wrong
+        way (that is where the mounting's error went: into the attitude the filter held of the chip, and into its
+        offsets). Keeping the chip's attitude instead turned the body 30 deg off the road on a board mounted at
+        30 deg, and the filter refused its fixes for half a minute. The offsets, fitted through the wrong
+        mounting, are reopened, as after a restart."""
+        assert self.state is not None and self.ekf is not None
+        m_new = mount_matrix(est.rpy_deg)
+        d = m_new @ self._mount_m.T  # new body from old body
+        s = self.state
+        # The gyro's offset came from standstills, where the mounting does not matter: it turns with the axes.
+        # The accelerometer's took up the mounting's tilt: it starts again from zero, its prior reopened.
+        s.bg = tuple(float(v) for v in d @ np.array(s.bg))
+        s.ba = (0.0, 0.0, 0.0)
+        self._set_mount(m_new)
+        self.mount_applied = est.rpy_deg
+        self._w_last = tuple(float(v) for v in d @ np.array(self._w_last))
+        self._f_last = tuple(float(v) for v in d @ np.array(self._f_last))
+        self.mech.prime(self._w_last, self._f_last)
+        self._obd.mount_yaw_stat = [0.0, 0.0]
+        self.reopen_attitude_and_offsets()
+        self.velocity_evidence.clear()
+        self.counters.remounts += 1
 
     def refresh_sigma(self) -> None:
         p = self.ekf.p if self.ekf is not None else None
@@ -365,6 +424,9 @@ class NavEngine:
         if fix is None:
             return
         self.last_readings.fix = fix
+        if self.alignment is not None and fix.vel is not None and self.state is not None:
+            v = fix.vel
+            self.alignment.fix(fix.t_ns, (float(v[0]), float(v[1]), float(v[2]) if fix.vel_3d else self.state.vd))
         if self.mode == "gnss":
             self._gnss_row(fix)
             return

@@ -101,6 +101,13 @@ class HealthJudge:
 
 
 def mounting_verdict(engine: NavEngine) -> str:
+    al = engine.alignment
+    if al is not None:
+        est = al.estimate()
+        if math.isfinite(est.sigma_deg[0]):
+            moved = f"; the mounting moved {al.moves} times this drive" if al.moves else ""
+            sig = max(est.sigma_deg)
+            return f"{est.words()} (+-{sig:.1f} deg, {est.windows} windows){moved}"
     lev = engine.startup.levelled
     slip_sum, slip_n = engine.mount_yaw_stat
     parts = []

@@ -29,6 +29,7 @@ class NavParams:
     mode: str = "17"
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU to GNSS antenna, vehicle FRD, m
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU chip axes relative to vehicle FRD
+    mount_align: bool = True  # estimate the mounting from the drive (mounting.py), mounting_rpy_deg the first guess
     accel_noise_ug_rthz: float = 400.0
     gyro_noise_dps_rthz: float = 0.005
     accel_bias_mg: float = 50.0  # initial uncertainty of the accelerometer offset

@@ -269,9 +269,22 @@ def nav_state_record(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: lis
         "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
         "resets": c.resets, "reanchors": c.reanchors, "reopens": c.reopens, "repairs": ekf.repairs if ekf else 0,
         "stopped": engine.stopped,
+        **_mount_fields(engine),
         "gnss_time": engine.epoch_clock.method,
         "verdicts": verdicts or [],
     }
     if extra:
         msg.update(extra)
     return msg
+
+
+def _mount_fields(engine: NavEngine) -> dict[str, Any]:
+    """The mount alignment's estimate for ``/nav/state`` (nulls when the alignment is off or has not started)."""
+    al = engine.alignment
+    est = al.estimate() if al is not None else None
+    known = est is not None and math.isfinite(est.sigma_deg[0])
+    return {"mount_rpy_deg": list(est.rpy_deg) if known else None,
+            "mount_sigma_deg": list(est.sigma_deg) if known else None,
+            "mount_state": est.state if est is not None else None,
+            "mount_applied_rpy_deg": list(engine.mount_applied), "remounts": engine.counters.remounts,
+            "mount_moves": al.moves if al is not None else 0}

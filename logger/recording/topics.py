@@ -253,6 +253,13 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
                            "IMU offsets"),
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
+    "mount_rpy_deg": ("number[3]?", "the IMU's mounting as the drive shows it: roll, pitch, yaw of the chip against "
+                                    "the vehicle, deg (nav.mounting_rpy_deg's convention); null until estimated"),
+    "mount_sigma_deg": ("number[3]?", "1-sigma of mount_rpy_deg, deg"),
+    "mount_state": ("string?", "the mount alignment: learning or settled; null when nav.mount_align is off"),
+    "mount_applied_rpy_deg": ("number[3]", "the mounting the filter turns the samples with now, deg"),
+    "remounts": ("integer", "times a settled mount alignment replaced the mounting in use"),
+    "mount_moves": ("integer", "times the mounting was seen to move during the drive (the board knocked)"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay, "
                             "by arrival for a fix without a valid time, none before the first fix"),
     "verdicts": ("string[]", "plain health verdicts, one sentence each (live only)"),

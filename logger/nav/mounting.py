@@ -1,0 +1,262 @@
+"""Automatic IMU-mount alignment: the chip's roll, pitch and yaw against the vehicle, from what the drive shows.
+
+Automotive dead-reckoning receivers (u-blox ADR/UDR, ESF-ALG) do not ask the installer how the box sits: they
+compare what the IMU measures with what the vehicle must be doing. So does this module. A car moving straight
+has no side slip and no vertical velocity through its floor (the non-holonomic constraint), so its specific force
+in its own forward-right-down axes follows from its speed and the road alone:
+
+    f_vehicle = (a + g sin(theta), 0, -g cos(theta)),    theta = atan2(-v_down, v_horizontal)
+
+with ``a`` the change of speed over the window and ``theta`` the road's grade, both from the filter's GNSS-aided
+velocity. The chip measures ``f_chip = R f_vehicle`` (R the mounting, chip from vehicle). Windows of one second
+give pairs (f_chip, f_vehicle); the rotation that fits them best is Wahba's problem, solved by an SVD (Markley).
+Gravity fixes roll and pitch; accelerating and braking, which every drive does, fix the yaw. Turns are left out
+(the lateral force depends on the turn rate through the mounting being estimated) and so are stops (the road's
+grade at a standstill is unknown). A road's bank is not modelled: it averages out over roads, and it is what
+limits the roll; it is in the residuals, hence in the uncertainty.
+
+The uncertainty is the fit's: residual scatter over the information the pairs give, sigma^2 (sum |f|^2 I - f f^T)^-1,
+widened by the windows' correlation (a bank or a grade lasts many seconds). The estimate is ``settled`` once the
+roll and pitch are known to 0.3 deg and the yaw to 0.5 deg. A second, short-memory fit over the last minutes of
+windows watches for a mounting that moved (the board knocked): when it disagrees with the long one by more than
+both its uncertainty and MOVED_DEG, the long fit starts again from the recent windows (counted in ``moves``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from logger.nav.rotations import dcm_from_euler, euler_from_dcm
+
+WINDOW_S = 1.0  # at least this long between the two fixes of a window
+SUM_SAMPLES = 8192  # running sums kept: 8 s at 1 kHz, more than a fix's latency plus a window
+MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
+MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
+MIN_TURN_DPS = 2.0  # below this a window is taken as straight: its rate is the gyro's noise and offset
+MAX_ACCEL_MPS2 = 4.0  # harder than this (a bump, a pothole) is not the car's own acceleration
+CORRELATION_WINDOWS = 3.0  # a window's grade and bank error lasts about this many windows (roads, not noise)
+SETTLED_TILT_DEG = 0.5
+SETTLED_YAW_DEG = 1.0
+MIN_WINDOWS = 60
+RECENT_WINDOWS = 120  # the short memory that notices a mounting that moved
+MOVED_DEG = 2.0
+
+LEARNING, SETTLED = "learning", "settled"
+
+
+@dataclass(frozen=True)
+class MountEstimate:
+    """The mounting as estimated: roll, pitch, yaw of the chip against the vehicle (nav.mounting_rpy_deg's
+    convention), 1-sigma, how many windows, and whether it is settled."""
+
+    rpy_deg: tuple[float, float, float]
+    sigma_deg: tuple[float, float, float]
+    windows: int
+    state: str
+
+    def words(self) -> str:
+        r, p, y = self.rpy_deg
+        return f"mount alignment: {r:.1f} / {p:.1f} / {y:.1f} deg, {self.state}"
+
+
+CHI2_FLOOR = 0.25  # the residuals may show the windows better than their nominal sigmas, by this much at most
+ACCEL_SIGMA_MPS2 = 0.2  # a window's specific force against the model: a road's bank, bumps, the speed's change
+GYRO_SIGMA_RPS = math.radians(0.5)  # a window's rate against the course's: pitch and roll rates of the body, slip
+
+
+class _Fit:
+    """Running sums of one fit (with exponential forgetting when ``memory`` is set): Wahba's problem over pairs of
+    specific forces, with the accelerometer's offset estimated beside the rotation, and over pairs of rates."""
+
+    def __init__(self, memory: float | None = None) -> None:
+        self.memory = memory
+        self.b_acc = np.zeros((3, 3))  # sum f_chip f_vehicle^T
+        self.s_fc = np.zeros(3)  # sum f_chip
+        self.s_fv = np.zeros(3)  # sum f_vehicle
+        self.cc_acc = 0.0  # sum |f_chip|^2 + |f_vehicle|^2
+        self.info_acc = np.zeros((3, 3))  # sum |f_v|^2 I - f_v f_v^T
+        self.b_gyro = np.zeros((3, 3))
+        self.cc_gyro = 0.0
+        self.info_gyro = np.zeros((3, 3))
+        self.n = 0.0
+
+    def _decay(self) -> None:
+        if self.memory is not None:
+            k = 1.0 - 1.0 / self.memory
+            for name in ("b_acc", "s_fc", "s_fv", "info_acc", "b_gyro", "info_gyro"):
+                getattr(self, name).__imul__(k)
+            self.cc_acc *= k
+            self.cc_gyro *= k
+            self.n *= k
+
+    def add(self, fc: np.ndarray, fv: np.ndarray, wc: np.ndarray, wv: np.ndarray) -> None:
+        self._decay()
+        self.b_acc += np.outer(fc, fv)
+        self.s_fc += fc
+        self.s_fv += fv
+        self.cc_acc += float(fc @ fc) + float(fv @ fv)
+        self.info_acc += float(fv @ fv) * np.eye(3) - np.outer(fv, fv)
+        self.b_gyro += np.outer(wc, wv)
+        self.cc_gyro += float(wc @ wc) + float(wv @ wv)
+        self.info_gyro += float(wv @ wv) * np.eye(3) - np.outer(wv, wv)
+        self.n += 1.0
+
+    def copy_from(self, other: _Fit) -> None:
+        for name, value in vars(other).items():
+            if name != "memory":
+                setattr(self, name, value.copy() if isinstance(value, np.ndarray) else value)
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(R chip from vehicle, covariance of its small-angle error in vehicle axes, accelerometer offset on the
+        chip's axes), None without enough."""
+        if self.n < 3:
+            return None
+        wa, wg = 1.0 / ACCEL_SIGMA_MPS2**2, 1.0 / GYRO_SIGMA_RPS**2
+        # With the offset b free, its best value is the mean of fc - R fv, and what is left to fit is the pairs'
+        # cross-covariance about their means (the term R sum fv sum fv^T / n adds a constant, R^T R = I):
+        # one SVD, for the rotation and the offset together.
+        centred = self.b_acc - np.outer(self.s_fc, self.s_fv) / self.n
+        u, _, vt = np.linalg.svd(wa * centred + wg * self.b_gyro)
+        r = u @ np.diag((1.0, 1.0, float(np.linalg.det(u) * np.linalg.det(vt)))) @ vt
+        bias = (self.s_fc - r @ self.s_fv) / self.n
+        b_acc = self.b_acc - np.outer(bias, self.s_fv)
+        # sum |fc - b - R fv|^2 = sum |fc|^2 - 2 b.sum fc + n |b|^2 + sum |fv|^2 - 2 trace(R^T sum (fc - b) fv^T)
+        sse_acc = self.cc_acc - 2.0 * float(bias @ self.s_fc) + self.n * float(bias @ bias) \
+            - 2.0 * float(np.trace(r.T @ b_acc))
+        sse_gyro = self.cc_gyro - 2.0 * float(np.trace(r.T @ self.b_gyro))
+        chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * self.n - 6.0, 1.0)
+        # The offset takes up the pairs' mean force (gravity, mostly): only their spread about it tells the angles.
+        mean_fv = self.s_fv / self.n
+        info_acc = self.info_acc - self.n * (float(mean_fv @ mean_fv) * np.eye(3) - np.outer(mean_fv, mean_fv))
+        info = wa * info_acc + wg * self.info_gyro
+        try:
+            cov = max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS * np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            return None
+        return r, cov, bias
+
+
+class MountAlignment:
+    """The mounting from windows of one second of the drive; ``configured`` is the starting guess (degrees)."""
+
+    def __init__(self, configured_rpy_deg: tuple[float, float, float]) -> None:
+        self.configured = tuple(float(a) for a in configured_rpy_deg)
+        self._long = _Fit()
+        self._recent = _Fit(memory=RECENT_WINDOWS)
+        self.moves = 0
+        # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) per sample, so a
+        # window between two fix epochs is a difference of two entries whenever the later fix arrives.
+        self._sums: deque[tuple[int, float, float, float, float, float, float, int]] = deque(maxlen=SUM_SAMPLES)
+        self._run = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
+        self._fix0: tuple[int, tuple[float, float, float]] | None = None  # the window's first fix: epoch, velocity
+        # The filter's gyro offset on the chip's axes (from the standstills: the mounting does not enter), removed
+        # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
+        # part of the mounting's tilt while the mounting was wrong.
+        self.gyro_offset = np.zeros(3)
+        self.gravity = 9.80665  # the local gravity, m/s^2 (the engine sets it from its position)
+
+    # ---- windows ---------------------------------------------------------------------------------------
+    def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
+        """One IMU sample on the chip's axes, as read."""
+        r = self._run
+        r[0] += acc_chip[0]
+        r[1] += acc_chip[1]
+        r[2] += acc_chip[2]
+        r[3] += gyro_chip[0]
+        r[4] += gyro_chip[1]
+        r[5] += gyro_chip[2]
+        r[6] += 1
+        self._sums.append((t_ns, *r))
+
+    def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
+        """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
+        sums = self._sums
+        if not sums or sums[0][0] > t_ns:
+            return None
+        lo, hi = 0, len(sums) - 1
+        while lo < hi:  # the last entry with time <= t_ns
+            mid = (lo + hi + 1) // 2
+            if sums[mid][0] <= t_ns:
+                lo = mid
+            else:
+                hi = mid - 1
+        return sums[lo]
+
+    def fix(self, t_epoch_ns: int, vel_ned: tuple[float, float, float]) -> None:
+        """A GNSS velocity at its epoch (the receiver's Doppler: it owes nothing to the IMU, whose mounting is
+        being estimated; the down element may come from the filter when the receiver gives none). Once a window
+        of WINDOW_S is complete, its pair goes into the fits if the car was moving."""
+        if self._fix0 is None or t_epoch_ns <= self._fix0[0] or t_epoch_ns - self._fix0[0] > 3 * WINDOW_S * 1e9:
+            self._fix0 = (t_epoch_ns, vel_ned)
+            return
+        t0, v0 = self._fix0
+        dt = (t_epoch_ns - t0) / 1e9
+        if dt < WINDOW_S * 0.999:
+            return
+        self._fix0 = (t_epoch_ns, vel_ned)
+        a, b = self._sum_at(t0), self._sum_at(t_epoch_ns)
+        if a is None or b is None or b[7] - a[7] < 2:
+            return
+        k = b[7] - a[7]
+        fc = np.array((b[1] - a[1], b[2] - a[2], b[3] - a[3])) / k
+        wc = np.array((b[4] - a[4], b[5] - a[5], b[6] - a[6])) / k - self.gyro_offset
+        v1 = vel_ned
+        h0, h1 = math.hypot(v0[0], v0[1]), math.hypot(v1[0], v1[1])
+        if min(h0, h1) < MIN_SPEED_MPS:
+            return
+        accel = (h1 - h0) / dt
+        turn = math.remainder(math.atan2(v1[1], v1[0]) - math.atan2(v0[1], v0[0]), math.tau) / dt  # FRD yaw rate
+        if abs(accel) > MAX_ACCEL_MPS2 or abs(math.degrees(turn)) > MAX_TURN_DPS:
+            return
+        speed = 0.5 * (h0 + h1)
+        theta = math.atan2(-0.5 * (v0[2] + v1[2]), speed)
+        g0 = self.gravity
+        # The car turns about its own vertical: the chip's rate is that axis, at the gyro's rate (more exact than
+        # the course's change between two velocities), turning the way the course turned.
+        rate = math.copysign(float(np.linalg.norm(wc)), turn) if abs(math.degrees(turn)) > MIN_TURN_DPS else 0.0
+        # Forward: the change of speed and the grade; right: the centripetal force of the turn; down: gravity.
+        fv = np.array((accel + g0 * math.sin(theta), speed * rate, -g0 * math.cos(theta)))
+        # The turn is about the vertical: on a grade, that axis leans back in the car's axes by the grade.
+        wv = np.array((-rate * math.sin(theta), 0.0, rate * math.cos(theta)))
+        self.add(fc, fv, wc if rate else np.zeros(3), wv)
+
+    def add(self, f_chip: np.ndarray, f_vehicle: np.ndarray, w_chip: np.ndarray, w_vehicle: np.ndarray) -> None:
+        """One window: the chip's mean specific force and rate, and the vehicle's."""
+        args = [np.asarray(v, float) for v in (f_chip, f_vehicle, w_chip, w_vehicle)]
+        self._long.add(*args)
+        self._recent.add(*args)
+        if self._long.n >= MIN_WINDOWS and self._recent.n >= 0.5 * RECENT_WINDOWS and self._moved():
+            self.moves += 1
+            self._long.copy_from(self._recent)
+
+    def _moved(self) -> bool:
+        a, b = self._long.solve(), self._recent.solve()
+        if a is None or b is None:
+            return False
+        rel = a[0].T @ b[0]
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(rel)) - 1.0) / 2.0))))
+        sigma = math.degrees(math.sqrt(float(np.trace(b[1])) + float(np.trace(a[1]))))
+        return angle > max(MOVED_DEG, 4.0 * sigma)
+
+    # ---- the estimate ----------------------------------------------------------------------------------
+    def estimate(self) -> MountEstimate:
+        """The current estimate; the configured mounting (sigma unknown) until the drive has shown enough."""
+        sol = self._long.solve() if self._long.n >= 3 else None
+        if sol is None:
+            return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)
+        r, cov, _ = sol
+        m = r.T  # vehicle from chip: what the engine applies to a sample (dcm_from_euler(mounting_rpy_deg))
+        rpy = tuple(math.degrees(a) for a in euler_from_dcm(m))
+        sig = tuple(math.degrees(math.sqrt(max(float(cov[i, i]), 0.0))) for i in range(3))
+        settled = (self._long.n >= MIN_WINDOWS and max(sig[0], sig[1]) <= SETTLED_TILT_DEG
+                   and sig[2] <= SETTLED_YAW_DEG)
+        return MountEstimate(rpy, sig, int(self._long.n), SETTLED if settled else LEARNING)
+
+
+def mount_matrix(rpy_deg: tuple[float, float, float]) -> np.ndarray:
+    """Vehicle from chip, as the engine applies ``nav.mounting_rpy_deg``."""
+    return dcm_from_euler(*(math.radians(a) for a in rpy_deg))
