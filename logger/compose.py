@@ -113,7 +113,7 @@ def build(cfg: Config, duration_s: float | None,
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
         "partly simulated" if vehicle else "")
-    navigator = attach_navigator(cfg["nav"], attachments)
+    navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]))
     daemon = Daemon(cfg, plans, timebase=tb, clock=clock, attachments=attachments, mode=mode)
     if navigator is not None:
         navigator.bind(daemon)

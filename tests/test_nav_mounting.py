@@ -93,3 +93,28 @@ def test_the_filter_takes_the_settled_mounting_and_drives_as_if_it_had_been_conf
     # better than the filter left unaware of it.
     assert rmse_after(auto, 450.0) <= 1.2 * rmse_after(configured, 450.0) + 0.02
     assert rmse_after(auto, 450.0) < rmse_after(unaware, 450.0)
+
+
+def test_a_settled_mounting_is_the_next_drives_first_guess_unless_the_configuration_changed(tmp_path, caplog):
+    from logger.nav.params import NavParams
+    from logger.runtime import mount_state
+    from logger.runtime.navigator import Navigator
+
+    path = tmp_path / "mount.json"
+    al = MountAlignment((0.0, 0.0, 0.0))
+    _windows(al, MOUNT, 600, seed=5)
+    mount_state.save(path, (0.0, 0.0, 0.0), al.estimate())
+    nav = Navigator(NavParams(), mount_path=path)
+    assert nav.engine.mount_applied == pytest.approx(al.estimate().rpy_deg)
+    assert nav.engine.alignment.configured == pytest.approx(al.estimate().rpy_deg)
+    # The installer says the board sits otherwise now: the configuration wins.
+    moved = Navigator(NavParams(mounting_rpy_deg=(0.0, 0.0, 90.0)), mount_path=path)
+    assert moved.engine.mount_applied == (0.0, 0.0, 90.0)
+    # Only a settled estimate is kept; a damaged file is ignored with a line saying so.
+    learning = MountAlignment((0.0, 0.0, 0.0))
+    _windows(learning, MOUNT, 10, seed=6)
+    mount_state.save(tmp_path / "other.json", (0.0, 0.0, 0.0), learning.estimate())
+    assert not (tmp_path / "other.json").exists()
+    path.write_text("{not json")
+    assert Navigator(NavParams(), mount_path=path).engine.mount_applied == (0.0, 0.0, 0.0)
+    assert "ignoring the saved mount alignment" in caplog.text

@@ -16,6 +16,8 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from logger.nav.engine import NavEngine
@@ -23,6 +25,7 @@ from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE
+from logger.runtime import mount_state
 from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import Reading
 
@@ -36,8 +39,14 @@ class Navigator:
     """A daemon tap running :class:`NavEngine` on its own thread."""
 
     def __init__(self, params: NavParams, publish: Callable[[Reading], None] | None = None,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
-        self.params = params
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, mount_path: Path | None = None) -> None:
+        # The mounting the last drive settled on is this one's first guess (mount_state.py).
+        self.configured_mount = tuple(float(a) for a in params.mounting_rpy_deg)
+        self.mount_path = mount_path if params.mount_align else None
+        saved = mount_state.load(self.mount_path, self.configured_mount) if self.mount_path else None
+        self.params = replace(params, mounting_rpy_deg=saved) if saved is not None else params
+        params = self.params
+        self._next_mount_save_ns = 0
         self.engine = NavEngine(params)
         self._feed = nav_feeder(self.engine)
         self.publish = publish
@@ -93,6 +102,12 @@ class Navigator:
         self._halt.set()
         if self._thread is not None:
             self._thread.join(2.0)
+        self._save_mount()
+
+    def _save_mount(self) -> None:
+        al = self.engine.alignment
+        if self.mount_path is not None and al is not None:
+            mount_state.save(self.mount_path, self.configured_mount, al.estimate())
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
@@ -143,6 +158,9 @@ class Navigator:
             msg = nav_state_record(self.engine, t, sol.t_mono_ns, self._verdicts,
                                 {"dropped": self.dropped, "cpu_s": round(self.cpu_s, 4)})
             self.publish(Reading(NAV_STATE, msg, sol.t_mono_ns, stamped=False))
+            if t >= self._next_mount_save_ns:
+                self._next_mount_save_ns = t + int(mount_state.SAVE_INTERVAL_S * 1e9)
+                self._save_mount()
 
     # ---- status -------------------------------------------------------------------------------------------
     def section(self) -> dict[str, Any]:
@@ -167,12 +185,15 @@ class Navigator:
             return out
 
 
-def attach_navigator(section: dict[str, Any], attachments: Attachments) -> Navigator | None:
+def attach_navigator(section: dict[str, Any], attachments: Attachments,
+                     state_dir: Path | None = None) -> Navigator | None:
     """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
-    to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists."""
+    to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists. The mount
+    alignment is kept in ``state_dir`` from one drive to the next."""
     if not section.get("enabled", True):
         return None
-    nav = Navigator(NavParams.from_config(section))
+    nav = Navigator(NavParams.from_config(section),
+                    mount_path=state_dir / "mount.json" if state_dir is not None else None)
     attachments.taps.append(nav)
     attachments.sections["nav"] = nav.section
     attachments.close.append(nav.stop)
