@@ -237,6 +237,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gnss_nominal_v_acc_m": Key(NUM, FIELD, _range(0.01, 200), "vertical accuracy of such fixes, m"),
         "gnss_nominal_s_acc_mps": Key(NUM, FIELD, _range(0.001, 10), "speed accuracy of fixes without one, m/s"),
         "gnss_learn_scatter": Key(bool, FIELD, None, "widen guessed accuracies by what the fixes' scatter shows"),
+        "gnss_floor_corr_s": Key(NUM, FIELD, _range(0, 3600),
+                                 "how long the error at the receiver's own accuracy floor lasts, s (0: white)"),
         "gnss_independent_hz": Key(NUM, FIELD, _range(0.01, 100),
                                    "faster fixes weigh together what fixes at this rate do (errors last)"),
         "gnss_min_sv": Key(int, FIELD, _range(4, 40), "fixes on fewer satellites are not used"),

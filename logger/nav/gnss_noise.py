@@ -56,8 +56,9 @@ class RunningMin:
 class CorrelatedGnssNoise:
     """Per-fix variances for position (per axis, from hAcc and vAcc) and velocity (from sAcc)."""
 
-    def __init__(self, corr_s: float, independent_hz: float = 1.0) -> None:
+    def __init__(self, corr_s: float, independent_hz: float = 1.0, floor_corr_s: float = 0.0) -> None:
         self.corr_s = corr_s
+        self.floor_corr_s = floor_corr_s
         self.independent_s = 1.0 / independent_hz if independent_hz > 0.0 else 0.0
         self._floors = (RunningMin(), RunningMin(), RunningMin())
         self._t_last_ns: int | None = None
@@ -77,16 +78,26 @@ class CorrelatedGnssNoise:
         rho = math.exp(-dt / self.corr_s)
         return (1.0 + rho) / (1.0 - rho)
 
+    def floor_factor(self) -> float:
+        """How much more slowly the floor's own error (atmosphere, orbits: minutes) averages out than a white one
+        at the receiver's usual interval; 1 when ``floor_corr_s`` is 0 (the floor taken as white)."""
+        if self.floor_corr_s <= 0.0 or self.interval_s <= 0.0 or not 0.0 < self._dt_last < MAX_GAP_S:
+            return 1.0
+        rho = math.exp(-self.interval_s / self.floor_corr_s)
+        return (1.0 + rho) / (1.0 - rho)
+
     def rate_factor(self) -> float:
         """The fix rate over the rate of independent fixes: how many epochs report one error (1 at 1 Hz)."""
         if self.interval_s <= 0.0 or not 0.0 < self._dt_last < MAX_GAP_S:
             return 1.0
         return max(1.0, self.independent_s / self.interval_s)
 
-    def sigmas(self, t_ns: int, h_acc: float, v_acc: float, s_acc: float) -> tuple[float, float, float]:
-        """1-sigma horizontal per axis, vertical and speed, with the excess over the floor widened."""
+    def sigmas(self, t_ns: int, h_acc: float, v_acc: float, s_acc: float,
+               floor_correlated: bool = True) -> tuple[float, float, float]:
+        """1-sigma horizontal per axis, vertical and speed, with the excess over the floor widened (and the floor
+        too, as lasting ``floor_corr_s``, unless ``floor_correlated`` is False)."""
         c = self.factor(t_ns)
-        r = self.rate_factor()
+        r = max(self.rate_factor(), self.floor_factor() if floor_correlated else 1.0)
         out = []
         for value, floor in zip((h_acc, v_acc, s_acc), self._floors, strict=True):
             low = floor.add(value)

@@ -80,7 +80,8 @@ class GnssPolicy:
         self.epoch_clock = epoch_clock
         self.last_readings = last
         self.position, self.velocity, self.height = position, velocity, height
-        self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s, params.gnss_independent_hz)
+        self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s, params.gnss_independent_hz,
+                                          params.gnss_floor_corr_s)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
         self.last_figures: FixFigures | None = None  # the last fix's accuracy figures, for the learner
@@ -97,7 +98,9 @@ class GnssPolicy:
         t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state)
         fig = self.accuracy.figures(msg.h_acc_m, msg.v_acc_m, msg.s_acc_mps, msg.pdop)
         k = p.gnss_acc_scale
-        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, fig.h_acc, fig.v_acc, fig.s_acc)
+        # The receiver's own figures describe the error of the moment, which lasts: its floor is taken as
+        # correlated. Guessed figures are a data sheet's broad spread already (and widened by the scatter).
+        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, fig.h_acc, fig.v_acc, fig.s_acc, fig.source == RECEIVER)
         sig_h, sig_v, s_vel = max(0.1, k * sig_h), max(0.2, k * sig_v), max(0.03, k * s_vel)
         vel = msg.vel_ned_mps
         vel_arr, vel_3d = None, False
