@@ -216,6 +216,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "mounting_rpy_deg": Key(list, FIELD, _vector3(180.0), "IMU chip axes against the vehicle"),
         "mount_align": Key(bool, FIELD, None, "estimate the mounting from the drive, mounting_rpy_deg the first guess"),
         "accel_noise_ug_rthz": Key(NUM, FIELD, _range(1, 100000), "accelerometer noise density (datasheet)"),
+        "imu_noise_from_drive": Key(bool, FIELD, None, "widen the noise densities to what the samples show"),
         "gyro_noise_dps_rthz": Key(NUM, FIELD, _range(1e-5, 10), "gyro noise density (datasheet)"),
         "accel_bias_mg": Key(NUM, FIELD, _range(0.01, 1000), "initial accelerometer offset uncertainty"),
         "gyro_bias_dps": Key(NUM, FIELD, _range(0.001, 200), "initial gyro offset uncertainty"),

@@ -34,6 +34,7 @@ from logger.nav.ekf import ErrorStateEkf
 from logger.nav.evidence import HeightEvidence, PositionEvidence, VelocityEvidence
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
+from logger.nav.imu_noise import ImuNoiseMonitor
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
@@ -123,6 +124,7 @@ class NavEngine:
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)
         self.q_diag = self.noise.diagonal(self.n)
+        self.imu_noise = ImuNoiseMonitor() if p.imu_noise_from_drive else None
         self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
         self.state: NavState | None = None
         self.ekf: ErrorStateEkf | None = None
@@ -182,6 +184,8 @@ class NavEngine:
         self._raw = (acc, gyro)
         self.stops.add(t_ns, acc, gyro)
         dt = 0.0 if t_last is None else (t_ns - t_last) / NS
+        if self.imu_noise is not None:
+            self.imu_noise.add(acc, gyro, dt)
         if 0.0 < dt < IMU_GAP_S:
             # Coning and sculling corrections pay off once the IMU runs fast (100 Hz and up, FIFO reads): they
             # need consecutive increments of one sampling clock, which a slow polled IMU does not give.
@@ -300,6 +304,21 @@ class NavEngine:
         self.refresh_sigma()
         if self.alignment is not None:
             self._follow_alignment()
+        if self.imu_noise is not None:
+            self._follow_imu_noise()
+
+    def _follow_imu_noise(self) -> None:
+        """Process noise from what the drive shows, never below the configured densities (imu_noise.py)."""
+        assert self.imu_noise is not None
+        measured = self.imu_noise.densities()
+        if measured is None:
+            return
+        p = self.params
+        vrw, arw = max(p.accel_vrw, measured[0]), max(p.gyro_arw, measured[1])
+        if abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1:
+            self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
+                                      p.baro_offset_walk_m_rts)
+            self.q_diag = self.noise.diagonal(self.n)
 
     # ---- the mounting ----------------------------------------------------------------------------------
     def _set_mount(self, m: np.ndarray) -> None:

@@ -31,6 +31,7 @@ class NavParams:
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU chip axes relative to vehicle FRD
     mount_align: bool = True  # estimate the mounting from the drive (mounting.py), mounting_rpy_deg the first guess
     accel_noise_ug_rthz: float = 400.0
+    imu_noise_from_drive: bool = True  # widen the densities below to what the samples show (imu_noise.py)
     gyro_noise_dps_rthz: float = 0.005
     accel_bias_mg: float = 50.0  # initial uncertainty of the accelerometer offset
     gyro_bias_dps: float = 20.0  # initial uncertainty of the gyro offset, before the standstill calibration
