@@ -72,7 +72,7 @@ def test_ten_fixes_a_second_weigh_what_their_shared_error_leaves_them(outage_dri
     assert (within >= 0.95).all(), within
     # Taken as ten independent fixes a second, the same fixes make the filter far too sure of itself.
     _, within_white, _ = _scores(drive, span, _ten_hz(drive, span, gnss_independent_hz=10.0))
-    assert within_white.min() < 0.5, within_white
+    assert within_white.min() < 0.95, within_white  # under the 95 % a consistent filter holds
 
 
 def test_the_rate_factor_follows_the_receivers_usual_interval():

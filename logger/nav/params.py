@@ -53,11 +53,12 @@ class NavParams:
     # Receivers that report neither accuracy nor DOP (NMEA RMC and GGA only): what such receivers achieve in a
     # car. Single-frequency receivers are specified at 1.5-2.5 m CEP in open sky (u-blox M8: 2.5 m CEP; ST
     # TESEO-LIV3: 1.5 m CEP); 2.5 m CEP is sigma 2.1 m per axis (CEP = 1.18 sigma), hAcc (the 2D RMS) 3.0 m;
-    # the vertical is 1.5-2x worse (VDOP over HDOP); speed 0.05-0.1 m/s specified, 0.3 m/s with a car's
-    # multipath and NMEA's rounding of knots. Scaled by what the fixes' scatter shows (gnss_learn_scatter).
+    # the vertical is 1.5-2x worse (VDOP over HDOP); speed 0.05-0.1 m/s specified, the 0.1 taken (0.3 m/s left
+    # the NMEA velocity out as uninformative beside the OBD speed, and the heading drifted: urban east RMSE 1.77 m
+    # against 0.63 m at 0.1, docs/nav.md). Positions are scaled by what the fixes' scatter shows.
     gnss_nominal_h_acc_m: float = 3.0
     gnss_nominal_v_acc_m: float = 5.0
-    gnss_nominal_s_acc_mps: float = 0.3
+    gnss_nominal_s_acc_mps: float = 0.1
     gnss_learn_scatter: bool = True
     # Fixes faster than this report the same error more often; they weigh together what fixes at this rate do.
     gnss_independent_hz: float = 1.0
