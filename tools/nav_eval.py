@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import time
@@ -371,6 +372,10 @@ def matrix_cell(files: list[Path]) -> dict[str, Any]:
     truth = load_truth(files)
     engine, traj, _ = replay(files, "17")
     cell: dict[str, Any] = {"started": len(traj["t_sync_ns"]) > 0, "restarts": engine.counters.resets}
+    if engine.alignment is not None:  # the mount alignment at the drive's end, and the mounting in use then
+        est = engine.alignment.estimate()
+        cell["mount"] = {"rpy_deg": est.rpy_deg, "sigma_deg": est.sigma_deg, "state": est.state,
+                         "applied_deg": engine.mount_applied, "remounts": engine.counters.remounts}
     if not cell["started"]:
         cell["why"] = engine.waiting_for() or "no solution"
         return cell
@@ -396,19 +401,24 @@ def matrix_cell(files: list[Path]) -> dict[str, Any]:
 def matrix_row(profile: str, scenario: str, seed: int, duration_s: float, cell: dict[str, Any]) -> str:
     head = f"| {profile} | {scenario}, seed {seed}, {duration_s:g} s |"
     if not cell["started"]:
-        return head + f" the filter never started: {cell['why']} | | | | |"
+        return head + f" the filter never started: {cell['why']} | | | | | |"
     r, w = cell["rmse_moving"], cell["within_3sigma"]
     out = cell.get("outage")
     outage = (f"{out['max_h_m']:.2f} / {out['smoothed_max_h_m']:.2f} ({out['duration_s']:.0f} s)" if out else "none")
     if cell["smoothed_worse"]:
         outage += f"; smoothed worse in {len(cell['smoothed_worse'])}"
+    mount = cell.get("mount")
+    mount_text = (f"{' / '.join(f'{a:.1f}' for a in mount['rpy_deg'])} "
+                  f"(+-{' / '.join(f'{a:.1f}' for a in mount['sigma_deg'])}), {mount['state']}"
+                  if mount and math.isfinite(mount["sigma_deg"][0]) else "not estimated")
     return (head + f" {cell['parked'] * 100:.0f} % | {r[0]:.2f} / {r[1]:.2f} / {r[2]:.2f} | {outage} | "
-            f"{w[0] * 100:.1f} / {w[1] * 100:.1f} / {w[2] * 100:.1f} % | {cell['restarts']} |")
+            f"{w[0] * 100:.1f} / {w[1] * 100:.1f} / {w[2] * 100:.1f} % | {cell['restarts']} | {mount_text} |")
 
 
 MATRIX_HEADER = ("| profile | drive | parked | 17-state RMSE N / E / V while moving, m | longest outage: max "
-                 "horizontal forward / smoothed, m | within 3 sigma N / E / D | restarts |\n"
-                 "| --- | --- | --- | --- | --- | --- | --- |")
+                 "horizontal forward / smoothed, m | within 3 sigma N / E / D | restarts | mount alignment at the "
+                 "end, roll / pitch / yaw deg |\n"
+                 "| --- | --- | --- | --- | --- | --- | --- | --- |")
 
 
 def write_matrix(doc: Path, rows: list[str], command: str) -> None:
