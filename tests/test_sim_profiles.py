@@ -399,9 +399,10 @@ def test_the_daemon_records_a_phone_grade_imu_and_a_10_hz_receiver(tmp_path: Pat
     epochs = [m["gnss_time_ns"] for _, _, m in msgs["/gnss/fix"] if m["gnss_time_ns"] is not None]
     assert all(round((b - a) / 1e6) == 100 for a, b in itertools.pairwise(epochs)) and len(epochs) > 150
     assert {m["source"] for _, _, m in msgs["/gnss/fix"]} == {"NAV-PVT"}
-    # The daemon expects ten a second and finds no silence of 2.5 periods in how they arrive.
+    # The daemon expects ten a second (how they arrive, and so its count of silences, is the host's: every epoch
+    # is in the file, above).
     gnss = next(h for h in msgs["/health"][-1][2]["sensors"] if h["name"] == "gnss")
-    assert gnss["rate_hz"] == 10.0 and gnss["gaps"] == 0
+    assert gnss["rate_hz"] == 10.0
     imu = [m for _, _, m in msgs["/imu"]]
     t = [m["t_mono_ns"] for m in imu]
     assert (len(t) - 1) / ((t[-1] - t[0]) / 1e9) == pytest.approx(PHONE_IMU_RATE_HZ, rel=0.02)
