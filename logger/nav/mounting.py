@@ -36,9 +36,12 @@ WINDOW_S = 1.0  # at least this long between the two fixes of a window
 SUM_SAMPLES = 8192  # running sums kept: 8 s at 1 kHz, more than a fix's latency plus a window
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
 MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
+# A passenger car's body roll per m/s^2 of lateral acceleration (a roll gradient of 3-7 deg per g; 4.5 taken).
+ROLL_GRADIENT = math.radians(0.45)
 MIN_TURN_DPS = 2.0  # below this a window is taken as straight: its rate is the gyro's noise and offset
 MAX_ACCEL_MPS2 = 4.0  # harder than this (a bump, a pothole) is not the car's own acceleration
 CORRELATION_WINDOWS = 3.0  # a window's grade and bank error lasts about this many windows (roads, not noise)
+USABLE_SIGMA_DEG = 5.0  # an estimate less sure than this on any axis is not shown
 SETTLED_TILT_DEG = 0.5
 SETTLED_YAW_DEG = 1.0
 MIN_WINDOWS = 60
@@ -222,6 +225,13 @@ class MountAlignment:
         fv = np.array((accel + g0 * math.sin(theta), speed * rate, -g0 * math.cos(theta)))
         # The turn is about the vertical: on a grade, that axis leans back in the car's axes by the grade.
         wv = np.array((-rate * math.sin(theta), 0.0, rate * math.cos(theta)))
+        # And the body leans out of the turn on its springs (roll = -gradient x lateral acceleration): both are in
+        # the body's axes turned by that roll. Left out, the leaning of a drive that turns one way more than the
+        # other came out as a mounting roll (1 deg on the simulated urban lap).
+        phi = -ROLL_GRADIENT * fv[1]
+        c, s_ = math.cos(phi), math.sin(phi)
+        fv = np.array((fv[0], c * fv[1] + s_ * fv[2], -s_ * fv[1] + c * fv[2]))
+        wv = np.array((wv[0], c * wv[1] + s_ * wv[2], -s_ * wv[1] + c * wv[2]))
         self.add(fc, fv, wc if rate else np.zeros(3), wv)
 
     def add(self, f_chip: np.ndarray, f_vehicle: np.ndarray, w_chip: np.ndarray, w_vehicle: np.ndarray) -> None:
@@ -249,6 +259,10 @@ class MountAlignment:
         if sol is None:
             return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)
         r, cov, _ = sol
+        if not all(math.isfinite(float(cov[i, i])) and cov[i, i] < math.radians(USABLE_SIGMA_DEG) ** 2
+                   for i in range(3)):
+            # A drive without turns tells no roll (the offset takes it): the estimate is no estimate yet.
+            return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)
         m = r.T  # vehicle from chip: what the engine applies to a sample (dcm_from_euler(mounting_rpy_deg))
         rpy = tuple(math.degrees(a) for a in euler_from_dcm(m))
         sig = tuple(math.degrees(math.sqrt(max(float(cov[i, i]), 0.0))) for i in range(3))
