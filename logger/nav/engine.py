@@ -53,7 +53,8 @@ UPDATE_STALE_S = 0.2  # an update uses the covariance as last propagated if that
 CONING_MAX_DT_S = 0.0105  # mean sample interval below which coning/sculling corrections are applied
 CONFIG_HEADING_VAR = math.radians(2.0) ** 2
 REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
-REMOUNT_MIN_DEG = 0.2  # a settled estimate further from the mounting in use than this replaces it
+REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
+REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
 
 
 class TrajectoryRow(NamedTuple):
@@ -316,7 +317,10 @@ class NavEngine:
         p = self.params
         vrw, arw = max(p.accel_vrw, measured[0]), max(p.gyro_arw, measured[1])
         if abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1:
-            self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
+            # A chip noisier than its datasheet by some factor wanders by as much more too: consumer MEMS grades
+            # scale noise and bias instability together (an MPU-6050 against a phone's IMU: about 10x both).
+            self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk * vrw / p.accel_vrw,
+                                      p.gyro_bias_walk * arw / p.gyro_arw, p.obd_scale_walk_rts,
                                       p.baro_offset_walk_m_rts)
             self.q_diag = self.noise.diagonal(self.n)
 
@@ -339,10 +343,11 @@ class NavEngine:
             return
         d = mount_matrix(est.rpy_deg) @ self._mount_m.T  # new body from old body
         angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(d)) - 1.0) / 2.0))))
-        if angle >= REMOUNT_MIN_DEG:
-            self.remount(est)
+        # Only a change the estimate is sure of: following its noise would turn the samples every ten seconds.
+        if angle >= max(REMOUNT_MIN_DEG, 2.0 * max(est.sigma_deg)):
+            self.remount(est, reopen=angle >= REOPEN_DEG)
 
-    def remount(self, est: MountEstimate) -> None:
+    def remount(self, est: MountEstimate, reopen: bool = True) -> None:
         """Take a new mounting: the samples are turned the new way from now on.
 
         The filter's attitude is kept: it is the vehicle's, since the GNSS course, the OBD speed and the
@@ -350,24 +355,32 @@ class NavEngine:
         way (that is where the mounting's error went: into the attitude the filter held of the chip, and into its
         offsets). Keeping the chip's attitude instead turned the body 30 deg off the road on a board mounted at
         30 deg, and the filter refused its fixes for half a minute. The offsets, fitted through the wrong
-        mounting, are reopened, as after a restart."""
+        mounting, are reopened, as after a restart. A small change (``reopen`` False: under REOPEN_DEG) is a
+        refinement: the offsets turn with the axes and nothing is reopened (reopening a phone-grade IMU's offsets
+        for every half-degree refinement cost it eight restarts in ten minutes)."""
         assert self.state is not None and self.ekf is not None
         m_new = mount_matrix(est.rpy_deg)
         d = m_new @ self._mount_m.T  # new body from old body
         s = self.state
         # The gyro's offset came from standstills, where the mounting does not matter: it turns with the axes.
-        # The accelerometer's took up the mounting's tilt: it starts again from zero, its prior reopened.
+        # After a large change the accelerometer's, which took up the mounting's tilt, starts again from zero.
         s.bg = tuple(float(v) for v in d @ np.array(s.bg))
-        s.ba = (0.0, 0.0, 0.0)
+        s.ba = (0.0, 0.0, 0.0) if reopen else tuple(float(v) for v in d @ np.array(s.ba))
         self._set_mount(m_new)
         self.mount_applied = est.rpy_deg
         self._w_last = tuple(float(v) for v in d @ np.array(self._w_last))
         self._f_last = tuple(float(v) for v in d @ np.array(self._f_last))
         self.mech.prime(self._w_last, self._f_last)
         self._obd.mount_yaw_stat = [0.0, 0.0]
+        self.counters.remounts += 1
+        if not reopen:
+            t = np.eye(self.n)
+            t[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = d
+            t[BG_ID:BG_ID + 3, BG_ID:BG_ID + 3] = d
+            self.ekf.p = t @ self.ekf.p @ t.T
+            return
         self.reopen_attitude_and_offsets()
         self.velocity_evidence.clear()
-        self.counters.remounts += 1
 
     def refresh_sigma(self) -> None:
         p = self.ekf.p if self.ekf is not None else None
