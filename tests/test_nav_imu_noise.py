@@ -52,6 +52,9 @@ def test_a_phone_grade_chip_widens_the_dead_reckoning_it_is_trusted_with(outage)
                    errors=_errors(10.0))
     widened, datasheet = run(recs), run(recs, imu_noise_from_drive=False)
     assert widened.noise.accel_vrw == pytest.approx(10.0 / math.sqrt(2.0) * widened.params.accel_vrw, rel=0.1)
+    # and it wanders as much more: the offsets' walks grow by the same ratio
+    ratio = widened.noise.gyro_arw / widened.params.gyro_arw
+    assert ratio > 5.0 and widened.noise.gyro_bias_walk == pytest.approx(ratio * widened.params.gyro_bias_walk)
 
     def worst_in_outage(engine) -> float:
         t, e, _ = errors(drive, engine.rows)
