@@ -71,3 +71,22 @@ def test_a_chip_as_good_as_its_datasheet_changes_nothing(outage):
     recs = records(drive, 120.0, seed=4, imu_hz=RATE_HZ, errors=_errors(1.0))
     engine = run(recs)
     assert engine.noise.accel_vrw == engine.params.accel_vrw and engine.noise.gyro_arw == engine.params.gyro_arw
+
+
+def test_the_gyro_offsets_wander_is_read_from_how_the_filters_estimate_moves():
+    from logger.nav.imu_noise import OffsetWander
+
+    rng = np.random.default_rng(5)
+    walk = math.radians(0.03)  # rad/s/sqrt(s): a phone-grade gyro's
+    wander = OffsetWander()
+    b = np.zeros(3)
+    assert wander.walk() is None
+    for k in range(600):  # ten minutes, the estimate following the offset, sampled every second
+        b += rng.standard_normal(3) * walk
+        wander.add(float(k), tuple(b), aided=True)
+    assert wander.walk() == pytest.approx(walk, rel=0.3)
+    # An outage's changes are what the filter let through, not what the gyro did: nothing is learnt from them.
+    before = wander.walk()
+    for k in range(600, 700):
+        wander.add(float(k), (1.0, 1.0, 1.0), aided=False)
+    assert wander.walk() == before

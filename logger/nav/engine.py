@@ -34,7 +34,7 @@ from logger.nav.ekf import ErrorStateEkf
 from logger.nav.evidence import HeightEvidence, PositionEvidence, VelocityEvidence
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
-from logger.nav.imu_noise import ImuNoiseMonitor
+from logger.nav.imu_noise import ImuNoiseMonitor, OffsetWander
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
@@ -126,6 +126,7 @@ class NavEngine:
                                   p.baro_offset_walk_m_rts)
         self.q_diag = self.noise.diagonal(self.n)
         self.imu_noise = ImuNoiseMonitor() if p.imu_noise_from_drive else None
+        self.offset_wander = OffsetWander() if p.imu_noise_from_drive else None
         self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
         self.state: NavState | None = None
         self.ekf: ErrorStateEkf | None = None
@@ -315,13 +316,23 @@ class NavEngine:
         if measured is None:
             return
         p = self.params
+        s = self.state
+        t = self._t_last or 0
+        if self.offset_wander is not None and s is not None:
+            fix_ns = self.last_readings.pos_ok[0]
+            self.offset_wander.add(t / NS, s.bg, 0 < t - fix_ns < 3 * NS)
         vrw, arw = max(p.accel_vrw, measured[0]), max(p.gyro_arw, measured[1])
-        if abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1:
-            # A chip noisier than its datasheet by some factor wanders by as much more too: consumer MEMS grades
-            # scale noise and bias instability together (an MPU-6050 against a phone's IMU: about 10x both).
-            self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk * vrw / p.accel_vrw,
-                                      p.gyro_bias_walk * arw / p.gyro_arw, p.obd_scale_walk_rts,
-                                      p.baro_offset_walk_m_rts)
+        # A chip noisier than its datasheet by some factor wanders by as much more too: consumer MEMS grades scale
+        # noise and bias instability together (an MPU-6050 against a phone's IMU: about 10x both); and what the
+        # filter's own offset estimate shows of the wander (OffsetWander) widens the gyro's walk further.
+        gyro_walk = p.gyro_bias_walk * arw / p.gyro_arw
+        wander = self.offset_wander.walk() if self.offset_wander is not None else None
+        if wander is not None:
+            gyro_walk = max(gyro_walk, wander)
+        if (abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1
+                or abs(gyro_walk / self.noise.gyro_bias_walk - 1.0) > 0.1):
+            self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk * vrw / p.accel_vrw, gyro_walk,
+                                      p.obd_scale_walk_rts, p.baro_offset_walk_m_rts)
             self.q_diag = self.noise.diagonal(self.n)
 
     # ---- the mounting ----------------------------------------------------------------------------------
