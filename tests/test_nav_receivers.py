@@ -43,7 +43,7 @@ def test_an_nmea_only_receiver_starts_the_filter_and_the_filter_knows_its_height
                    errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=2.0, gnss_v_sigma=3.5))
     engine = run(recs, mode=mode)
     assert engine.counters.init_method == "gnss course" and engine.counters.resets == 0
-    assert engine._gnss.last_figures.source == NOMINAL
+    assert engine.last_readings.fix.figures.source == NOMINAL
     rmse, within, _ = _scores(drive, span, engine)
     assert rmse[0] < 1.0 and rmse[1] < 1.0
     assert (within >= 0.95).all(), within  # the height too: no vertical velocity was made up
@@ -53,7 +53,7 @@ def test_a_dop_without_accuracy_is_used_as_such(outage_drive):
     drive, _ = outage_drive
     recs = records(drive, 60.0, seed=2, receiver="gsa")
     engine = run(recs)
-    assert engine.state is not None and engine._gnss.last_figures.source == DOP
+    assert engine.state is not None and engine.last_readings.fix.figures.source == DOP
 
 
 def _ten_hz(drive, span, **params):

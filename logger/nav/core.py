@@ -16,6 +16,7 @@ from typing import Protocol
 import numpy as np
 
 from logger.nav.ekf import ErrorStateEkf
+from logger.nav.gnss_noise import FixFigures
 from logger.nav.measurements import Observation
 from logger.nav.params import NavParams
 from logger.nav.state import NavState
@@ -57,8 +58,12 @@ class PreparedFix:
     sigma: tuple[float, float, float]  # position noise N, E, D, m
     s_vel: float  # velocity noise, m/s
     fix_3d: bool
-    h_acc: float  # the receiver's horizontal accuracy (or the error model's, see accuracy), m
-    accuracy: str = "receiver"  # where h_acc came from: receiver, dop or nominal (logger.nav.gnss_noise)
+    figures: FixFigures  # its accuracy figures and where they came from (receiver, dop or nominal)
+
+    @property
+    def h_acc(self) -> float:
+        """The horizontal accuracy (hAcc convention) the fix is judged by, m: the receiver's or the model's."""
+        return self.figures.h_acc
 
 
 class FilterCore(Protocol):

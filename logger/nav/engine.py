@@ -40,7 +40,7 @@ from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
-from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler
+from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
 from logger.nav.state import BA_ID, BG_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
@@ -353,7 +353,7 @@ class NavEngine:
         if est.state != SETTLED:
             return
         d = mount_matrix(est.rpy_deg) @ self._mount_m.T  # new body from old body
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(d)) - 1.0) / 2.0))))
+        angle = math.degrees(float(np.linalg.norm(rotvec_from_dcm(d))))
         # Only a change the estimate is sure of: following its noise would turn the samples every ten seconds.
         if angle >= max(REMOUNT_MIN_DEG, 2.0 * max(est.sigma_deg)):
             self.remount(est, reopen=angle >= REOPEN_DEG)

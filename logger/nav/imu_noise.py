@@ -63,8 +63,8 @@ class ImuNoiseMonitor:
         return math.sqrt(self._var_a), math.sqrt(self._var_g)
 
 
-WANDER_LAG_S = 30.0  # the offset's change is taken over this long
-WANDER_EVERY_S = 10.0  # ... sampled this often
+WANDER_EVERY_S = 10.0  # the filter's offset estimate is sampled this often...
+WANDER_LAG_S = 35.0  # ... and its change taken from the first sample older than this (about 40 s back)
 WANDER_MIN = 4  # changes seen before the wander is used
 WANDER_KEPT = 30  # the latest changes kept (five minutes)
 
@@ -72,8 +72,8 @@ WANDER_KEPT = 30  # the latest changes kept (five minutes)
 class OffsetWander:
     """How fast the gyro's offset wanders, from how the filter's own estimate of it moves while it is aided.
 
-    The estimate follows the true offset (GNSS courses tell it the heading's drift), so its change over a minute
-    is the offset's: (change)^2 / minute is the walk's variance per second. With the walk too small for the chip,
+    The estimate follows the true offset (GNSS courses tell it the heading's drift), so its change over some
+    40 s is the offset's: (change)^2 / time is the walk's variance per second. With the walk too small for the chip,
     the estimate follows late and the figure reads low; taken as the new walk, the next minutes read closer, so
     it converges from below. A phone-grade gyro wanders tens of times more than the MPU-6050 datasheet's walk,
     and no white-noise figure says so: in a tunnel the heading then drifts far beyond what the filter believes
@@ -95,11 +95,10 @@ class OffsetWander:
             self._hist.clear()  # an outage's changes are what the walk let through, not what the gyro did
             return
         self._hist.append((t_s, offset))
-        while self._hist and t_s - self._hist[0][0] > WANDER_LAG_S + 0.5 * WANDER_EVERY_S:
+        while self._hist and t_s - self._hist[0][0] > WANDER_LAG_S:
             t0, b0 = self._hist.popleft()
-            if t_s - t0 >= WANDER_LAG_S - 0.5 * WANDER_EVERY_S:
-                d2 = sum((offset[i] - b0[i]) ** 2 for i in range(3)) / 3.0
-                self._q.append(d2 / (t_s - t0))
+            d2 = sum((offset[i] - b0[i]) ** 2 for i in range(3)) / 3.0
+            self._q.append(d2 / (t_s - t0))
 
     def walk(self) -> float | None:
         """The offset's random walk, rad/s/sqrt(s), once WANDER_MIN changes were seen: the median of the recent

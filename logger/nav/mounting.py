@@ -1,25 +1,29 @@
 """Automatic IMU-mount alignment: the chip's roll, pitch and yaw against the vehicle, from what the drive shows.
 
 Automotive dead-reckoning receivers (u-blox ADR/UDR, ESF-ALG) do not ask the installer how the box sits: they
-compare what the IMU measures with what the vehicle must be doing. So does this module. A car moving straight
-has no side slip and no vertical velocity through its floor (the non-holonomic constraint), so its specific force
-in its own forward-right-down axes follows from its speed and the road alone:
+compare what the IMU measures with what the vehicle must be doing. So does this module. A car has no side slip
+and no vertical velocity through its floor (the non-holonomic constraint), so over a window between two GNSS
+velocities (at least WINDOW_S apart; the receiver's Doppler owes nothing to the IMU whose mounting is in doubt)
+its specific force and rate in its own forward-right-down axes follow from its speed, its course and the road:
 
-    f_vehicle = (a + g sin(theta), 0, -g cos(theta)),    theta = atan2(-v_down, v_horizontal)
+    f_vehicle = (a + g sin(theta), v w, -g cos(theta)),    w_vehicle = w (-sin(theta), 0, cos(theta))
 
-with ``a`` the change of speed over the window and ``theta`` the road's grade, both from the filter's GNSS-aided
-velocity. The chip measures ``f_chip = R f_vehicle`` (R the mounting, chip from vehicle). Windows of one second
-give pairs (f_chip, f_vehicle); the rotation that fits them best is Wahba's problem, solved by an SVD (Markley).
-Gravity fixes roll and pitch; accelerating and braking, which every drive does, fix the yaw. Turns are left out
-(the lateral force depends on the turn rate through the mounting being estimated) and so are stops (the road's
-grade at a standstill is unknown). A road's bank is not modelled: it averages out over roads, and it is what
-limits the roll; it is in the residuals, hence in the uncertainty.
+with ``a`` the change of speed, ``v`` the speed, ``theta`` the grade atan2(-v_down, v_horizontal), ``w`` the turn
+rate (the gyro's, signed as the course turned), both vectors then turned by the body's lean out of the turn
+(ROLL_GRADIENT). The chip measures ``f_chip = R f_vehicle + b`` and ``w_chip = R w_vehicle`` (R the mounting, chip
+from vehicle, ``b`` the accelerometer's offset). Wahba's problem over the windows, with ``b`` free beside R, is one
+SVD of the pairs' cross-covariance about their means (Markley). Gravity's mean is taken up by the offset, so the
+angles come from the forces' spread and the turns: speeding up and braking tell the yaw, turns (the lateral force
+and the turn axis) the roll and pitch. A drive without turns tells no roll. Windows slower than MIN_SPEED_MPS
+(the grade is noise), sharper than MAX_TURN_DPS or harder than MAX_ACCEL_MPS2 are left out. A road's bank is not
+modelled: it averages out over roads, and is in the residuals, hence in the uncertainty.
 
-The uncertainty is the fit's: residual scatter over the information the pairs give, sigma^2 (sum |f|^2 I - f f^T)^-1,
-widened by the windows' correlation (a bank or a grade lasts many seconds). The estimate is ``settled`` once the
-roll and pitch are known to 0.3 deg and the yaw to 0.5 deg. A second, short-memory fit over the last minutes of
-windows watches for a mounting that moved (the board knocked): when it disagrees with the long one by more than
-both its uncertainty and MOVED_DEG, the long fit starts again from the recent windows (counted in ``moves``).
+The uncertainty is the fit's: the residuals' scatter over the information the pairs' spread gives, widened by
+the windows' correlation (a grade or a bank lasts several windows). The estimate is shown once every angle is
+known to USABLE_SIGMA_DEG, and ``settled`` once roll and pitch are known to SETTLED_TILT_DEG and the yaw to
+SETTLED_YAW_DEG over at least MIN_WINDOWS windows. A second, short-memory fit over the last minutes of windows
+watches for a mounting that moved (the board knocked): when it disagrees with the long one by more than both its
+uncertainty and MOVED_DEG, the long fit starts again from the recent windows (counted in ``moves``).
 """
 
 from __future__ import annotations
@@ -30,8 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from logger.nav.rotations import dcm_from_euler, euler_from_dcm
+from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 
+# Standard gravity: the local value differs by a few hundredths of a m/s^2, a constant the free accelerometer
+# offset takes up (it is the pairs' mean force along the vertical).
+G0 = 9.80665
 WINDOW_S = 1.0  # at least this long between the two fixes of a window
 SUM_SAMPLES = 8192  # running sums kept: 8 s at 1 kHz, more than a fix's latency plus a window
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
@@ -151,6 +158,7 @@ class MountAlignment:
         self._long = _Fit()
         self._recent = _Fit(memory=RECENT_WINDOWS)
         self.moves = 0
+        self._estimate: MountEstimate | None = None  # the last estimate, until the next window changes it
         # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) per sample, so a
         # window between two fix epochs is a difference of two entries whenever the later fix arrives.
         self._sums: deque[tuple[int, float, float, float, float, float, float, int]] = deque(maxlen=SUM_SAMPLES)
@@ -160,7 +168,6 @@ class MountAlignment:
         # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
         # part of the mounting's tilt while the mounting was wrong.
         self.gyro_offset = np.zeros(3)
-        self.gravity = 9.80665  # the local gravity, m/s^2 (the engine sets it from its position)
 
     # ---- windows ---------------------------------------------------------------------------------------
     def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
@@ -217,7 +224,7 @@ class MountAlignment:
             return
         speed = 0.5 * (h0 + h1)
         theta = math.atan2(-0.5 * (v0[2] + v1[2]), speed)
-        g0 = self.gravity
+        g0 = G0
         # The car turns about its own vertical: the chip's rate is that axis, at the gyro's rate (more exact than
         # the course's change between two velocities), turning the way the course turned.
         rate = math.copysign(float(np.linalg.norm(wc)), turn) if abs(math.degrees(turn)) > MIN_TURN_DPS else 0.0
@@ -239,22 +246,29 @@ class MountAlignment:
         args = [np.asarray(v, float) for v in (f_chip, f_vehicle, w_chip, w_vehicle)]
         self._long.add(*args)
         self._recent.add(*args)
+        self._estimate = None
         if self._long.n >= MIN_WINDOWS and self._recent.n >= 0.5 * RECENT_WINDOWS and self._moved():
             self.moves += 1
             self._long.copy_from(self._recent)
+            self._estimate = None
 
     def _moved(self) -> bool:
         a, b = self._long.solve(), self._recent.solve()
         if a is None or b is None:
             return False
-        rel = a[0].T @ b[0]
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(rel)) - 1.0) / 2.0))))
+        angle = math.degrees(float(np.linalg.norm(rotvec_from_dcm(a[0].T @ b[0]))))
         sigma = math.degrees(math.sqrt(float(np.trace(b[1])) + float(np.trace(a[1]))))
         return angle > max(MOVED_DEG, 4.0 * sigma)
 
     # ---- the estimate ----------------------------------------------------------------------------------
     def estimate(self) -> MountEstimate:
-        """The current estimate; the configured mounting (sigma unknown) until the drive has shown enough."""
+        """The current estimate; the configured mounting (sigma unknown) until the drive has shown enough. Solved
+        once per window however often it is asked (the status, /nav/state and the engine each ask)."""
+        if self._estimate is None:
+            self._estimate = self._solve()
+        return self._estimate
+
+    def _solve(self) -> MountEstimate:
         sol = self._long.solve() if self._long.n >= 3 else None
         if sol is None:
             return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)

@@ -24,7 +24,7 @@ import numpy as np
 
 from logger.nav.core import EngineCounters, FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
-from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise, FixFigures
+from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
@@ -84,7 +84,6 @@ class GnssPolicy:
                                           params.gnss_floor_corr_s)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
-        self.last_figures: FixFigures | None = None  # the last fix's accuracy figures, for the learner
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
@@ -117,10 +116,9 @@ class GnssPolicy:
                 d = tu * float(np.hypot(moving[0], moving[1]))
                 sig_h, sig_v = math.hypot(sig_h, d), math.hypot(sig_v, tu * abs(float(moving[2])))
         fix_3d = (msg.fix_mode or 0) >= 3
-        self.last_figures = fig
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
                            math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
-                           fix_3d, fig.h_acc, fig.source)
+                           fix_3d, fig)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray) -> str:
         """Position and velocity updates of a running filter; returns what the position evidence said ("",
@@ -140,13 +138,13 @@ class GnssPolicy:
             snap, snap.dcm(), core.n)
         assert core.ekf is not None
         p_prior = [float(core.ekf.p[P_ID + i, P_ID + i]) for i in range(len(full_pos.z))]
-        obs = self._informative(core, full_pos, P_ID, fix.accuracy != RECEIVER)
+        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER)
         ok = True if obs is None else core.apply(obs)
         last = self.last_readings
-        if obs is not None and ok and self.last_figures is not None:
+        if obs is not None and ok:
             # Learnt from fixes the gate let in only: a filter that lost itself must not teach the model that the
             # receiver scatters by hundreds of metres (its fixes' figures would then be too poor to restart it).
-            self.accuracy.observe(t_e, self.last_figures, full_pos.z.tolist(), p_prior)
+            self.accuracy.observe(t_e, fix.figures, full_pos.z.tolist(), p_prior)
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
             if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:
