@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 from logger.config import SIM_SECTIONS, Config, ConfigError
 from logger.recording.records import truth_clock_record
 from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
+from logger.runtime import mount_state
 from logger.runtime.daemon import Attachments, Daemon
 from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
 from logger.runtime.navigator import attach_navigator
@@ -113,7 +114,9 @@ def build(cfg: Config, duration_s: float | None,
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
         "partly simulated" if vehicle else "")
-    navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]))
+    installation = (mount_state.simulated(vehicle.profile.mounting_rpy_deg) if vehicle is not None and simulated["imu"]
+                    else mount_state.BOARD)
+    navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]), installation)
     daemon = Daemon(cfg, plans, timebase=tb, clock=clock, attachments=attachments, mode=mode)
     if navigator is not None:
         navigator.bind(daemon)

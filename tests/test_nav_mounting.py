@@ -103,17 +103,19 @@ def test_a_settled_mounting_is_the_next_drives_first_guess_unless_the_configurat
     path = tmp_path / "mount.json"
     al = MountAlignment((0.0, 0.0, 0.0))
     _windows(al, MOUNT, 600, seed=5)
-    mount_state.save(path, (0.0, 0.0, 0.0), al.estimate())
+    mount_state.save(path, (0.0, 0.0, 0.0), mount_state.BOARD, al.estimate())
     nav = Navigator(NavParams(), mount_path=path)
     assert nav.engine.mount_applied == pytest.approx(al.estimate().rpy_deg)
     assert nav.engine.alignment.configured == pytest.approx(al.estimate().rpy_deg)
+    # Learnt on another installation (a simulated board at other angles sharing the state folder): not used.
+    assert mount_state.load(path, (0.0, 0.0, 0.0), mount_state.simulated((5.0, -4.0, 30.0))) is None
     # The installer says the board sits otherwise now: the configuration wins.
     moved = Navigator(NavParams(mounting_rpy_deg=(0.0, 0.0, 90.0)), mount_path=path)
     assert moved.engine.mount_applied == (0.0, 0.0, 90.0)
     # Only a settled estimate is kept; a damaged file is ignored with a line saying so.
     learning = MountAlignment((0.0, 0.0, 0.0))
     _windows(learning, MOUNT, 10, seed=6)
-    mount_state.save(tmp_path / "other.json", (0.0, 0.0, 0.0), learning.estimate())
+    mount_state.save(tmp_path / "other.json", (0.0, 0.0, 0.0), mount_state.BOARD, learning.estimate())
     assert not (tmp_path / "other.json").exists()
     path.write_text("{not json")
     assert Navigator(NavParams(), mount_path=path).engine.mount_applied == (0.0, 0.0, 0.0)

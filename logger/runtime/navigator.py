@@ -39,11 +39,13 @@ class Navigator:
     """A daemon tap running :class:`NavEngine` on its own thread."""
 
     def __init__(self, params: NavParams, publish: Callable[[Reading], None] | None = None,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns, mount_path: Path | None = None) -> None:
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, mount_path: Path | None = None,
+                 installation: str = mount_state.BOARD) -> None:
         # The mounting the last drive settled on is this one's first guess (mount_state.py).
         self.configured_mount = tuple(float(a) for a in params.mounting_rpy_deg)
         self.mount_path = mount_path if params.mount_align else None
-        saved = mount_state.load(self.mount_path, self.configured_mount) if self.mount_path else None
+        self.installation = installation
+        saved = mount_state.load(self.mount_path, self.configured_mount, installation) if self.mount_path else None
         self.params = replace(params, mounting_rpy_deg=saved) if saved is not None else params
         params = self.params
         self._next_mount_save_ns = 0
@@ -102,12 +104,14 @@ class Navigator:
         self._halt.set()
         if self._thread is not None:
             self._thread.join(2.0)
-        self._save_mount()
+        with self._lock:  # the filter thread may still be inside a batch if the join timed out
+            self._save_mount()
 
     def _save_mount(self) -> None:
+        """Keep a settled mount alignment for the next start (called with the filter's lock held)."""
         al = self.engine.alignment
         if self.mount_path is not None and al is not None:
-            mount_state.save(self.mount_path, self.configured_mount, al.estimate())
+            mount_state.save(self.mount_path, self.configured_mount, self.installation, al.estimate())
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
@@ -185,15 +189,15 @@ class Navigator:
             return out
 
 
-def attach_navigator(section: dict[str, Any], attachments: Attachments,
-                     state_dir: Path | None = None) -> Navigator | None:
+def attach_navigator(section: dict[str, Any], attachments: Attachments, state_dir: Path | None = None,
+                     installation: str = mount_state.BOARD) -> Navigator | None:
     """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
     to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists. The mount
-    alignment is kept in ``state_dir`` from one drive to the next."""
+    alignment is kept in ``state_dir`` from one drive to the next, for the same ``installation``."""
     if not section.get("enabled", True):
         return None
     nav = Navigator(NavParams.from_config(section),
-                    mount_path=state_dir / "mount.json" if state_dir is not None else None)
+                    mount_path=state_dir / "mount.json" if state_dir is not None else None, installation=installation)
     attachments.taps.append(nav)
     attachments.sections["nav"] = nav.section
     attachments.close.append(nav.stop)
