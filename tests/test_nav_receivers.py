@@ -155,3 +155,42 @@ def test_nothing_is_learnt_from_a_short_drive():
     for k in range(20):
         learner.add(T0 + k * NS, [30.0, 30.0, 30.0], [0.3, 0.3, 0.6], [4.5, 4.5, 25.0])
     assert learner.scale() == (1.0, 1.0)
+
+
+def test_real_receivers_nmea_reaches_the_filter_as_a_horizontal_velocity_with_figures():
+    """The NMEA of the 36 real u-blox captures (GPSD's regression logs), decoded by the driver and recorded by the
+    record layer, as the filter's GNSS policy takes it: every fix with a position is prepared, its velocity
+    horizontal (NMEA has no vertical speed), its figures from GST, GSA or the nominal model as the capture holds."""
+    from test_gnss_decode_gpsd import DATA_DIR, frames_of, load_capture
+
+    from logger.nav.core import EngineCounters
+    from logger.nav.gnss_time import GnssEpochClock
+    from logger.nav.policies import GnssPolicy, LastReadings
+    from logger.recording.records import gnss_observation, location_fix
+    from sensors.ublox_decode import GnssDecoder, GnssFix
+    from sensors.ublox_frames import KIND_NMEA
+
+    sources: dict[str, int] = {}
+    prepared = with_velocity = 0
+    for log in sorted(p.name for p in DATA_DIR.glob("*.log")):
+        decoder = GnssDecoder()
+        frames = [f for f in frames_of(load_capture(log)) if f.kind == KIND_NMEA]
+        fixes = [i for i in decoder.push_all(frames) + decoder.flush()
+                 if isinstance(i, GnssFix) and i.source == "NMEA" and i.time_utc_ns is not None]
+        policy = GnssPolicy(NavParams(), GnssEpochClock(), LastReadings(), None, None, None)  # type: ignore[arg-type]
+        for fix in fixes:
+            rec = location_fix(fix, 0)
+            rec.update(t_sync_ns=fix.time_utc_ns + 200_000_000, t_mono_ns=fix.time_utc_ns, sync_state="locked")
+            p = policy.prepare(gnss_observation(rec), EngineCounters())
+            if fix.lat_deg is None or not fix.fix_ok or (fix.fix_mode or 1) < 2:
+                assert p is None
+                continue
+            assert p is not None and math.isfinite(p.sigma[0]) and 0.0 < p.h_acc < 100.0, (log, fix)
+            assert p.fix_3d == (fix.fix_mode == 3)  # a 2D fix's height (recorded as 0 without one) is not used
+            prepared += 1
+            sources[p.figures.source] = sources.get(p.figures.source, 0) + 1
+            if p.vel is not None:
+                with_velocity += 1
+                assert not p.vel_3d
+    assert prepared > 100 and with_velocity > 100, (prepared, with_velocity)
+    assert set(sources) == {RECEIVER, DOP, NOMINAL}, sources  # GST, else GSA, else the nominal model
