@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_nav_filter import errors, fed_with_upset
+from test_nav_filter import errors, fed_with_upset, run
 from test_nav_synth import records
 
 import logger.nav.smoother as smoother
@@ -60,3 +60,43 @@ def test_a_backward_pass_that_disagrees_beyond_the_covariances_keeps_the_forward
     smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p, report)
     assert report.disagreements + report.cuts == report.epochs - 1
     assert [r[2:5] for r in smoothed] == [r[2:5] for r in engine.rows]
+
+
+def _shifted_exit_fix(recs, span, metres: float) -> None:
+    """The first fix after the outage ``metres`` north of where the receiver put it (reacquisition multipath)."""
+    t0 = recs[0][0]
+    first = next(r for r in recs if r[1] == "/gnss/fix" and r[2]["fix_ok"]
+                 and (r[2]["gnss_time_ns"] - t0) / 1e9 >= span.end_s)
+    first[2]["latitude"] += np.degrees(metres / 6.36e6)
+
+
+@pytest.fixture(scope="module", params=["ubx", "nmea"])
+def bad_exit(request):
+    """A 60 s GNSS outage whose first fix after it is 5 m off: the forward pass, wide open after a minute on its
+    IMU and speed, takes it."""
+    drive = make_drive("outage-60s", seed=3, duration_s=200.0)
+    (span,) = drive.spans_of("outage")
+    recs = records(drive, 200.0, seed=1, receiver=request.param, gnss_off=[(span.start_s, span.end_s)])
+    _shifted_exit_fix(recs, span, 5.0)
+    engine = run(recs)
+    assert engine.counters.resets == 0
+    engine.close_epochs()
+    return drive, span, engine
+
+
+def test_rows_before_an_update_of_their_own_epoch_are_smoothed_as_the_solution_they_are_on(bad_exit, monkeypatch):
+    """The fix arrives between covariance epochs: the rows of that epoch before it are on the solution before its
+    correction. Smoothed as if they were after it, the row before the exit fix took the whole correction."""
+    drive, span, engine = bad_exit
+    assert any(ep.late for ep in engine.epochs)
+    t, ef, _ = errors(drive, engine.rows)
+    near = (t > span.end_s - 2.0) & (t < span.end_s + 3.0)
+
+    def largest_step(rows) -> float:
+        _, e, _ = errors(drive, rows)
+        return float(np.abs(np.diff(e[near, :2], axis=0)).max())
+
+    assert np.abs(np.diff(ef[near, :2], axis=0)).max() > 2.0  # the forward solution jumps at the exit fix
+    assert largest_step(smooth_rows(engine.rows, engine.epochs, engine.ekf.p)) < 0.05  # the smoothed one does not
+    unrecorded = [type(ep)(ep.t_ns, ep.phi, ep.p_minus, ep.p_plus, ep.dx, ep.cut) for ep in engine.epochs]
+    assert largest_step(smooth_rows(engine.rows, unrecorded, engine.ekf.p)) > 2.0  # without the record, it did

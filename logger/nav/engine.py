@@ -83,6 +83,10 @@ class Epoch:
     p_plus: np.ndarray | None = None
     dx: np.ndarray | None = None  # sum of the corrections fed back at this epoch
     cut: bool = False  # the filter forgot something here (a restart, a re-anchor, a reopening): see smoother.py
+    # Corrections fed back after rows of this epoch were already recorded (an update on a covariance less than
+    # UPDATE_STALE_S old does not open an epoch): (rows recorded by then, the correction). Those rows lie on the
+    # solution before it.
+    late: list[tuple[int, np.ndarray]] = field(default_factory=list)
 
 
 @dataclass
@@ -418,6 +422,8 @@ class NavEngine:
         if self.record and self.epochs:
             ep = self.epochs[-1]
             ep.dx = dx if ep.dx is None else ep.dx + dx
+            if self.rows and self.rows[-1].epoch == len(self.epochs) - 1:
+                ep.late.append((len(self.rows), dx))
         self.refresh_sigma()
 
     def state_at(self, t_ns: int) -> NavState:
