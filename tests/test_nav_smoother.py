@@ -9,6 +9,7 @@ from test_nav_filter import errors, fed_with_upset, run
 from test_nav_synth import records
 
 import logger.nav.smoother as smoother
+from logger.nav.gnss_noise import RECEIVER
 from logger.nav.smoother import SmoothingReport, smooth_rows
 from sensors.sim.scenarios import make_drive
 
@@ -100,3 +101,44 @@ def test_rows_before_an_update_of_their_own_epoch_are_smoothed_as_the_solution_t
     assert largest_step(smooth_rows(engine.rows, engine.epochs, engine.ekf.p)) < 0.05  # the smoothed one does not
     unrecorded = [type(ep)(ep.t_ns, ep.phi, ep.p_minus, ep.p_plus, ep.dx, ep.cut) for ep in engine.epochs]
     assert largest_step(smooth_rows(engine.rows, unrecorded, engine.ekf.p)) > 2.0  # without the record, it did
+
+
+def test_a_fix_the_rest_of_the_drive_contradicts_is_not_carried_back_into_the_outage(bad_exit):
+    """The forward pass took the outage's first fix, 5 m off; the later fixes contradict it. The smoothed solution
+    in the outage is no worse than the forward one. With its accuracy figures the u-blox fix went in whole, the
+    passes disagreed after it, and the report says which update the smoother did without; an NMEA fix, on the
+    nominal model's wider figures, went in only in part, and the passes do not disagree."""
+    drive, span, engine = bad_exit
+    report = SmoothingReport()
+    smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p, report)
+    t, ef, _ = errors(drive, engine.rows)
+    _, es, _ = errors(drive, smoothed)
+    gap = (t >= span.start_s) & (t < span.end_s)
+    hf, hs = np.hypot(ef[gap, 0], ef[gap, 1]), np.hypot(es[gap, 0], es[gap, 1])
+    if engine.last_readings.fix.figures.source == RECEIVER:  # accuracy figures from the receiver
+        assert report.refused == 1 and "smoothed without 1 epochs' updates" in report.summary()
+    else:
+        assert report.refused == report.disagreements == 0
+    assert hs.max() <= hf.max()
+    # Without a step where the pass found the disagreement: the epochs after it keep the little of the fix the
+    # smoothed solution there holds (0.17 m here, of the 5 m).
+    assert np.abs(np.diff(es[(t > span.end_s - 2.0) & (t < span.end_s + 10.0), :2], axis=0)).max() < 0.25
+    after = (t >= span.end_s) & (t < span.end_s + 10.0)  # and the seconds after it, where the fix pulled
+    assert np.hypot(es[after, 0], es[after, 1]).max() < np.hypot(ef[after, 0], ef[after, 1]).max()
+
+
+def test_keeping_the_forward_solution_instead_carries_the_fix_back(bad_exit, monkeypatch):
+    """The same drive with the refusal off: the disagreement after the exit keeps the forward solution, which holds
+    the bad fix, and the pass carries it back over the outage (so the test above can fail; the u-blox drive)."""
+    drive, span, engine = bad_exit
+    monkeypatch.setattr(smoother, "LOOKBACK_NS", -1)
+    if engine.last_readings.fix.figures.source != RECEIVER:  # the NMEA fix went in only in part: no disagreement
+        assert smoother.smooth_errors(engine.epochs, engine.ekf.p)[3].sum() == 0
+        return
+    report = SmoothingReport()
+    smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p, report)
+    t, ef, _ = errors(drive, engine.rows)
+    _, es, _ = errors(drive, smoothed)
+    gap = (t >= span.start_s) & (t < span.end_s)
+    assert report.refused == 0 and report.disagreements >= 1
+    assert np.hypot(es[gap, 0], es[gap, 1]).max() > 2.0 * np.hypot(ef[gap, 0], ef[gap, 1]).max()

@@ -22,9 +22,15 @@ it). Two rules keep it from doing so:
   its forward solution and the pass starts again from it, as from the last epoch;
 - where the smoothed correction of the position is further from zero than the forward filter's covariance
   admits (its Mahalanobis distance over P+ - Ps beyond the chi-square 99.9 % point, 3 degrees of freedom), the
-  backward and forward passes disagree beyond their covariances: the forward solution, the better supported
-  (it never used the model the disagreement puts in doubt past that epoch), is kept there and the pass
-  starts again from it. Both are counted in a :class:`SmoothingReport`, which ``logger replay`` prints.
+  backward and forward passes disagree beyond their covariances. Before the forward solution is taken for the
+  better supported, the pass looks back (up to LOOKBACK_NS) for an update the rest of the drive refuses: a fix
+  taken whole by a forward pass wide open after an outage leaves the forward solution off, and over-confident,
+  until later fixes pull it back; keeping it would carry the fix back into the outage. Where such an update is
+  found (the smoothed solution moves by more without it than its information admits, and without it the forward
+  prior agrees), the epochs from it to the disagreement are smoothed without it (:func:`_explain`). Otherwise
+  the forward solution (it never used the model the disagreement puts in doubt past that epoch) is kept there
+  and the pass starts again from it. All three are counted in a :class:`SmoothingReport`, which ``logger
+  replay`` prints.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from logger.nav.rotations import quat_from_rotvec, quat_mul
 from logger.nav.state import P_ID, PHI_ID, V_ID
 
 DISAGREE_CHI2 = 16.27  # chi-square 99.9 % point, 3 degrees of freedom
+LOOKBACK_NS = 30 * 1_000_000_000  # how far before a disagreement the update it comes from is looked for
 _POS = slice(P_ID, P_ID + 3)
 
 
@@ -50,13 +57,17 @@ class SmoothingReport:
     epochs: int = 0
     cuts: int = 0  # epochs where the filter forgot something: nothing crossed back
     disagreements: int = 0  # epochs where the passes disagreed beyond their covariances: forward kept
+    refused: int = 0  # epochs whose own updates the rest disagreed with: smoothed without them
 
     def summary(self) -> str:
-        if not self.cuts and not self.disagreements:
-            return f"smoothed {self.epochs} covariance epochs"
-        return (f"smoothed {self.epochs} covariance epochs; kept the forward solution at {self.cuts} where the "
-                f"filter restarted or widened and at {self.disagreements} where the backward pass disagreed with "
-                "it beyond their covariances")
+        text = f"smoothed {self.epochs} covariance epochs"
+        if self.cuts or self.disagreements:
+            text += (f"; kept the forward solution at {self.cuts} where the filter restarted or widened and at "
+                     f"{self.disagreements} where the backward pass disagreed with it beyond their covariances")
+        if self.refused:
+            text += (f"; smoothed without {self.refused} epochs' updates (a fix the forward pass took) that the rest "
+                     "of the drive contradicted beyond their covariances")
+        return text
 
 
 def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingReport | None = None
@@ -67,48 +78,160 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
     report.epochs = len(epochs)
     m = len(epochs)
     n = p_last.shape[0]
+    zero = np.zeros(n)
     e = np.zeros((m, n))
     e_minus = np.zeros((m, n))
     sig = np.zeros((m, n))
     kept = np.zeros(m, bool)
     ps = p_last.copy()
-    dx_last = epochs[-1].dx if epochs[-1].dx is not None else np.zeros(n)
-    e_minus[-1] = dx_last
+    e_minus[-1] = _dx(epochs[-1], zero)
     sig[-1] = np.sqrt(np.maximum(np.diag(ps), 0.0))
-    for j in range(m - 2, -1, -1):
-        nxt = epochs[j + 1]
-        p_plus = epochs[j].p_plus if epochs[j].p_plus is not None else nxt.p_minus
-        dx = epochs[j].dx if epochs[j].dx is not None else np.zeros(n)
-        keep_forward = nxt.cut or nxt.phi is None
-        if keep_forward:
+    j = m - 2
+    while j >= 0:
+        step = _back(epochs, j, e_minus[j + 1], ps)
+        if step is None:
             report.cuts += 1
-        else:
-            phi = np.asarray(nxt.phi, float)
-            try:
-                a = np.linalg.solve(nxt.p_minus, phi @ p_plus).T  # P+ Phi^T (P-)^-1, P symmetric
-            except np.linalg.LinAlgError:
-                a = np.zeros((n, n))
-            ej = a @ e_minus[j + 1]
-            ps_j = p_plus + a @ (ps - nxt.p_minus) @ a.T
-            ps_j = 0.5 * (ps_j + ps_j.T)
-            # The smoothed correction against what the forward filter admits of its own error, less what stays.
-            c = p_plus[_POS, _POS] - ps_j[_POS, _POS] + np.eye(3) * 1e-9
-            d = ej[_POS]
-            try:
-                keep_forward = float(d @ np.linalg.solve(c, d)) > DISAGREE_CHI2
-            except np.linalg.LinAlgError:
-                keep_forward = True
-            if keep_forward:
-                report.disagreements += 1
-            else:
-                e[j], ps = ej, ps_j
-        if keep_forward:  # the forward solution here, and the pass starts again from it
+        elif _disagree(step[0], step[1], _p_plus(epochs, j)):
+            explained = _explain(epochs, j, step)
+            if explained is not None:  # an update before it that the rest refuses: smoothed without it
+                report.refused += 1
+                for i, ei, psi in explained:
+                    e[i], ps = ei, psi
+                    sig[i] = np.sqrt(np.maximum(np.diag(ps), 0.0))
+                    e_minus[i] = ei + _dx(epochs[i], zero)
+                j = explained[-1][0] - 1
+                continue
+            report.disagreements += 1
+            step = None
+        if step is None:  # the forward solution here, and the pass starts again from it
             kept[j] = True
             e[j] = 0.0
-            ps = p_plus.copy()
+            ps = _p_plus(epochs, j).copy()
+        else:
+            e[j], ps = step[0], step[1]
         sig[j] = np.sqrt(np.maximum(np.diag(ps), 0.0))
-        e_minus[j] = e[j] + dx
+        e_minus[j] = e[j] + _dx(epochs[j], zero)
+        j -= 1
     return e, e_minus, sig, kept
+
+
+def _dx(ep: Epoch, zero: np.ndarray) -> np.ndarray:
+    return ep.dx if ep.dx is not None else zero
+
+
+def _p_plus(epochs: list[Epoch], j: int) -> np.ndarray:
+    p = epochs[j].p_plus
+    return p if p is not None else epochs[j + 1].p_minus
+
+
+def _back(epochs: list[Epoch], j: int, e_minus_next: np.ndarray, ps_next: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One step of the backward pass, from epoch j+1 to j: e_j, Ps_j and the gain A_j; None where nothing crosses
+    back (a cut)."""
+    nxt = epochs[j + 1]
+    if nxt.cut or nxt.phi is None:
+        return None
+    p_plus = _p_plus(epochs, j)
+    n = p_plus.shape[0]
+    try:
+        a = np.linalg.solve(nxt.p_minus, np.asarray(nxt.phi, float) @ p_plus).T  # P+ Phi^T (P-)^-1, P symmetric
+    except np.linalg.LinAlgError:
+        a = np.zeros((n, n))
+    ps_j = p_plus + a @ (ps_next - nxt.p_minus) @ a.T
+    return a @ e_minus_next, 0.5 * (ps_j + ps_j.T), a
+
+
+def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np.ndarray]
+             ) -> list[tuple[int, np.ndarray, np.ndarray]] | None:
+    """Where the passes disagree at epoch j: an update at j or up to LOOKBACK_NS before it that the rest of the
+    drive refuses, and the smoothed errors and covariances from j back to it without it; None if there is none.
+
+    A fix taken whole by a forward pass wide open after an outage leaves the forward solution off by more than its
+    covariance, now small, admits, until later fixes pull it back: the passes disagree there, seconds after the
+    fix. Keeping the forward solution there would carry the fix back into the outage; the fix, not the forward
+    pass's model, is what the rest of the drive contradicts. An update is refused where (1) the smoothed solution
+    moves by more without it than its information admits (the deleted-residual test, position, DISAGREE_CHI2) and
+    (2) without it the forward prior agrees with the rest. The epochs between it and j are then smoothed without
+    it too: their change is the refused epoch's through the smoothed cross-covariance, Ps_i (A_{i-1}...A_r)^T
+    Ps_r^-1 (the updates' likelihood depends on that epoch's state only)."""
+    zero = np.zeros(step[0].shape[0])
+    t_j = epochs[j].t_ns
+    out: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+    i, (ei, psi, ai) = j, step
+    while True:
+        ep = epochs[i]
+        dx = _dx(ep, zero)
+        if dx.any():
+            without = _without_update(ei, psi, _p_plus(epochs, i), ep.p_minus, dx)
+            if (without is not None and _disagree(ei - without[0], psi, without[1])
+                    and not _disagree(without[0] + dx, without[1], ep.p_minus)):
+                return _spread(out, i, ei, psi, ai, *without)
+        out.append((i, ei, psi, ai))
+        if i == 0 or t_j - epochs[i].t_ns > LOOKBACK_NS:
+            return None
+        prev = _back(epochs, i - 1, ei + dx, psi)
+        if prev is None:
+            return None
+        i, (ei, psi, ai) = i - 1, prev
+
+
+def _spread(later: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], r: int, er: np.ndarray, psr: np.ndarray,
+            ar: np.ndarray, er_without: np.ndarray, psr_without: np.ndarray
+            ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The refused epoch r and the epochs after it (``later``: latest first, with their gains A_i) without r's
+    updates, latest first."""
+    res = [(r, er_without, psr_without)]
+    try:
+        inv = np.linalg.inv(psr)
+    except np.linalg.LinAlgError:
+        return [(i, ei, psi) for i, ei, psi, _ in later] + res
+    v = inv @ (er_without - er)
+    d = inv @ (psr_without - psr) @ inv
+    w = np.eye(len(er))
+    a_prev = ar
+    for i, ei, psi, ai in reversed(later):
+        w = a_prev.T @ w  # (A_{i-1} ... A_r)^T
+        c = psi @ w  # the smoothed cross-covariance of epochs i and r
+        ps_new = psi + c @ d @ c.T
+        res.append((i, ei + c @ v, 0.5 * (ps_new + ps_new.T)))
+        a_prev = ai
+    return list(reversed(res))
+
+
+def _disagree(e: np.ndarray, ps: np.ndarray, p: np.ndarray) -> bool:
+    """Whether a smoothed correction ``e`` of a forward solution with covariance ``p`` lies beyond what that
+    covariance admits of its own error, less what stays (``ps``): position, chi-square at DISAGREE_CHI2."""
+    c = p[_POS, _POS] - ps[_POS, _POS] + np.eye(3) * 1e-9
+    d = e[_POS]
+    try:
+        return float(d @ np.linalg.solve(c, d)) > DISAGREE_CHI2
+    except np.linalg.LinAlgError:
+        return True
+
+
+def _without_update(e: np.ndarray, ps: np.ndarray, p_plus: np.ndarray, p_minus: np.ndarray, dx: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The smoothed error and covariance at an epoch with the information of its own updates taken out.
+
+    All three are Gaussians over the error of the corrected solution x+: the smoothed one N(e, Ps) (every
+    measurement), the forward filter's N(0, P+) (those up to this epoch) and its prior N(-dx, P-) (those before
+    it). The updates' likelihood is the forward posterior over the prior, so without them the information is
+    Ps^-1 - P+^-1 + P-^-1 and its mean follows from Ps^-1 e - P-^-1 dx. Computed on the prior's scale (its
+    states differ by ten orders of magnitude); None where that is not a covariance."""
+    s = 1.0 / np.sqrt(np.maximum(np.diag(p_minus), 1e-30))
+    sc = s[:, None] * s[None, :]
+    try:
+        i_s, i_p, i_m = (np.linalg.inv(m / sc) for m in (ps, p_plus, p_minus))
+        info = i_s - i_p + i_m
+        info = 0.5 * (info + info.T)
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None
+    cov = 0.5 * (cov + cov.T)
+    if not np.all(np.isfinite(cov)) or np.diag(cov).min() <= 0.0:
+        return None
+    mean = cov @ (i_s @ (e / s) - i_m @ (dx / s))
+    return mean * s, cov * sc
 
 
 def smooth_rows(rows: list[TrajectoryRow], epochs: list[Epoch], p_last: np.ndarray,
