@@ -1,15 +1,28 @@
 """What the figures measured on this machine mean on a BeagleBone-class board (AM335x: one Cortex-A8, 1 GHz).
 
-Nothing here runs on ARM: CPU times measured on this machine's core are multiplied by a range of factors, the
-ratio of this core's speed to a Cortex-A8's for the same Python code, taken from published measurements. The
-factors, their sources and the assumptions that join them are stated in :data:`METHOD` and printed with every
-report, so that a measurement on a real board (``tools/bench.py --only daemon`` runs there unchanged: the
-per-thread split leaves the simulator out) can replace them.
+The translation: CPU times measured on this machine's core are multiplied by a range of factors, the ratio of
+this core's speed to a Cortex-A8's for the same Python code, taken from published measurements. The factors, their
+sources and the assumptions that join them are stated in :data:`METHOD` and printed with every report, so that a
+measurement on a real board (``tools/bench.py --only daemon`` runs there unchanged: the per-thread split leaves the
+simulator out) can replace them.
+
+The floor check: ``tools/board-check.sh --bench`` runs the same daemon benchmark inside a Debian 12 armhf root
+under qemu-user, alternated with runs on this machine, and ``python tools/bench_board.py --record-emulated FILE``
+puts those figures beside the translation (:func:`render_emulated` says what they do and do not tell).
+
+    python tools/bench_board.py --record-emulated /var/tmp/vehicle-logger-board/logs/emulated.json
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
 
 FACTOR_LOW = 9.0
 FACTOR_HIGH = 28.0
@@ -100,6 +113,8 @@ def render(results: dict[str, Any]) -> list[str]:
                     f"| {cpu:.2f} s | {cpu * FACTOR_LOW:.1f} to {cpu * FACTOR_HIGH:.1f} s, plus reading the files "
                     "from the SD card |")
     lines += rows
+    if results.get("emulated"):
+        lines += ["", *render_emulated(results["emulated"])]
     if default is not None:
         low, high = board_range(default["daemon_pct"])
         lines += ["", f"**Default setup** (IMU 20 Hz, baro 1 Hz, OBD 2 Hz, GNSS and PPS 1 Hz, live filter): "
@@ -122,3 +137,65 @@ def costliest(default: dict[str, Any], results: dict[str, Any]) -> list[str]:
         out.append("By module in the profile (share of the daemon threads' own CPU): "
                    + ", ".join(f"{m['module']} {m['share'] * 100:.1f} %" for m in mods) + ".")
     return out
+
+
+EMULATION_CAVEATS = """\
+What this tells: the daemon installs and runs on armhf with Debian's own numpy, pyserial, smbus2, python-can,
+zstandard and lz4, and whether the rates are held when every instruction is translated; the ratio of its CPU to
+this machine's in the same run is a floor check on the translation above. What it does not: qemu-user translates
+ARM instructions to x86 ones on this machine's core, so the emulated CPU is neither a Cortex-A8's speed (no
+in-order pipeline, no 256 KB L2, no VFPLite, none of the board's memory latency) nor a bound on it; the kernel's
+work (system calls, the simulated devices' pty and ioctl) runs natively at x86 speed; the simulated vehicle runs
+emulated too, in the same process, competing for the same core."""
+
+
+def render_emulated(section: dict[str, Any]) -> list[str]:
+    """The daemon benchmark run inside the emulated armhf root beside the same run here, rate by rate."""
+    lines = [f"**Measured under emulation** ({section.get('measured', '?')}; `{section.get('command', '')}`): "
+             "the daemon benchmark inside a Debian 12 armhf root under qemu-user-static, alternated with the same "
+             "run on this machine, 60 s windows.", "",
+             "| IMU rate | daemon threads here | under emulation | emulated / here | sustained here / emulated "
+             "| resident set under emulation |", "| --- | --- | --- | --- | --- | --- |"]
+    for run in section["runs"]:
+        here, emu = run.get("host"), run["emulated"]
+        ratio = f"{emu['daemon_pct'] / here['daemon_pct']:.1f}x" if here and here["daemon_pct"] > 0 else "-"
+        held = (("yes" if here["sustained"] else "no") if here else "-") + " / " + \
+            ("yes" if emu["sustained"] else "no")
+        here_pct = f"{here['daemon_pct']:.2f} %" if here else "-"
+        lines.append(f"| {emu['imu_rate_hz']:g} Hz | {here_pct} | {emu['daemon_pct']:.2f} % | {ratio} | {held} "
+                     f"| {emu['hwm_mb']:.0f} MB |")
+    lines += ["", *EMULATION_CAVEATS.splitlines()]
+    return lines
+
+
+def record_emulated(path: Path, report: Path) -> None:
+    """Put the emulated runs into the saved figures and write the report again from them."""
+    raw = report.with_suffix(".json")
+    saved = json.loads(raw.read_text())
+    saved["results"]["emulated"] = json.loads(path.read_text())
+    raw.write_text(json.dumps(saved, indent=1))
+    subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--render-only", "--out", str(report)],
+                   check=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--record-emulated", type=Path, metavar="FILE",
+                    help="emulated.json from tools/board-check.sh --bench: add it to BENCHMARKS.md")
+    ap.add_argument("--show-emulated", type=Path, metavar="FILE", help="print that file's table only")
+    ap.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md", help="report (default BENCHMARKS.md)")
+    args = ap.parse_args(argv)
+    for given in (args.record_emulated, args.show_emulated):
+        if given is not None and not given.is_file():
+            ap.error(f"{given}: no such file (tools/board-check.sh --bench writes it)")
+    if args.show_emulated:
+        print("\n".join(render_emulated(json.loads(args.show_emulated.read_text()))))
+    elif args.record_emulated:
+        record_emulated(args.record_emulated, args.out)
+    else:
+        ap.print_help()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -178,10 +178,30 @@ suite() {
 }
 
 bench() {
+    # The daemon benchmark at each IMU rate, here and inside the root, alternated so that both see the same load;
+    # the figures go to $LOGS/emulated.json for tools/bench_board.py (--show-emulated, --record-emulated).
+    host_python="$SRC/.venv/bin/python"
+    [ -x "$host_python" ] || echo "no $host_python: the runs on this machine are left out (python3 -m venv .venv ...)"
     for rate in 20 200 1000; do
+        if [ -x "$host_python" ]; then
+            (cd "$SRC" && "$host_python" tools/bench_daemon.py --imu-rate "$rate" --seconds 60 \
+                --json "$LOGS/bench-host-$rate.json") || return 1
+        fi
         in_root sh -c "cd $TREE && /opt/vehicle-logger/venv/bin/python tools/bench_daemon.py --imu-rate $rate \
-            --seconds 60 --json /root/bench-$rate.json" || return 1
+            --seconds 60 --json /root/bench-emulated-$rate.json" || return 1
+        cp "$ROOT/root/bench-emulated-$rate.json" "$LOGS/"
     done
+    python3 - "$LOGS" "$(date -u '+%Y-%m-%d %H:%M UTC')" <<'PY'
+import json, pathlib, sys
+logs = pathlib.Path(sys.argv[1])
+def load(name):
+    p = logs / name
+    return json.loads(p.read_text()) if p.exists() else None
+runs = [{"host": load(f"bench-host-{r}.json"), "emulated": load(f"bench-emulated-{r}.json")} for r in (20, 200, 1000)]
+(logs / "emulated.json").write_text(json.dumps({"measured": sys.argv[2], "command": "tools/board-check.sh --bench",
+                                                "runs": runs}, indent=1))
+PY
+    (cd "$SRC" && python3 tools/bench_board.py --show-emulated "$LOGS/emulated.json")
 }
 
 check host-tools host_tools
@@ -214,4 +234,9 @@ printf '%s' "$TABLE" | while IFS='|' read -r name result took; do
     printf '  %-16s %7s  %s\n' "$name" "$took" "$result"
 done
 grep -h -E '^[0-9]+ (passed|failed)|passed|failed' "$LOGS"/tests-*.log 2>/dev/null | tail -n 1 | sed 's/^/  tests: /'
+if [ "$BENCH" = 1 ] && [ -e "$LOGS/emulated.json" ]; then
+    echo
+    (cd "$SRC" && python3 tools/bench_board.py --show-emulated "$LOGS/emulated.json")
+    echo "into BENCHMARKS.md: python3 tools/bench_board.py --record-emulated $LOGS/emulated.json"
+fi
 exit $((FAILURES > 0))
