@@ -58,10 +58,21 @@ def unit_for_this_host(tmp_path: Path) -> Path:
     return copy
 
 
+def man_pages_here() -> bool:
+    """Whether this machine can look up the unit's Documentation= man pages: ``man`` and systemd's own pages (one
+    the unit does not name, so a misspelt page in the unit still fails where pages can be looked up)."""
+    return shutil.which("man") is not None and subprocess.run(
+        ["man", "-w", "5", "systemd.unit"], capture_output=True, timeout=60).returncode == 0
+
+
 @needs_analyze
 def test_unit_verifies_without_a_word(tmp_path: Path) -> None:
-    r = subprocess.run([ANALYZE, "verify", str(unit_for_this_host(tmp_path))], capture_output=True, text=True,
-                       timeout=60)
+    # verify runs `man` for every Documentation=man: page and fails where man or the pages are not installed
+    # (minimal images, chroots, boards that exclude /usr/share/man): that is the machine, not the unit. There the
+    # man look-up alone is left out (--man=no); every other check still runs and must say nothing.
+    man = [] if man_pages_here() else ["--man=no"]
+    r = subprocess.run([ANALYZE, "verify", *man, str(unit_for_this_host(tmp_path))], capture_output=True,
+                       text=True, timeout=60)
     assert r.returncode == 0 and r.stdout == "" and r.stderr == "", (r.stdout, r.stderr)
 
 
