@@ -188,7 +188,7 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
         # A simulated receiver keeps the navigation rate it runs at (its profile's), as its baud rate; hardware is
         # set to one fix a second.
         meas_ms = devices.gnss_meas_period_ms if gnss["source"] == "sim" else None
-        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb, meas_ms), None,
+        plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb, meas_ms, gnss["raw_observations"]), None,
                           1000.0 / meas_ms if meas_ms else 1.0))
     if pps["source"] == "gpsd":
         realtime = devices.realtime_ns if sim_gpsd else time.time_ns  # the clock gpsd stamps edges with

@@ -19,7 +19,7 @@ from typing import Any
 
 from logger.nav.params import NavParams
 from logger.recording.settings import MIB, RecorderSettings
-from sensors.sim.profile import GNSS_RATES_HZ, IMUS, MAX_GNSS_LATENCY_S, RECEIVERS, SimProfile
+from sensors.sim.profile import GNSS_RATES_HZ, IMUS, MAX_GNSS_LATENCY_S, RECEIVER_MODELS, RECEIVERS, SimProfile
 from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
@@ -106,6 +106,14 @@ def _gpsd_device(v: str) -> str | None:
     if v == "" or (v.startswith("/") and v.isprintable()) or re.fullmatch(r"[a-z]+://\S+", v):
         return None
     return "must be empty (every receiver), a device path such as /dev/ttyACM0, or a gpsd source URL"
+
+
+def _rinex_receiver(v: str) -> str | None:
+    """RINEX gives the receiver's number, type and version 20 characters each; convbin takes them split by '/'."""
+    parts = v.split("/")
+    if len(parts) > 3 or not v.isprintable() or any(len(p) > 20 for p in parts):
+        return "must be up to three parts separated by '/' (number/type/version), each at most 20 characters"
+    return None
 
 
 def _field_default(cls: type, name: str) -> Any:
@@ -195,6 +203,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gpsd_device": Key(str, "", _gpsd_device, "the receiver gpsd reads, when it has several; empty: any"),
         "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)),
         "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start"),
+        "raw_observations": Key(bool, False, None, "also RXM-RAWX and RXM-SFRBX for RTKLIB (M8T, M8P, F9P, F9T); "
+                                "the port speed goes up to carry them"),
+        "antenna_height_m": Key(NUM, 0.0, _range(-100, 100), "antenna above the marker, m: RINEX ANTENNA: DELTA H"),
+        "receiver_name": Key(str, "", _rinex_receiver, "RINEX REC # / TYPE / VERS, e.g. '1234/NEO-M8T/TIM 1.10'"),
     },
     "pps": {
         "source": Key(str, "gpio", _one_of("gpio", "gpsd", "sim", "none")),
@@ -264,6 +276,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gpsd": Key(bool, False, None, "gnss/pps sources 'gpsd' read a simulated gpsd (logger run --sim sets it)"),
         "receiver": Key(str, FIELD, _one_of(*RECEIVERS),
                         "'ubx' (u-blox: UBX and NMEA) or 'nmea' (GGA, RMC, GSA only; answers no UBX)"),
+        "receiver_model": Key(str, FIELD, _one_of(*RECEIVER_MODELS),
+                              "which u-blox: 'NEO-M8N' (no raw observations), 'NEO-M8T' or 'ZED-F9P' (raw)"),
         "gnss_rate_hz": Key(NUM, FIELD, _one_of(*GNSS_RATES_HZ), "the simulated receiver's fixes per second"),
         "gnss_latency_s": Key(NUM, FIELD, _range(0, MAX_GNSS_LATENCY_S), "least delay of a fix after its epoch"),
         "imu": Key(str, FIELD, _one_of(*IMUS), "'mpu6050' (datasheet errors) or 'phone' (phone-grade, 100 Hz)"),

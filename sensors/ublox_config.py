@@ -10,9 +10,16 @@ u-blox has two configuration interfaces. Receivers up to M8 know only the legacy
 -RATE, -PRT); F9 knows both; M10 only the configuration keys (UBX-CFG-VALSET). The legacy message is tried
 first and, once NAKed, the keys are used for the rest of the setup.
 
-The baud rate changes last, on its own. A legacy CFG-PRT is acknowledged at the old rate, then the receiver
-switches; a VALSET takes effect at once, so its ACK (if the host is quick enough to catch it) comes at the
-new rate. Either way the host follows and confirms with a MON-VER poll at the new rate, and if that stays
+Raw observations (UBX-RXM-RAWX and -SFRBX, for RTKLIB at the office) are asked for only when the set-up says
+so, and only receivers with raw firmware give them (M8T, M8P, F9P, F9T; an M8N refuses): a refusal is reported
+in the result, not raised, since the logger records everything else the same. They need a fast line, so when they
+are asked for the port speed goes up first to one that carries the whole output (:func:`line_budget`), and they
+are turned on at the new rate: turned on at 9600 baud they would fill the receiver's transmit buffer, which
+drops messages, ACKs among them.
+
+The baud rate changes on its own, after the other settings. A legacy CFG-PRT is acknowledged at the old rate,
+then the receiver switches; a VALSET takes effect at once, so its ACK (if the host is quick enough to catch it)
+comes at the new rate. Either way the host follows and confirms with a MON-VER poll at the new rate, and if that stays
 silent goes back to the old rate, so a lost ACK never leaves the two ends talking past each other.
 
 Waiting goes through an injected ``sleep`` and timeouts count the time slept, so a test hands in a
@@ -24,7 +31,7 @@ from __future__ import annotations
 import termios
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import serial
 from pyubx2 import POLL, SET, SET_LAYER_RAM, TXN_NONE, UBX_CONFIG_DATABASE, UBX_MSGIDS, UBXMessage
@@ -32,7 +39,16 @@ from pyubx2 import POLL, SET, SET_LAYER_RAM, TXN_NONE, UBX_CONFIG_DATABASE, UBX_
 from sensors.errors import BusError, NoData, ProtocolError
 from sensors.ublox_frames import KIND_NMEA, KIND_UBX, UbxNmeaFramer
 
-__all__ = ["NoUbxAnswer", "ReceiverSetup", "SetupResult", "configure_receiver", "message_id"]
+__all__ = [
+    "RAW_MESSAGES",
+    "NoUbxAnswer",
+    "ReceiverSetup",
+    "SetupResult",
+    "baud_for",
+    "configure_receiver",
+    "line_budget",
+    "message_id",
+]
 
 # Message names as pyubx2 spells them ("NAV-PVT", "TIM-TP"; NMEA sentences by their id, "GGA").
 _ID_BY_NAME: dict[str, bytes] = {}
@@ -45,6 +61,17 @@ _BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # Shortest payload of each reply the set-up reads. pyubx2 decodes a runt with a good checksum into a message
 # without the fields, and reading those would raise out of the set-up instead of waiting for a real reply.
 _MIN_REPLY_PAYLOAD = {"ACK-ACK": 2, "ACK-NAK": 2, "MON-VER": 40}
+
+RAW_MESSAGES = ("RXM-RAWX", "RXM-SFRBX")  # raw observations and navigation data bits: what RTKLIB's ubx reader needs
+# The line budget: bytes on the wire (UBX frame of 8 bytes included) of each message. NAV-PVT, NAV-TIMEGPS and TIM-TP
+# come once per solution; RXM-RAWX is 16 bytes plus 32 per measurement, and a dual-band receiver (F9) reports up to
+# about 64 signals; NMEA is the factory set (GGA, GLL, GSA, several GSV, RMC, VTG) at its longest.
+UBX_BYTES = {"NAV-PVT": 100, "NAV-TIMEGPS": 24, "TIM-TP": 24, "RXM-RAWX": 16 + 32 * 64 + 8}
+NMEA_BYTES_PER_SOLUTION = 1000
+# RXM-SFRBX comes as the satellites broadcast (a subframe, page or string every 0.6 to 6 s per satellite), not per
+# solution: up to about 40 a second, 40 to 60 bytes each, with every constellation tracked.
+SFRBX_BYTES_PER_S = 40 * 60
+LINE_USE = 0.75  # the share of a UART's 8N1 capacity the output may fill: bursts after each epoch need the rest
 
 
 def message_id(name: str) -> tuple[int, int]:
@@ -80,6 +107,7 @@ class ReceiverSetup:
     baud: int | None = None
     uart: str = "UART1"
     nmea_output: bool = True
+    raw_observations: bool = False
 
     def __post_init__(self) -> None:
         if self.time_ref not in _TIME_REF:
@@ -104,6 +132,8 @@ class SetupResult:
     interface: str  # "legacy" (UBX-CFG-MSG/RATE/PRT) or "keys" (UBX-CFG-VALSET)
     baud: int
     acknowledged: tuple[str, ...] = field(default=())
+    raw_observations: str = "off"  # "on" (RXM-RAWX and -SFRBX acknowledged), "refused" (NAKed), "off" (not asked)
+    raw_refusal: str = ""  # what the receiver refused, when it did
 
 
 class NoUbxAnswer(NoData):
@@ -209,19 +239,31 @@ class _Session:
 
     def configure(self, legacy: UBXMessage | None, keys: list[tuple[str, int]], what: str) -> None:
         """One setting, by the legacy message while the receiver takes it, else by configuration keys."""
+        refusal = self.attempt(legacy, keys, what)
+        if refusal:
+            raise ProtocolError(f"GNSS receiver on {self.path} rejected {refusal}")
+
+    def attempt(self, legacy: UBXMessage | None, keys: list[tuple[str, int]], what: str,
+                optional: bool = False) -> str:
+        """One setting as :meth:`configure` makes it; "" when acknowledged, else what was refused by which messages.
+
+        An ``optional`` setting (one only some firmware has, such as raw observations) that both interfaces refuse
+        leaves the interface as it was: a legacy receiver's NAK to a message it lacks says nothing of its keys."""
+        before = self.interface
         if self.interface == "legacy" and legacy is not None:
             if self.command(legacy, f"UBX-{legacy.identity} ({what})"):
-                return
+                return ""
             self.interface = "keys"
             refused = f"UBX-{legacy.identity} and "
         else:
             refused = ""
         valset = UBXMessage.config_set(SET_LAYER_RAM, TXN_NONE, keys)
         names = ", ".join(k.replace("_", "-") for k, _ in keys)
-        if not self.command(valset, f"UBX-CFG-VALSET {names}"):
-            raise ProtocolError(
-                f"GNSS receiver on {self.path} rejected {what} (ACK-NAK to {refused}UBX-CFG-VALSET {names})"
-            )
+        if self.command(valset, f"UBX-CFG-VALSET {names}"):
+            return ""
+        if optional:
+            self.interface = before
+        return f"{what} (ACK-NAK to {refused}UBX-CFG-VALSET {names})"
 
 
 def _name(msg: UBXMessage) -> str:
@@ -282,17 +324,47 @@ def configure_receiver(
     )
     for rate, names in ((1, setup.enable), (0, setup.disable)):
         for name in names:
-            cls, mid = message_id(name)
-            # The three-byte form sets the rate on the port the command arrives at, whichever that is.
-            # pyubx2 defines only the eight-byte (all ports) layout, hence the explicit payload.
-            legacy = UBXMessage("CFG", "CFG-MSG", SET, payload=bytes((cls, mid, rate)))
-            s.configure(legacy, [(_msgout_key(name, setup.uart), rate)],
-                        f"{name} {'on' if rate else 'off'}")
+            s.configure(*_message_rate(name, rate, setup.uart))
 
-    if setup.baud is not None and setup.baud != port.baudrate:
-        _change_baud(s, setup)
+    baud = setup.baud if setup.baud is not None else int(port.baudrate)
+    if setup.raw_observations:
+        baud = max(baud, baud_for(setup))  # raised first: raw output at a slow rate would cost messages, ACKs too
+    if baud != port.baudrate:
+        _change_baud(s, replace(setup, baud=baud))
+    raw, refusal = "off", ""
+    if setup.raw_observations:
+        for name in RAW_MESSAGES:
+            refusal = s.attempt(*_message_rate(name, 1, setup.uart), optional=True)
+            if refusal:
+                break
+        raw = "refused" if refusal else "on"
     return SetupResult(_text(version.swVersion), _text(version.hwVersion), extensions, s.interface,
-                       int(port.baudrate), tuple(s.acknowledged))
+                       int(port.baudrate), tuple(s.acknowledged), raw, refusal)
+
+
+def _message_rate(name: str, rate: int, uart: str) -> tuple[UBXMessage, list[tuple[str, int]], str]:
+    """The legacy CFG-MSG and the configuration key that set message ``name`` to every ``rate``-th solution."""
+    cls, mid = message_id(name)
+    # The three-byte form sets the rate on the port the command arrives at, whichever that is.
+    # pyubx2 defines only the eight-byte (all ports) layout, hence the explicit payload.
+    legacy = UBXMessage("CFG", "CFG-MSG", SET, payload=bytes((cls, mid, rate)))
+    return legacy, [(_msgout_key(name, uart), rate)], f"{name} {'on' if rate else 'off'}"
+
+
+def line_budget(setup: ReceiverSetup) -> float:
+    """Bytes a second the receiver's output needs with ``setup``: its UBX messages at the solution rate, the factory
+    NMEA set while NMEA output is on, and raw observations when asked for (the sizes are :data:`UBX_BYTES`'s)."""
+    per_s = 1000.0 / (setup.meas_period_ms * setup.nav_rate)
+    names = [*setup.enable, *(("RXM-RAWX",) if setup.raw_observations else ())]
+    per_solution = sum(UBX_BYTES.get(n, 0) for n in names) + (NMEA_BYTES_PER_SOLUTION if setup.nmea_output else 0)
+    return per_solution * per_s + (SFRBX_BYTES_PER_S if setup.raw_observations else 0)
+
+
+def baud_for(setup: ReceiverSetup) -> int:
+    """The slowest UART rate whose capacity (8N1: ten bits a byte), used to :data:`LINE_USE`, carries
+    :func:`line_budget`; the fastest the receiver offers when none does."""
+    need = line_budget(setup)
+    return next((b for b in _BAUDS if b / 10 * LINE_USE >= need), _BAUDS[-1])
 
 
 def _change_baud(s: _Session, setup: ReceiverSetup) -> None:

@@ -69,9 +69,11 @@ def timepulse_record(tp: TimePulse, late_read: bool = False) -> dict[str, Any]:
             "time_base": tp.time_base, "late_read": late_read}
 
 
-def raw_bytes_record(t_mono_ns: int, data: bytes) -> dict[str, Any]:
-    """A ``/gnss/raw`` record: the receiver's bytes exactly as read."""
-    return {"t_mono_ns": t_mono_ns, "data_b64": base64.b64encode(data).decode(), "n_bytes": len(data)}
+def raw_bytes_record(t_mono_ns: int, data: bytes, offset: int) -> dict[str, Any]:
+    """A ``/gnss/raw`` record: the receiver's bytes exactly as read, and how many the port gave before them since it
+    was opened, so that an export can tell a lost record (a jump) from a port opened anew (0 again)."""
+    return {"t_mono_ns": t_mono_ns, "data_b64": base64.b64encode(data).decode(), "n_bytes": len(data),
+            "offset": offset}
 
 
 def pps_record(seqno: int, lost: int, gnss_time_ns: int | None = None) -> dict[str, Any]:

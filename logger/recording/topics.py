@@ -176,6 +176,8 @@ _add(GNSS_RAW, "vehicle_logger.RawBytes", {
     "t_mono_ns": ("integer", "board monotonic time when these bytes were read, ns"),
     "data_b64": ("string", "the receiver's bytes exactly as read, base64 (UBX, NMEA, RTCM, garbage included)"),
     "n_bytes": ("integer", "number of bytes"),
+    "offset": ("integer", "bytes read from the port before these since it was opened: a jump is bytes lost between "
+                          "records, 0 again a port opened anew (absent in drives from before it was recorded)"),
 }, "the receiver's byte stream for post-processing (RTKLIB, gpsd tools)", stamped=False)
 _add(PPS, "vehicle_logger.PpsEdge", {
     "seqno": ("integer", "the line's edge sequence number from the kernel; from gpsd: edges recorded since start"),

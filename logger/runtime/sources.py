@@ -193,8 +193,12 @@ class ObdSource(Source):
 class GnssSource(Source):
     """The u-blox receiver: every byte kept for post-processing, each decoded fix and time pulse recorded.
 
-    ``meas_period_ms`` is the navigation rate the setup asks for (None: the driver's one fix a second). A
-    receiver that answers no UBX but sends NMEA (one that is not a u-blox, such as the paper's ST TESEO, or a
+    ``meas_period_ms`` is the navigation rate the setup asks for (None: the driver's one fix a second), and
+    ``raw_observations`` asks for RXM-RAWX and RXM-SFRBX as well: the set-up raises the port speed to carry them,
+    so a port opened again (a USB adapter unplugged) opens at the speed last set, and at the configured one when the
+    receiver is silent there (it was power-cycled and came back at the speed in its flash). A receiver that refuses
+    raw observations (an M8N) is recorded without them, with one warning. A receiver that answers no UBX but sends
+    NMEA (one that is not a u-blox, such as the paper's ST TESEO, or a
     u-blox with UBX input off) is recorded as it is, unconfigured: its fixes carry their UTC time, which the
     clock pairs with the PPS edges as it does a u-blox's, only without TIM-TP's announcement.
     """
@@ -202,28 +206,35 @@ class GnssSource(Source):
     name = "gnss"
     sample_topic = GNSS_FIX
 
-    def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase, meas_period_ms: int | None = None) -> None:
+    def __init__(self, path: str, baud: int, configure: bool, tb: TimeBase, meas_period_ms: int | None = None,
+                 raw_observations: bool = False) -> None:
         self.path, self.baud, self.configure, self.tb = path, baud, configure, tb
         self.meas_period_ms = meas_period_ms
+        self.raw_observations = raw_observations
         self.origin = f"serial {path}"
         self.receiver: Any = None
         self.setup: Any = None
         self.nmea_only = False  # the receiver answered no UBX when last opened, but spoke NMEA
+        self.port_baud = baud  # the speed the port is opened at: the configured one, or the one the set-up set
+        self.offset = 0  # bytes read since the port was opened (each /gnss/raw record says where it starts)
+        self._raw_warned = False
 
     def open(self) -> None:
         from sensors.ublox import GnssReceiver
 
-        self.receiver = GnssReceiver.open(self.path, self.baud)
+        self.receiver = GnssReceiver.open(self.path, self.port_baud)
+        self.offset = 0
         if self.configure:
             from sensors.ublox_config import NoUbxAnswer, ReceiverSetup, configure_receiver
 
-            setup = ReceiverSetup() if self.meas_period_ms is None else ReceiverSetup(
-                meas_period_ms=self.meas_period_ms)
+            setup = ReceiverSetup(raw_observations=self.raw_observations) if self.meas_period_ms is None else \
+                ReceiverSetup(meas_period_ms=self.meas_period_ms, raw_observations=self.raw_observations)
             try:
                 self.setup = configure_receiver(self.receiver, setup, sleep=self.tb.sleep)
             except NoUbxAnswer as exc:
                 if not exc.nmea_sentences:  # nothing heard at all: a wrong baud rate or no receiver; retry later
                     _close_quietly(self.receiver)
+                    self.port_baud = self.baud  # a receiver restarted talks at the speed its flash holds
                     raise
                 # Refusing it would record nothing, forever: a working receiver that does not know UBX.
                 if not self.nmea_only:
@@ -237,6 +248,17 @@ class GnssSource(Source):
                 raise
             else:
                 self.nmea_only = False
+                self.port_baud = self.setup.baud
+                self._report_raw(self.setup)
+
+    def _report_raw(self, result: Any) -> None:
+        """Raw observations granted (info) or refused (one warning per run, not one per reconnection)."""
+        if result.raw_observations == "on":
+            log.info("gnss: raw observations (RXM-RAWX, RXM-SFRBX) on at %d baud", result.baud)
+        elif result.raw_observations == "refused" and not self._raw_warned:
+            self._raw_warned = True
+            log.warning("gnss: the receiver refused raw observations, %s: its firmware has none (an M8N; M8T, M8P, "
+                        "F9P and F9T do); recording without them", result.raw_refusal)
 
     def read(self) -> list[Reading]:
         from sensors.ublox import GnssFix, TimePulse
@@ -245,7 +267,8 @@ class GnssSource(Source):
         t = self.tb.monotonic_ns()
         out: list[Reading] = []
         if got.raw:
-            out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw), t, stamped=False))
+            out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw, self.offset), t, stamped=False))
+            self.offset += len(got.raw)
         # Epochs half a second or more apart in one read (or two time pulses): the host read the older messages
         # that long after they came, so their stamp says nothing of when; paired with PPS edges they could name
         # the wrong second.

@@ -20,6 +20,10 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 RECEIVERS = ("ubx", "nmea")  # a u-blox (UBX and NMEA, configurable), or a receiver that speaks NMEA only
+# Which u-blox a "ubx" receiver is: its firmware answers MON-VER as this product, and only those with raw firmware
+# (the timing M8T, the high-precision F9P) take RXM-RAWX and RXM-SFRBX; a standard-precision M8N refuses them.
+# sensors.sim.ublox_commands.RECEIVER_MODELS holds each one's firmware.
+RECEIVER_MODELS = ("NEO-M8N", "NEO-M8T", "ZED-F9P")
 IMUS = ("mpu6050", "phone")  # the datasheet's MPU-6050, or phone-grade MEMS errors in the same register model
 # Navigation rates a receiver can run at with an epoch on every whole second (measurement periods of whole
 # milliseconds that divide 1000 ms): the clock pairs each PPS edge with the fix of its second.
@@ -48,10 +52,13 @@ class SimProfile:
     # The IMU board's axes against the vehicle's (FRD), as roll, pitch, yaw: the same convention as
     # [nav] mounting_rpy_deg, so that the filter told the same angles undoes them exactly.
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    receiver_model: str = "NEO-M8N"  # a "ubx" receiver's product (RECEIVER_MODELS)
 
     def __post_init__(self) -> None:
         if self.receiver not in RECEIVERS:
             raise ValueError(f"receiver must be one of {', '.join(RECEIVERS)}, not {self.receiver!r}")
+        if self.receiver_model not in RECEIVER_MODELS:
+            raise ValueError(f"receiver_model must be one of {', '.join(RECEIVER_MODELS)}, not {self.receiver_model!r}")
         if self.imu not in IMUS:
             raise ValueError(f"imu must be one of {', '.join(IMUS)}, not {self.imu!r}")
         if self.gnss_rate_hz not in GNSS_RATES_HZ:
@@ -85,8 +92,8 @@ class SimProfile:
 
     def metadata(self) -> dict[str, str]:
         """The profile as a recording's ``simulation`` metadata holds it (strings; the mounting as JSON)."""
-        return {"receiver": self.receiver, "gnss_rate_hz": f"{self.gnss_rate_hz:g}",
-                "gnss_latency_s": f"{self.gnss_latency_s:g}", "imu": self.imu,
+        return {"receiver": self.receiver, "receiver_model": self.receiver_model,
+                "gnss_rate_hz": f"{self.gnss_rate_hz:g}", "gnss_latency_s": f"{self.gnss_latency_s:g}", "imu": self.imu,
                 "mounting_rpy_deg": json.dumps([float(a) for a in self.mounting_rpy_deg])}
 
     @classmethod

@@ -28,7 +28,13 @@ What it does, as the hardware does:
   :attr:`UbloxReceiverModel.history` (as :class:`~sensors.sim.ublox_encode.EpochRecord`, which the
   message encoders of :mod:`sensors.sim.ublox_encode` turn into bytes) so a decoded solution can be
   checked against truth + error;
-- faults on demand: garbage bytes, corrupted checksums, unplugging (the PtyPort vanishes), power cycles.
+- faults on demand: garbage bytes, corrupted checksums, unplugging (the PtyPort vanishes), power cycles;
+- ``model`` names the product (:data:`~sensors.sim.ublox_commands.RECEIVER_MODELS`: NEO-M8N, NEO-M8T, ZED-F9P):
+  its generation, its MON-VER, and whether it takes RXM-RAWX and RXM-SFRBX. Once the host turns them on, the
+  frames ``raw_frames`` makes of each epoch (a callable of the :class:`EpochRecord`, returning serialised UBX
+  frames) go out before the epoch's NAV messages; without it the receiver acknowledges them and sends none;
+- ``sent_log``, a binary file, receives every byte written to the line, as the host's UART gets it, so a test
+  can hold what the host recorded against what the receiver sent.
 
 A PPS line model of the same receiver shares :attr:`UbloxReceiverModel.timeline` (edges on whole GPS
 seconds, :meth:`~sensors.sim.gnss_time.GnssTimeline.pulse_drive_ns`), its ``pulse_quantisation`` (the
@@ -45,6 +51,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
+from typing import BinaryIO
 
 import numpy as np
 from pynmeagps import NMEAMessage
@@ -68,6 +75,7 @@ from sensors.sim.uart_line import STANDARD_BAUDS, HostSide, resample
 from sensors.sim.ublox_commands import (
     DEFAULT_BAUD,
     FIRMWARE,
+    RECEIVER_MODELS,
     TIME_REF_OFFSET_S,
     CommandInterpreter,
     PortConfig,
@@ -159,7 +167,14 @@ class UbloxReceiverModel:
         latency_s: tuple[float, float] = (SOLUTION_LATENCY_S, SOLUTION_JITTER_S),
         history_len: int = 3600,
         poll_s: float = 0.002,
+        model: str | None = None,
+        raw_frames: Callable[[EpochRecord], Iterable[bytes]] | None = None,
+        sent_log: BinaryIO | None = None,
     ) -> None:
+        if model is not None and model not in RECEIVER_MODELS:
+            raise ValueError(f"model must be one of {', '.join(RECEIVER_MODELS)}, not {model!r}")
+        spec = RECEIVER_MODELS[model] if model is not None else None
+        generation = spec.generation if spec is not None else generation
         if generation not in FIRMWARE:
             raise ValueError(f"generation must be one of {sorted(FIRMWARE)}, not {generation}")
         if pulse_time_base not in ("utc", "gps"):
@@ -183,6 +198,9 @@ class UbloxReceiverModel:
         self.latency_s = latency_s  # (minimum, mean of the exponential excess) of the solution delay
         self.ubx = ubx
         self.poll_s = poll_s
+        self.model = model
+        self.raw_frames = raw_frames  # the epoch's RXM-RAWX / RXM-SFRBX frames, once the host turned them on
+        self.sent_log = sent_log  # every byte put on the line; may be set while the model runs
         rng_err, rng_lat, rng_cmd, rng_garbage, rng_pulse = _child_rngs(seed, 5)
         self.errors = error_model or GnssErrorModel(rng_err)
         # A drive that describes its sky (satellite geometry, street canyons) gets errors through that geometry;
@@ -201,7 +219,10 @@ class UbloxReceiverModel:
         # An NMEA-only receiver neither takes nor sends UBX: its port is NMEA in and out, for good.
         uart = PortConfig(start_baud) if ubx else PortConfig(start_baud, in_ubx=False, out_ubx=False)
         startup = RamConfig(uart, meas_ms=meas_period_ms, rates={MESSAGE_IDS[m]: 1 for m in messages})
-        self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms)
+        # Without a named product: the generation's firmware, raw observations as its generic firmware has them (F9).
+        raw = spec.raw if spec is not None else generation == 9
+        self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms,
+                                            raw=raw, firmware=spec.firmware if spec is not None else None)
         self.history: deque[EpochRecord] = deque(maxlen=history_len)
         self.counters = ModelCounters()
         self.error: BaseException | None = None
@@ -445,6 +466,8 @@ class UbloxReceiverModel:
             self.counters.host_overrun_drops += 1
             return
         self.port.write(wire)
+        if self.sent_log is not None:
+            self.sent_log.write(wire)
         self._written_this_pass += len(wire)
         self.counters.bytes_written += len(wire)
         self.counters.sent[item.label] = self.counters.sent.get(item.label, 0) + 1
@@ -496,6 +519,12 @@ class UbloxReceiverModel:
         known = self._time_known
         utc_ns = self._reported_utc_ns(rec)
         leap_s = self.timeline.leap_s
+        if self.raw_frames is not None and (due("RXM-RAWX", solution_index) or self.rate("RXM-SFRBX") > 0):
+            # Measurements come out before the solution computed from them; SFRBX as the subframes come.
+            for frame in self.raw_frames(rec):
+                label = "RXM-RAWX" if frame[2:4] == bytes(MESSAGE_IDS["RXM-RAWX"]) else "RXM-SFRBX"
+                if due("RXM-RAWX", solution_index) if label == "RXM-RAWX" else self.rate(label) > 0:
+                    self._enqueue_raw(ready, frame, label)
         if due("NAV-PVT", solution_index):
             pvt = nav_pvt(rec, utc_ns, time_known=known, position_known=self._last_fix is not None,
                           generation=self.generation)
@@ -524,6 +553,10 @@ class UbloxReceiverModel:
     def _enqueue_ubx(self, ready: int, msg: UBXMessage, label: str) -> None:
         if self._cfg.port.out_ubx:
             self._enqueue(ready, msg.serialize(), label)
+
+    def _enqueue_raw(self, ready: int, frame: bytes, label: str) -> None:
+        if self._cfg.port.out_ubx:
+            self._enqueue(ready, frame, label)
 
     def _enqueue_nmea(self, ready: int, msg: NMEAMessage, label: str) -> None:
         if self._cfg.port.out_nmea:

@@ -8,6 +8,10 @@ answers each frame as the firmware of its generation would:
 - 9 (F9): both interfaces;
 - 10 (M10): the configuration keys only; the legacy messages are NAKed.
 
+Raw observations (RXM-RAWX, RXM-SFRBX) are taken only by firmware that has them (``raw``: the M8T's timing
+firmware, the F9P's high-precision one, :data:`RECEIVER_MODELS`); a standard-precision M8N NAKs them, by either
+interface.
+
 A MON-VER poll is answered and never acknowledged; other CFG messages are NAKed as not modelled, so a
 test notices; other input classes are ignored, as they have no ACK. Answers leave a few milliseconds after
 the command and in command order. A legacy CFG-PRT switches the port only once its ACK has left at the old
@@ -26,16 +30,19 @@ import numpy as np
 from pyubx2 import GET, SET, UBX_MSGIDS, UBXMessage, UBXReader
 
 from sensors.sim.gnss_time import NS_PER_S
+from sensors.sim.profile import RECEIVER_MODELS as PROFILE_MODELS
 from sensors.sim.uart_line import STANDARD_BAUDS
 from sensors.sim.ublox_encode import MESSAGE_IDS
 
 __all__ = [
     "DEFAULT_BAUD",
     "FIRMWARE",
+    "RECEIVER_MODELS",
     "TIME_REF_OFFSET_S",
     "CommandInterpreter",
     "PortConfig",
     "RamConfig",
+    "ReceiverModel",
     "Reply",
     "UbxInputScanner",
     "mon_ver",
@@ -50,6 +57,27 @@ FIRMWARE: dict[int, tuple[str, str, tuple[str, ...]]] = {  # MON-VER as these fi
          ("ROM BASE 0x118B2060", "FWVER=SPG 5.10", "PROTVER=34.10", "MOD=NEO-M10", "GPS;GAL;GLO;BDS",
           "SBAS;QZSS")),
 }
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiverModel:
+    """One u-blox product as the simulator plays it: its configuration interface, MON-VER and raw output."""
+
+    generation: int
+    firmware: tuple[str, str, tuple[str, ...]]
+    raw: bool  # takes RXM-RAWX and RXM-SFRBX (timing and high-precision firmware)
+
+
+RECEIVER_MODELS: dict[str, ReceiverModel] = {  # the names are sensors.sim.profile.RECEIVER_MODELS
+    "NEO-M8N": ReceiverModel(8, FIRMWARE[8], raw=False),  # SPG: standard precision, no raw measurements
+    "NEO-M8T": ReceiverModel(8, ("ROM CORE 3.01 (107888)", "00080000",
+                                 ("FWVER=TIM 1.10", "PROTVER=22.00", "MOD=NEO-M8T-0", "GPS;GLO;GAL;BDS",
+                                  "SBAS;IMES;QZSS")), raw=True),
+    "ZED-F9P": ReceiverModel(9, FIRMWARE[9], raw=True),
+}
+assert tuple(RECEIVER_MODELS) == PROFILE_MODELS, "sensors.sim.profile names the same receiver models"
+RAW_MESSAGE_IDS = (MESSAGE_IDS["RXM-RAWX"], MESSAGE_IDS["RXM-SFRBX"])
+_RAW_KEY_PREFIXES = ("CFG_MSGOUT_UBX_RXM_RAWX_", "CFG_MSGOUT_UBX_RXM_SFRBX_")
 DEFAULT_BAUD = {8: 9600, 9: 38400, 10: 38400}  # UART1 from the factory
 # Offsets of the time scales CFG-RATE timeRef can align epochs to, from GPS time in whole seconds:
 # UTC, GPS, GLONASS (UTC(SU) + 3 h), BeiDou (GPS - 14 s), Galileo (GPS). None: UTC-based, offset by the
@@ -63,6 +91,8 @@ _MSGOUT_KEYS = {  # configuration keys of the modelled messages on UART1 (u-blox
     "CFG_MSGOUT_NMEA_ID_GGA_UART1": "GGA",
     "CFG_MSGOUT_NMEA_ID_RMC_UART1": "RMC",
     "CFG_MSGOUT_NMEA_ID_GSA_UART1": "GSA",
+    "CFG_MSGOUT_UBX_RXM_RAWX_UART1": "RXM-RAWX",
+    "CFG_MSGOUT_UBX_RXM_SFRBX_UART1": "RXM-SFRBX",
 }
 _PROTOCOL_KEYS = {  # UART1 protocol switches: key -> PortConfig field
     "CFG_UART1INPROT_UBX": "in_ubx",
@@ -120,9 +150,9 @@ class Reply:
     reschedule: bool = False
 
 
-def mon_ver(generation: int) -> UBXMessage:
-    """UBX-MON-VER as the firmware of ``generation`` reports itself."""
-    sw, hw, ext = FIRMWARE[generation]
+def mon_ver(generation: int, firmware: tuple[str, str, tuple[str, ...]] | None = None) -> UBXMessage:
+    """UBX-MON-VER as the firmware of ``generation`` (or the given ``firmware``) reports itself."""
+    sw, hw, ext = firmware or FIRMWARE[generation]
     payload = sw.encode().ljust(30, b"\0") + hw.encode().ljust(10, b"\0")
     payload += b"".join(e.encode().ljust(30, b"\0") for e in ext)
     return UBXMessage("MON", "MON-VER", GET, payload=payload)
@@ -172,14 +202,18 @@ class CommandInterpreter:
     """The configuration interface of a u-blox receiver of ``generation``, and the RAM configuration it sets.
 
     ``rng`` draws the firmware's reply delay; it is the receiver's own generator for commands, so command
-    timing never shifts any other random sequence of the model.
+    timing never shifts any other random sequence of the model. ``raw`` says whether the firmware has raw
+    observations (RXM-RAWX, RXM-SFRBX); ``firmware`` is what MON-VER reports (that of the generation by default).
     """
 
     def __init__(self, generation: int, startup: RamConfig, rng: np.random.Generator, *,
-                 min_meas_period_ms: int) -> None:
+                 min_meas_period_ms: int, raw: bool = False,
+                 firmware: tuple[str, str, tuple[str, ...]] | None = None) -> None:
         if generation not in FIRMWARE:
             raise ValueError(f"generation must be one of {sorted(FIRMWARE)}, not {generation}")
         self.generation = generation
+        self.raw = raw
+        self.firmware = firmware or FIRMWARE[generation]
         self.startup = startup
         self.ram = startup.copy()
         self.min_meas_period_ms = min_meas_period_ms
@@ -196,7 +230,7 @@ class CommandInterpreter:
         payload = frame[6:-2]
         legacy = self.generation <= 9
         if (cls, mid) == _MON_VER and not payload:  # a poll: answered, never acknowledged
-            return self._reply(now, mon_ver(self.generation))
+            return self._reply(now, mon_ver(self.generation, self.firmware))
         if cls != _CFG:
             return None  # other input classes (AID, MGA, RXM...) are not modelled and have no ACK
         if mid == _CFG_MSG and legacy:
@@ -243,6 +277,8 @@ class CommandInterpreter:
             return self._ack(now, _CFG_MSG, False)
         if bytes(key) not in UBX_MSGIDS and key[0] not in (0xF0, 0xF1):
             return self._ack(now, _CFG_MSG, False)  # no such message on this receiver
+        if key in RAW_MESSAGE_IDS and not self.raw:
+            return self._ack(now, _CFG_MSG, False)  # firmware without raw measurements
         self.ram.rates[key] = rate
         return self._ack(now, _CFG_MSG, True)
 
@@ -310,6 +346,8 @@ class CommandInterpreter:
         cfg = self.ram.copy()
         rate = [cfg.meas_ms, cfg.nav_rate, cfg.time_ref]
         for key, value in items.items():
+            if key.startswith(_RAW_KEY_PREFIXES) and not self.raw:
+                return self._ack(now, _CFG_VALSET, False)  # firmware without raw measurements: no such key
             if key in _MSGOUT_KEYS:
                 cfg.rates[MESSAGE_IDS[_MSGOUT_KEYS[key]]] = int(value)
             elif key.startswith("CFG_MSGOUT_") and not key.startswith("CFG_0x"):

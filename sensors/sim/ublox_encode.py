@@ -34,6 +34,9 @@ MESSAGE_IDS: dict[str, tuple[int, int]] = {
     "GGA": (0xF0, 0x00),
     "RMC": (0xF0, 0x04),
     "GSA": (0xF0, 0x02),
+    # Raw observations: the receiver model puts out what its raw_frames hook gives (sensors.sim.ublox).
+    "RXM-RAWX": (0x02, 0x15),
+    "RXM-SFRBX": (0x02, 0x13),
 }
 
 _U4_MAX = 0xFFFF_FFFF

@@ -211,7 +211,7 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
         v.gnss_port = PtyPort()
         nmea_only = profile.receiver == "nmea"
         v.gnss = UbloxReceiverModel(v.gnss_port, clock, drive, seed=np.random.default_rng(child[3]),
-                                    timeline=timeline, ubx=not nmea_only,
+                                    timeline=timeline, ubx=not nmea_only, model=profile.receiver_model,
                                     messages=NMEA_ONLY_MESSAGES if nmea_only else DEFAULT_MESSAGES,
                                     meas_period_ms=profile.meas_period_ms,
                                     baud=FAST_RECEIVER_BAUD if profile.gnss_rate_hz > 2 else None,
