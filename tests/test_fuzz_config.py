@@ -141,7 +141,7 @@ def test_pathological_lines_are_indexed_quickly(text: str) -> None:
     """Against a yardstick of the same run, not the clock: one Python pass over the text's characters. Parsing
     and indexing it costs two to five such passes (x86 and armhf alike); the lazy pattern this replaced
     backtracked in cubic time on the blanks (minutes), and even a quadratic scan of its 30-40 thousand characters
-    done in C (str.strip at every position) costs 50-340."""
+    done in C (str.strip at every position) costs 75-340."""
     passes = _least_time(parse_or_refuse, text) / _least_time(_python_pass, text)
     assert passes < 30, passes
 

@@ -142,10 +142,10 @@ def test_full_length_messages_with_random_fields(ids: list[tuple[int, int]], rnd
 # Measured against a yardstick taken in the same process on the same bytes, not against the clock: one pass of
 # Python over every byte (a table look-up and a shift, a CRC step's work). The framer is Python that looks at each
 # byte a few times and checks each candidate header's checksum: a UBX Fletcher in numpy, an RTCM3 CRC in Python
-# paid from a budget of RTCM3_CHECK_PER_BYTE (32) CRC bytes per byte, so about 20-45 passes per byte on x86 and
-# under armhf emulation alike. The faults this guards against cost hundreds: a UBX checksum in a Python loop
-# re-runs 8 kB for every 6-byte forged header (~550 passes per byte), an RTCM3 CRC without the budget 1 kB for
-# every 3 bytes (~220-440). A machine ten times slower is ten times slower at both, so the ratio holds anywhere.
+# paid from a budget of RTCM3_CHECK_PER_BYTE (32) CRC bytes per byte, so 20-45 passes per byte on x86 and under
+# armhf emulation alike. The faults this guards against cost hundreds: a UBX checksum in a Python loop re-runs
+# 8 kB for every 6-byte forged header (470-600 passes per byte), an RTCM3 CRC without the budget 1 kB for every
+# 3 bytes (190-450). A machine ten times slower is ten times slower at both, so the ratio holds anywhere.
 
 PASSES_PER_BYTE_MAX = 100
 _TABLE = tuple((i * 0x9E3779B1) & 0xFFFFFF for i in range(256))
