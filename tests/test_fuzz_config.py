@@ -11,8 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from extras import HealthCheck, given, settings, st
 
 from logger.config import SCHEMA, Config, ConfigError, load, parse
 

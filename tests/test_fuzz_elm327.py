@@ -6,8 +6,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from extras import HealthCheck, given, settings, st
 
 from sensors.elm327 import MAX_ANSWER_BYTES, Elm327
 from sensors.errors import SensorError

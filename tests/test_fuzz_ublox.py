@@ -14,8 +14,7 @@ from typing import Any
 
 import pytest
 import serial
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from extras import HealthCheck, given, settings, st
 from pynmeagps.nmeahelpers import calc_checksum as nmea_checksum
 from pyubx2.ubxhelpers import calc_checksum as ubx_checksum
 

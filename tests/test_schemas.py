@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import pytest
+from extras import optional
 from mcap.reader import make_reader
 
 import logger.recording.recorder as recorder_module
@@ -37,6 +37,7 @@ from sensors.sim.scenario_names import SCENARIOS
 from sensors.ublox_decode import GnssFix, TimePulse
 from sync.stamp import Stamp
 
+jsonschema, needs_jsonschema = optional("jsonschema")
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURES = ROOT / "tests" / "data" / "gpsd-ublox"  # the GPSD project's captures (BSD-2, COPYING there)
 DURATION_S = 30  # long enough for the filter to start (about 15 s in) and publish /nav/fix for a while
@@ -143,6 +144,7 @@ def test_every_scenario_is_driven() -> None:
     assert set(SCENARIOS) <= {d.scenario for d in DRIVES}
 
 
+@needs_jsonschema
 def test_every_message_of_a_drive_matches_its_channels_schema(recorded: tuple[Drive, list[Path]]) -> None:
     drive, files = recorded
     counts: Counter[str] = Counter()
@@ -157,6 +159,7 @@ def test_every_message_of_a_drive_matches_its_channels_schema(recorded: tuple[Dr
     assert counts[NAV_FIX] >= 5, counts
 
 
+@needs_jsonschema
 def test_replayed_trajectory_matches_its_schemas(recorded: tuple[Drive, list[Path]], tmp_path: Path) -> None:
     _, files = recorded
     r = subprocess.run([sys.executable, "-m", "logger.cli", "replay", *map(str, files), "--out", str(tmp_path)],
@@ -202,6 +205,7 @@ def nav_solution(t_ns: int, t_mono_ns: int) -> dict[str, Any]:
                           (0.0, 0.0, 1.0), (0.5, 0.5, 1.0), "ins 17-state", "17")
 
 
+@needs_jsonschema
 def test_a_fix_without_vertical_velocity_or_any_optional_value_validates() -> None:
     record = location_fix(nmea_fix(), 1_000)
     assert record["vel_ned_mps"] == [1.0, 2.0, None]
@@ -215,6 +219,7 @@ def test_a_fix_without_vertical_velocity_or_any_optional_value_validates() -> No
     validate(GNSS_FIX, record)
 
 
+@needs_jsonschema
 def test_a_fix_breaking_its_schema_fails() -> None:
     """The check can fail: a required field missing, a wrong type, an array of the wrong length."""
     good = location_fix(nmea_fix(), 1_000)
@@ -225,6 +230,7 @@ def test_a_fix_breaking_its_schema_fails() -> None:
             validate(GNSS_FIX, broken)
 
 
+@needs_jsonschema
 def test_live_and_gnss_fixes_have_schemas_of_their_own_under_foxglove_s_name() -> None:
     live, gnss = TOPICS[NAV_FIX], TOPICS[GNSS_FIX]
     assert live.schema_name == gnss.schema_name == "foxglove.LocationFix"
@@ -240,6 +246,7 @@ def test_live_and_gnss_fixes_have_schemas_of_their_own_under_foxglove_s_name() -
         jsonschema.validate(solution, gnss.schema)
 
 
+@needs_jsonschema
 @pytest.mark.parametrize("capture", sorted(p.name for p in CAPTURES.glob("*.log")))
 def test_what_real_receivers_send_is_recorded_within_the_schemas(capture: str) -> None:
     """Every fix and time pulse the receiver reader makes of a real capture, and every fix gpsd made of the same

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from extras import given, settings, st
 from sync_streams import NS, Stream, feed, make_stream
 
 from logger.recording.records import observe_clock

@@ -8,8 +8,7 @@ import os
 import threading
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from extras import given, settings, st
 from pynmeagps.nmeahelpers import calc_checksum
 from pyubx2 import GET, UBXMessage
 
