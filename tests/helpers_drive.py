@@ -12,6 +12,8 @@ from pathlib import Path
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
+from sensors.sim.governor import FLOOR
+
 
 def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
     """topic -> [(log_time, publish_time, message)] after a CRC-validated walk of the whole file."""
@@ -25,7 +27,22 @@ def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
     return out
 
 
-def run_logger(*args: str, timeout: float = 120, umask: int | None = None) -> subprocess.CompletedProcess[str]:
+START_AND_END_S = 120.0
+"""Host seconds a run may take besides its drive: starting (imports, the devices' set-up, the first file) and ending
+(the last flush, the file's summary, the run's), generous for a slow board or an emulated one."""
+
+
+def drive_timeout(drive_s: float) -> float:
+    """Host seconds a simulated drive of ``drive_s`` may take. Its time scale is only a ceiling: the governor lowers
+    the pace to what the host keeps up with, never below real time (``FLOOR``), so a drive lasts at most its own
+    length whatever scale it asked for. A wait shorter than that would measure the host's speed, not the daemon."""
+    return drive_s / FLOOR + START_AND_END_S
+
+
+def run_logger(*args: str, timeout: float | None = None, umask: int | None = None) -> subprocess.CompletedProcess[str]:
+    """``logger run`` with ``args``, waited for as long as its ``--duration`` may take (``drive_timeout``)."""
+    if timeout is None:
+        timeout = drive_timeout(float(args[args.index("--duration") + 1])) if "--duration" in args else START_AND_END_S
     return subprocess.run([sys.executable, "-m", "logger.cli", "run", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=Path(__file__).resolve().parents[1],
                           preexec_fn=None if umask is None else lambda: os.umask(umask))

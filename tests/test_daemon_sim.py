@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 from extras import need
-from helpers_drive import read_messages, run_logger
+from helpers_drive import drive_timeout, read_messages, run_logger
 from mcap.reader import make_reader
 
 from logger.recording.files import is_finished
@@ -137,7 +137,7 @@ def test_kill_9_loses_only_what_was_not_yet_flushed_and_the_next_start_recovers(
     proc = subprocess.Popen(cmd, cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + drive_timeout(25)
         snap = None
         while time.monotonic() < deadline:
             try:
@@ -188,7 +188,7 @@ def test_sigterm_and_a_hang_up_finish_the_file_cleanly(tmp_path: Path, sig: sign
                              str(tmp_path), "--status-socket", str(sock)], cwd=Path(__file__).resolve().parents[1],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + drive_timeout(5)
         while time.monotonic() < deadline:
             try:
                 if fetch(sock)["uptime_s"] > 5:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from helpers_drive import drive_timeout
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -61,7 +62,7 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Drive:
     daemon, _ = build(cfg, DURATION_S, scenario_options={"outage_s": OUTAGE_S})
     runner = threading.Thread(target=daemon.run, args=(DURATION_S,), daemon=True)  # no signal handlers off main
     runner.start()
-    runner.join(120)
+    runner.join(drive_timeout(DURATION_S))
     assert not runner.is_alive()
     files = sorted((base / "rec").glob("*.mcap"))
     assert len(files) >= 3 and all(is_finished(f) for f in files)

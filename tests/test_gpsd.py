@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers_drive import drive_timeout
 from mcap.reader import make_reader
 
 from logger.cli.gnss_decode import decode_pieces, strip_capture_comments
@@ -546,7 +547,7 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
                              str(sock)], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     snap = None
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + drive_timeout(10)
         while time.monotonic() < deadline and proc.poll() is None:
             try:
                 snap = fetch(sock)
@@ -556,7 +557,7 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
                 pass
             time.sleep(0.1)
         assert snap is not None, proc.stderr.read() if proc.stderr else ""
-        _, stderr = proc.communicate(timeout=90)
+        _, stderr = proc.communicate(timeout=drive_timeout(duration_s))
     finally:
         proc.kill()
     assert proc.returncode == 0, stderr

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers_drive import drive_timeout
 from test_nav_synth import records
 
 from logger.cli.status_view import render
@@ -115,7 +116,8 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("drive")
     r = subprocess.run([sys.executable, "-m", "logger.cli", "run", "--sim", "--scenario", "outage-60s",
                         "--duration", "70", "--time-scale", "5", "--out", str(out), "--status-socket",
-                        str(out / "status.sock")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+                        str(out / "status.sock")], cwd=ROOT, capture_output=True, text=True,
+                       timeout=drive_timeout(70))
     assert r.returncode == 0, r.stderr
     return out
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from extras import need
+from helpers_drive import drive_timeout
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -25,9 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 REMOVED = 20  # consecutive /imu messages taken out
 
 
-def run(*args: str) -> subprocess.CompletedProcess[str]:
+def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "logger.cli", *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=120)
+                          timeout=timeout)
 
 
 def without_imu_block(src: Path, dst: Path, count: int) -> list[int]:
@@ -59,7 +60,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list
     out = tmp_path_factory.mktemp("plot")
     # Long enough for the scenario's 60 s outage (from about 100 s in), which the plots must show.
     r = run("run", "--sim", "--scenario", "outage-60s", "--duration", "180", "--time-scale", "10", "--out", str(out),
-            "--status-socket", str(out / "status.sock"))
+            "--status-socket", str(out / "status.sock"), timeout=drive_timeout(180))
     assert r.returncode == 0, r.stderr
     (original,) = sorted(out.glob("*.mcap"))
     thinned = out / "thinned" / original.name

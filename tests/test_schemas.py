@@ -23,6 +23,7 @@ from typing import Any
 
 import pytest
 from extras import optional
+from helpers_drive import drive_timeout
 from mcap.reader import make_reader
 
 import logger.recording.recorder as recorder_module
@@ -132,7 +133,7 @@ def recorded(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFa
         cfg.write_text(f'[logger]\nstate_dir = "{out / "state"}"\n{drive.config}')
         args += ["--config", str(cfg)]
     r = subprocess.run([sys.executable, "-m", "logger.cli", "run", *args], cwd=ROOT, capture_output=True, text=True,
-                       timeout=180)
+                       timeout=drive_timeout(DURATION_S))
     assert r.returncode == 0, r.stderr
     files = sorted((out / "drive").glob("*.mcap"))
     assert files
