@@ -1,9 +1,15 @@
-"""``logger replay FILE... --out DIR [--mode 17|15|gnss] [--smooth]``: the navigation filter over recorded drives.
+"""``logger replay FILE... --out DIR [--mode 17|15|gnss] [--smooth] [--gnss-solution FILE.pos]``: the navigation filter
+over recorded drives.
 
 The work is :mod:`logger.exports.trajectory`'s; this is the command line around it. Writes ``DIR/trajectory.csv``
 (one row per IMU sample once the filter runs; per fix in GNSS-only mode) and ``DIR/trajectory.mcap`` with
 ``/nav/fix`` per row and ``/nav/state`` once a second, so Foxglove draws it next to the recording. A drive the
 filter could not start on writes nothing and exits 1, with what the start waited for.
+
+``--gnss-solution FILE.pos`` fuses a post-processed solution (RTKLIB's ``rnx2rtkp``/``rtkpost`` output, read by
+:mod:`logger.recording.rtklib_pos`): instead of the receiver's positions (``--gnss-solution-mode replace``, the
+default; its velocities still go in) or beside them (``add``). A file that cannot be read is one line naming it
+and the line, exit 2.
 """
 
 from __future__ import annotations
@@ -19,8 +25,12 @@ from logger.config import ConfigError, load
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.nav.smoother import SmoothingReport
+from logger.nav.solution import MAX_JOIN_S, SolutionPolicy
 from logger.recording.files import is_finished
+from logger.recording.rtklib_pos import SolutionFile, SolutionFileError, read_pos
 from logger.words import plural
+
+SOLUTION_MODES = ("replace", "add")
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -31,6 +41,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--smooth", action="store_true", help="add the Rauch-Tung-Striebel backward pass")
     p.add_argument("--config", type=Path, help="take the [nav] tuning from this configuration file")
     p.add_argument("--no-mcap", action="store_true", help="write only the CSV")
+    p.add_argument("--gnss-solution", type=Path, metavar="FILE.pos",
+                   help="fuse a post-processed (PPK) solution: RTKLIB rnx2rtkp/rtkpost output")
+    p.add_argument("--gnss-solution-mode", choices=SOLUTION_MODES, default="replace",
+                   help="replace: the solution's positions instead of the receiver's (its velocities stay); "
+                        "add: both (default: replace)")
     return p.parse_args(argv)
 
 
@@ -57,11 +72,19 @@ def main(argv: list[str]) -> int:
         params = NavParams()
     if args.mode is not None:
         params.mode = args.mode
+    solution: SolutionFile | None = None
+    if args.gnss_solution is not None:
+        try:
+            solution = read_pos(args.gnss_solution)
+        except SolutionFileError as exc:
+            print(f"logger replay: {exc}", file=sys.stderr)
+            return 2
     t0 = time.perf_counter()
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
     smoothing = SmoothingReport()
-    engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing)
+    engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing,
+                              solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
     t1 = time.perf_counter()
     c = engine.counters
     progress.end()
@@ -89,9 +112,25 @@ def main(argv: list[str]) -> int:
     if engine.ekf is not None:
         stats = ", ".join(f"{k} {v.accepted}/{v.accepted + v.rejected}" for k, v in engine.ekf.stats.items())
         print(f"updates accepted: {stats}")
+    if solution is not None and engine.solution is not None:
+        print(solution_summary(solution, engine.solution, args.gnss_solution_mode))
     if args.smooth and smoothing.epochs:
         print(smoothing.summary())
     print(f"wrote {args.out / 'trajectory.csv'}")
     if states is not None:
         print(f"wrote {args.out / 'trajectory.mcap'}")
     return 0
+
+
+def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) -> str:
+    """What became of the solution's epochs, in one line."""
+    counts = ", ".join(f"{n} {q}" for q, n in solution.counts().items())
+    took = ", ".join(f"{n} {q}" for q, n in used.used.items()) or "none"
+    left = [f"{used.unjoined} with no receiver fix within {MAX_JOIN_S:g} s after them"] if used.unjoined else []
+    if used.before_start:
+        left.append(f"{used.before_start} before the filter started")
+    if used.pending:
+        left.append(f"{len(used.pending)} after the drive's last timed fix")
+    return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
+            f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
+            + (f"; not used: {'; '.join(left)}" if left else ""))

@@ -11,13 +11,14 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
 from logger.nav.engine import NavEngine, TrajectoryRow
+from logger.nav.inputs import SolutionEpoch
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm
 from logger.nav.smoother import SmoothingReport, smooth_rows
@@ -38,11 +39,15 @@ def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
 def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
                states: list[dict[str, Any]] | None = None,
                progress: ProgressFn | None = None,
-               smoothing: SmoothingReport | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
+               smoothing: SmoothingReport | None = None, solution: Sequence[SolutionEpoch] = (),
+               solution_replaces: bool = True) -> tuple[NavEngine, list[TrajectoryRow]]:
     """Run the engine over the files; returns it and its rows (smoothed when asked). With ``states``, a
     ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got;
-    ``smoothing`` hears where the backward pass kept the forward solution."""
+    ``smoothing`` hears where the backward pass kept the forward solution; ``solution``: a post-processed
+    solution's epochs fused (``solution_replaces``: instead of the receiver's positions)."""
     engine = NavEngine(params, record=True)
+    if solution:
+        engine.use_solution(solution, solution_replaces)
     feed = nav_feeder(engine)
     next_state = 0
     for topic, msg in read_drive(paths, progress=progress):

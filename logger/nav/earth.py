@@ -58,3 +58,32 @@ def offset_llh(lat_rad: float, lon_rad: float, h_m: float, dn: float, de: float,
     """The point ``dn, de, dd`` metres (NED) away from the given one."""
     rm, rn = radii(lat_rad)
     return lat_rad + dn / (rm + h_m), lon_rad + de / ((rn + h_m) * math.cos(lat_rad)), h_m - dd
+
+
+def ecef_from_llh(lat_rad: float, lon_rad: float, h_m: float) -> tuple[float, float, float]:
+    """Earth-centred, earth-fixed x, y, z of a geodetic point, m."""
+    n = A / math.sqrt(1.0 - E2 * math.sin(lat_rad) ** 2)
+    c = (n + h_m) * math.cos(lat_rad)
+    return c * math.cos(lon_rad), c * math.sin(lon_rad), (n * (1.0 - E2) + h_m) * math.sin(lat_rad)
+
+
+def llh_from_ecef(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Geodetic latitude, longitude (rad) and height (m) of an ECEF point: the fixed-point iteration RTKLIB's
+    ecef2pos uses (converged to 0.1 mm)."""
+    r2 = x * x + y * y
+    v, z_ = A, z
+    for _ in range(20):
+        zk = z_
+        sinp = z_ / math.sqrt(r2 + z_ * z_)
+        v = A / math.sqrt(1.0 - E2 * sinp * sinp)
+        z_ = z + v * E2 * sinp
+        if abs(z_ - zk) < 1e-4:
+            break
+    lat = math.atan(z_ / math.sqrt(r2)) if r2 > 1e-12 else (math.pi / 2.0 if z > 0.0 else -math.pi / 2.0)
+    return lat, math.atan2(y, x) if r2 > 1e-12 else 0.0, math.sqrt(r2 + z_ * z_) - v
+
+
+def ned_rows(lat_rad: float, lon_rad: float) -> tuple[tuple[float, float, float], ...]:
+    """North, east and down as ECEF unit vectors (the rows of the ECEF-to-NED rotation)."""
+    sp, cp, sl, cl = math.sin(lat_rad), math.cos(lat_rad), math.sin(lon_rad), math.cos(lon_rad)
+    return (-sp * cl, -sp * sl, cp), (-sl, cl, 0.0), (-cp * cl, -cp * sl, -sp)

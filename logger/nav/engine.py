@@ -21,6 +21,7 @@ and covariance. Inputs are typed (:mod:`logger.nav.inputs`): the engine knows no
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -35,12 +36,13 @@ from logger.nav.evidence import HeightEvidence, PositionEvidence, VelocityEviden
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
 from logger.nav.imu_noise import ImuNoiseMonitor, OffsetWander
-from logger.nav.inputs import GnssObservation
+from logger.nav.inputs import GnssObservation, SolutionEpoch
 from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
+from logger.nav.solution import SolutionPolicy
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
 from logger.nav.state import BA_ID, BG_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
@@ -149,6 +151,7 @@ class NavEngine:
                                 self.height_evidence)
         self._obd = ObdPolicy(p, self.last_readings, self._stop, self.velocity_evidence)
         self._baro = BaroPolicy(p, self.last_readings, self._stop, self.height_evidence)
+        self.solution: SolutionPolicy | None = None  # a post-processed solution's epochs (use_solution)
         self._t_last: int | None = None
         self._dt_mean = 0.05
         self._t_mono_last = 0
@@ -467,8 +470,24 @@ class NavEngine:
         """A PPS edge at its synchronised time: places fix epochs on the logger's clock while it is not locked."""
         self.epoch_clock.pps(t_ns)
 
+    def use_solution(self, epochs: Iterable[SolutionEpoch], replace: bool = True) -> None:
+        """Fuse a post-processed solution (PPK, :mod:`logger.nav.solution`): each epoch goes in when the receiver's
+        fix of its GNSS epoch (or a later one) comes, placed as that fix is. ``replace``: the receiver's positions
+        are left out (its velocities still go in: a ``.pos`` has none); otherwise both go in."""
+        self.solution = SolutionPolicy(epochs, replace, self.epoch_clock, self.last_readings,
+                                       self.position_evidence)
+
     def gnss(self, msg: GnssObservation) -> None:
         """One navigation solution of the receiver."""
+        sol = self.solution
+        if sol is not None and self.mode != "gnss":
+            for ep, t_e, t_mono in sol.release(msg):
+                if self.state is None:
+                    sol.before_start += 1
+                    continue
+                verdict, placed = sol.update(self, ep, t_e, t_mono)
+                if verdict == "reset" and placed is not None:
+                    self._restart_from(placed)
         fix = self._gnss.prepare(msg, self.counters)
         if fix is None:
             return
@@ -482,7 +501,8 @@ class NavEngine:
         if self.state is None:
             self._try_heading_init(fix)
             return
-        if self._gnss.update(self, fix, msg.num_sv, np.array(self._gyro_raw)) == "reset":
+        positions = sol is None or not sol.replace
+        if self._gnss.update(self, fix, msg.num_sv, np.array(self._gyro_raw), positions) == "reset":
             self._restart_from(fix)
 
     def _restart_from(self, fix: PreparedFix) -> None:

@@ -30,3 +30,20 @@ class GnssObservation:
     s_acc_mps: float | None
     pdop: float | None
     num_sv: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class SolutionEpoch:
+    """One epoch of a post-processed solution (RTKLIB's ``rnx2rtkp``/``rtkpost`` ``.pos``): a position and its
+    covariance at a GNSS epoch, with the solution's quality. No arrival time: the epoch is placed on the logger's
+    clock through the receiver's own time (:meth:`logger.nav.engine.NavEngine.use_solution`)."""
+
+    gnss_time_ns: int  # the epoch, Unix ns UTC: the scale of GnssObservation.gnss_time_ns
+    lat_deg: float
+    lon_deg: float
+    height_m: float  # above the WGS-84 ellipsoid
+    cov_ned_m2: tuple[tuple[float, float, float], ...]  # 3x3 position covariance north, east, down, m^2
+    quality: int  # RTKLIB's Q: 1 fix, 2 float, 3 SBAS, 4 DGPS, 5 single, 6 PPP
+    num_sv: int
+    age_s: float = 0.0  # age of the differential corrections
+    ratio: float = 0.0  # the ambiguity validation ratio

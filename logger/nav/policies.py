@@ -120,14 +120,19 @@ class GnssPolicy:
                            math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
                            fix_3d, fig)
 
-    def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray) -> str:
+    def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray,
+               position: bool = True) -> str:
         """Position and velocity updates of a running filter; returns what the position evidence said ("",
-        "reanchor" or "reset": the caller restarts the filter from the fix)."""
+        "reanchor" or "reset": the caller restarts the filter from the fix). ``position`` False: the velocity
+        only (a post-processed solution gives the positions, :mod:`logger.nav.solution`)."""
         p = self.params
         if num_sv is not None and num_sv < p.gnss_min_sv:
             # Four or five satellites leave the receiver nothing to check its solution against: a reflection
             # shifts the fix by tens of metres while its accuracy figure stays small. Counted, not used.
             core.counters.gnss_few_sv += 1
+            return ""
+        if not position:
+            self._velocity(core, fix, gyro_raw)
             return ""
         # Rows of a fix far worse than what the filter already knows would move it by a few percent per epoch,
         # and a receiver's errors in a street canyon persist for many epochs: those percents add up to its
@@ -149,14 +154,7 @@ class GnssPolicy:
             last.pos_ok = (t_e, fix.h_acc)
             if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:
                 last.height_in_ns = t_e
-        if fix.vel is not None:
-            snap = core.state_at(t_e)
-            full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw,
-                                not (fix.fix_3d and fix.vel_3d)).observe(snap, snap.dcm(), core.n)
-            obs = self._informative(core, full, V_ID)
-            if obs is not None:
-                self.velocity.judge(core, obs, core.apply(obs), t_e,
-                                    fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
+        self._velocity(core, fix, gyro_raw)
         if fix.h_acc < GOOD_FIX_H_ACC_M and fix.fix_3d:  # a 2D fix has no height of its own to settle anything
             last.good_fix_ns = fix.t_ns
         sigma_max = max(core.sigma)
@@ -164,6 +162,18 @@ class GnssPolicy:
         if verdict == "reanchor":
             self.height.run.clear()  # judged against the height just widened
         return verdict
+
+    def _velocity(self, core: FilterCore, fix: PreparedFix, gyro_raw: np.ndarray) -> None:
+        """The fix's velocity update, with the velocity evidence."""
+        if fix.vel is None:
+            return
+        snap = core.state_at(fix.t_ns)
+        full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw,
+                            not (fix.fix_3d and fix.vel_3d)).observe(snap, snap.dcm(), core.n)
+        obs = self._informative(core, full, V_ID)
+        if obs is not None:
+            self.velocity.judge(core, obs, core.apply(obs), fix.t_ns,
+                                fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
 
     def _informative(self, core: FilterCore, obs: Observation, block: int,
                      height_on_its_own: bool = False) -> Observation | None:

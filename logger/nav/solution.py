@@ -1,0 +1,154 @@
+"""A post-processed GNSS solution (PPK: RTKLIB's ``.pos``) as position updates, joined through GNSS time.
+
+At the office the receiver's raw observations, processed against a base station, give positions to a few
+centimetres where the carrier phase's ambiguities are fixed, decimetres where they float, metres where only the
+code is left. The filter takes them as it takes the receiver's fixes, with two differences:
+
+- **The join.** A solution epoch carries its GNSS time and nothing else: no arrival. The receiver's own fix of the
+  same epoch (``/gnss/fix``, ``gnss_time_ns``) arrived at a known instant on the logger's clock, and
+  :class:`logger.nav.gnss_time.GnssEpochClock` already places that fix at its epoch (as is while the clock is
+  locked to PPS, through the PPS phase or the shortest delay otherwise). A solution epoch is placed the same way,
+  with the arrival of the receiver's fix of its epoch (or of the next one, less the difference: a solution at
+  5 Hz beside fixes at 1 Hz), so both land at the same instant whatever the clock's state. Epochs with no
+  receiver fix within :data:`MAX_JOIN_S` after them are not used (counted): nothing says where they fall.
+- **The noise.** Each quality has its own (:data:`QUALITY_NOISE`). RTKLIB's standard deviations are the
+  formal ones of its least squares: a fixed solution says 5-8 mm where its error (multipath on the phase, the
+  base's coordinates, antenna phase centres) is 1-2 cm, so every quality has a floor per axis; the full 3x3
+  covariance with its cross terms goes in (whitened: the EKF's rows stay independent). Float and code solutions
+  carry errors that last (ambiguities converging over tens of seconds, the atmosphere over minutes), which 1 Hz
+  epochs taken as white would add up: their variance is widened by (1 + rho) / (1 - rho), rho = exp(-dt / tau),
+  as :mod:`logger.nav.gnss_noise` widens a receiver's canyon fixes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from logger.nav.core import FilterCore, PreparedFix
+from logger.nav.evidence import GOOD_FIX_H_ACC_M, PositionEvidence
+from logger.nav.gnss_noise import FixFigures
+from logger.nav.gnss_time import GnssEpochClock
+from logger.nav.inputs import GnssObservation, SolutionEpoch
+from logger.nav.measurements import GnssPosition, Observation
+from logger.nav.policies import LastReadings
+
+NS = 1_000_000_000
+JOIN_TOLERANCE_NS = 1_000_000  # a receiver's epoch time is its true epoch plus its clock error (ns to us)
+MAX_JOIN_S = 2.0  # a solution epoch further before the next timed receiver fix than this is not placed
+MAX_CORR_GAP_S = 10.0  # epochs further apart than this are independent
+SOURCE = "solution"  # FixFigures.source of a solution epoch
+
+
+@dataclass(frozen=True, slots=True)
+class QualityNoise:
+    """What a solution of one quality is worth: a floor per axis on its standard deviations and how long its
+    error lasts; ``code``: a code solution, left out on fewer satellites than ``gnss_min_sv`` as the receiver's."""
+
+    name: str
+    floor_h_m: float  # per horizontal axis, 1 sigma
+    floor_v_m: float
+    corr_s: float  # 0: white
+    code: bool
+
+
+# Floors from what such solutions achieve on a moving vehicle against their formal sigmas: a fixed RTK/PPK
+# solution 1-2 cm horizontally and about twice that vertically (RTKLIB's own sigmas for it are 5-8 mm); float
+# decimetres; DGPS and SBAS a few decimetres to a metre; single point metres. PPP after convergence: a few cm.
+QUALITY_NOISE: dict[int, QualityNoise] = {
+    1: QualityNoise("fix", 0.015, 0.03, 0.0, False),
+    2: QualityNoise("float", 0.10, 0.20, 10.0, False),
+    3: QualityNoise("sbas", 0.50, 1.00, 5.0, True),
+    4: QualityNoise("dgps", 0.30, 0.60, 5.0, True),
+    5: QualityNoise("single", 1.00, 2.00, 5.0, True),
+    6: QualityNoise("ppp", 0.05, 0.10, 10.0, False),
+}
+
+
+def solution_covariance(epoch: SolutionEpoch, dt_s: float) -> np.ndarray:
+    """The epoch's NED covariance as the filter takes it: floored per axis by its quality, widened for errors
+    that last ``corr_s`` when the previous epoch came ``dt_s`` before."""
+    q = QUALITY_NOISE[epoch.quality]
+    r = np.array(epoch.cov_ned_m2, float)
+    for i, floor in enumerate((q.floor_h_m, q.floor_h_m, q.floor_v_m)):
+        # Raising a diagonal element keeps a covariance positive definite; the cross terms stay as stated.
+        r[i, i] = max(float(r[i, i]), floor * floor)
+    if q.corr_s > 0.0 and 0.0 < dt_s < MAX_CORR_GAP_S:
+        rho = math.exp(-dt_s / q.corr_s)
+        r *= (1.0 + rho) / (1.0 - rho)
+    return r
+
+
+def whitened(obs: Observation, r: np.ndarray) -> Observation:
+    """The observation with covariance ``r`` as independent unit-variance rows (z and H through L^-1, R = L L^T),
+    the form the EKF takes; a covariance its cross terms leave not positive definite keeps its diagonal only."""
+    try:
+        chol = np.linalg.cholesky(r)
+    except np.linalg.LinAlgError:
+        chol = np.diag(np.sqrt(np.diag(r)))
+    return Observation(obs.name, np.linalg.solve(chol, obs.z), np.linalg.solve(chol, obs.h), np.ones(len(obs.z)))
+
+
+class SolutionPolicy:
+    """The solution's epochs waiting for their receiver fix, and their position updates once placed."""
+
+    def __init__(self, epochs: Iterable[SolutionEpoch], replace: bool, epoch_clock: GnssEpochClock,
+                 last: LastReadings, position: PositionEvidence) -> None:
+        self.pending: deque[SolutionEpoch] = deque(sorted(epochs, key=lambda e: e.gnss_time_ns))
+        self.replace = replace  # the receiver's positions are not used (its velocities are)
+        self.epoch_clock = epoch_clock
+        self.last_readings = last
+        self.position = position
+        self.used: dict[str, int] = {}  # epochs that went to the filter, per quality name
+        self.unjoined = 0  # epochs with no receiver fix close after them: not placed
+        self.before_start = 0  # epochs placed before the filter had started
+        self._t_prev_ns: int | None = None
+
+    def release(self, msg: GnssObservation) -> list[tuple[SolutionEpoch, int, int]]:
+        """The epochs up to this receiver fix's epoch, each placed on the logger's clock as the fix is:
+        (epoch, its synchronised time, its monotonic time)."""
+        if msg.gnss_time_ns is None:
+            return []
+        out = []
+        pend = self.pending
+        while pend and pend[0].gnss_time_ns <= msg.gnss_time_ns + JOIN_TOLERANCE_NS:
+            ep = pend.popleft()
+            lag = msg.gnss_time_ns - ep.gnss_time_ns
+            if lag > MAX_JOIN_S * NS:
+                self.unjoined += 1
+                continue
+            # As if the receiver's fix of this epoch had arrived with the same delay as the one in hand.
+            t_arrival = msg.t_sync_ns - lag
+            t_e = self.epoch_clock.epoch_time(t_arrival, ep.gnss_time_ns, msg.sync_state)
+            out.append((ep, t_e, msg.t_mono_ns - lag + (t_e - t_arrival)))
+        return out
+
+    def update(self, core: FilterCore, ep: SolutionEpoch, t_e: int, t_mono: int) -> tuple[str, PreparedFix | None]:
+        """One epoch's position update; returns what the position evidence said ("", "reanchor" or "reset", for
+        which the caller restarts the filter from the returned fix)."""
+        q = QUALITY_NOISE[ep.quality]
+        if q.code and ep.num_sv < core.params.gnss_min_sv:
+            core.counters.gnss_few_sv += 1
+            return "", None
+        dt_s = 0.0 if self._t_prev_ns is None else (t_e - self._t_prev_ns) / NS
+        self._t_prev_ns = t_e
+        r = solution_covariance(ep, dt_s)
+        lat, lon = math.radians(ep.lat_deg), math.radians(ep.lon_deg)
+        sig = (math.sqrt(r[0, 0]), math.sqrt(r[1, 1]), math.sqrt(r[2, 2]))
+        fix = PreparedFix(t_e, t_mono, lat, lon, ep.height_m, None, False, sig, math.inf, True,
+                          FixFigures(math.hypot(sig[0], sig[1]), sig[2], math.inf, SOURCE, (1.0, 1.0)))
+        snap = core.state_at(t_e)
+        full = GnssPosition(lat, lon, ep.height_m, (1.0, 1.0, 1.0), core.lever).observe(snap, snap.dcm(), core.n)
+        ok = core.apply(whitened(Observation("solution_pos", full.z, full.h, full.r), r))
+        self.used[q.name] = self.used.get(q.name, 0) + 1
+        last = self.last_readings
+        if ok:
+            last.pos_ok = (t_e, fix.h_acc)
+            last.height_in_ns = t_e
+        if fix.h_acc < GOOD_FIX_H_ACC_M:
+            last.good_fix_ns = t_e
+        return self.position.judge(core, ok, fix, full.z.tolist(), last.pos_ok, max(core.sigma)), fix
