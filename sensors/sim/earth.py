@@ -24,6 +24,20 @@ def radii(lat_rad: float) -> tuple[float, float]:
     return A * (1 - E2) / w**3, A / w
 
 
+def ecef(lat_rad: float, lon_rad: float, height_m: float) -> np.ndarray:
+    """Earth-centred earth-fixed position (m) of a point given on the WGS-84 ellipsoid."""
+    sl, cl = math.sin(lat_rad), math.cos(lat_rad)
+    rn = A / math.sqrt(1 - E2 * sl * sl)
+    return np.array(((rn + height_m) * cl * math.cos(lon_rad), (rn + height_m) * cl * math.sin(lon_rad),
+                     (rn * (1 - E2) + height_m) * sl))
+
+
+def dcm_ned_to_ecef(lat_rad: float, lon_rad: float) -> np.ndarray:
+    """Rotation taking north-east-down vectors at a point into the earth-fixed frame (columns: N, E, D)."""
+    sl, cl, so, co = math.sin(lat_rad), math.cos(lat_rad), math.sin(lon_rad), math.cos(lon_rad)
+    return np.array([[-sl * co, -so, -cl * co], [-sl * so, co, -cl * so], [cl, 0.0, -sl]])
+
+
 def gravity_ned(lat_rad: float, height_m: float) -> np.ndarray:
     """Normal gravity vector (NED, m/s^2) from Somigliana's formula with the free-air height term."""
     s2 = math.sin(lat_rad) ** 2

@@ -208,6 +208,18 @@ PDOP_MASK = 25.0  # u-blox default position DOP mask (CFG-NAV5 pDop)
 ACROSS_STREET_SIN = math.sin(math.radians(40.0))  # beyond 40 deg off the street's axis a low satellite is hidden
 
 
+@dataclass(frozen=True, slots=True)
+class CircularOrbit:
+    """One satellite of :class:`Constellation`: a circular orbit, its argument of latitude ``arg_lat0_rad`` and
+    node ``raan_rad`` (in the frame that turns with the earth) at constellation time 0."""
+
+    radius_m: float
+    inclination_rad: float
+    raan_rad: float
+    arg_lat0_rad: float
+    mean_motion_rps: float
+
+
 class Constellation:
     """Satellite positions (ECEF) of GPS, GLONASS and Galileo at drive time ``t_s``, phased by ``epoch_s``."""
 
@@ -231,13 +243,18 @@ class Constellation:
         self._n = 2.0 * math.pi / np.array(period)
         self.epoch_s = float(epoch_s)
 
+    def orbit(self, index: int) -> CircularOrbit:
+        """The elements of satellite ``index``, for a broadcast ephemeris that puts it where :meth:`ecef` does."""
+        return CircularOrbit(float(self._a[index]), math.atan2(float(self._si[index]), float(self._ci[index])),
+                             float(self._raan[index]), float(self._u0[index]), float(self._n[index]))
+
     def __len__(self) -> int:
         return len(self.names)
 
     def ecef(self, t_s: float) -> np.ndarray:
         t = t_s + self.epoch_s
         u = self._u0 + self._n * t
-        om = self._raan - 7.292115e-5 * t  # the earth turns under the orbital planes
+        om = self._raan - earth.OMEGA_IE * t  # the earth turns under the orbital planes
         cu, su, co, so = np.cos(u), np.sin(u), np.cos(om), np.sin(om)
         return np.column_stack((self._a * (cu * co - su * self._ci * so), self._a * (cu * so + su * self._ci * co),
                                 self._a * su * self._si))

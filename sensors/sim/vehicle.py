@@ -30,6 +30,7 @@ from sensors.sim.oscillator import Oscillator, OscillatorClock
 from sensors.sim.pps import PpsSignal, pps_chip
 from sensors.sim.profile import SOLUTION_JITTER_S, SimProfile
 from sensors.sim.pty import PtyPort
+from sensors.sim.raw_obs import GpsBroadcast, RawObservations
 from sensors.sim.scenarios import make_drive
 from sensors.sim.ublox import DEFAULT_MESSAGES, NMEA_ONLY_MESSAGES, UbloxReceiverModel
 
@@ -210,8 +211,12 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
     if gnss or pps or gpsd:
         v.gnss_port = PtyPort()
         nmea_only = profile.receiver == "nmea"
+        # What a raw-capable receiver (M8T, F9P) sends as RXM-RAWX once the host turns raw observations on.
+        raw = RawObservations(GpsBroadcast(drive.gnss_sky.constellation, timeline, seed), sky=drive.gnss_sky,
+                              seed=seed)
         v.gnss = UbloxReceiverModel(v.gnss_port, clock, drive, seed=np.random.default_rng(child[3]),
                                     timeline=timeline, ubx=not nmea_only, model=profile.receiver_model,
+                                    raw_frames=raw.for_epoch,
                                     messages=NMEA_ONLY_MESSAGES if nmea_only else DEFAULT_MESSAGES,
                                     meas_period_ms=profile.meas_period_ms,
                                     baud=FAST_RECEIVER_BAUD if profile.gnss_rate_hz > 2 else None,
