@@ -18,7 +18,7 @@ from logger.nav.engine import NavEngine
 from logger.nav.inputs import GnssObservation, SolutionEpoch
 from logger.nav.measurements import Observation
 from logger.nav.params import NavParams
-from logger.nav.solution import MAX_JOIN_S, solution_covariance, whitened
+from logger.nav.solution import solution_covariance, whitened
 from logger.recording.records import feed_record, nav_feeder
 from logger.recording.rtklib_pos import SolutionFileError, read_pos, unix_ns_utc
 from sensors.sim.scenarios import make_drive
@@ -156,23 +156,27 @@ def epoch_at(gnss_s: float, q: int = 1) -> SolutionEpoch:
 
 
 @pytest.mark.parametrize("state", ["locked", "freerun"])
-def test_solution_epochs_are_placed_where_the_receiver_fix_of_their_epoch_is(state: str):
-    """Not by arrival: 5 Hz solution epochs between 1 Hz fixes land at their GNSS epoch on the logger's clock,
-    with the same offset as the receiver's fix (locked: none; free-running: the shortest delay's)."""
+def test_solution_epochs_are_placed_through_the_receiver_time_and_go_in_at_their_epoch(state: str):
+    """Not by arrival: 5 Hz solution epochs between 1 Hz fixes land at their GNSS epoch on the logger's clock, with
+    the offset the receiver's fix was placed with (locked: none; free-running: the shortest delay's), and are due
+    as soon as the IMU reaches them, not when the receiver's fix arrives 0.3 s later."""
     engine = NavEngine(NavParams())
-    engine.use_solution([epoch_at(k * 0.2) for k in range(11)] + [epoch_at(20.0)])
+    engine.use_solution([epoch_at(k * 0.2) for k in range(16)] + [epoch_at(400.0)])
     sol = engine.solution
-    assert sol is not None
-    placed = sol.release(fix_msg(1.0, 1.3, state))
+    assert sol is not None and sol.due(T0_NS + 10 * NS, 0) == []  # no receiver time yet: nothing placed
+    engine.gnss(fix_msg(1.0, 1.3, state))
     offset_ms = 0 if state == "locked" else 200  # free-running: the shortest delay (0.3 s) less 0.1 s of latency
-    assert [round((t - T0_NS) / 1e6) for _, t, _ in placed] == [k * 200 + offset_ms for k in range(6)]
-    msg = fix_msg(2.0, 2.3, state)
-    placed = sol.release(msg)
-    t_fix = engine.epoch_clock.epoch_time(msg.t_sync_ns, msg.gnss_time_ns or 0, state)  # the receiver's fix
-    assert placed[-1][1] == t_fix and placed[-1][2] == msg.t_mono_ns + (t_fix - msg.t_sync_ns)
-    assert sol.release(GnssObservation(T0_NS, 0, None, state, False, 1, None, None, None, None, None, None, None,
-                                       None, 0)) == []  # a receiver without time places nothing
-    assert sol.release(fix_msg(20.0 + MAX_JOIN_S + 0.5, 22.8, state)) == [] and sol.unjoined == 1
+    assert engine.epoch_clock.offset_ns == offset_ms * 1_000_000
+    placed = sol.due(T0_NS + round(1.3 * NS), 0)
+    assert [round((t - T0_NS) / 1e6) for _, t, _ in placed] == list(range(offset_ms, 1301, 200))
+    assert all(t_mono == t - T0_NS for _, t, t_mono in placed)
+    assert sol.next_ns == T0_NS + (len(placed) * 200 + offset_ms) * 1_000_000  # the next one, in the IMU's time
+    left = 16 - len(placed)
+    assert sol.due(T0_NS + 6 * NS, T0_NS + round(3.5 * NS)) == [] and sol.before_start == left  # filter not started
+    # Past the fix's offset's lifetime (MAP_STALE_S) nothing is placed until a receiver fix with a time comes.
+    assert sol.due(T0_NS + 400 * NS, 0) == [] and sol.next_ns > T0_NS + 10**6 * NS
+    engine.gnss(fix_msg(399.0, 399.3, state))
+    assert [ep.gnss_time_ns for ep, _, _ in sol.due(T0_NS + 401 * NS, 0)] == [T0_NS + 400 * NS]
 
 
 def test_each_quality_has_its_floor_and_float_errors_last():

@@ -25,7 +25,7 @@ from logger.config import ConfigError, load
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.nav.smoother import SmoothingReport
-from logger.nav.solution import MAX_JOIN_S, SolutionPolicy
+from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.files import is_finished
 from logger.recording.rtklib_pos import SolutionFile, SolutionFileError, read_pos
 from logger.words import plural
@@ -126,11 +126,12 @@ def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) ->
     """What became of the solution's epochs, in one line."""
     counts = ", ".join(f"{n} {q}" for q, n in solution.counts().items())
     took = ", ".join(f"{n} {q}" for q, n in used.used.items()) or "none"
-    left = [f"{used.unjoined} with no receiver fix within {MAX_JOIN_S:g} s after them"] if used.unjoined else []
+    left = ([f"{used.unjoined} placed more than {MAX_LATE_S:g} s behind the filter (no receiver fix with a time "
+             "near them)"] if used.unjoined else [])
     if used.before_start:
         left.append(f"{used.before_start} before the filter started")
     if used.pending:
-        left.append(f"{len(used.pending)} after the drive's last timed fix")
+        left.append(f"{len(used.pending)} after the drive's end")
     return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
             f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
             + (f"; not used: {'; '.join(left)}" if left else ""))

@@ -239,6 +239,8 @@ class NavEngine:
             self._stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5,
                               t_ns)
         self.history.add(t_ns, s)
+        if self.solution is not None and t_ns >= self.solution.next_ns:
+            self._solution_due(t_ns)
         if self.record:
             self.rows.append(TrajectoryRow(t_ns, t_mono_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, self.sigma,
                                            len(self.epochs) - 1))
@@ -471,26 +473,19 @@ class NavEngine:
         self.epoch_clock.pps(t_ns)
 
     def use_solution(self, epochs: Iterable[SolutionEpoch], replace: bool = True) -> None:
-        """Fuse a post-processed solution (PPK, :mod:`logger.nav.solution`): each epoch goes in when the receiver's
-        fix of its GNSS epoch (or a later one) comes, placed as that fix is. ``replace``: the receiver's positions
-        are left out (its velocities still go in: a ``.pos`` has none); otherwise both go in."""
-        self.solution = SolutionPolicy(epochs, replace, self.epoch_clock, self.last_readings,
-                                       self.position_evidence)
+        """Fuse a post-processed solution (PPK, :mod:`logger.nav.solution`): each epoch goes in once the IMU reaches
+        it, placed on the logger's clock as the receiver's fixes are. ``replace``: the receiver's positions are
+        left out (its velocities still go in: a ``.pos`` has none); otherwise both go in."""
+        self.solution = SolutionPolicy(epochs, replace, self.last_readings, self.position_evidence)
 
     def gnss(self, msg: GnssObservation) -> None:
         """One navigation solution of the receiver."""
-        sol = self.solution
-        if sol is not None and self.mode != "gnss":
-            for ep, t_e, t_mono in sol.release(msg):
-                if self.state is None:
-                    sol.before_start += 1
-                    continue
-                verdict, placed = sol.update(self, ep, t_e, t_mono)
-                if verdict == "reset" and placed is not None:
-                    self._restart_from(placed)
         fix = self._gnss.prepare(msg, self.counters)
         if fix is None:
             return
+        sol = self.solution
+        if sol is not None and msg.gnss_time_ns is not None and self.mode != "gnss":
+            sol.map(msg.gnss_time_ns, fix.t_ns, fix.t_mono_ns)
         self.last_readings.fix = fix
         if self.alignment is not None and fix.vel is not None and self.state is not None:
             v = fix.vel
@@ -504,6 +499,15 @@ class NavEngine:
         positions = sol is None or not sol.replace
         if self._gnss.update(self, fix, msg.num_sv, np.array(self._gyro_raw), positions) == "reset":
             self._restart_from(fix)
+
+    def _solution_due(self, t_ns: int) -> None:
+        """The solution's epochs the IMU has reached: their updates, at their epochs."""
+        sol = self.solution
+        assert sol is not None
+        for ep, t_e, t_mono in sol.due(t_ns, self.counters.initialised_ns or 0):
+            verdict, placed = sol.update(self, ep, t_e, t_mono)
+            if verdict == "reset" and placed is not None:
+                self._restart_from(placed)
 
     def _restart_from(self, fix: PreparedFix) -> None:
         """The filter lost itself: position and velocity from the fix, attitude and offsets reopened."""
