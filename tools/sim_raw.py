@@ -137,14 +137,15 @@ def rnx2rtkp(files: RawDriveFiles, rover_obs: Path, base_obs: Path | None, out: 
     return read_pos(out)
 
 
-def summary(errors: list[Errors], fixed_only: bool) -> str:
-    rows = [e for e in errors if e.row.quality == 1] if fixed_only else errors
-    if not rows:
+def summary(errors: list[Errors]) -> str:
+    """Horizontal and vertical RMS and maximum, the median horizontal error and the share within 5 cm."""
+    if not errors:
         return "no solutions"
-    h = np.array([e.horizontal_m for e in rows])
-    v = np.array([abs(e.enu_m[2]) for e in rows])
-    return (f"{len(rows)} solutions: horizontal RMS {math.sqrt(float(np.mean(h**2))):.3f} m, max {h.max():.3f} m; "
-            f"vertical RMS {math.sqrt(float(np.mean(v**2))):.3f} m, max {v.max():.3f} m")
+    h = np.array([e.horizontal_m for e in errors])
+    v = np.array([abs(e.enu_m[2]) for e in errors])
+    return (f"{len(errors)} solutions: horizontal RMS {math.sqrt(float(np.mean(h**2))):.3f} m, median "
+            f"{float(np.median(h)):.3f} m, max {h.max():.3f} m, {100.0 * float(np.mean(h < 0.05)):.0f} % within "
+            f"5 cm; vertical RMS {math.sqrt(float(np.mean(v**2))):.3f} m, max {v.max():.3f} m")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -174,13 +175,15 @@ def main(argv: list[str] | None = None) -> int:
     rover_obs, base_obs = convbin(files.rover_ubx), convbin(files.base_ubx)
     print(f"convbin: {rinex_epochs(rover_obs)} rover and {rinex_epochs(base_obs)} base RINEX epochs")
     single = score(rnx2rtkp(files, rover_obs, None, args.out / "single.pos"), drive, timeline)
-    print(f"single point: {summary(single, False)}")
+    print(f"single point, open sky: {summary([e for e in single if e.sky_open >= 1.0])}")
+    print(f"single point, street canyon: {summary([e for e in single if e.sky_open < 1.0])}")
     kin = score(rnx2rtkp(files, rover_obs, base_obs, args.out / "kinematic.pos"), drive, timeline)
     open_sky = [e for e in kin if e.sky_open >= 1.0]
-    fixed = sum(e.row.quality == 1 for e in open_sky)
-    print(f"kinematic: {len(kin)} solutions, {len(open_sky)} under an open sky, {fixed} of those fixed "
-          f"({100.0 * fixed / max(1, len(open_sky)):.1f} %)")
-    print(f"kinematic fixed: {summary(kin, True)}")
+    fixed = [e for e in open_sky if e.row.quality == 1]
+    print(f"kinematic: {len(kin)} solutions, {len(open_sky)} under an open sky, {len(fixed)} of those fixed "
+          f"({100.0 * len(fixed) / max(1, len(open_sky)):.1f} %)")
+    print(f"kinematic fixed, open sky: {summary(fixed)}")
+    print(f"kinematic fixed, street canyon: {summary([e for e in kin if e.sky_open < 1.0 and e.row.quality == 1])}")
     return 0
 
 
