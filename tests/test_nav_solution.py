@@ -4,6 +4,8 @@ every layout it has, the join through GNSS time, the noise per quality, and ``lo
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -49,6 +51,18 @@ def error_ned(ep: SolutionEpoch, truth: dict[int, tuple[float, float, float]]) -
 
 
 # ---- the parser on rnx2rtkp's own files ------------------------------------------------------------------------
+@pytest.mark.skipif(shutil.which("rnx2rtkp") is None, reason="rnx2rtkp (Debian's rtklib) is not installed")
+def test_the_fixtures_are_what_rnx2rtkp_writes_today(tmp_path: Path):
+    """make.sh again with this machine's rnx2rtkp: the same files, byte for byte (the README's recipe holds)."""
+    r = subprocess.run(["sh", str(DATA / "make.sh"), str(tmp_path)], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHON": sys.executable})
+    assert r.returncode == 0, r.stderr
+    made = sorted(p.name for p in tmp_path.iterdir())
+    assert made == [*sorted(p.name for p in DATA.glob("*.pos")), "truth.csv"] and len(made) == 12
+    for name in made:
+        assert (tmp_path / name).read_bytes() == (DATA / name).read_bytes(), name
+
+
 @pytest.mark.parametrize(("name", "quality", "bound_m"), [
     ("kinematic-llh-gpst.pos", 1, 0.02), ("float-llh-gpst.pos", 2, 1.5), ("dgps-llh-gpst.pos", 4, 2.0),
     ("single-llh-gpst.pos", 5, 5.0), ("single-xyz-utc.pos", 5, 5.0)])
