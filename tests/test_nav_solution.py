@@ -293,3 +293,22 @@ def test_replay_fuses_the_solution_and_says_so(drive_with_ppk, tmp_path: Path):
         r.stderr.count("\n") == 1
     r = replay("--out", str(tmp_path / "out3"), "--gnss-solution", str(tmp_path / "missing.pos"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing.pos: No such file" in r.stderr
+
+
+def test_a_filter_lost_with_a_solution_restarts_from_its_epochs(drive_with_ppk):
+    """300 m off with its covariance still confident: the solution's epochs, refused in a row and agreeing, restart
+    the filter from them (velocity kept: a .pos has none), and it is back on the solution."""
+    drive, recs, pos = drive_with_ppk
+    engine = NavEngine(NavParams(), record=True)
+    engine.use_solution(read_pos(pos).epochs)
+    feed = nav_feeder(engine)
+    done = False
+    for _, topic, msg in recs:
+        feed_record(feed, topic, msg)
+        if not done and engine.state is not None and (msg["t_sync_ns"] - T0_NS) / 1e9 > 60.0:
+            engine.state.lat += 300.0 / 6.36e6
+            done = True
+    assert done and engine.counters.resets == 1 and engine.ekf is not None
+    t, e, sig = errors(drive, engine.rows)
+    late = t > 90.0
+    assert np.all(np.isfinite(sig)) and np.abs(e[late]).max() < 0.1

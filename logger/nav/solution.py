@@ -47,6 +47,7 @@ MAX_LATE_S = 2.0  # an epoch placed further behind the filter's latest IMU sampl
 MAX_CORR_GAP_S = 10.0  # epochs further apart than this are independent
 SOURCE = "solution"  # FixFigures.source of a solution epoch
 NEVER = 2**63 - 1
+RESTART_SPEED_SIGMA_MPS = 1.0  # a filter restarted from a solution epoch (which has no velocity) keeps its own
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,8 +157,9 @@ class SolutionPolicy:
         r = solution_covariance(ep, dt_s)
         lat, lon = math.radians(ep.lat_deg), math.radians(ep.lon_deg)
         sig = (math.sqrt(r[0, 0]), math.sqrt(r[1, 1]), math.sqrt(r[2, 2]))
-        fix = PreparedFix(t_e, t_mono, lat, lon, ep.height_m, None, False, sig, math.inf, True,
-                          FixFigures(math.hypot(sig[0], sig[1]), sig[2], math.inf, SOURCE, (1.0, 1.0)))
+        # No velocity: a restart from this epoch keeps the filter's, widened by RESTART_SPEED_SIGMA_MPS.
+        fix = PreparedFix(t_e, t_mono, lat, lon, ep.height_m, None, False, sig, RESTART_SPEED_SIGMA_MPS, True,
+                          FixFigures(math.hypot(sig[0], sig[1]), sig[2], RESTART_SPEED_SIGMA_MPS, SOURCE, (1.0, 1.0)))
         snap = core.state_at(t_e)
         full = GnssPosition(lat, lon, ep.height_m, (1.0, 1.0, 1.0), core.lever).observe(snap, snap.dcm(), core.n)
         ok = core.apply(whitened(Observation("solution_pos", full.z, full.h, full.r), r))
