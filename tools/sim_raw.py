@@ -20,7 +20,8 @@ rate and errors where the sky is open, against the drive's truth at each solutio
 A drive recorded by ``logger run --sim --config FILE`` with a raw-capable receiver (``[sim] receiver_model =
 "NEO-M8T"`` or ``"ZED-F9P"``) and ``[gnss] raw_observations = true`` holds the rover's RXM-RAWX of the same model
 (``sensors/sim/vehicle.py`` plugs it into the receiver); ``--scenario``, ``--seed`` and ``--start-utc`` of that
-drive give the base station and the navigation file that go with it.
+drive give the base station and the navigation file that go with it, and ``--rover`` its RXM-RAWX (the
+``/gnss/raw`` bytes) to process against them.
 """
 
 from __future__ import annotations
@@ -158,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-utc", type=datetime.fromisoformat, default=None,
                     help="UTC of the drive's start (ISO 8601; default the simulator's 2018-03-14T01:30:00+00:00): "
                          "that of a drive `logger run --sim` recorded, for its base station and navigation file")
+    ap.add_argument("--rover", type=Path, default=None,
+                    help="with --rtklib: process this rover UBX (a recorded drive's receiver output) instead")
     ap.add_argument("--rtklib", action="store_true", help="process with convbin and rnx2rtkp, print the figures")
     args = ap.parse_args(argv)
     drive = make_drive(args.scenario, seed=args.seed, duration_s=args.duration)  # laps repeated as the daemon's
@@ -172,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"{', '.join(missing)} is not installed: apt-get install rtklib", file=sys.stderr)
         return 1
-    rover_obs, base_obs = convbin(files.rover_ubx), convbin(files.base_ubx)
+    rover_obs, base_obs = convbin(args.rover or files.rover_ubx), convbin(files.base_ubx)
     print(f"convbin: {rinex_epochs(rover_obs)} rover and {rinex_epochs(base_obs)} base RINEX epochs")
     single = score(rnx2rtkp(files, rover_obs, None, args.out / "single.pos"), drive, timeline)
     print(f"single point, open sky: {summary([e for e in single if e.sky_open >= 1.0])}")
