@@ -68,7 +68,7 @@ def test_without_raw_observations_asked_nothing_changes(bench: Bench) -> None:
     m = bench.receiver(model="NEO-M8T", seed=5, raw_frames=lambda rec: [rawx(rec)])
     ser = bench.host(9600)
     result = configure_receiver(ser, ReceiverSetup(), sleep=bench.sleep)
-    assert result.raw_observations == "off" and result.baud == 9600
+    assert result.raw_observations == "off" and result.baud == 9600 and m.rate("RXM-RAWX") == 0
     assert not any("RXM" in a for a in result.acknowledged)
     assert "RXM-RAWX" not in identities(bench.listen(ser, 2.0))
 

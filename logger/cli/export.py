@@ -1,9 +1,12 @@
-"""``logger export FILE... --out DIR``: a drive's positions as GPX, KML and CSV, for maps and spreadsheets.
+"""``logger export FILE... --out DIR``: a drive's positions as GPX, KML and CSV, for maps and spreadsheets, and
+the receiver's byte stream for RTKLIB (``ubx``, ``rinex``).
 
 Takes the files of one drive (rotated files in any order, a last file cut short by a power failure) and the
 ``trajectory.mcap`` of ``logger replay``; exports the receiver's ``/gnss/fix``, the live ``/nav/fix`` the daemon
 recorded, and each replayed ``/nav/fix`` as tracks of their own. Only valid positions are written, and a
-track is split wherever fixes were missing or invalid (see :mod:`logger.exports.tracks`).
+track is split wherever fixes were missing or invalid (see :mod:`logger.exports.tracks`). ``ubx`` joins ``/gnss/raw``
+into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RTKLIB's convbin (see
+:mod:`logger.exports.raw_stream`).
 """
 
 from __future__ import annotations
@@ -11,15 +14,31 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from collections import Counter
 from pathlib import Path
 
 from logger.cli.progress import Progress
+from logger.config import SCHEMA, ConfigError, load
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
+from logger.exports.raw_stream import (
+    RAW_MESSAGES,
+    ConvbinError,
+    StreamReport,
+    convbin_path,
+    recorded_config,
+    to_rinex,
+    write_notes,
+    write_ubx,
+)
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
+from logger.recording.topics import GNSS_RAW
 from logger.words import plural
 
-FORMATS = ("gpx", "kml", "csv")
+TRACK_FORMATS = ("gpx", "kml", "csv")
+STREAM_FORMATS = ("ubx", "rinex")  # the receiver's bytes: as they came, and through RTKLIB's convbin
+FORMATS = TRACK_FORMATS + STREAM_FORMATS
+RINEX_HEADER_KEYS = ("antenna_height_m", "receiver_name")  # [gnss] keys that go into the RINEX header
 
 
 class UsageError(Exception):
@@ -36,7 +55,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("files", nargs="+", type=Path, metavar="FILE",
                    help="MCAP files of one drive (rotated files, a cut file) and/or logger replay's trajectory.mcap")
     p.add_argument("--out", required=True, type=Path, help="folder for the exported files")
-    p.add_argument("--format", default="gpx,kml,csv", help="comma-separated: gpx, kml, csv (default: all three)")
+    p.add_argument("--format", default="gpx,kml,csv",
+                   help="comma-separated: gpx, kml, csv (default: these three); ubx (the receiver's bytes from "
+                        "/gnss/raw, gaps noted in NAME.ubx.json), rinex (that through RTKLIB's convbin)")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="rinex: take [gnss] antenna_height_m and receiver_name from FILE instead of the drive's "
+                        "recorded configuration")
     p.add_argument("--topic", action="append", dest="topics", metavar="TOPIC",
                    help="/gnss/fix or /nav/fix; repeat for both (default: both)")
     p.add_argument("--height", choices=HEIGHTS, default="ellipsoid",
@@ -65,6 +89,8 @@ def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         raise UsageError(f"--every {args.every:g}: must be zero or a positive number of seconds")
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a folder")
+    if args.config is not None and "rinex" not in formats:
+        raise UsageError("--config is for --format rinex (the RINEX header's antenna height and receiver)")
     return formats, topics
 
 
@@ -104,16 +130,91 @@ def export(files: list[DriveFile], out: Path, formats: list[str], topics: list[s
     return chosen, written
 
 
+def rinex_header(files: list[DriveFile], config: Path | None) -> tuple[float, str]:
+    """Antenna height and receiver name: from ``config`` when given, else as the drive recorded its configuration,
+    else the schema's defaults (a drive from before these keys)."""
+    if config is not None:
+        gnss = load(config, devices=False)["gnss"]
+        return float(gnss["antenna_height_m"]), str(gnss["receiver_name"])
+    recorded = recorded_config(files)
+    values = [recorded.get(f"gnss.{k}", SCHEMA["gnss"][k].default) for k in RINEX_HEADER_KEYS]
+    try:
+        return float(values[0]), str(values[1])
+    except ValueError:
+        raise UsageError(f"the drive's recorded gnss.antenna_height_m {values[0]!r} is not a number: give "
+                         "--config FILE") from None
+
+
+def stream_summary(r: StreamReport) -> str:
+    kinds = Counter(g.kind for g in r.gaps)
+    raw = [(name, r.messages.get(name, 0)) for name in RAW_MESSAGES]  # what RTKLIB needs: always said
+    rest = sorted((kv for kv in r.messages.items() if kv[0] not in RAW_MESSAGES), key=lambda kv: -kv[1])[:3]
+    found = ", ".join(f"{n} {name}" for name, n in raw + rest)
+    return (f"{GNSS_RAW}: {plural(r.bytes, 'byte')} from {plural(r.records, 'record')} ({found or 'no frames'})"
+            + (", gaps: " + ", ".join(f"{n} {k}" for k, n in kinds.items()) if kinds else ", no gaps")
+            + (f"; {r.bad_checksum} bad checksums, {r.garbage_bytes} bytes outside frames"
+               if r.bad_checksum or r.garbage_bytes else "")
+            + (f"; ends inside a frame ({plural(r.unfinished_tail_bytes, 'byte')} of it)"
+               if r.unfinished_tail_bytes else ""))
+
+
+def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, config: Path | None) -> list[Path]:
+    """``ubx`` (and ``rinex``): the stream, its notes, and RTKLIB's RINEX of it; [] when the drive has no raw bytes."""
+    header = rinex_header(files, config) if rinex else None
+    progress = Progress("logger export")
+    out.mkdir(parents=True, exist_ok=True)
+    ubx = out / f"{name}.ubx"
+    try:
+        report = write_ubx(iter_messages(files, [GNSS_RAW], progress), files, ubx)
+    finally:
+        progress.end()
+    if not report.records:
+        ubx.unlink()
+        return []
+    notes = out / f"{name}.ubx.json"
+    write_notes(notes, report)
+    print(stream_summary(report))
+    written = [ubx, notes]
+    if header is not None:
+        result = to_rinex(ubx, out / f"{name}.obs", out / f"{name}.nav", *header, report.unfinished_tail_bytes)
+        print(f"rinex: {plural(result.epochs, 'observation epoch')} from {plural(report.raw_epochs, 'RXM-RAWX')}"
+              + ("" if report.raw_epochs else " (the receiver sent no raw observations: [gnss] raw_observations)"))
+        written += [p for p in (result.obs, result.nav) if p.is_file()]
+    return written
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     try:
         formats, topics = check_args(args)
+        if "rinex" in formats:
+            convbin_path()  # before any work: without RTKLIB the command cannot finish
         files = open_drive(args.files)
-    except (UsageError, DriveFileError) as exc:
+    except (UsageError, DriveFileError, ConvbinError) as exc:
         print(f"logger export: {exc}", file=sys.stderr)
         return 2
     for line in cut_notes(files):
         print(f"logger export: {line}", file=sys.stderr)
+    streamed: list[Path] = []
+    if any(f in STREAM_FORMATS for f in formats):
+        try:
+            streamed = export_stream(files, args.out, drive_name([f.path for f in files]), "rinex" in formats,
+                                     args.config)
+        except (DriveFileError, ConvbinError, UsageError) as exc:
+            print(f"logger export: {exc}", file=sys.stderr)
+            return 2
+        except ConfigError as exc:
+            print("\n".join(f"logger export: {p}" for p in exc.problems), file=sys.stderr)
+            return 2
+        if not streamed:
+            print(f"logger export: no {GNSS_RAW} messages in {', '.join(str(f) for f in args.files)}",
+                  file=sys.stderr)
+            return 2
+        formats = [f for f in formats if f in TRACK_FORMATS]
+        if not formats:
+            for p in streamed:
+                print(f"wrote {p}")
+            return 0
     try:
         chosen, written = export(files, args.out, formats, topics, args.height, args.gap, args.every, args.gap_marks)
     except DriveFileError as exc:
@@ -135,6 +236,6 @@ def main(argv: list[str]) -> int:
     if args.height == "msl" and any(p.h_msl_m is None for t in chosen for p in t.points):
         print(f"logger export: note: some points have no {HEIGHT_TEXT['msl']} (no receiver fix to take the geoid "
               "from): written without a height", file=sys.stderr)
-    for p in written:
+    for p in streamed + written:
         print(f"wrote {p}")
     return 0

@@ -29,7 +29,8 @@ COLUMNS = """columns:
   late     samples read after their next deadline (a host that fell behind)
   reconn   times the device was opened again after losing it
 rows below the table:
-  gnss     fix type, satellites used, horizontal accuracy, PDOP, age
+  gnss     fix type, satellites used, horizontal accuracy, PDOP, raw
+           observations (RXM-RAWX a second) when asked for, age
   clock    state (locked to PPS, holdover, freerun), error bound of the
            stamps, offset and frequency of the board clock, last PPS
   nav      filter position and its 1-sigma, then its plain verdicts
@@ -123,6 +124,7 @@ def _sensors(sc: Screen, sensors: list[dict[str, Any]]) -> None:
 
 
 STALE_GNSS_S = 3.0  # a receiver silent this long: its last solution is history, not the present
+STALE_RAW_S = 3.0  # no RXM-RAWX for this long: say since when, not the rate they came at
 
 
 def _gnss(sc: Screen, g: dict[str, Any] | None) -> None:
@@ -144,6 +146,10 @@ def _gnss(sc: Screen, g: dict[str, Any] | None) -> None:
         parts.append(f"last fix {age(g['last_fix_age_s'])} ago")
     else:
         parts.append("no fix since start")
+    if "raw_age_s" in g:  # raw observations asked for ([gnss] raw_observations)
+        raw_age = g["raw_age_s"]
+        parts.append("raw none yet" if raw_age is None else f"raw none for {age(raw_age)}" if raw_age > STALE_RAW_S
+                     else f"raw {g['raw_hz']:.2g} Hz" if g.get("raw_hz") is not None else "raw coming")
     parts.append(f"reported {age(g.get('age_s'))} ago")
     sc.add(LINE, "gnss    " + ", ".join(parts))
 

@@ -114,7 +114,9 @@ class Daemon:
         self.status_server: Any = None
         self.startup_lines: list[str] = []
         # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
-        self.gnss_watch = GnssWatch()  # the receiver's fix, satellites and accuracy for the status
+        # the receiver's fix, satellites and accuracy for the status, and its raw observations when asked for
+        self.gnss_watch = GnssWatch(raw_asked=bool(cfg["gnss"]["raw_observations"]) and cfg["gnss"]["configure"]
+                                    and cfg["gnss"]["source"] in ("serial", "sim"))
         self.taps: list[Any] = [self.gnss_watch, *self.attachments.taps]
         self._observe = clock_observer(self.clock)  # what each record tells the clock (PPS, time messages)
         self._drop_history: deque[tuple[int, int]] = deque()
@@ -248,6 +250,9 @@ class Daemon:
             incident = s.health.recent_incident(now)
             if incident is not None:
                 problems.append(f"{snap['name']}: {incident}")
+        no_raw = self.gnss_watch.raw_problem(now)
+        if no_raw:
+            problems.append(f"gnss: {no_raw}")
         mislabel = getattr(self.clock, "last_mislabel", None)
         if mislabel is not None and now - mislabel[0] <= MISLABEL_SHOW_S * 1e9:
             problems.append(f"clock: {mislabel[1]}")

@@ -1,0 +1,274 @@
+"""``logger export --format ubx`` and ``--format rinex``: the receiver's bytes out of a drive, and RTKLIB's reading.
+
+The real NEO-M8T capture of the GPSD project (39 complete RXM-RAWX epochs, and a 40th cut off by the end of the
+capture) goes through a pty into the daemon's own receiver adapter (the real reader: ``GnssSource`` over
+``GnssReceiver``), its ``/gnss/raw`` records into the real recorder, rotating files; the export must give back the
+capture byte for byte, and Debian's RTKLIB ``convbin`` must find every RAWX epoch in it. Then the whole daemon on
+the simulated vehicle with raw observations asked for: against the simulated receiver's own log of what it sent,
+the export holds every byte the host read after the set-up, and the status says raw observations are coming (an
+M8T) or that they are not (an M8N, which refuses them with one warning).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from test_gnss_decode_gpsd import load_capture, random_pieces
+from test_raw_observations import rawx
+
+from logger.compose import build
+from logger.config import defaults
+from logger.exports.raw_stream import count_epochs
+from logger.recording.recorder import Recorder
+from logger.recording.records import raw_bytes_record
+from logger.recording.settings import RecorderSettings
+from logger.recording.topics import GNSS_RAW, TOPICS
+from logger.runtime.sources import GnssSource
+from logger.runtime.timebase import host_timebase
+from sensors.sim.pty import PtyPort
+from sensors.ublox_frames import UbxNmeaFramer
+
+ROOT = Path(__file__).resolve().parents[1]
+CAPTURE = "ublox-neo-m8t.log"
+START_NS = 1_540_500_963_000_000_000  # log times near the capture's own date (2018-10-25)
+IN_CI = os.environ.get("LOGGER_TESTS_NO_SKIP") == "1" or os.environ.get("CI") == "true"
+
+
+def need_convbin() -> str:
+    """RTKLIB's convbin; a skip where it is not installed, a failure in CI, which installs it (.ci/run)."""
+    path = shutil.which("convbin")
+    if path is None:
+        if IN_CI:
+            pytest.fail("convbin is missing in CI: .ci/run installs Debian's rtklib")
+        pytest.skip("convbin is not installed (apt-get install rtklib)")
+    return path
+
+
+def run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "logger.cli", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300, env=env)
+
+
+def record_through_the_reader(folder: Path, data: bytes, config: dict[str, str] | None = None) -> list[Path]:
+    """``data`` written into a pty in serial-port-like pieces, read by the daemon's receiver adapter, its
+    ``/gnss/raw`` records recorded into small rotating files."""
+    port = PtyPort()
+    source = GnssSource(port.path, 115200, False, host_timebase())
+    source.open()
+    settings = RecorderSettings(out_dir=folder, flush_interval_s=0.01, rotate_size_bytes=6000, min_free_bytes=0)
+    rec = Recorder(settings, TOPICS, metadata={"config": config} if config else None)
+    rec.start()
+    try:
+        for piece in random_pieces(data, seed=15):
+            port.write(piece)
+            target = source.offset + len(piece)
+            while source.offset < target:
+                for r in source.read():
+                    if r.topic == GNSS_RAW:
+                        assert rec.submit(GNSS_RAW, r.payload, START_NS + r.payload["offset"] * 10_000, r.t_mono_ns)
+            time.sleep(0.001)  # the writer flushes (and rotates) between pieces
+    finally:
+        rec.stop()
+        source.close()
+        port.close()
+    return sorted(folder.glob("*.mcap"))
+
+
+@pytest.fixture(scope="module")
+def m8t_drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[bytes, list[Path]]:
+    data = load_capture(CAPTURE)
+    files = record_through_the_reader(tmp_path_factory.mktemp("m8t") / "rec", data,
+                                      {"gnss.antenna_height_m": "1.234", "gnss.receiver_name": "7/NEO-M8T/TIM 1.10"})
+    return data, files
+
+
+def test_the_export_is_the_capture_byte_for_byte_over_rotated_files(m8t_drive: tuple[bytes, list[Path]],
+                                                                     tmp_path: Path) -> None:
+    data, files = m8t_drive
+    assert len(files) >= 3  # rotated: the .ubx joins them
+    r = run("export", *map(str, reversed(files)), "--out", str(tmp_path), "--format", "ubx")  # any order
+    assert r.returncode == 0, r.stderr
+    ubx = next(tmp_path.glob("*.ubx"))
+    assert ubx.read_bytes() == data and len(data) == 25904
+    notes = json.loads((tmp_path / f"{ubx.name}.json").read_text())
+    assert notes["bytes"] == 25904 and notes["gaps"] == [] and notes["bad_checksum"] == notes["garbage_bytes"] == 0
+    assert notes["messages"]["RXM-RAWX"] == 39 and notes["messages"]["NAV-SOL"] == 39
+    assert notes["unfinished_tail_bytes"] == 314  # the 40th RAWX, cut off by the end of the capture
+    assert f"{GNSS_RAW}: 25904 bytes from " in r.stdout and "39 RXM-RAWX" in r.stdout and "no gaps" in r.stdout
+    assert "ends inside a frame (314 bytes of it)" in r.stdout
+
+
+def test_convbin_reads_every_rawx_epoch_of_the_export(m8t_drive: tuple[bytes, list[Path]], tmp_path: Path) -> None:
+    need_convbin()
+    data, files = m8t_drive
+    r = run("export", *map(str, files), "--out", str(tmp_path), "--format", "rinex")
+    assert r.returncode == 0, r.stderr
+    obs = next(tmp_path.glob("*.obs"))
+    complete_rawx = sum(1 for f in UbxNmeaFramer().feed(data) if f.message is not None
+                        and f.message.identity == "RXM-RAWX")
+    assert complete_rawx == 39 and count_epochs(obs) == 39
+    assert "rinex: 39 observation epochs from 39 RXM-RAWX" in r.stdout
+    header = obs.read_text().split("END OF HEADER")[0]
+    # the antenna height and receiver the drive recorded in its configuration
+    assert "        1.2340        0.0000        0.0000                  ANTENNA: DELTA H/E/N" in header
+    assert "7                   NEO-M8T             TIM 1.10            REC # / TYPE / VERS" in header
+    assert next(tmp_path.glob("*.ubx")).read_bytes() == data  # the .ubx keeps the unfinished tail
+
+
+def test_a_configuration_given_at_the_office_goes_into_the_rinex_header(m8t_drive: tuple[bytes, list[Path]],
+                                                                        tmp_path: Path) -> None:
+    need_convbin()
+    _, files = m8t_drive
+    cfg = tmp_path / "office.toml"
+    cfg.write_text('[gnss]\nantenna_height_m = 2.05\nreceiver_name = "SN42/NEO-M8T"\n')
+    r = run("export", *map(str, files), "--out", str(tmp_path / "out"), "--format", "rinex", "--config", str(cfg))
+    assert r.returncode == 0, r.stderr
+    header = next((tmp_path / "out").glob("*.obs")).read_text().split("END OF HEADER")[0]
+    assert "        2.0500        0.0000        0.0000                  ANTENNA: DELTA H/E/N" in header
+    assert "SN42                NEO-M8T" in header
+
+
+def test_without_convbin_rinex_says_how_to_install_it(m8t_drive: tuple[bytes, list[Path]], tmp_path: Path) -> None:
+    _, files = m8t_drive
+    bare = tmp_path / "bin"
+    bare.mkdir()
+    env = {**os.environ, "PATH": str(bare)}
+    r = run("export", *map(str, files), "--out", str(tmp_path / "out"), "--format", "rinex", env=env)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == ("logger export: --format rinex needs RTKLIB's convbin, which is not installed "
+                        "(apt-get install rtklib)\n")
+    assert not (tmp_path / "out").exists()
+
+
+def test_lost_records_a_reopened_port_and_a_silence_are_noted_beside_the_stream(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "rec", min_free_bytes=0), TOPICS)
+    rec.start()
+    chunks = [(0, b"A" * 100), (100, b"B" * 50), (400, b"C" * 10), (0, b"D" * 20), (20, b"E" * 5)]
+    t_mono = [0, 1, 2, 8, 15]  # seconds: the port reopened after 6 s, then 7 s of silence
+    for (offset, data), t in zip(chunks, t_mono, strict=True):
+        rec.submit(GNSS_RAW, raw_bytes_record(t * 10**9, data, offset), START_NS + t * 10**9, t * 10**9)
+    rec.stop()
+    r = run("export", *map(str, (tmp_path / "rec").glob("*.mcap")), "--out", str(tmp_path / "out"), "--format", "ubx")
+    assert r.returncode == 0, r.stderr
+    ubx = next((tmp_path / "out").glob("*.ubx"))
+    assert ubx.read_bytes() == b"A" * 100 + b"B" * 50 + b"C" * 10 + b"D" * 20 + b"E" * 5
+    gaps = json.loads((tmp_path / "out" / f"{ubx.name}.json").read_text())["gaps"]
+    assert [(g["kind"], g["at_byte"], g["bytes_lost"]) for g in gaps] == [
+        ("lost", 150, 250), ("reopened", 160, None), ("silence", 180, None)]
+    assert gaps[0]["detail"] == "250 bytes the port gave were not recorded (the recorder dropped records)"
+    assert "gaps: 1 lost, 1 reopened, 1 silence" in r.stdout
+
+
+def test_a_drive_without_raw_bytes_says_so(tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "rec", min_free_bytes=0), TOPICS)
+    rec.start()
+    rec.submit("/baro", {"x": 1}, START_NS, 0)
+    rec.stop()
+    files = [str(p) for p in (tmp_path / "rec").glob("*.mcap")]
+    r = run("export", *files, "--out", str(tmp_path / "out"), "--format", "ubx")
+    assert r.returncode == 2 and r.stderr == f"logger export: no {GNSS_RAW} messages in {files[0]}\n"
+    assert not list((tmp_path / "out").glob("*.ubx"))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The whole daemon on the simulated vehicle
+
+
+def simulated_drive(base: Path, model: str, duration_s: float) -> tuple[bytes, list[Path], list[str], dict, int]:
+    """A drive with raw observations asked for of a simulated ``model``, its receiver's log of what it sent, the
+    log lines of the run, a status snapshot three quarters into it and the baud rate the receiver ran at."""
+    cfg = defaults(sim=True)
+    cfg.values["logger"].update(out_dir=str(base / "rec"), status_socket=str(base / "status.sock"),
+                                state_dir=str(base / "state"))
+    cfg.values["sim"].update(scenario="urban", seed=4, time_scale=4.0, receiver_model=model)
+    cfg.values["gnss"]["raw_observations"] = True
+    cfg.values["nav"]["enabled"] = False
+    daemon, vehicle = build(cfg, duration_s)
+    sent = io.BytesIO()
+    vehicle.gnss.raw_frames = lambda rec: [rawx(rec)]  # one measurement an epoch: enough to count
+    vehicle.gnss.sent_log = sent  # before the daemon opens the port: everything from here on
+    lines: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: lines.append(record.getMessage())  # type: ignore[method-assign]
+    watched = logging.getLogger("logger")
+    level = watched.level
+    watched.addHandler(handler)
+    watched.setLevel(logging.INFO)
+    snapshots: list[dict] = []
+    runner = threading.Thread(target=daemon.run, args=(duration_s,), daemon=True)
+    try:
+        runner.start()
+        while runner.is_alive():
+            time.sleep(0.5)
+            if daemon.ready.is_set():
+                snapshots.append(daemon.snapshot())
+        runner.join(120)
+    finally:
+        watched.removeHandler(handler)
+        watched.setLevel(level)
+    assert not runner.is_alive()
+    return sent.getvalue(), sorted((base / "rec").glob("*.mcap")), lines, snapshots[len(snapshots) * 3 // 4], \
+        vehicle.gnss.baud
+
+
+def test_the_export_holds_every_byte_the_simulated_m8t_sent_after_the_setup(tmp_path: Path) -> None:
+    sent, files, lines, snap, baud = simulated_drive(tmp_path, "NEO-M8T", 30.0)
+    assert baud == 115200  # raised for the raw observations
+    assert any("raw observations (RXM-RAWX, RXM-SFRBX) on at 115200 baud" in line for line in lines)
+    assert not any("refused" in line for line in lines)
+    gnss_line = gnss_row(snap)
+    assert ", raw 1 Hz, " in gnss_line and len(gnss_line) < 80, gnss_line
+    assert not any("raw observations" in p for p in snap["problems"])
+    out = tmp_path / "out"
+    r = run("export", *map(str, files), "--out", str(out), "--format", "ubx")
+    assert r.returncode == 0, r.stderr
+    exported = next(out.glob("*.ubx")).read_bytes()
+    notes = json.loads(next(out.glob("*.ubx.json")).read_text())
+    # Nothing lost and the port never reopened (a host loaded by other work may read late enough for a silence).
+    assert [g for g in notes["gaps"] if g["kind"] != "silence"] == [], notes["gaps"]
+    assert notes["bad_checksum"] == 0 and notes["garbage_bytes"] == 0
+    assert notes["messages"]["RXM-RAWX"] >= 25 and notes["messages"]["NAV-PVT"] >= 25
+    # The host read everything the receiver sent from the end of its set-up on: the export is one run of the
+    # receiver's own log, starting right after the set-up's last answer (the ACK of RXM-SFRBX on, after the
+    # MON-VER that confirmed the new speed; at most the rest of one epoch's output read by the set-up with it)
+    # and ending within the last second of the drive (what came after the daemon's last read).
+    start = sent.find(exported)
+    assert start >= 0, "the export is not a contiguous run of what the receiver sent"
+    setup_part, tail = sent[:start], sent[start + len(exported):]
+    ack_sfrbx = bytes.fromhex("b562050102000601") + b"\x0f\x38"  # ACK-ACK of CFG-MSG, as the log shows it
+    assert setup_part.rfind(b"\xb5\x62\x0a\x04") < setup_part.rfind(ack_sfrbx)
+    assert len(setup_part) - (setup_part.rfind(ack_sfrbx) + len(ack_sfrbx)) < 600
+    per_s = len(exported) / notes["messages"]["NAV-PVT"]  # the receiver's output a second
+    assert len(tail) < 8 * per_s, (len(tail), per_s)  # what came while the daemon stopped: seconds, not more
+
+
+def gnss_row(snap: dict) -> str:
+    """The receiver's line of ``logger status`` on an 80-column terminal (not its row in the sensor table)."""
+    from logger.cli.status_view import render
+
+    return next(line for line in render(snap, width=80).splitlines()
+                if line.startswith("gnss    ") and "reported" in line)
+
+
+def test_a_simulated_m8n_refuses_raw_observations_with_one_warning(tmp_path: Path) -> None:
+    sent, _, lines, snap, baud = simulated_drive(tmp_path, "NEO-M8N", 25.0)
+    assert baud == 115200  # the speed goes up before they are asked for, so it does for a receiver that refuses
+    refusals = [line for line in lines if "refused raw observations" in line]
+    assert refusals == ["gnss: the receiver refused raw observations, RXM-RAWX on (ACK-NAK to UBX-CFG-MSG and "
+                        "UBX-CFG-VALSET CFG-MSGOUT-UBX-RXM-RAWX-UART1): its firmware has none (an M8N; M8T, M8P, "
+                        "F9P and F9T do); recording without them"]
+    assert b"\xb5\x62\x02\x15" not in sent  # nothing raw ever left the receiver
+    assert any(p.startswith("gnss: no raw observations (RXM-RAWX) in ") for p in snap["problems"]), snap["problems"]
+    gnss_line = gnss_row(snap)
+    assert ", raw none yet, " in gnss_line
+    assert snap["verdict"] == "degraded"
