@@ -117,7 +117,7 @@ def test_convbin_reads_every_rawx_epoch_of_the_export(m8t_drive: tuple[bytes, li
     complete_rawx = sum(1 for f in UbxNmeaFramer().feed(data) if f.message is not None
                         and f.message.identity == "RXM-RAWX")
     assert complete_rawx == 39 and count_epochs(obs) == 39
-    assert "rinex: 39 observation epochs from 39 RXM-RAWX" in r.stdout
+    assert "rinex: 39 observation epochs from 39 RXM-RAWX\n" in r.stdout
     header = obs.read_text().split("END OF HEADER")[0]
     # the antenna height and receiver the drive recorded in its configuration
     assert "        1.2340        0.0000        0.0000                  ANTENNA: DELTA H/E/N" in header

@@ -177,7 +177,7 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, con
     written = [ubx, notes]
     if header is not None:
         result = to_rinex(ubx, out / f"{name}.obs", out / f"{name}.nav", *header, report.unfinished_tail_bytes)
-        print(f"rinex: {plural(result.epochs, 'observation epoch')} from {plural(report.raw_epochs, 'RXM-RAWX')}"
+        print(f"rinex: {plural(result.epochs, 'observation epoch')} from {report.raw_epochs} RXM-RAWX"
               + ("" if report.raw_epochs else " (the receiver sent no raw observations: [gnss] raw_observations)"))
         written += [p for p in (result.obs, result.nav) if p.is_file()]
     return written
