@@ -121,6 +121,7 @@ def test_without_matplotlib_it_says_how_to_install(recorded: tuple[Path, Path, l
 
 
 def test_what_cannot_be_plotted_is_one_line_and_exit_2(tmp_path: Path):
+    need("matplotlib")  # looked for before the files are opened: without it, that is the one line
     text = tmp_path / "notes.mcap"
     text.write_text("not a recording\n")
     for path, words in ((tmp_path / "missing.mcap", "no such file"), (text, "not an MCAP file")):
