@@ -1,5 +1,6 @@
 """Keeps one test's logging set-up from reaching the next, and fails a run in which a test skipped for anything
-but a missing tool (or, with LOGGER_TESTS_NO_SKIP=1, for a missing package of the [test] extra).
+but a missing tool (or, with LOGGER_TESTS_NO_SKIP=1, for a missing package of the [test] extra), or, on a board
+(LOGGER_BOARD=1, as tools/board-check.sh runs the suite), for being marked ``slow_on_board``.
 
 Tests that run the command line in-process call ``logger.runtime.logs.setup``, which points the root logger at the
 ``sys.stderr`` of that moment: pytest's capture file for that test, closed once it ends. Without the restore,
@@ -34,6 +35,24 @@ TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "needs root")  # root: to 
 EXTRAS_INSTALLED = os.environ.get("LOGGER_TESTS_NO_SKIP") == "1"
 _unexpected_skips: list[str] = []
 
+# On a board's single slow core (or an emulated one: tools/board-check.sh sets LOGGER_BOARD=1) the tests that spend
+# minutes of CPU on long simulated drives, whole-drive replays or the soak are left to the x86 CI, which runs every
+# one; the rest of the suite, the drivers, the record layer, the clock, the filter's units and short drives, runs.
+ON_BOARD = os.environ.get("LOGGER_BOARD") == "1"
+BOARD_SKIP_REASON = "slow on a board: minutes of CPU on one core (LOGGER_BOARD=1); the x86 CI runs it"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow_on_board: minutes of CPU on a board's one core; skipped where "
+                            "LOGGER_BOARD=1 (tools/board-check.sh), run everywhere else")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if ON_BOARD:
+        for item in items:
+            if item.get_closest_marker("slow_on_board"):
+                item.add_marker(pytest.mark.skip(reason=BOARD_SKIP_REASON))
+
 
 def pytest_collectreport(report: pytest.CollectReport) -> None:
     """A module skipped whole (a module-level skip, importorskip) counts as well."""
@@ -47,7 +66,8 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
 def _note_skip(report: pytest.CollectReport | pytest.TestReport) -> None:
     if report.skipped and not hasattr(report, "wasxfail"):
         reason = str(report.longrepr[-1]) if isinstance(report.longrepr, tuple) else str(report.longrepr)
-        if not any(words in reason for words in TOOL_SKIP_REASONS) or (EXTRAS_INSTALLED and extras.MISSING in reason):
+        allowed = (*TOOL_SKIP_REASONS, BOARD_SKIP_REASON) if ON_BOARD else TOOL_SKIP_REASONS
+        if not any(words in reason for words in allowed) or (EXTRAS_INSTALLED and extras.MISSING in reason):
             _unexpected_skips.append(f"{report.nodeid}: {reason}")
 
 

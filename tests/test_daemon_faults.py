@@ -63,6 +63,7 @@ def others_keep_logging(daemon: Any, failing: str, during: Callable[[], None]) -
     assert not stalled, f"stalled while {failing} failed: {stalled}"
 
 
+@pytest.mark.slow_on_board
 def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running: tuple[Any, Any, Path]) -> None:
     daemon, vehicle, tmp = running
     sock = tmp / "status.sock"
@@ -154,6 +155,7 @@ def test_a_sensor_missing_at_start_is_reported_and_the_rest_records(tmp_path: Pa
         daemon.stop()
 
 
+@pytest.mark.slow_on_board
 def test_the_fifo_keeps_every_sample_at_1khz(tmp_path: Path) -> None:
     cfg = sim_config(tmp_path)
     cfg.values["imu"]["rate_hz"] = 1000.0

@@ -39,6 +39,7 @@ def minute_drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     return files[0], read_messages(files[0])
 
 
+@pytest.mark.slow_on_board
 def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
     path, msgs = minute_drive
     assert is_finished(path)
@@ -130,6 +131,7 @@ def test_truth_topics_are_recorded(minute_drive: tuple[Path, dict]) -> None:
     assert near > 40
 
 
+@pytest.mark.slow_on_board
 def test_kill_9_loses_only_what_was_not_yet_flushed_and_the_next_start_recovers(tmp_path: Path) -> None:
     sock = tmp_path / "status.sock"
     cmd = [sys.executable, "-m", "logger.cli", "run", "--sim", "--duration", "3600", "--time-scale", "5",
@@ -230,6 +232,7 @@ def test_the_clock_locks_and_stamps_within_microseconds(minute_drive: tuple[Path
     assert all(p.stat().st_size > 10_000 for p in pngs)
 
 
+@pytest.mark.slow_on_board
 def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_path: Path) -> None:
     r = run_logger("--sim", "--scenario", "outage-60s", "--duration", "230", "--time-scale", "10", "--out",
                    str(tmp_path), "--status-socket", str(tmp_path / "status.sock"))
@@ -275,6 +278,7 @@ def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_pat
         assert all(b[0] > a[0] or (b[0] == a[0] and b[1] == a[1]) for a, b in itertools.pairwise(stamps)), topic
 
 
+@pytest.mark.slow_on_board
 def test_the_end_of_a_run_says_what_it_recorded_and_what_never_came(tmp_path: Path) -> None:
     """The summary after a run: each file by its final name, per-topic counts the file itself holds (read by the
     mcap package), the sensor that never delivered with its error, the clock and the filter, the next commands."""

@@ -129,6 +129,7 @@ def gpx_tracks(path: Path) -> dict[str, list[list[ET.Element]]]:
     return out
 
 
+@pytest.mark.slow_on_board
 def test_gpx_holds_every_valid_fix_split_at_the_outage(drive: Drive, tmp_path: Path) -> None:
     r = run("export", *map(str, drive.files), drive.replay.as_posix(), "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr

@@ -221,6 +221,7 @@ def simulated_drive(base: Path, model: str, duration_s: float) -> tuple[bytes, l
         vehicle.gnss.baud
 
 
+@pytest.mark.slow_on_board
 def test_the_export_holds_every_byte_the_simulated_m8t_sent_after_the_setup(tmp_path: Path) -> None:
     sent, files, lines, snap, baud = simulated_drive(tmp_path, "NEO-M8T", 30.0)
     assert baud == 115200  # raised for the raw observations
@@ -260,6 +261,7 @@ def gnss_row(snap: dict) -> str:
                 if line.startswith("gnss    ") and "reported" in line)
 
 
+@pytest.mark.slow_on_board
 def test_a_simulated_m8n_refuses_raw_observations_with_one_warning(tmp_path: Path) -> None:
     sent, _, lines, snap, baud = simulated_drive(tmp_path, "NEO-M8N", 25.0)
     assert baud == 115200  # the speed goes up before they are asked for, so it does for a receiver that refuses

@@ -133,6 +133,7 @@ def _busy(seconds: float) -> None:
         pass
 
 
+@pytest.mark.slow_on_board
 @pytest.mark.parametrize(("scale", "drive_s"), [(1000, 60), (1, 20)], ids=["1000x", "1x"])
 def test_a_drive_under_two_busy_loops_comes_out_as_at_real_time(tmp_path: Path, scale: int, drive_s: int) -> None:
     # 1000x with two busy loops on a two-core host: without the governor this gave a file without IMU and GNSS.

@@ -536,6 +536,7 @@ def read_file(path: Path) -> dict[str, list[dict[str, Any]]]:
     return out
 
 
+@pytest.mark.slow_on_board
 def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pps(tmp_path: Path) -> None:
     cfg = tmp_path / "logger.toml"
     cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n[gnss]\nsource = "gpsd"\n[pps]\nsource = "gpsd"\n'

@@ -127,6 +127,7 @@ def _replay(*args: str) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=120)
 
 
+@pytest.mark.slow_on_board
 def test_the_daemon_records_the_live_solution(recorded: Path):
     from logger.recording.drive import read_messages
 

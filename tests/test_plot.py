@@ -69,6 +69,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list
     return original, thinned, seqs
 
 
+@pytest.mark.slow_on_board
 def test_lost_messages_and_the_gap_are_found_where_they_were_taken_out(recorded: tuple[Path, Path, list[int]]):
     original, thinned, seqs = recorded
     before = timings(list(iter_messages(open_drive([original]), STAMPED_TOPICS)))

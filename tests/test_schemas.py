@@ -145,6 +145,7 @@ def test_every_scenario_is_driven() -> None:
     assert set(SCENARIOS) <= {d.scenario for d in DRIVES}
 
 
+@pytest.mark.slow_on_board
 @needs_jsonschema
 def test_every_message_of_a_drive_matches_its_channels_schema(recorded: tuple[Drive, list[Path]]) -> None:
     drive, files = recorded

@@ -361,6 +361,7 @@ def run_with_profile(tmp: Path, sim: str, duration_s: float) -> tuple[subprocess
     return r, files[0]
 
 
+@pytest.mark.slow_on_board
 def test_the_daemon_records_an_nmea_only_receiver_at_5_hz(tmp_path: Path) -> None:
     r, path = run_with_profile(tmp_path, 'receiver = "nmea"\ngnss_rate_hz = 5\ngnss_latency_s = 0.3\n', 25.0)
     assert "did not answer UBX-MON-VER" in r.stderr and "recording its NMEA unconfigured" in r.stderr
@@ -393,6 +394,7 @@ def test_the_daemon_records_an_nmea_only_receiver_at_5_hz(tmp_path: Path) -> Non
     assert rp.returncode != 2 and "is required" not in rp.stderr, rp.stderr
 
 
+@pytest.mark.slow_on_board
 def test_the_daemon_records_a_phone_grade_imu_and_a_10_hz_receiver(tmp_path: Path) -> None:
     _, path = run_with_profile(tmp_path, 'gnss_rate_hz = 10\nimu = "phone"\nmounting_rpy_deg = [5, -4, 30]\n', 20.0)
     msgs = read_messages(path)

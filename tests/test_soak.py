@@ -9,12 +9,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 # Faults whose every occurrence changes what `logger status` shows (garbage on the receiver's line is skipped
 # by the framer without a trace there, so the long soak reports it rather than this test asserting it).
 FAULTS = "imu_unplugged,elm327_can_error,pps_outage,disk_nearly_full"
 
 
+@pytest.mark.slow_on_board
 def test_short_soak(tmp_path: Path) -> None:
     out = tmp_path / "soak"
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "soak.py"), "--hours", "0.15", "--time-scale", "60",
