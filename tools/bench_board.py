@@ -155,15 +155,23 @@ def render_emulated(section: dict[str, Any]) -> list[str]:
              "the daemon benchmark inside a Debian 12 armhf root under qemu-user-static, alternated with the same "
              "run on this machine, 60 s windows.", "",
              "| IMU rate | daemon threads here | under emulation | emulated / here | sustained here / emulated "
-             "| resident set under emulation |", "| --- | --- | --- | --- | --- | --- |"]
+             "| IMU samples kept under emulation | resident set under emulation |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     for run in section["runs"]:
         here, emu = run.get("host"), run["emulated"]
         ratio = f"{emu['daemon_pct'] / here['daemon_pct']:.1f}x" if here and here["daemon_pct"] > 0 else "-"
         held = (("yes" if here["sustained"] else "no") if here else "-") + " / " + \
             ("yes" if emu["sustained"] else "no")
         here_pct = f"{here['daemon_pct']:.2f} %" if here else "-"
+        kept = emu["counters"]["sensors"].get("imu", {}).get("samples", 0)
+        due = emu["imu_rate_hz"] * emu["window_s"]
         lines.append(f"| {emu['imu_rate_hz']:g} Hz | {here_pct} | {emu['daemon_pct']:.2f} % | {ratio} | {held} "
+                     f"| {kept} of {due:.0f} ({emu['file']['fifo_lost']} lost to FIFO overflow) "
                      f"| {emu['hwm_mb']:.0f} MB |")
+    lines += ["", "A rate not sustained under emulation is the emulated core's limit with the simulated vehicle (its "
+              "share beside the daemon's: " + ", ".join(f"{r['emulated']['sim_pct']:.0f} %" for r in section["runs"])
+              + " of the core) in the same process: the daemon's own CPU at that rate is then under-counted, since "
+              "it handled only the samples that came."]
     lines += ["", *EMULATION_CAVEATS.splitlines()]
     return lines
 

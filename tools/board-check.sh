@@ -137,8 +137,9 @@ prepare_root() {
     mkdir -p "$ROOT$TREE"
     (cd "$SRC" && git ls-files -z --cached --others --exclude-standard | xargs -0 tar -cf - 2>/dev/null) \
         | tar -xf - -C "$ROOT$TREE"
-    # The tests' own Debian packages (what pytest and the suite's checks import); no network needed later.
-    in_root apt-get install -y -qq --no-install-recommends python3-pytest python3-hypothesis python3-jsonschema
+    # The tests' own Debian packages (pytest and what the suite imports, RTKLIB for the raw-observation tests; not
+    # matplotlib: its three tests skip, saying so); no network needed later.
+    in_root apt-get install -y -qq --no-install-recommends python3-pytest python3-hypothesis python3-jsonschema rtklib
 }
 
 install_image() {
@@ -174,7 +175,7 @@ suite() {
     fi
     # The installed venv (Debian's numpy & co. and the wheelhouse's packages), the tree's tests; a test that
     # cannot hold on a slow core skips itself and says so.
-    in_root sh -c "cd $TREE && LOGGER_BOARD=1 /opt/vehicle-logger/venv/bin/python -m pytest -p no:cacheprovider -q -rs $files"
+    in_root sh -c "cd $TREE && LOGGER_BOARD=1 /opt/vehicle-logger/venv/bin/python -m pytest -p no:cacheprovider -rs $files"
 }
 
 bench() {
