@@ -206,6 +206,18 @@ def test_a_reader_that_closes_the_pipe_early_gets_no_traceback() -> None:
     assert b"Traceback" not in err and b"BrokenPipe" not in err
 
 
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_and_version_into_a_closed_pipe_get_no_traceback(flag: str) -> None:
+    """``logger --help | head -3`` on a slow board: the reader may be gone before the text is written."""
+    p = subprocess.Popen([sys.executable, "-m", "logger.cli", flag], cwd=ROOT, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    assert p.stdout is not None
+    p.stdout.close()  # before the interpreter has even started: its first write meets a closed pipe
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 141, err
+    assert b"Traceback" not in err and b"BrokenPipe" not in err
+
 @needs_script
 def test_a_typo_at_a_terminal_gets_a_hint_and_still_reaches_the_system_logger(
         stand_in: tuple[dict[str, str], Path]) -> None:

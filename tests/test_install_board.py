@@ -105,6 +105,13 @@ def test_a_failed_prerequisite_skips_only_what_needs_it(tmp_path: Path) -> None:
     assert "4 step(s) did not complete" in r.stderr
 
 
+def test_a_command_that_is_not_there_is_named(tmp_path: Path) -> None:
+    # A PATH without /usr/sbin (a plain user's, or sudo with a narrow secure_path): usermod is not found.
+    r, _ = _run(tmp_path, "--image", "--operator", "survey", failing={"usermod": 127})
+    summary = _summary(r.stdout)
+    assert r.returncode == 1 and "`usermod` was not found" in summary["3"] and "PATH" in summary["3"], summary
+
+
 def test_image_contacts_neither_udev_nor_systemd(tmp_path: Path) -> None:
     r, calls = _run(tmp_path, "--image", "--operator", "survey")
     assert r.returncode == 0, r.stdout + r.stderr

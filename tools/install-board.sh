@@ -75,7 +75,11 @@ run() {
     [ "$DRY_RUN" = 1 ] && return 0
     "$@" && return 0
     rc=$?
-    echo "\`$*\` exited $rc" > "$REASON"
+    if [ "$rc" = 127 ]; then
+        echo "\`$1\` was not found (not installed, or not on PATH: $PATH)" > "$REASON"
+    else
+        echo "\`$*\` exited $rc" > "$REASON"
+    fi
     exit "$rc"
 }
 

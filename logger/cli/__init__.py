@@ -18,7 +18,7 @@ import importlib
 import os
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib import metadata
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -126,8 +126,13 @@ def near_miss(word: str) -> str | None:
 def run_subcommand(module_name: str, args: list[str]) -> int:
     """A subcommand; a reader that closes the pipe early (``logger info F | head -1``) ends it quietly."""
     module = importlib.import_module(module_name)
+    return quiet_on_closed_pipe(lambda: int(module.main(args) or 0))
+
+
+def quiet_on_closed_pipe(body: Callable[[], int]) -> int:
+    """``body``'s exit code, or 141 without a traceback when the reader of stdout went away (``| head``)."""
     try:
-        code = int(module.main(args) or 0)
+        code = body()
         sys.stdout.flush()
         return code
     except BrokenPipeError:
@@ -135,6 +140,11 @@ def run_subcommand(module_name: str, args: list[str]) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader went away
+
+
+def _print(text: str) -> int:
+    print(text)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -145,11 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     """
     args = sys.argv[1:] if argv is None else argv
     if args and args[0] in ("-h", "--help"):
-        print(usage())
-        return 0
+        return quiet_on_closed_pipe(lambda: _print(usage()))
     if args and args[0] in ("-V", "--version") and len(args) == 1:
-        print(version())
-        return 0
+        return quiet_on_closed_pipe(lambda: _print(version()))
     entry = SUBCOMMANDS.get(args[0]) if args else None
     if entry is None:
         if argv is not None:
