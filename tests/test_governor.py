@@ -155,11 +155,15 @@ def test_a_drive_under_two_busy_loops_comes_out_as_at_real_time(tmp_path: Path, 
     counts = {k: len(v) for k, v in msgs.items()}
     # Whether two busy loops leave the daemon enough of the host depends on what else the host runs (a second
     # test run beside this one on two cores does not): what must hold is that it never claims a rate it did not
-    # hold. Either every periodic sensor held its rate and the run ends 0, or the run names the sensor that fell
-    # short and ends 3, as a board that falls behind would.
+    # hold. Either no sensor fell short by the host's fault and the run ends 0, or the run names the sensor that
+    # fell short and ends 3, as a board that falls behind would. A shortfall is always named in the summary; one
+    # the device model caused (its answer came late: the read started on time) is named without failing the run.
     if r.returncode == 0:
-        # Not a shortfall by the daemon's rule: at most 1 % of the periods, or at most a second's worth, missed.
-        assert " pass unsampled " not in r.stdout, r.stdout
+        # No shortfall by the host, by the daemon's rule: at most 1 % of the periods, or a second's worth.
+        for _missed, due, host, rate in re.findall(r"let (\d+) of its (\d+) periods pass unsampled \([\d.]+%"
+                                                   r"(?:, (\d+) while the host ran late)?\).*against ([\d.]+) Hz",
+                                                   r.stdout):
+            assert int(host or 0) <= max(0.01 * int(due), float(rate)), r.stdout
         assert counts["/imu"] >= 20 * drive_s - max(0.01 * 20 * drive_s, 20), counts
         assert counts["/gnss/fix"] >= drive_s - 5, counts
     else:
