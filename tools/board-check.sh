@@ -137,9 +137,12 @@ prepare_root() {
     mkdir -p "$ROOT$TREE"
     (cd "$SRC" && git ls-files -z --cached --others --exclude-standard | xargs -0 tar -cf - 2>/dev/null) \
         | tar -xf - -C "$ROOT$TREE"
-    # The tests' own Debian packages (pytest and what the suite imports, RTKLIB for the raw-observation tests; not
-    # matplotlib: its three tests skip, saying so); no network needed later.
-    in_root apt-get install -y -qq --no-install-recommends python3-pytest python3-hypothesis python3-jsonschema rtklib
+    # The tests' own Debian packages (pytest and what the suite imports); no network needed later. Not matplotlib
+    # (its three tests skip, saying so), and not RTKLIB, an office tool: Debian's armhf rtklib 2.4.3 b34 under
+    # qemu-user reads none of the observations its x86 build reads from the same files (rnx2rtkp "no obs data",
+    # convbin no epochs; RTKLIB has a history of ARM portability bugs, tomojitakasu/RTKLIB#118), so its tests
+    # skip here as "not installed" and run in the x86 CI.
+    in_root apt-get install -y -qq --no-install-recommends python3-pytest python3-hypothesis python3-jsonschema
 }
 
 install_image() {
