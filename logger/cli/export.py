@@ -21,7 +21,6 @@ from logger.cli.progress import Progress
 from logger.config import SCHEMA, ConfigError, load
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
 from logger.exports.raw_stream import (
-    RAW_MESSAGES,
     ConvbinError,
     StreamReport,
     convbin_path,
@@ -34,6 +33,7 @@ from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
 from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
 from logger.recording.topics import GNSS_RAW
 from logger.words import plural
+from sensors.ublox_config import RAW_MESSAGES
 
 TRACK_FORMATS = ("gpx", "kml", "csv")
 STREAM_FORMATS = ("ubx", "rinex")  # the receiver's bytes: as they came, and through RTKLIB's convbin

@@ -50,7 +50,6 @@ from logger.recording.drive import DriveFile, DriveFileError, DriveMessage
 from logger.recording.topics import GNSS_RAW
 from sensors.ublox_frames import KIND_UBX, UbxNmeaFramer
 
-RAW_MESSAGES = ("RXM-RAWX", "RXM-SFRBX")  # what RTKLIB's u-blox reader makes observations and ephemerides of
 SILENCE_S = 3.0  # no bytes from the receiver for longer than this is a gap worth a note
 CONVBIN = "convbin"
 INSTALL_RTKLIB = "apt-get install rtklib"

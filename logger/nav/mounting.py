@@ -250,7 +250,6 @@ class MountAlignment:
         if self._long.n >= MIN_WINDOWS and self._recent.n >= 0.5 * RECENT_WINDOWS and self._moved():
             self.moves += 1
             self._long.copy_from(self._recent)
-            self._estimate = None
 
     def _moved(self) -> bool:
         a, b = self._long.solve(), self._recent.solve()
