@@ -47,8 +47,13 @@ class ProcessNoise:
         return q
 
 
-def error_dynamics(s: NavState, c_bn: np.ndarray, f_ned: tuple[float, float, float], n: int) -> np.ndarray:
-    """The continuous-time error dynamics matrix F (n x n) at the nominal state ``s``."""
+def error_dynamics(s: NavState, c_bn: np.ndarray | tuple[float, ...], f_ned: tuple[float, float, float],
+                   n: int) -> np.ndarray:
+    """The continuous-time error dynamics matrix F (n x n) at the nominal state ``s``; ``c_bn`` the attitude as a
+    matrix or its nine elements row by row (:func:`logger.nav.rotations.dcm_elements`).
+
+    Built from a template holding the constant entries, the rest put in at their flat indices in one call (a
+    slice assignment per block cost as much as the covariance propagation it serves)."""
     lat, h = s.lat, s.h
     rm, rn = earth.radii(lat)
     rmh, rnh = rm + h, rn + h
@@ -58,36 +63,68 @@ def error_dynamics(s: NavState, c_bn: np.ndarray, f_ned: tuple[float, float, flo
     wie_n, wie_d = om * cl, -om * sl
     wen_n, wen_e, wen_d = s.ve / rnh, -s.vn / rmh, -s.ve * tl / rnh
     g = earth.gravity(lat, h)
-    f = np.zeros((n, n))
-    f[P_ID, V_ID] = f[P_ID + 1, V_ID + 1] = f[P_ID + 2, V_ID + 2] = 1.0
     # -[(2 w_ie + w_en) x] on the velocity error
     a, b, c = 2.0 * wie_n + wen_n, wen_e, 2.0 * wie_d + wen_d
-    f[V_ID:V_ID + 3, V_ID:V_ID + 3] = ((0.0, c, -b), (-c, 0.0, a), (b, -a, 0.0))
     fn, fe, fd = f_ned
-    f[V_ID:V_ID + 3, PHI_ID:PHI_ID + 3] = ((0.0, -fd, fe), (fd, 0.0, -fn), (-fe, fn, 0.0))
-    f[V_ID:V_ID + 3, BA_ID:BA_ID + 3] = -c_bn
-    f[V_ID + 2, P_ID + 2] = 2.0 * g / math.sqrt(rmh * rnh)
-    a, b, c = wie_n + wen_n, wen_e, wie_d + wen_d  # -[w_in x] on the attitude error
-    f[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = ((0.0, c, -b), (-c, 0.0, a), (b, -a, 0.0))
-    # d(w_in)/d(dv): the transport rate's dependence on velocity.
-    f[PHI_ID, V_ID + 1] = 1.0 / rnh
-    f[PHI_ID + 1, V_ID] = -1.0 / rmh
-    f[PHI_ID + 2, V_ID + 1] = -tl / rnh
-    # d(w_ie)/d(dr_N): a latitude error turns the earth rate vector.
-    f[PHI_ID, P_ID] = -om * sl / rmh
-    f[PHI_ID + 2, P_ID] = -om * cl / rmh
-    f[PHI_ID:PHI_ID + 3, BG_ID:BG_ID + 3] = c_bn
+    # -[w_in x] on the attitude error
+    a2, b2, c2 = wie_n + wen_n, wen_e, wie_d + wen_d
+    c11, c12, c13, c21, c22, c23, c31, c32, c33 = c_bn.ravel().tolist() if isinstance(c_bn, np.ndarray) else c_bn
+    values = (
+        c, -b, -c, a, b, -a,  # V, V
+        -fd, fe, fd, -fn, -fe, fn,  # V, PHI: [f_n x]
+        -c11, -c12, -c13, -c21, -c22, -c23, -c31, -c32, -c33,  # V, BA: -C_bn
+        2.0 * g / math.sqrt(rmh * rnh),  # V_D, P_D
+        c2, -b2, -c2, a2, b2, -a2,  # PHI, PHI
+        # d(w_in)/d(dv): the transport rate's dependence on velocity.
+        1.0 / rnh, -1.0 / rmh, -tl / rnh,
+        # d(w_ie)/d(dr_N): a latitude error turns the earth rate vector.
+        -om * sl / rmh, -om * cl / rmh,
+        c11, c12, c13, c21, c22, c23, c31, c32, c33,  # PHI, BG: C_bn
+    )
+    template, index = _f_template(n)
+    f = template.copy()
+    f.put(index, values)
     return f
 
 
-def discretize(f: np.ndarray, q_diag: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Transition matrix (second order in F dt) and discrete process noise (trapezoid) over ``dt``."""
+_F_TEMPLATES: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _f_template(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """F's constant entries for ``n`` states, and the flat indices of the entries :func:`error_dynamics` fills."""
+    t = _F_TEMPLATES.get(n)
+    if t is None:
+        f = np.zeros((n, n))
+        f[P_ID, V_ID] = f[P_ID + 1, V_ID + 1] = f[P_ID + 2, V_ID + 2] = 1.0
+        v, ph, ba, bg, p = V_ID, PHI_ID, BA_ID, BG_ID, P_ID
+        cells = [(v, v + 1), (v, v + 2), (v + 1, v), (v + 1, v + 2), (v + 2, v), (v + 2, v + 1),
+                 (v, ph + 1), (v, ph + 2), (v + 1, ph), (v + 1, ph + 2), (v + 2, ph), (v + 2, ph + 1)]
+        cells += [(v + i, ba + j) for i in range(3) for j in range(3)]
+        cells += [(v + 2, p + 2)]
+        cells += [(ph, ph + 1), (ph, ph + 2), (ph + 1, ph), (ph + 1, ph + 2), (ph + 2, ph), (ph + 2, ph + 1)]
+        cells += [(ph, v + 1), (ph + 1, v), (ph + 2, v + 1), (ph, p), (ph + 2, p)]
+        cells += [(ph + i, bg + j) for i in range(3) for j in range(3)]
+        t = _F_TEMPLATES[n] = (f, np.array([i * n + j for i, j in cells]))
+    return t
+
+
+def transition(f: np.ndarray, dt: float) -> np.ndarray:
+    """Transition matrix over ``dt``, second order in F dt."""
     fdt = f * dt
     phi = fdt @ fdt
     phi *= 0.5
     phi += fdt
     d = _diag(f.shape[0])
     phi[d, d] += 1.0
+    return phi
+
+
+def discretize(f: np.ndarray, q_diag: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Transition matrix (second order in F dt) and discrete process noise (trapezoid) over ``dt``:
+    Q_d = (Phi Q Phi^T + Q) dt / 2. (:meth:`logger.nav.ekf.ErrorStateEkf.propagate_trapezoid` applies the same
+    without forming Q_d.)"""
+    phi = transition(f, dt)
+    d = _diag(f.shape[0])
     qd = (phi * q_diag) @ phi.T
     qd[d, d] += q_diag
     qd *= 0.5 * dt

@@ -37,10 +37,24 @@ class ErrorStateEkf:
         self.repairs = 0
         self.inflations = 0  # times inflate() forgot something (restarts, re-anchors, reopenings, widenings)
         self._eye = np.eye(self.n)
+        self._diag = np.arange(self.n)
 
     def propagate(self, phi: np.ndarray, qd: np.ndarray) -> None:
         p = phi @ self.p @ phi.T + qd
         self.p = 0.5 * (p + p.T)
+
+    def propagate_trapezoid(self, phi: np.ndarray, half_q: np.ndarray) -> None:
+        """:meth:`propagate` with the trapezoidal discrete noise Q_d = (Phi Q Phi^T + Q) dt / 2 of a diagonal Q,
+        given as ``half_q`` = Q dt / 2: Phi P Phi^T + Q_d = Phi (P + Q dt / 2) Phi^T + Q dt / 2, one product of
+        Phi fewer."""
+        d = self._diag
+        m = self.p.copy()
+        m[d, d] += half_q
+        p = phi @ m @ phi.T
+        p[d, d] += half_q
+        p += p.T
+        p *= 0.5
+        self.p = p
 
     def gate(self, m: int) -> float:
         g = self._gates.get(m)
@@ -117,16 +131,21 @@ def _inverse(s: np.ndarray) -> np.ndarray | None:
             return None
         return np.array(((d / det, -b / det), (-c / det, a / det)))
     if m == 3:
-        a, b, c, d, e, f, g, h, i = s.ravel().tolist()
-        ca, cb, cc = e * i - f * h, f * g - d * i, d * h - e * g
-        det = a * ca + b * cb + c * cc
-        if det == 0.0 or not math.isfinite(det):
-            return None
-        r = 1.0 / det
-        return np.array(((ca * r, (c * h - b * i) * r, (b * f - c * e) * r),
-                         (cb * r, (a * i - c * g) * r, (c * d - a * f) * r),
-                         (cc * r, (b * g - a * h) * r, (a * e - b * d) * r)))
+        return inverse3(s)
     try:
         return np.linalg.inv(s)
     except np.linalg.LinAlgError:
         return None
+
+
+def inverse3(s: np.ndarray) -> np.ndarray | None:
+    """Inverse of a 3x3 matrix by its adjugate in plain floats, None when singular."""
+    a, b, c, d, e, f, g, h, i = s.ravel().tolist()
+    ca, cb, cc = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * ca + b * cb + c * cc
+    if det == 0.0 or not math.isfinite(det):
+        return None
+    r = 1.0 / det
+    return np.array(((ca * r, (c * h - b * i) * r, (b * f - c * e) * r),
+                     (cb * r, (a * i - c * g) * r, (c * d - a * f) * r),
+                     (cc * r, (b * g - a * h) * r, (a * e - b * d) * r)))

@@ -30,7 +30,7 @@ import numpy as np
 from logger.nav import earth
 from logger.nav.alignment import gyro_calibration_variance, tilt_bias_covariance
 from logger.nav.core import EngineCounters, PreparedFix
-from logger.nav.dynamics import ProcessNoise, discretize, error_dynamics
+from logger.nav.dynamics import ProcessNoise, error_dynamics, transition
 from logger.nav.ekf import ErrorStateEkf
 from logger.nav.evidence import HeightEvidence, PositionEvidence, VelocityEvidence
 from logger.nav.gnss_time import GnssEpochClock
@@ -41,7 +41,7 @@ from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
-from logger.nav.rotations import dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
+from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
 from logger.nav.state import BA_ID, BG_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
@@ -161,7 +161,7 @@ class NavEngine:
                                                                                     (0.0, 0.0, 0.0))
         self._f_last = (0.0, 0.0, 0.0)
         self._cov_dt = 0.0
-        self._f_acc = [0.0, 0.0, 0.0]
+        self._cov_interval_s = p.cov_interval_s
         self._next_idle_check_ns = 0
         self._inflations_seen = 0
 
@@ -195,17 +195,19 @@ class NavEngine:
         dt = 0.0 if t_last is None else (t_ns - t_last) / NS
         if self.imu_noise is not None:
             self.imu_noise.add(acc, gyro, dt)
+        mech = self.mech
         if 0.0 < dt < IMU_GAP_S:
             # Coning and sculling corrections pay off once the IMU runs fast (100 Hz and up, FIFO reads): they
             # need consecutive increments of one sampling clock, which a slow polled IMU does not give.
             self._dt_mean += 0.02 * (dt - self._dt_mean)
-            self.mech.coning = self._dt_mean < CONING_MAX_DT_S
+            mech.coning = self._dt_mean < CONING_MAX_DT_S
+        else:
+            if dt > IMU_GAP_S:
+                c.imu_gaps += 1
+            if dt > MAX_IMU_GAP_S:
+                mech.reset()
         self._t_last = t_ns
         self._t_mono_last = t_mono_ns
-        if dt > IMU_GAP_S:
-            c.imu_gaps += 1
-        if dt > MAX_IMU_GAP_S:
-            self.mech.reset()
         s = self.state
         if s is None:
             self._pre_init(t_ns, acc, gyro, dt)
@@ -216,35 +218,40 @@ class NavEngine:
         self._f_last, self._w_last, self._gyro_raw = f, w, gyro
         if dt <= MAX_IMU_GAP_S:
             # A late sample (a loaded host, a slow bus) still closes its interval: the vehicle moved meanwhile.
-            self.mech.step(s, w, f, dt)
+            mech.step(s, w, f, dt)
         else:
             s.lat, s.lon, s.h = earth.offset_llh(s.lat, s.lon, s.h, s.vn * dt, s.ve * dt, s.vd * dt)
-            self.mech.prime(w, f)
-        fn = self.mech.f_ned
+            mech.prime(w, f)
+            fn, acc_ = mech.f_ned, mech.dv_ned_sum  # the interval counts at the last specific force
+            acc_[0] += fn[0] * dt
+            acc_[1] += fn[1] * dt
+            acc_[2] += fn[2] * dt
+        self._after_step(t_ns, t_mono_ns, s, gyro, dt)
+
+    def _after_step(self, t_ns: int, t_mono_ns: int, s: NavState, gyro: tuple[float, float, float],
+                    dt: float) -> None:
+        """What follows each integrated sample: the stop's gyro sum, the idle check, the history, the row, and the
+        covariance when its interval is up."""
         self._cov_dt += dt
-        acc_ = self._f_acc
-        acc_[0] += fn[0] * dt
-        acc_[1] += fn[1] * dt
-        acc_[2] += fn[2] * dt
-        if self._stop.stopped:
-            ws = self._stop.w_sum
+        stop = self._stop
+        if stop.stopped:
+            ws = stop.w_sum
             ws[0] += gyro[0]
             ws[1] += gyro[1]
             ws[2] += gyro[2]
             ws[3] += 1
-        if self.mode == "17" and t_ns >= self._next_idle_check_ns and not self.last_readings.obd_fresh(t_ns):
+        if t_ns >= self._next_idle_check_ns and self.mode == "17" and not self.last_readings.obd_fresh(t_ns):
             # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
             # and a solution that already stands, so a parked car does not drift on its IMU alone.
             self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
-            self._stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5,
-                              t_ns)
+            stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5, t_ns)
         self.history.add(t_ns, s)
         if self.solution is not None and t_ns >= self.solution.next_ns:
             self._solution_due(t_ns)
         if self.record:
             self.rows.append(TrajectoryRow(t_ns, t_mono_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, self.sigma,
                                            len(self.epochs) - 1))
-        if self._cov_dt >= self.params.cov_interval_s:
+        if self._cov_dt >= self._cov_interval_s:
             self.propagate()
 
     def _pre_init(self, t_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
@@ -295,12 +302,12 @@ class NavEngine:
         if dt <= 0.0 or self.ekf is None or self.state is None:
             return
         s = self.state
-        fa = self._f_acc
+        fa = self.mech.dv_ned_sum  # the specific force's velocity increments in NED since the last propagation
         f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
-        phi, qd = discretize(error_dynamics(s, s.dcm(), f_mean, self.n), self.q_diag, dt)
+        phi = transition(error_dynamics(s, dcm_elements(s.q), f_mean, self.n), dt)
         if self.record:
             self._close_epoch()
-        self.ekf.propagate(phi, qd)
+        self.ekf.propagate_trapezoid(phi, self.q_diag * (0.5 * dt))
         owed = self.thermal.take()
         if owed > 0.0:
             # The offsets follow the die temperature through a fixed, unknown coefficient (thermal.py).
@@ -311,7 +318,7 @@ class NavEngine:
         if self.record:
             self.epochs.append(Epoch(self._t_last or 0, phi.astype(np.float32), self.ekf.p.copy(), dx=np.zeros(self.n)))
         self._cov_dt = 0.0
-        self._f_acc = [0.0, 0.0, 0.0]
+        self.mech.dv_ned_sum = [0.0, 0.0, 0.0]
         self.refresh_sigma()
         if self.alignment is not None:
             self._follow_alignment()

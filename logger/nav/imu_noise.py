@@ -42,16 +42,16 @@ class ImuNoiseMonitor:
         if not 0.0 < dt < 0.5:
             self._a1 = self._a2 = self._g1 = self._g2 = None
         a1, a2, g1, g2 = self._a1, self._a2, self._g1, self._g2
-        if a1 is not None and a2 is not None and g1 is not None and g2 is not None:
-            da = ((acc[0] - 2.0 * a1[0] + a2[0]) ** 2 + (acc[1] - 2.0 * a1[1] + a2[1]) ** 2
-                  + (acc[2] - 2.0 * a1[2] + a2[2]) ** 2) / 18.0
-            dg = ((gyro[0] - 2.0 * g1[0] + g2[0]) ** 2 + (gyro[1] - 2.0 * g1[1] + g2[1]) ** 2
-                  + (gyro[2] - 2.0 * g1[2] + g2[2]) ** 2) / 18.0
-            self._k += 1
-            w = max(1.0 / self._k, dt / TAU_S)
+        if a2 is not None and a1 is not None and g1 is not None and g2 is not None:
+            x, y, z = acc
+            ex, ey, ez = x - 2.0 * a1[0] + a2[0], y - 2.0 * a1[1] + a2[1], z - 2.0 * a1[2] + a2[2]
+            x, y, z = gyro
+            gx, gy, gz = x - 2.0 * g1[0] + g2[0], y - 2.0 * g1[1] + g2[1], z - 2.0 * g1[2] + g2[2]
+            k = self._k = self._k + 1
+            w = max(1.0 / k, dt / TAU_S)
             # variance per sample times the interval: the density squared, whatever the rate
-            self._var_a += w * (da * dt - self._var_a)
-            self._var_g += w * (dg * dt - self._var_g)
+            self._var_a += w * ((ex * ex + ey * ey + ez * ez) / 18.0 * dt - self._var_a)
+            self._var_g += w * ((gx * gx + gy * gy + gz * gz) / 18.0 * dt - self._var_g)
             self.seen_s += dt
         self._a2, self._a1 = a1, acc
         self._g2, self._g1 = g1, gyro

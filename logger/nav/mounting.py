@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from logger.nav.ekf import inverse3
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 
 # Standard gravity: the local value differs by a few hundredths of a m/s^2, a constant the free accelerometer
@@ -78,76 +79,106 @@ ACCEL_SIGMA_MPS2 = 0.2  # a window's specific force against the model: a road's 
 GYRO_SIGMA_RPS = math.radians(0.5)  # a window's rate against the course's: pitch and roll rates of the body, slip
 
 
+# The fit's running sums, packed into one vector so that forgetting is one product and a window one sum.
+_B_ACC, _S_FC, _S_FV, _VV_ACC, _B_GYRO, _VV_GYRO = (slice(0, 9), slice(9, 12), slice(12, 15), slice(15, 24),
+                                                    slice(24, 33), slice(33, 42))
+_CC_ACC, _CC_GYRO, _N, _SIZE = 42, 43, 44, 45
+
+
+def _window_sums(fc: np.ndarray, fv: np.ndarray, wc: np.ndarray, wv: np.ndarray) -> np.ndarray:
+    """What one window adds to a fit's sums (see :class:`_Fit`)."""
+    v = np.empty(_SIZE)
+    v[_B_ACC] = (fc[:, None] * fv).ravel()
+    v[_S_FC] = fc
+    v[_S_FV] = fv
+    v[_VV_ACC] = (fv[:, None] * fv).ravel()
+    v[_B_GYRO] = (wc[:, None] * wv).ravel()
+    v[_VV_GYRO] = (wv[:, None] * wv).ravel()
+    v[_CC_ACC] = float(fc @ fc) + float(fv @ fv)
+    v[_CC_GYRO] = float(wc @ wc) + float(wv @ wv)
+    v[_N] = 1.0
+    return v
+
+
 class _Fit:
     """Running sums of one fit (with exponential forgetting when ``memory`` is set): Wahba's problem over pairs of
-    specific forces, with the accelerometer's offset estimated beside the rotation, and over pairs of rates."""
+    specific forces, with the accelerometer's offset estimated beside the rotation, and over pairs of rates.
+
+    Sums, packed in one vector: f_chip f_vehicle^T, f_chip, f_vehicle, f_vehicle f_vehicle^T, w_chip w_vehicle^T,
+    w_vehicle w_vehicle^T, |f_chip|^2 + |f_vehicle|^2, |w_chip|^2 + |w_vehicle|^2 and the count. The information
+    of a vector v about the rotation, |v|^2 I - v v^T, is a linear function of v v^T: taken from the sum at the
+    solve."""
 
     def __init__(self, memory: float | None = None) -> None:
         self.memory = memory
-        self.b_acc = np.zeros((3, 3))  # sum f_chip f_vehicle^T
-        self.s_fc = np.zeros(3)  # sum f_chip
-        self.s_fv = np.zeros(3)  # sum f_vehicle
-        self.cc_acc = 0.0  # sum |f_chip|^2 + |f_vehicle|^2
-        self.info_acc = np.zeros((3, 3))  # sum |f_v|^2 I - f_v f_v^T
-        self.b_gyro = np.zeros((3, 3))
-        self.cc_gyro = 0.0
-        self.info_gyro = np.zeros((3, 3))
-        self.n = 0.0
+        self.sums = np.zeros(_SIZE)
+        self._solved: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._fresh = False  # _solved is the solution of the sums as they are
 
-    def _decay(self) -> None:
+    @property
+    def n(self) -> float:
+        return float(self.sums[_N])
+
+    def add_sums(self, window: np.ndarray) -> None:
+        """One window's sums (:func:`_window_sums`), after forgetting a little of the older ones."""
         if self.memory is not None:
-            k = 1.0 - 1.0 / self.memory
-            for name in ("b_acc", "s_fc", "s_fv", "info_acc", "b_gyro", "info_gyro"):
-                getattr(self, name).__imul__(k)
-            self.cc_acc *= k
-            self.cc_gyro *= k
-            self.n *= k
+            self.sums *= 1.0 - 1.0 / self.memory
+        self.sums += window
+        self._fresh = False
 
     def add(self, fc: np.ndarray, fv: np.ndarray, wc: np.ndarray, wv: np.ndarray) -> None:
-        self._decay()
-        self.b_acc += np.outer(fc, fv)
-        self.s_fc += fc
-        self.s_fv += fv
-        self.cc_acc += float(fc @ fc) + float(fv @ fv)
-        self.info_acc += float(fv @ fv) * np.eye(3) - np.outer(fv, fv)
-        self.b_gyro += np.outer(wc, wv)
-        self.cc_gyro += float(wc @ wc) + float(wv @ wv)
-        self.info_gyro += float(wv @ wv) * np.eye(3) - np.outer(wv, wv)
-        self.n += 1.0
+        self.add_sums(_window_sums(fc, fv, wc, wv))
 
     def copy_from(self, other: _Fit) -> None:
-        for name, value in vars(other).items():
-            if name != "memory":
-                setattr(self, name, value.copy() if isinstance(value, np.ndarray) else value)
+        self.sums = other.sums.copy()
+        self._solved, self._fresh = other._solved, other._fresh
 
     def solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(R chip from vehicle, covariance of its small-angle error in vehicle axes, accelerometer offset on the
         chip's axes), None without enough."""
-        if self.n < 3:
+        if self._fresh:
+            return self._solved
+        self._solved, self._fresh = self._solve(), True
+        return self._solved
+
+    def _solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        sums = self.sums
+        n = float(sums[_N])
+        if n < 3:
             return None
         wa, wg = 1.0 / ACCEL_SIGMA_MPS2**2, 1.0 / GYRO_SIGMA_RPS**2
+        b_acc, s_fc, s_fv = sums[_B_ACC].reshape(3, 3), sums[_S_FC], sums[_S_FV]
+        b_gyro = sums[_B_GYRO].reshape(3, 3)
         # With the offset b free, its best value is the mean of fc - R fv, and what is left to fit is the pairs'
         # cross-covariance about their means (the term R sum fv sum fv^T / n adds a constant, R^T R = I):
         # one SVD, for the rotation and the offset together.
-        centred = self.b_acc - np.outer(self.s_fc, self.s_fv) / self.n
-        u, _, vt = np.linalg.svd(wa * centred + wg * self.b_gyro)
-        r = u @ np.diag((1.0, 1.0, float(np.linalg.det(u) * np.linalg.det(vt)))) @ vt
-        bias = (self.s_fc - r @ self.s_fv) / self.n
-        b_acc = self.b_acc - np.outer(bias, self.s_fv)
+        centred = b_acc - s_fc[:, None] * (s_fv / n)
+        u, _, vt = np.linalg.svd(wa * centred + wg * b_gyro)
+        r = (u * (1.0, 1.0, _det3(u) * _det3(vt))) @ vt
+        bias = (s_fc - r @ s_fv) / n
         # sum |fc - b - R fv|^2 = sum |fc|^2 - 2 b.sum fc + n |b|^2 + sum |fv|^2 - 2 trace(R^T sum (fc - b) fv^T)
-        sse_acc = self.cc_acc - 2.0 * float(bias @ self.s_fc) + self.n * float(bias @ bias) \
-            - 2.0 * float(np.trace(r.T @ b_acc))
-        sse_gyro = self.cc_gyro - 2.0 * float(np.trace(r.T @ self.b_gyro))
-        chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * self.n - 6.0, 1.0)
+        sse_acc = float(sums[_CC_ACC]) - 2.0 * float(bias @ s_fc) + n * float(bias @ bias) \
+            - 2.0 * float(np.vdot(r, b_acc - bias[:, None] * s_fv))
+        sse_gyro = float(sums[_CC_GYRO]) - 2.0 * float(np.vdot(r, b_gyro))
+        chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * n - 6.0, 1.0)
         # The offset takes up the pairs' mean force (gravity, mostly): only their spread about it tells the angles.
-        mean_fv = self.s_fv / self.n
-        info_acc = self.info_acc - self.n * (float(mean_fv @ mean_fv) * np.eye(3) - np.outer(mean_fv, mean_fv))
-        info = wa * info_acc + wg * self.info_gyro
-        try:
-            cov = max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS * np.linalg.inv(info)
-        except np.linalg.LinAlgError:
+        # Information of a vector v: |v|^2 I - v v^T; summed, trace(V) I - V with V = sum v v^T.
+        vv_acc = sums[_VV_ACC].reshape(3, 3) - s_fv[:, None] * (s_fv / n)
+        vv_gyro = sums[_VV_GYRO].reshape(3, 3)
+        m = -(wa * vv_acc + wg * vv_gyro)
+        m[_DIAG3, _DIAG3] += wa * float(np.trace(vv_acc)) + wg * float(np.trace(vv_gyro))
+        inv = inverse3(m)
+        if inv is None:
             return None
-        return r, cov, bias
+        return r, max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS * inv, bias
+
+
+_DIAG3 = np.arange(3)
+
+
+def _det3(m: np.ndarray) -> float:
+    a, b, c, d, e, f, g, h, i = m.ravel().tolist()
+    return a * (e * i - f * h) + b * (f * g - d * i) + c * (d * h - e * g)
 
 
 class MountAlignment:
@@ -162,7 +193,7 @@ class MountAlignment:
         # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) per sample, so a
         # window between two fix epochs is a difference of two entries whenever the later fix arrives.
         self._sums: deque[tuple[int, float, float, float, float, float, float, int]] = deque(maxlen=SUM_SAMPLES)
-        self._run = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
+        self._last: tuple[int, float, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
         self._fix0: tuple[int, tuple[float, float, float]] | None = None  # the window's first fix: epoch, velocity
         # The filter's gyro offset on the chip's axes (from the standstills: the mounting does not enter), removed
         # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
@@ -172,15 +203,11 @@ class MountAlignment:
     # ---- windows ---------------------------------------------------------------------------------------
     def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
         """One IMU sample on the chip's axes, as read."""
-        r = self._run
-        r[0] += acc_chip[0]
-        r[1] += acc_chip[1]
-        r[2] += acc_chip[2]
-        r[3] += gyro_chip[0]
-        r[4] += gyro_chip[1]
-        r[5] += gyro_chip[2]
-        r[6] += 1
-        self._sums.append((t_ns, *r))
+        _, a0, a1, a2, w0, w1, w2, n = self._last
+        ax, ay, az = acc_chip
+        wx, wy, wz = gyro_chip
+        row = self._last = (t_ns, a0 + ax, a1 + ay, a2 + az, w0 + wx, w1 + wy, w2 + wz, n + 1)
+        self._sums.append(row)
 
     def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
         """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
@@ -243,9 +270,9 @@ class MountAlignment:
 
     def add(self, f_chip: np.ndarray, f_vehicle: np.ndarray, w_chip: np.ndarray, w_vehicle: np.ndarray) -> None:
         """One window: the chip's mean specific force and rate, and the vehicle's."""
-        args = [np.asarray(v, float) for v in (f_chip, f_vehicle, w_chip, w_vehicle)]
-        self._long.add(*args)
-        self._recent.add(*args)
+        window = _window_sums(*(np.asarray(v, float) for v in (f_chip, f_vehicle, w_chip, w_vehicle)))
+        self._long.add_sums(window)
+        self._recent.add_sums(window)
         self._estimate = None
         if self._long.n >= MIN_WINDOWS and self._recent.n >= 0.5 * RECENT_WINDOWS and self._moved():
             self.moves += 1

@@ -43,6 +43,14 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float
             cr * cp * sy - sr * sp * cy)
 
 
+def dcm_elements(q: tuple[float, float, float, float]) -> tuple[float, ...]:
+    """The nine elements of :func:`dcm_from_quat`, row by row, as plain floats (no array to build)."""
+    w, x, y, z = q
+    return (w * w + x * x - y * y - z * z, 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), w * w - x * x + y * y - z * z, 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+
+
 def dcm_from_quat(q: tuple[float, float, float, float]) -> np.ndarray:
     w, x, y, z = q
     return np.array([

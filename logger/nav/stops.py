@@ -26,8 +26,7 @@ class StopDetector:
         self._ceil_a, self._ceil_w = 4.0 * self.thr_a, 4.0 * self.thr_w
         self._floor_a, self._floor_w = 1e-8, 1e-12
         self._win: deque[tuple[int, float, float, float, float, float, float]] = deque()
-        self._s = [0.0] * 6
-        self._s2 = [0.0] * 6
+        self._sums = (0.0,) * 12  # sum per axis (force x, y, z, rate x, y, z), then sum of squares per axis
         self._var_a = math.inf
         self._var_w = math.inf
         self._dirty = False
@@ -42,41 +41,46 @@ class StopDetector:
         wx, wy, wz = w
         win = self._win
         win.append((t_ns, fx, fy, fz, wx, wy, wz))
-        s, s2 = self._s, self._s2
-        s[0] += fx
-        s[1] += fy
-        s[2] += fz
-        s[3] += wx
-        s[4] += wy
-        s[5] += wz
-        s2[0] += fx * fx
-        s2[1] += fy * fy
-        s2[2] += fz * fz
-        s2[3] += wx * wx
-        s2[4] += wy * wy
-        s2[5] += wz * wz
+        # The sums as one tuple rebuilt per sample: cheaper than twelve element updates of a list.
+        a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
+        a0 += fx
+        a1 += fy
+        a2 += fz
+        a3 += wx
+        a4 += wy
+        a5 += wz
+        b0 += fx * fx
+        b1 += fy * fy
+        b2 += fz * fz
+        b3 += wx * wx
+        b4 += wy * wy
+        b5 += wz * wz
         limit = t_ns - WINDOW_NS
         while win[0][0] < limit:
             _, ox, oy, oz, ux, uy, uz = win.popleft()
-            s[0] -= ox
-            s[1] -= oy
-            s[2] -= oz
-            s[3] -= ux
-            s[4] -= uy
-            s[5] -= uz
-            s2[0] -= ox * ox
-            s2[1] -= oy * oy
-            s2[2] -= oz * oz
-            s2[3] -= ux * ux
-            s2[4] -= uy * uy
-            s2[5] -= uz * uz
+            a0 -= ox
+            a1 -= oy
+            a2 -= oz
+            a3 -= ux
+            a4 -= uy
+            a5 -= uz
+            b0 -= ox * ox
+            b1 -= oy * oy
+            b2 -= oz * oz
+            b3 -= ux * ux
+            b4 -= uy * uy
+            b5 -= uz * uz
+        self._sums = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5)
         self._dirty = True
         self._adds += 1
         if self._adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
-            self._adds = 0
-            for i in range(6):
-                s[i] = sum(r[i + 1] for r in win)
-                s2[i] = sum(r[i + 1] * r[i + 1] for r in win)
+            self._resum()
+
+    def _resum(self) -> None:
+        self._adds = 0
+        win = self._win
+        self._sums = (tuple(sum(r[i + 1] for r in win) for i in range(6))
+                      + tuple(sum(r[i + 1] * r[i + 1] for r in win) for i in range(6)))
 
     def _variances(self) -> None:
         if not self._dirty:
@@ -86,8 +90,8 @@ class StopDetector:
         if n < 4:
             self._var_a = self._var_w = math.inf
             return
-        s, s2 = self._s, self._s2
-        var = [max(0.0, s2[i] / n - (s[i] / n) ** 2) for i in range(6)]
+        s = self._sums
+        var = [max(0.0, s[i + 6] / n - (s[i] / n) ** 2) for i in range(6)]
         self._var_a = var[0] + var[1] + var[2]
         self._var_w = var[3] + var[4] + var[5]
 

@@ -32,8 +32,19 @@ class Strapdown:
         self._f: tuple[float, float, float] = (0.0, 0.0, 0.0)  # previous bias-corrected specific force
         self._th = (0.0, 0.0, 0.0)  # previous angle increment
         self._dv = (0.0, 0.0, 0.0)  # previous velocity increment
-        self.f_ned = (0.0, 0.0, -earth.G0)  # last specific force in NED: what the error dynamics need
+        # Sum of the specific force's velocity increments in NED since the caller last cleared it: the mean
+        # specific force of a covariance interval is this over its length (what the error dynamics need).
+        self.dv_ned_sum = [0.0, 0.0, 0.0]
+        self._dv_ned = (0.0, 0.0, -earth.G0)  # the last step's increment in NED, and its interval
+        self._dt = 1.0
         self._geo: tuple[float, ...] | None = None
+
+    @property
+    def f_ned(self) -> tuple[float, float, float]:
+        """The last step's specific force in NED, m/s^2."""
+        dn, de, dd = self._dv_ned
+        dt = self._dt
+        return dn / dt, de / dt, dd / dt
 
     def reset(self) -> None:
         self._w = None
@@ -45,13 +56,16 @@ class Strapdown:
 
     def step(self, s: NavState, w: tuple[float, float, float], f: tuple[float, float, float], dt: float) -> None:
         """Advance ``s`` by ``dt`` seconds to the sample whose bias-corrected rate is ``w`` and force ``f``."""
-        if self._w is None:
+        pw = self._w
+        if pw is None:
             self.prime(w, f)
             return
-        pw, pf = self._w, self._f
+        pf = self._f
         h2 = 0.5 * dt
-        tx, ty, tz = (pw[0] + w[0]) * h2, (pw[1] + w[1]) * h2, (pw[2] + w[2]) * h2
-        ux, uy, uz = (pf[0] + f[0]) * h2, (pf[1] + f[1]) * h2, (pf[2] + f[2]) * h2
+        wx, wy, wz = w
+        fx, fy, fz = f
+        tx, ty, tz = (pw[0] + wx) * h2, (pw[1] + wy) * h2, (pw[2] + wz) * h2
+        ux, uy, uz = (pf[0] + fx) * h2, (pf[1] + fy) * h2, (pf[2] + fz) * h2
         # Rotation compensation: the velocity increment is taken in the body frame as it turns.
         dx = ux + 0.5 * (ty * uz - tz * uy)
         dy = uy + 0.5 * (tz * ux - tx * uz)
@@ -67,37 +81,37 @@ class Strapdown:
             dy += ((pz * ux - px * uz) + (qz * tx - qx * tz)) / 12.0
             dz += ((px * uy - py * ux) + (qx * ty - qy * tx)) / 12.0
         self._w, self._f, self._th, self._dv = w, f, (tx, ty, tz), (ux, uy, uz)
+        self._nav(s, rx, ry, rz, dx, dy, dz, dt)
 
+    def _nav(self, s: NavState, rx: float, ry: float, rz: float, dx: float, dy: float, dz: float, dt: float) -> None:
+        """The navigation-frame part of a step: body angle increment ``r`` and velocity increment ``d`` (rotation,
+        coning and sculling compensated) over ``dt`` into the state."""
         lat, h, vn, ve, vd = s.lat, s.h, s.vn, s.ve, s.vd
         geo = self._geo
         if geo is None or abs(lat - geo[0]) > 1e-6 or abs(h - geo[1]) > 1.0:
             # Radii, earth rate and gravity change by parts per million over 6 m of latitude or 1 m of height:
             # computed again only then (a third of the step's cost otherwise).
             geo = self._geo = _geometry(lat, h)
-        _, _, sl, cl, rn, rm, g = geo
-        rnh, rmh = rn + h, rm + h
-        wie_n, wie_d = _OMEGA * cl, -_OMEGA * sl
-        wen_n, wen_e, wen_d = ve / rnh, -vn / rmh, -ve * sl / cl / rnh
+        _, _, tl, rn, rm, g, wie_n, wie_d = geo
+        rnh = rn + h
+        wen_n, wen_e = ve / rnh, -vn / (rm + h)
+        wen_d = -wen_n * tl
         zn, ze, zd = (wie_n + wen_n) * dt, wen_e * dt, (wie_d + wen_d) * dt  # rotation of NED over the step
 
-        qw, qx_, qy_, qz_ = s.q
-        # C_bn from the quaternion (rows), for the specific force.
-        c11 = qw * qw + qx_ * qx_ - qy_ * qy_ - qz_ * qz_
-        c12 = 2.0 * (qx_ * qy_ - qw * qz_)
-        c13 = 2.0 * (qx_ * qz_ + qw * qy_)
-        c21 = 2.0 * (qx_ * qy_ + qw * qz_)
-        c22 = qw * qw - qx_ * qx_ + qy_ * qy_ - qz_ * qz_
-        c23 = 2.0 * (qy_ * qz_ - qw * qx_)
-        c31 = 2.0 * (qx_ * qz_ - qw * qy_)
-        c32 = 2.0 * (qy_ * qz_ + qw * qx_)
-        c33 = qw * qw - qx_ * qx_ - qy_ * qy_ + qz_ * qz_
-        fn = c11 * dx + c12 * dy + c13 * dz
-        fe = c21 * dx + c22 * dy + c23 * dz
-        fd = c31 * dx + c32 * dy + c33 * dz
+        qw, qx, qy, qz = s.q
+        # The velocity increment turned to NED by the attitude quaternion: v + 2 qw (u x v) + 2 u x (u x v).
+        ax_, ay_, az_ = 2.0 * (qy * dz - qz * dy), 2.0 * (qz * dx - qx * dz), 2.0 * (qx * dy - qy * dx)
+        fn = dx + qw * ax_ + (qy * az_ - qz * ay_)
+        fe = dy + qw * ay_ + (qz * ax_ - qx * az_)
+        fd = dz + qw * az_ + (qx * ay_ - qy * ax_)
         # (I - 1/2 [zeta x]) applied to the NED increment: the frame turned under it by zeta.
         fn, fe, fd = (fn - 0.5 * (ze * fd - zd * fe), fe - 0.5 * (zd * fn - zn * fd), fd - 0.5 * (zn * fe - ze * fn))
-        if dt > 0.0:
-            self.f_ned = (fn / dt, fe / dt, fd / dt)
+        self._dv_ned = (fn, fe, fd)
+        self._dt = dt
+        acc = self.dv_ned_sum
+        acc[0] += fn
+        acc[1] += fe
+        acc[2] += fd
         cx, cy, cz = 2.0 * wie_n + wen_n, wen_e, 2.0 * wie_d + wen_d
         vn2 = vn + fn - (cy * vd - cz * ve) * dt
         ve2 = ve + fe - (cz * vn - cx * vd) * dt
@@ -105,8 +119,7 @@ class Strapdown:
         h2_ = h - 0.5 * (vd + vd2) * dt
         hm = 0.5 * (h + h2_)
         lat2 = lat + 0.5 * (vn + vn2) * dt / (rm + hm)
-        lm = 0.5 * (lat + lat2)
-        s.lon += 0.5 * (ve + ve2) * dt / ((rn + hm) * math.cos(lm))
+        s.lon += 0.5 * (ve + ve2) * dt / ((rn + hm) * math.cos(0.5 * (lat + lat2)))
         s.lat, s.h, s.vn, s.ve, s.vd = lat2, h2_, vn2, ve2, vd2
         # q <- q(-zeta) * q * q(r); the body increment through its exact quaternion, the navigation frame's
         # (a few 1e-5 rad per step) to first order, which is exact to 1e-10 rad.
@@ -117,10 +130,10 @@ class Strapdown:
             an = math.sqrt(a2)
             cq, sq = math.cos(0.5 * an), math.sin(0.5 * an) / an
         bx, by, bz = sq * rx, sq * ry, sq * rz
-        aw = qw * cq - qx_ * bx - qy_ * by - qz_ * bz
-        ax = qw * bx + qx_ * cq + qy_ * bz - qz_ * by
-        ay = qw * by - qx_ * bz + qy_ * cq + qz_ * bx
-        az = qw * bz + qx_ * by - qy_ * bx + qz_ * cq
+        aw = qw * cq - qx * bx - qy * by - qz * bz
+        ax = qw * bx + qx * cq + qy * bz - qz * by
+        ay = qw * by - qx * bz + qy * cq + qz * bx
+        az = qw * bz + qx * by - qy * bx + qz * cq
         hn, he, hd = -0.5 * zn, -0.5 * ze, -0.5 * zd
         w_ = aw - hn * ax - he * ay - hd * az
         x_ = ax + hn * aw + he * az - hd * ay
@@ -131,8 +144,9 @@ class Strapdown:
 
 
 def _geometry(lat: float, h: float) -> tuple[float, ...]:
-    """(lat, h, sin lat, cos lat, R_N, R_M, gravity) at a point: the slowly varying part of a step."""
+    """(lat, h, tan lat, R_N, R_M, gravity, earth rate north and down) at a point: the slowly varying part of a
+    step."""
     sl, cl = math.sin(lat), math.cos(lat)
     w2 = 1.0 - earth.E2 * sl * sl
     rn = earth.A / math.sqrt(w2)
-    return lat, h, sl, cl, rn, rn * (1.0 - earth.E2) / w2, earth.gravity(lat, h)
+    return lat, h, sl / cl, rn, rn * (1.0 - earth.E2) / w2, earth.gravity(lat, h), _OMEGA * cl, -_OMEGA * sl

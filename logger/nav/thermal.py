@@ -47,23 +47,26 @@ class TemperatureSpan:
 
     def add(self, t_ns: int, temp_degc: float) -> None:
         """One die-temperature reading (from the IMU record it came with)."""
-        if not math.isfinite(temp_degc):
+        if temp_degc - temp_degc != 0.0:  # not finite (NaN or infinite): the cheapest test of the hot path
             return
-        if self._t_ns is None:
+        t0 = self._t_ns
+        if t0 is None:
             self._t_ns, self._smooth, self._counted = t_ns, temp_degc, temp_degc
             self._lo = self._hi = temp_degc
             return
-        dt = (t_ns - self._t_ns) / 1e9
-        if dt <= 0.0:
+        if t_ns <= t0:
             return
         self._t_ns = t_ns
-        self._smooth += min(dt / SMOOTH_S, 1.0) * (temp_degc - self._smooth)
-        d = self._smooth - self._counted
-        if abs(d) < STEP_DEGC:
+        a = (t_ns - t0) / 1e9 / SMOOTH_S
+        smooth = self._smooth
+        smooth += (a if a < 1.0 else 1.0) * (temp_degc - smooth)
+        self._smooth = smooth
+        d = smooth - self._counted
+        if -STEP_DEGC < d < STEP_DEGC:
             return
-        self._counted = self._smooth
-        self._lo = min(self._lo, self._counted)
-        self._hi = max(self._hi, self._counted)
+        self._counted = smooth
+        self._lo = min(self._lo, smooth)
+        self._hi = max(self._hi, smooth)
         step = abs(d)
         self._owed += step * (2.0 * self.range_degc - step)
 
