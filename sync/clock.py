@@ -21,7 +21,7 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,7 @@ from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import LineFit, fit_line
 from sync.settings import SyncSettings
-from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, TrackingReport
+from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, Stamps, TrackingReport
 from sync.tempco import TempcoEstimator
 
 log = logging.getLogger(__name__)
@@ -100,6 +100,15 @@ class PpsClock(StampClock):
             self.paper.on_imu(t_mono_ns)
             if temp_degc is not None:
                 self._on_temperature(t_mono_ns, float(temp_degc))
+
+    def on_imu_samples(self, times_ns: Sequence[int], temp_degc: float | None) -> None:
+        """A FIFO read's samples under one lock; the temperature (one per read) goes with the last."""
+        with self._lock:
+            on_imu = self.paper.on_imu
+            for t in times_ns:
+                on_imu(t)
+            if temp_degc is not None and times_ns:
+                self._on_temperature(times_ns[-1], float(temp_degc))
 
     def on_edge(self, t_mono_ns: int, gnss_time_ns: int | None = None) -> None:
         """A PPS edge's kernel time stamp; ``gnss_time_ns`` when its source names the second it marks (gpsd)."""
@@ -328,13 +337,50 @@ class PpsClock(StampClock):
 
     def stamp(self, t_mono_ns: int) -> Stamp:
         with self._lock:
-            imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
-            state = self._state_at(t_mono_ns)
-            if state == FREERUN or self._fit is None:
-                return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self.s.freerun_err_ns, imu_cnt, timer_cnt)
-            off = self._offset_at(t_mono_ns)
-            return Stamp(t_mono_ns + round(off), state, max(1, round(self._err_at(t_mono_ns, state))), imu_cnt,
-                         timer_cnt)
+            return self._stamp(t_mono_ns)
+
+    def stamp_many(self, times_ns: Sequence[int]) -> Stamps:
+        """A FIFO read's samples under one lock, as arrays: the stamps :meth:`stamp` gives each (the same times; an
+        error bound may differ by 1 ns where numpy's hypot rounds otherwise), at a fraction of the cost at 1 kHz."""
+        with self._lock:
+            t = np.asarray(times_ns, dtype=np.int64)
+            imu_cnt, timer_cnt = self.paper.counters_many(times_ns)
+            fit = self._fit
+            if fit is None or (not self._locked_once and not self._restored):
+                n = len(t)
+                return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self.s.freerun_err_ns] * n,
+                              imu_cnt.tolist(), timer_cnt.tolist())
+            last = self._last_sample_ns
+            # _state_at, per sample
+            fresh = (t - last) <= self.s.holdover_after_s * NS if last is not None else np.zeros(len(t), bool)
+            locked = fresh if self._locked_once else np.zeros(len(t), bool)
+            # _offset_at, per sample, in its order of operations
+            x = (t - self._fit_origin_ns) / NS
+            off = self._base_ns + (fit.offset_at_ref + fit.slope * (x - fit.x_ref))
+            if last is not None:
+                off = np.where(t > last, off + self._comp_ns, off)
+            # _err_at, per sample
+            err = self.s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * (x - fit.x_ref)) + self.s.pps_latency_spread_ns
+            since = np.maximum(0.0, (t - (last if last is not None else t)) / NS)
+            grow = ~locked | (since > 0)
+            err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns), err)
+            if self._slew_from_ns is not None:
+                left = 1.0 - (t - self._slew_from_ns) / self._slew_len_ns
+                part = np.minimum(1.0, left)
+                off = np.where(left > 0, off + self._slew_ns * part, off)
+                err = np.where(left > 0, err + abs(self._slew_ns) * part, err)
+            return Stamps((t + np.rint(off).astype(np.int64)).tolist(),
+                          [LOCKED if k else HOLDOVER for k in locked.tolist()],
+                          np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(), timer_cnt.tolist())
+
+    def _stamp(self, t_mono_ns: int) -> Stamp:
+        imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
+        state = self._state_at(t_mono_ns)
+        if state == FREERUN or self._fit is None:
+            return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self.s.freerun_err_ns, imu_cnt, timer_cnt)
+        off = self._offset_at(t_mono_ns)
+        return Stamp(t_mono_ns + round(off), state, max(1, round(self._err_at(t_mono_ns, state))), imu_cnt,
+                     timer_cnt)
 
     # ---- reporting and persistence ----------------------------------------------------------------------------
     def report(self, now_ns: int | None = None) -> TrackingReport:

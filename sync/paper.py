@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import bisect
 from collections import deque
+from collections.abc import Sequence
+
+import numpy as np
 
 
 def split_count(n: int, rate_hz: int) -> tuple[int, int]:
@@ -62,6 +65,19 @@ class PaperCounters:
         self.last_edge_ns = t_ns
         self._times = sorted(t for t in self._recent if t > t_ns)
         self._beyond = 0
+
+    def counters_many(self, times_ns: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`counters` at each of several instants, as arrays (a FIFO read's samples)."""
+        t = np.asarray(times_ns, dtype=np.int64)
+        if self.last_edge_ns is None:
+            n = np.full(len(t), self._beyond, dtype=np.int64)
+        else:
+            ts, right = self._times, bisect.bisect_right
+            n = np.array([right(ts, x) for x in times_ns], dtype=np.int64) + self._beyond
+            n[t <= self.last_edge_ns] = 0
+        limit = self.rate + 1
+        carries = np.where(n > limit, -(-(n - limit) // self.rate), 0) * self.rate
+        return n - carries, carries
 
     def counters(self, t_ns: int) -> tuple[int, int]:
         if self.last_edge_ns is None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from sync.inputs import FixEpoch, TimeAnnouncement
@@ -27,6 +27,22 @@ class Stamp:
     err_ns: int  # bound on |t_sync_ns - true time|
     imu_cnt: int  # the paper's IMU counter (reset by PPS)
     timer_cnt: int  # the paper's timer counter (carries on without PPS)
+
+
+@dataclass(frozen=True, slots=True)
+class Stamps:
+    """The stamps of several samples (a FIFO read) as columns, oldest first: what an ``/imu/batch`` record holds."""
+
+    t_sync_ns: list[int]
+    state: list[str]
+    err_ns: list[int]
+    imu_cnt: list[int]
+    timer_cnt: list[int]
+
+    @classmethod
+    def of(cls, stamps: Sequence[Stamp]) -> Stamps:
+        return cls([s.t_sync_ns for s in stamps], [s.state for s in stamps], [s.err_ns for s in stamps],
+                   [s.imu_cnt for s in stamps], [s.timer_cnt for s in stamps])
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,8 +76,21 @@ class StampClock(ABC):
     def stamp(self, t_mono_ns: int) -> Stamp:
         """The synchronised time, state and error bound of the instant ``t_mono_ns`` of the board's clock."""
 
+    def stamp_many(self, times_ns: Sequence[int]) -> Stamps:
+        """The stamps of several instants (a FIFO read's samples, oldest first): as :meth:`stamp` for each; a clock
+        may do it cheaper, at the same values."""
+        return Stamps.of([self.stamp(t) for t in times_ns])
+
     def on_imu_sample(self, t_mono_ns: int, temp_degc: float | None) -> None:  # noqa: B027 - optional input
         """An IMU sample was taken (the paper's counters; the die temperature)."""
+
+    def on_imu_samples(self, times_ns: Sequence[int], temp_degc: float | None) -> None:
+        """Several IMU samples (a FIFO read, oldest first) with one die temperature: as :meth:`on_imu_sample` for
+        each, the temperature told with the last."""
+        for t in times_ns[:-1]:
+            self.on_imu_sample(t, None)
+        if times_ns:
+            self.on_imu_sample(times_ns[-1], temp_degc)
 
     def on_edge(self, t_mono_ns: int, gnss_time_ns: int | None = None) -> None:  # noqa: B027 - optional input
         """A PPS edge, at its kernel time stamp; ``gnss_time_ns`` when the source names its second."""

@@ -32,7 +32,7 @@ from logger.recording.files import recover
 from logger.recording.recorder import Recorder
 from logger.recording.records import location_fix, nav_fix_record, stamped_record, timepulse_record
 from logger.recording.settings import RecorderSettings
-from logger.recording.topics import GNSS_FIX, GNSS_RAW, NAV_FIX, TIMEPULSE, TOPICS
+from logger.recording.topics import GNSS_FIX, GNSS_RAW, IMU, IMU_BATCH, NAV_FIX, TIMEPULSE, TOPICS
 from sensors.gpsd_decode import fix_from_tpv
 from sensors.sim.scenario_names import SCENARIOS
 from sensors.ublox_decode import GnssFix, TimePulse
@@ -58,14 +58,16 @@ class Drive:
     name: str
     scenario: str = "urban"
     config: str = ""
-    absent: tuple[str, ...] = ()
+    absent: tuple[str, ...] = (IMU_BATCH,)  # the default 20 Hz IMU is read sample by sample: no batches
 
 
 DRIVES = [
     *(Drive(scenario, scenario) for scenario in SCENARIOS),
     # The receiver read through gpsd (a simulated gpsd fed by the simulated receiver): its TPV and SKY reports.
     Drive("gpsd", config='[gnss]\nsource = "gpsd"\n[pps]\nsource = "gpsd"\n[obd]\nsource = "sim"\n',
-          absent=(GNSS_RAW, TIMEPULSE)),
+          absent=(GNSS_RAW, TIMEPULSE, IMU_BATCH)),
+    # An IMU fast enough to be read through its FIFO: one /imu/batch record per read instead of /imu per sample.
+    Drive("imu-fifo", config="[imu]\nrate_hz = 200\n", absent=(IMU,)),
 ]
 
 

@@ -328,3 +328,33 @@ def test_a_free_running_clock_has_nothing_to_report() -> None:
     clock = FreeRunClock(lambda: now[0], lambda: 1_700_000_000 * NS)
     assert clock.report(now[0]) is None
     assert clock.stamp(now[0]).state == "freerun"
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_fifo_reads_stamps_at_once_are_the_stamps_of_each_sample(seed: int) -> None:
+    """stamp_many (one lock and arrays for a 1 kHz FIFO read) gives each sample what stamp gives it, in every state:
+    before the first lock, locked, in holdover, and while a relock is slewed out; the counters included."""
+    stream = make_stream(1500, seed=seed, outages=((600, 700),))
+    now = [0]
+    clock = PpsClock(SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    states, compared, slewing = set(), 0, 0
+    for i, (board, topic, _) in enumerate(feed(clock, stream.events)):
+        now[0] = board
+        if topic != "/imu" or i % 7:
+            continue
+        times = [board - 40_000_000 + k * 1_000_000 for k in range(40)]  # a read's samples, some before the event
+        clock.on_imu_samples(times[-3:], None)
+        many = clock.stamp_many(times)
+        one = [clock.stamp(t) for t in times]
+        assert many.t_sync_ns == [s.t_sync_ns for s in one]
+        assert many.state == [s.state for s in one]
+        assert many.imu_cnt == [s.imu_cnt for s in one]
+        assert many.timer_cnt == [s.timer_cnt for s in one]
+        assert all(abs(a - b.err_ns) <= 1 for a, b in zip(many.err_ns, one, strict=True))
+        states.update(many.state)
+        slewing += clock._slew_from_ns is not None and times[0] - clock._slew_from_ns < clock._slew_len_ns
+        compared += 1
+    assert states == {"freerun", "locked", "holdover"}
+    assert slewing > 0
+    assert compared > 100
+    assert clock.report().relocks == 1

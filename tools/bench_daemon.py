@@ -318,14 +318,11 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
     """/imu in [t0, t1], in the order the daemon numbered the records: records against the rate, sequence gaps
     (records lost inside the daemon), FIFO overflow losses, and how regular the stamps are (a stamp more than
     2.5 periods after the one before is what the daemon counts as a gap; one before it is a stamp that went back)."""
-    from mcap.reader import make_reader
+    from logger.recording.drive import iter_messages, open_drive
 
-    imu: list[tuple[int, int, int]] = []
-    for path in files:
-        with open(path, "rb") as f:
-            for _, _, message in make_reader(f).iter_messages(topics=["/imu"], log_time_order=False):
-                m = json.loads(message.data)
-                imu.append((m["seq"], m["t_mono_ns"], m.get("lost", 0)))
+    # A FIFO rate records batches (/imu/batch); the reader hands on their samples as /imu records.
+    imu: list[tuple[int, int, int]] = [(m.msg["seq"], m.msg["t_mono_ns"], m.msg.get("lost", 0))
+                                       for m in iter_messages(open_drive(files), ["/imu"])]
     imu.sort()
     inside = [r for r in imu if t0_ns <= r[1] <= t1_ns]
     pairs = list(itertools.pairwise(inside))

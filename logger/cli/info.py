@@ -22,15 +22,17 @@ from mcap.stream_reader import StreamReader
 
 from logger.recording.files import McapFileError, is_finished, walk
 from logger.recording.intervals import GAP_FACTOR, regularity
-from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS
+from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS
 
 SENSOR_TOPIC = {"imu": IMU, "baro": BARO, "obd": OBD_SPEED, "gnss": GNSS_FIX, "pps": PPS}  # each sensor's samples
+ALSO_SAMPLES = {IMU: IMU_BATCH}  # a FIFO-read IMU's samples are in batches
 
 
 def silent_sensors(config: dict[str, str], counts: dict[str, int]) -> list[str]:
     """The sensors the recording's configuration enabled that left no sample in the file (their topic absent)."""
     return [f"{name} (no {topic})" for name, topic in SENSOR_TOPIC.items()
-            if config.get(f"{name}.source", "none") != "none" and counts.get(topic, 0) == 0]
+            if config.get(f"{name}.source", "none") != "none"
+            and counts.get(topic, 0) + counts.get(ALSO_SAMPLES.get(topic, ""), 0) == 0]
 
 
 @dataclass

@@ -21,7 +21,8 @@ import numpy as np
 from mcap.reader import make_reader
 
 from logger.exports.plotting import pyplot
-from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, SYNC, TRUTH_CLOCK
+from logger.recording.drive import imu_samples
+from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, SYNC, TRUTH_CLOCK
 
 SENSOR_TOPICS = (IMU, BARO, OBD_SPEED, GNSS_FIX, PPS)
 NS = 1_000_000_000
@@ -39,8 +40,11 @@ class Drive:
         for p in paths:
             with open(p, "rb") as f:
                 reader = make_reader(f)
-                for _, channel, message in reader.iter_messages(topics=[*SENSOR_TOPICS, TRUTH_CLOCK, SYNC],
+                for _, channel, message in reader.iter_messages(topics=[*SENSOR_TOPICS, IMU_BATCH, TRUTH_CLOCK, SYNC],
                                                                 log_time_order=False):
+                    if channel.topic == IMU_BATCH:  # a FIFO-read IMU: its samples, as /imu records
+                        topics.setdefault(IMU, []).extend(imu_samples(json.loads(message.data)))
+                        continue
                     topics.setdefault(channel.topic, []).append(json.loads(message.data))
                 for md in reader.iter_metadata():
                     if md.name == "config" and "imu.rate_hz" in md.metadata:

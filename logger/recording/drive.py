@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import re
 import struct
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from mcap.reader import make_reader
 
 from logger.recording.files import MAGIC, McapFileError, is_finished, walk
 from logger.recording.topics import IMU as IMU_TOPIC
+from logger.recording.topics import IMU_BATCH
 
 REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
 
@@ -228,17 +230,71 @@ def _counted(raw: list[Any], progress: ProgressFn | None) -> Iterator[Any]:
     progress(total, total, "messages")
 
 
+def imu_samples(batch: dict[str, Any]) -> list[dict[str, Any]]:
+    """An ``/imu/batch`` record as the ``/imu`` records of its samples (their layout, their values), so that every
+    reader of samples reads both kinds of drive alike."""
+    ax, ay, az = batch["accel_x_mps2"], batch["accel_y_mps2"], batch["accel_z_mps2"]
+    gx, gy, gz = batch["gyro_x_rps"], batch["gyro_y_rps"], batch["gyro_z_rps"]
+    mono, sync, state, err = batch["t_mono_ns"], batch["t_sync_ns"], batch["sync_state"], batch["sync_err_ns"]
+    imu_cnt, timer_cnt, seq, temp, lost = (batch["imu_cnt"], batch["timer_cnt"], batch["seq"], batch["temp_degc"],
+                                           batch["lost"])
+    return [{"t_mono_ns": mono[i], "t_sync_ns": sync[i], "sync_state": state[i], "sync_err_ns": err[i],
+             "imu_cnt": imu_cnt[i], "timer_cnt": timer_cnt[i], "seq": seq + i,
+             "accel_mps2": [ax[i], ay[i], az[i]], "gyro_rps": [gx[i], gy[i], gz[i]], "temp_degc": temp,
+             "fifo": True, "lost": lost if i == 0 else 0} for i in range(len(mono))]
+
+
+def _wanted(topics: Iterable[str]) -> tuple[set[str], bool]:
+    """The topics to read, and whether ``/imu/batch`` records are to be handed on as their ``/imu`` samples: a
+    reader of samples asks for ``/imu`` and gets a FIFO drive's samples too, one record each."""
+    wanted = set(topics)
+    expand = IMU_TOPIC in wanted and IMU_BATCH not in wanted
+    if expand:
+        wanted.add(IMU_BATCH)
+    return wanted, expand
+
+
+def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
+                   expand: bool) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
+    """(log time, topic, file index, message) with each ``/imu/batch`` replaced by its samples at their own times.
+
+    A batch is logged at its first sample's time, so its later samples wait here until the messages logged before
+    them have gone by: the samples and the other topics come out in time order, as per-sample records would."""
+    if not expand:
+        yield from items
+        return
+    pending: deque[tuple[int, int, dict[str, Any]]] = deque()
+    for t, topic, index, msg in items:
+        while pending and pending[0][0] <= t:
+            pt, pi, pm = pending.popleft()
+            yield pt, IMU_TOPIC, pi, pm
+        if topic == IMU_BATCH:
+            pending.extend((m["t_sync_ns"], index, m) for m in imu_samples(msg))
+            continue
+        yield t, topic, index, msg
+    for pt, pi, pm in pending:
+        yield pt, IMU_TOPIC, pi, pm
+
+
 def iter_messages(files: list[DriveFile], topics: Iterable[str],
                   progress: ProgressFn | None = None) -> Iterator[DriveMessage]:
-    """Every message of the given topics over the files, decoded, in log-time order (ties: file order)."""
+    """Every message of the given topics over the files, decoded, in log-time order (ties: file order); a FIFO
+    drive's ``/imu/batch`` records come as their ``/imu`` samples where ``/imu`` is asked for."""
+    wanted, expand = _wanted(topics)
+    for t, topic, index, msg in _in_time_order(_decoded(files, wanted, progress), expand):
+        yield DriveMessage(t, topic, index, msg)
+
+
+def _decoded(files: list[DriveFile], wanted: set[str],
+             progress: ProgressFn | None) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
     loads = json.loads
-    for t, index, _, topic, data in _counted(_collect(files, set(topics), progress), progress):
+    for t, index, _, topic, data in _counted(_collect(files, wanted, progress), progress):
         try:
             msg = loads(data)
         except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError alike
             raise DriveFileError(f"{files[index].path}: a {topic} message at log time {t} is not JSON "
                                  f"({exc})") from exc
-        yield DriveMessage(t, topic, index, msg)
+        yield t, topic, index, msg
 
 
 def read_messages(paths: Iterable[Path], topics: Iterable[str],
@@ -246,9 +302,16 @@ def read_messages(paths: Iterable[Path], topics: Iterable[str],
     """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
     :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
     files = open_drive(paths)
+    wanted, expand = _wanted(topics)
+    for _, topic, _, msg in _in_time_order(_filter_inputs(files, wanted, progress), expand):
+        yield topic, msg
+
+
+def _filter_inputs(files: list[DriveFile], wanted: set[str],
+                   progress: ProgressFn | None) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
     loads = json.loads
     imu = _IMU.match
-    for _, _, _, topic, data in _counted(_collect(files, set(topics), progress), progress):
+    for t, index, _, topic, data in _counted(_collect(files, wanted, progress), progress):
         if topic == IMU_TOPIC:
             m = imu(data, 1)
             if m is not None:
@@ -259,6 +322,6 @@ def read_messages(paths: Iterable[Path], topics: Iterable[str],
                            "gyro_rps": [float(g[0]), float(g[1]), float(g[2])]}
                     if m.group(5) is not None:  # die temperature: the offsets' thermal drift (thermal.py)
                         msg["temp_degc"] = float(m.group(5))
-                    yield topic, msg
+                    yield t, topic, index, msg
                     continue
-        yield topic, loads(data)
+        yield t, topic, index, loads(data)

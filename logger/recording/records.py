@@ -16,12 +16,14 @@ import math
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from logger.nav.engine import NavEngine
 from logger.nav.inputs import GnssObservation
 from logger.nav.state import N_FULL, STATE_NAMES
-from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TIMEPULSE
+from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
 from sync.inputs import FixEpoch, TimeAnnouncement
-from sync.stamp import Stamp, StampClock, TrackingReport
+from sync.stamp import Stamp, StampClock, Stamps, TrackingReport
 
 if TYPE_CHECKING:  # the receiver driver (and pyserial behind it) is not needed to replay a drive
     from sensors.bmp085 import BaroSample
@@ -48,6 +50,32 @@ def imu_record(accel_mps2: Sequence[float], gyro_rps: Sequence[float], temp_degc
     """An ``/imu`` sample: chip axes, SI units."""
     return {"accel_mps2": accel_mps2, "gyro_rps": gyro_rps, "temp_degc": round(temp_degc, 3), "fifo": fifo,
             "lost": lost}
+
+
+# A FIFO read's values are rounded far below the chip's resolution (at its finest range an LSB is 6e-4 m/s^2 and
+# 1.3e-4 rad/s): the record stays short, the sample is unchanged for any use.
+ACCEL_DECIMALS = 5
+GYRO_DECIMALS = 6
+IMU_AXES = ("x", "y", "z")
+
+
+def imu_batch_payload(times_ns: Sequence[int], accel_mps2: np.ndarray, gyro_rps: np.ndarray, temp_degc: float,
+                      period_s: float, lost: int) -> dict[str, Any]:
+    """What a FIFO read hands the daemon: its samples as columns, their acquisition times; the daemon adds the
+    stamps (:func:`stamped_batch`), so an ``/imu/batch`` record costs one message, not one per sample."""
+    a = np.round(accel_mps2, ACCEL_DECIMALS).T.tolist()
+    g = np.round(gyro_rps, GYRO_DECIMALS).T.tolist()
+    return {"t_mono_ns": list(times_ns),
+            "accel_x_mps2": a[0], "accel_y_mps2": a[1], "accel_z_mps2": a[2],
+            "gyro_x_rps": g[0], "gyro_y_rps": g[1], "gyro_z_rps": g[2],
+            "temp_degc": round(temp_degc, 3), "period_s": period_s, "lost": lost}
+
+
+def stamped_batch(stamps: Stamps, seq: int, payload: dict[str, Any]) -> dict[str, Any]:
+    """An ``/imu/batch`` record as recorded: each sample's stamp as columns, the first sample's number, the rest."""
+    return {"t_mono_ns": payload["t_mono_ns"], "t_sync_ns": stamps.t_sync_ns, "sync_state": stamps.state,
+            "sync_err_ns": stamps.err_ns, "imu_cnt": stamps.imu_cnt, "timer_cnt": stamps.timer_cnt, "seq": seq,
+            **{k: v for k, v in payload.items() if k != "t_mono_ns"}}
 
 
 def baro_record(s: BaroSample, sea_level_pa: float) -> dict[str, Any]:
@@ -169,6 +197,9 @@ def clock_observer(clock: StampClock) -> dict[str, ClockInput]:
     def imu(p: dict[str, Any], t: int) -> None:
         clock.on_imu_sample(t, p.get("temp_degc"))
 
+    def imu_batch(p: dict[str, Any], t: int) -> None:
+        clock.on_imu_samples(p["t_mono_ns"], p.get("temp_degc"))
+
     def pps(p: dict[str, Any], t: int) -> None:
         clock.on_edge(t, p.get("gnss_time_ns"))  # named when the PPS source knows the edge's second (gpsd)
 
@@ -182,7 +213,7 @@ def clock_observer(clock: StampClock) -> dict[str, ClockInput]:
         if epoch is not None:
             clock.on_fix_epoch(epoch, t)
 
-    return {IMU: imu, PPS: pps, TIMEPULSE: timepulse, GNSS_FIX: fix}
+    return {IMU: imu, IMU_BATCH: imu_batch, PPS: pps, TIMEPULSE: timepulse, GNSS_FIX: fix}
 
 
 def observe_clock(clock: StampClock, topic: str, payload: dict[str, Any], t_mono_ns: int) -> None:
@@ -212,6 +243,14 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         a, g = m["accel_mps2"], m["gyro_rps"]
         engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
 
+    def imu_batch(m: dict[str, Any]) -> None:
+        sample = engine.imu
+        sync, mono, temp = m["t_sync_ns"], m["t_mono_ns"], m.get("temp_degc")
+        ax, ay, az = m["accel_x_mps2"], m["accel_y_mps2"], m["accel_z_mps2"]
+        gx, gy, gz = m["gyro_x_rps"], m["gyro_y_rps"], m["gyro_z_rps"]
+        for i in range(len(sync)):
+            sample(sync[i], mono[i], (ax[i], ay[i], az[i]), (gx[i], gy[i], gz[i]), temp)
+
     def fix(m: dict[str, Any]) -> None:
         engine.gnss(gnss_observation(m))
 
@@ -224,7 +263,7 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
     def pps(m: dict[str, Any]) -> None:
         engine.pps(m["t_sync_ns"])
 
-    return {IMU: imu, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
+    return {IMU: imu, IMU_BATCH: imu_batch, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
 
 
 def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:

@@ -32,6 +32,7 @@ class TopicSpec:
 
 # The topic names, for code that writes or picks records by topic (the record layer, the recorder's readers).
 IMU = "/imu"
+IMU_BATCH = "/imu/batch"
 BARO = "/baro"
 OBD_SPEED = "/obd/speed"
 GNSS_FIX = "/gnss/fix"
@@ -146,7 +147,32 @@ _add(IMU, "vehicle_logger.Imu", {
     "temp_degc": ("number", "die temperature, degC"),
     "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
     "lost": ("integer", "samples lost to a FIFO overflow just before this one"),
-}, "MPU-6050 accelerometer and gyro, one message per sample")
+}, "MPU-6050 accelerometer and gyro, one message per sample: the low rates the daemon reads sample by sample "
+   "(faster ones come as /imu/batch; recordings made before /imu/batch existed hold FIFO samples here too)")
+_add(IMU_BATCH, "vehicle_logger.ImuBatch", {
+    "t_mono_ns": ("integer[]", "board monotonic time of each sample, oldest first, ns (reconstructed from the chip's "
+                               "sample period, as /imu's fifo samples)"),
+    "t_sync_ns": ("integer[]", "synchronised time of each sample, Unix ns UTC; the MCAP log_time is the first's"),
+    "sync_state": ("string[]", "clock state of each sample's stamp: locked, holdover or freerun"),
+    "sync_err_ns": ("integer[]", "error bound of each stamp, ns"),
+    "imu_cnt": ("integer[]", "the paper's IMU counter at each sample"),
+    "timer_cnt": ("integer[]", "the paper's timer counter at each sample"),
+    "seq": ("integer", "number of the first sample in the IMU's sample sequence since the daemon started; the next "
+                       "batch starts at seq + its count, so a jump is samples lost in the logger"),
+    "accel_x_mps2": ("number[]", "specific force along the chip's x axis at each sample, m/s^2"),
+    "accel_y_mps2": ("number[]", "specific force along the chip's y axis, m/s^2"),
+    "accel_z_mps2": ("number[]", "specific force along the chip's z axis, m/s^2"),
+    "gyro_x_rps": ("number[]", "angular rate about the chip's x axis at each sample, rad/s"),
+    "gyro_y_rps": ("number[]", "angular rate about the chip's y axis, rad/s"),
+    "gyro_z_rps": ("number[]", "angular rate about the chip's z axis, rad/s"),
+    "temp_degc": ("number", "die temperature read with the batch, degC"),
+    "period_s": ("number", "the chip's sample period, s"),
+    "lost": ("integer", "samples lost to a FIFO overflow just before the first one"),
+}, "MPU-6050 FIFO read (the rates read through the chip's FIFO): every sample of one read as columns, one message per read, so that "
+   "writing and filtering cost per read, not per sample. The logger's own readers (replay, export, plot, info, the "
+   "sync report) hand its samples on as /imu records. In Foxglove's Plot panel, set the X axis to 'Message path' "
+   "with /imu/batch.t_sync_ns[:] and plot /imu/batch.accel_x_mps2[:] (or any column) over the whole range",
+   stamped=False)
 _add(BARO, "vehicle_logger.Baro", {
     "pressure_pa": ("number", "compensated static pressure, Pa"),
     "temp_degc": ("number", "compensated temperature, degC"),

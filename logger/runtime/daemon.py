@@ -23,7 +23,14 @@ from typing import Any
 from logger.config import Config
 from logger.recording.files import McapFileError, is_finished, recover
 from logger.recording.recorder import Recorder
-from logger.recording.records import NO_FIX, clock_observer, health_record, stamped_record, sync_record
+from logger.recording.records import (
+    NO_FIX,
+    clock_observer,
+    health_record,
+    stamped_batch,
+    stamped_record,
+    sync_record,
+)
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import HEALTH, SYNC, TOPICS
 from logger.runtime.gnss_watch import GnssWatch
@@ -108,6 +115,7 @@ class Daemon:
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
+        self._batch_seq: dict[str, int] = {}  # a batch topic's next sample number (one sampler thread each)
         self._started_mono = 0
         self._stopped_mono: int | None = None
         self._threads: list[threading.Thread] = []
@@ -133,6 +141,9 @@ class Daemon:
 
     # ---- the sink every sampler calls: stamp, count, queue ------------------------------------------------
     def sink(self, r: Reading) -> None:
+        if r.times is not None:
+            self._sink_batch(r)
+            return
         seq = self._seq.get(r.topic)
         if seq is None:
             seq = self._seq.setdefault(r.topic, itertools.count())
@@ -147,6 +158,24 @@ class Daemon:
         else:
             log_ns = self.clock.stamp(r.t_mono_ns).t_sync_ns
         self.recorder.submit(r.topic, payload, log_ns, r.t_mono_ns)
+        for tap in self.taps:
+            tap.offer(r.topic, payload)
+
+    def _sink_batch(self, r: Reading) -> None:
+        """A batch of samples (a FIFO read): every sample stamped, one record; its log time is the first sample's,
+        so readers can put each sample back in time order among the other topics (logger.recording.drive)."""
+        times = r.times
+        assert times is not None
+        if not times:
+            return
+        observe = self._observe.get(r.topic)
+        if observe is not None:
+            observe(r.payload, r.t_mono_ns)
+        stamps = self.clock.stamp_many(times)
+        seq = self._batch_seq.get(r.topic, 0)
+        self._batch_seq[r.topic] = seq + len(times)
+        payload = stamped_batch(stamps, seq, r.payload)
+        self.recorder.submit(r.topic, payload, stamps.t_sync_ns[0], times[0])
         for tap in self.taps:
             tap.offer(r.topic, payload)
 

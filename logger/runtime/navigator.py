@@ -24,14 +24,14 @@ from logger.nav.engine import NavEngine
 from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
-from logger.recording.topics import IMU, NAV_FIX, NAV_STATE
+from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state
 from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import Reading
 
 log = logging.getLogger(__name__)
 
-INPUT_TOPICS = frozenset(NAV_INPUT_TOPICS)
+INPUT_TOPICS = frozenset((*NAV_INPUT_TOPICS, IMU_BATCH))  # live, a FIFO read comes as one batch
 WAKE_S = 0.5  # the filter runs in batches: a wake-up per sample would cost more than the filter
 
 
@@ -125,7 +125,7 @@ class Navigator:
                     feed = self._feed
                     for topic, payload in batch:
                         feed[topic](payload)
-                        if topic == IMU:
+                        if topic in (IMU, IMU_BATCH):
                             self._maybe_publish()
                     self.processed += len(batch)
             except Exception as exc:  # a bug in the filter must not take the logger down: report, restart it

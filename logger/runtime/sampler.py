@@ -32,6 +32,9 @@ class Reading:
     payload: dict[str, Any]
     t_mono_ns: int
     stamped: bool = True  # False for messages that carry no sensor time (e.g. raw receiver bytes)
+    # A batch (one FIFO read): each sample's acquisition time, oldest first; t_mono_ns is then the first's. The
+    # record is one message whatever the count, which is what keeps a 1 kHz IMU cheap.
+    times: list[int] | None = None
 
 
 class Source(ABC):
@@ -267,14 +270,23 @@ class Sampler(threading.Thread):
         h.heartbeat_mono_ns = self.tb.monotonic_ns()
         for r in readings:
             if r.stamped and (self._sample_topic is None or r.topic == self._sample_topic):
+                times = r.times
+                if times is not None and not times:
+                    continue  # an empty FIFO read (after an overflow): nothing to count or record
+                first, last_t = (r.t_mono_ns, r.t_mono_ns) if times is None else (times[0], times[-1])
                 last = h.last_sample_mono_ns
-                if last is not None and self._gap_ns and r.t_mono_ns - last > self._gap_ns:
+                # Within a batch the samples sit one chip period apart by construction: a gap is between reads.
+                if last is not None and self._gap_ns and first - last > self._gap_ns:
                     h.gaps += 1
-                h.last_sample_mono_ns = r.t_mono_ns
+                h.last_sample_mono_ns = last_t
                 if h.first_sample_mono_ns is None:
-                    h.first_sample_mono_ns = r.t_mono_ns
-                h._recent.append(r.t_mono_ns)
-                h.samples += 1
+                    h.first_sample_mono_ns = first
+                if times is None:
+                    h._recent.append(first)
+                    h.samples += 1
+                else:
+                    h._recent.extend(times)
+                    h.samples += len(times)
             self.sink(r)
 
     def _check_incidents(self) -> None:

@@ -14,6 +14,7 @@ from typing import Any
 
 from logger.recording.records import (
     baro_record,
+    imu_batch_payload,
     imu_record,
     location_fix,
     pps_record,
@@ -21,7 +22,7 @@ from logger.recording.records import (
     speed_record,
     timepulse_record,
 )
-from logger.recording.topics import BARO, GNSS_FIX, GNSS_RAW, IMU, OBD_SPEED, PPS, TIMEPULSE
+from logger.recording.topics import BARO, GNSS_FIX, GNSS_RAW, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
 from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, SensorError
@@ -119,14 +120,13 @@ class ImuSource(Source):
             self._pending_lost += batch.lost_samples if batch.lost_samples is not None else 1
             self._fifo_clock.reset()
         n = len(batch)
-        times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
-        out = []
-        for i in range(n):
-            out.append(Reading(IMU, imu_record(batch.accel_mps2[i], batch.gyro_rps[i], batch.temp_degc, True,
-                                               self._pending_lost if i == 0 else 0), times[i]))
-        if n:
-            self._pending_lost = 0
-        return out
+        if not n:
+            return []  # the lost count waits for the next samples, the first of which it precedes
+        times = [int(t) for t in self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)]
+        payload = imu_batch_payload(times, batch.accel_mps2, batch.gyro_rps, batch.temp_degc, batch.period_s,
+                                    self._pending_lost)
+        self._pending_lost = 0
+        return [Reading(IMU_BATCH, payload, times[0], times=times)]
 
     def close(self) -> None:
         _close_quietly(self._bus)
