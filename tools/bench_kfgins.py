@@ -24,7 +24,8 @@ at ``SCALE_PPM`` (this filter has no scale factors; the simulated chip has none)
 zero-velocity update.
 
 Timing, each ``--repeat`` times in turn (KF-GINS, then this filter, then ``logger replay``; the median of the
-runs is shown, every run is in the JSON), as CPU time (user + system) per IMU sample filtered:
+runs is shown, or the least with ``--stat best``; every run is in the JSON), as CPU time (user + system) per IMU
+sample filtered:
 
 - KF-GINS whole process: the unmodified binary as a child (os.wait4), reading the files and writing its three
   outputs (navresult, IMU errors, std) at every IMU sample, as its main() does.
@@ -47,10 +48,12 @@ and ``--json FILE`` has every figure.
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import gc
 import json
 import math
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -69,7 +72,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from bench import cpu_model, loadavg, tree_state  # noqa: E402
+from bench import cpu_model, loadavg, machine_busy, tree_state  # noqa: E402
 from nav_eval import MOVING_MPS, moving  # noqa: E402
 from nav_eval import trajectory as engine_columns  # noqa: E402
 
@@ -349,11 +352,13 @@ def accuracy(files: list[Path], cols: dict[str, np.ndarray], truth: Truth, start
                         "max_h_m": longest["max_h_m"]} if longest else None)}
 
 
-def median(runs: list[dict[str, float]], key: str) -> float:
-    return float(statistics.median(r[key] for r in runs))
+def pick(values: list[float], stat: str) -> float:
+    """The figure shown of several runs: their median, or the best (least) with ``--stat best``."""
+    return float(min(values) if stat == "best" else statistics.median(values))
 
 
-def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep: Path | None) -> dict[str, Any]:
+def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep: Path | None,
+                stat: str) -> dict[str, Any]:
     files = drive_files(arg)
     truth = load_truth(files)
     params = NavParams()
@@ -413,18 +418,22 @@ def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep
             "kfgins_rows": n_kf, "kfgins_imu_lines": len(conv.imu_sow), "kfgins_fixes": conv.fixes,
             "kfgins_gaps": conv.gaps, "kfgins_init_gyro_bias_dph": conv.gyro_bias_dph, "notes": conv.notes,
             "runs": runs}
+
+        def of(these: list[dict[str, float]], key: str) -> float:
+            return pick([r[key] for r in these], stat)
+
         kp = runs["kfgins_process"]
-        kf = {"process_cpu_s": median(kp, "cpu_s"), "process_wall_s": median(kp, "wall_s"),
-              "process_us_per_sample": median(kp, "cpu_s") / n_kf * 1e6,
+        kf = {"process_cpu_s": of(kp, "cpu_s"), "process_wall_s": of(kp, "wall_s"),
+              "process_us_per_sample": of(kp, "cpu_s") / n_kf * 1e6,
               "accuracy": accuracy(files, kf_cols, truth, conv.start_ns)}
         if runs["kfgins_bench"]:
             kb = runs["kfgins_bench"]
             n = kb[0]["samples"]
-            kf.update(filter_us_per_sample=median(kb, "filter_cpu_s") / n * 1e6,
-                      read_filter_us_per_sample=statistics.median(
-                          (b["read_cpu_s"] + b["filter_cpu_s"]) / n * 1e6 for b in kb),
-                      filter_output_us_per_sample=median(kb, "filter_output_cpu_s") / n * 1e6,
-                      read_us_per_sample=median(kb, "read_cpu_s") / n * 1e6)
+            kf.update(filter_us_per_sample=of(kb, "filter_cpu_s") / n * 1e6,
+                      read_filter_us_per_sample=pick(
+                          [(b["read_cpu_s"] + b["filter_cpu_s"]) / n * 1e6 for b in kb], stat),
+                      filter_output_us_per_sample=of(kb, "filter_output_cpu_s") / n * 1e6,
+                      read_us_per_sample=of(kb, "read_cpu_s") / n * 1e6)
             same = (conv.out / "KF_GINS_Navresult.nav").read_bytes() == (
                 conv.bench_out / "KF_GINS_Navresult.nav").read_bytes()
             kf["harness_output_identical"] = same
@@ -433,11 +442,11 @@ def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep
             n = counts[mode]
             result[f"ours_{mode}"] = {
                 "samples": n,
-                "filter_us_per_sample": median(runs[f"ours_{mode}_filter"], "cpu_s") / n * 1e6,
-                "read_us_per_sample": median(runs[f"ours_{mode}_read"], "cpu_s") / n * 1e6,
-                "read_filter_us_per_sample": median(runs[f"ours_{mode}_files"], "cpu_s") / n * 1e6,
-                "process_cpu_s": median(runs[f"replay_{mode}"], "cpu_s"),
-                "process_wall_s": median(runs[f"replay_{mode}"], "wall_s"),
+                "filter_us_per_sample": of(runs[f"ours_{mode}_filter"], "cpu_s") / n * 1e6,
+                "read_us_per_sample": of(runs[f"ours_{mode}_read"], "cpu_s") / n * 1e6,
+                "read_filter_us_per_sample": of(runs[f"ours_{mode}_files"], "cpu_s") / n * 1e6,
+                "process_cpu_s": of(runs[f"replay_{mode}"], "cpu_s"),
+                "process_wall_s": of(runs[f"replay_{mode}"], "wall_s"),
                 "accuracy": accuracy(files, engine_columns(rows[mode]), truth, conv.start_ns)}
         return result
     finally:
@@ -450,7 +459,7 @@ def ratio(a: float | None, b: float | None) -> str:
     return f"{a / b:.2f}x" if a is not None and b else "-"
 
 
-def render(results: list[dict[str, Any]], repeat: int) -> list[str]:
+def render(results: list[dict[str, Any]], repeat: int, stat: str) -> list[str]:
     lines = ["| drive | filter | CPU per IMU sample, filter alone | x KF-GINS | read + decode + filter | x KF-GINS "
              "| whole process, CPU s (wall s) | x KF-GINS | RMSE N / E / V while moving, m | longest outage: max "
              "horizontal error |",
@@ -473,7 +482,8 @@ def render(results: list[dict[str, Any]], repeat: int) -> list[str]:
                 f"| {name} | {label} | {f_text} | {ratio(f_us, base_f)} | {rf_text} | {ratio(rf_us, base_r)} "
                 f"| {cpu:.2f} ({wall:.2f}) | {ratio(cpu, kf['process_cpu_s'])} "
                 f"| {r[0]:.2f} / {r[1]:.2f} / {r[2]:.2f} | {outage} |")
-    lines += ["", f"Median of {repeat} alternated runs, CPU time (user + system). KF-GINS: the filter alone is its "
+    which = "Best" if stat == "best" else "Median"
+    lines += ["", f"{which} of {repeat} alternated runs, CPU time (user + system). KF-GINS: the filter alone is its "
               "GIEngine over the samples in memory (a harness linking its own code), read + filter adds its text "
               "loaders, the whole process is the unmodified binary writing its outputs at every IMU sample. This "
               "project: run_filter fed decoded messages from memory, then run_filter on the MCAP files, then "
@@ -482,13 +492,21 @@ def render(results: list[dict[str, Any]], repeat: int) -> list[str]:
     return lines
 
 
+def own_cpu_s() -> float:
+    """CPU seconds of this process and its finished children."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("drives", type=Path, nargs="+", help="a recording's folder of MCAP files, or one MCAP file")
     ap.add_argument("--kfgins", type=Path, required=True, help="the KF-GINS binary (its Release build)")
     ap.add_argument("--kfgins-bench", type=Path, default=None,
                     help="the timing harness around KF-GINS's engine (default: kfgins-bench beside --kfgins)")
-    ap.add_argument("--repeat", type=int, default=3, help="alternated runs of each (the median is shown)")
+    ap.add_argument("--repeat", type=int, default=3, help="alternated runs of each")
+    ap.add_argument("--stat", choices=("median", "best"), default="median",
+                    help="which of the runs the table shows: their median (default) or the least CPU time")
     ap.add_argument("--json", type=Path, help="write every figure here")
     ap.add_argument("--keep", type=Path, help="keep KF-GINS's inputs and outputs under this folder")
     args = ap.parse_args(argv)
@@ -498,9 +516,20 @@ def main(argv: list[str] | None = None) -> int:
     if not harness.is_file():
         print(f"bench_kfgins: no harness at {harness}: KF-GINS's filter alone is not separated", file=sys.stderr)
         harness = None
+    started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    load0, busy0, own0, t0 = loadavg(), machine_busy(), own_cpu_s(), time.monotonic()
     results = [bench_drive(d, args.kfgins.resolve(), harness.resolve() if harness else None, max(1, args.repeat),
-                           args.keep) for d in args.drives]
-    lines = render(results, max(1, args.repeat))
+                           args.keep, args.stat) for d in args.drives]
+    wall, busy1, own = time.monotonic() - t0, machine_busy(), own_cpu_s() - own0
+    busy_pct = (busy1[0] - busy0[0]) / max(busy1[1] - busy0[1], 1) * 100
+    load = {"started": started, "wall_s": round(wall), "loadavg_before": load0, "loadavg_after": loadavg(),
+            "machine_busy_pct": round(busy_pct, 1),
+            "others_pct_of_machine": round(max(0.0, busy_pct - own * 100 / (wall * (os.cpu_count() or 1))), 1)}
+    lines = render(results, max(1, args.repeat), args.stat)
+    lines.append("")
+    lines.append(f"Measured {started} on {cpu_model()} ({os.cpu_count()} cores), commit {tree_state()}; load average "
+                 f"{load['loadavg_before']} -> {load['loadavg_after']}, machine busy {busy_pct:.0f} %, of which other "
+                 f"jobs {load['others_pct_of_machine']:.0f} %.")
     print("\n".join(lines))
     for res in results:
         kf = res["kfgins"]
@@ -517,9 +546,9 @@ def main(argv: list[str] | None = None) -> int:
         if not kf.get("harness_output_identical", True):
             print(f"{name}: warning: the harness's navresult differs from the binary's", file=sys.stderr)
     if args.json:
-        info = {"cpu": cpu_model(), "cores": os.cpu_count(), "loadavg_end": loadavg(), "commit": tree_state(),
+        info = {"cpu": cpu_model(), "cores": os.cpu_count(), "load": load, "commit": tree_state(),
                 "kfgins": str(args.kfgins), "harness": str(harness) if harness else None, "repeat": args.repeat,
-                "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
+                "stat": args.stat, "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
         args.json.write_text(json.dumps({"machine": info, "drives": results}, indent=1, default=float) + "\n")
         print(f"wrote {args.json}")
     return 0
