@@ -104,9 +104,7 @@ class PpsClock(StampClock):
     def on_imu_samples(self, times_ns: Sequence[int], temp_degc: float | None) -> None:
         """A FIFO read's samples under one lock; the temperature (one per read) goes with the last."""
         with self._lock:
-            on_imu = self.paper.on_imu
-            for t in times_ns:
-                on_imu(t)
+            self.paper.on_imu_many(times_ns)
             if temp_degc is not None and times_ns:
                 self._on_temperature(times_ns[-1], float(temp_degc))
 

@@ -58,6 +58,23 @@ class PaperCounters:
             self._beyond += cut
             del self._times[:cut]
 
+    def on_imu_many(self, times_ns: Sequence[int]) -> None:
+        """:meth:`on_imu` for a FIFO read's samples (oldest first) at once; the counts are the same, only the
+        trimming of old times is looked at once per read."""
+        self._recent.extend(times_ns)
+        edge = self.last_edge_ns
+        if edge is None:
+            self._beyond += len(times_ns)
+            return
+        if times_ns and times_ns[0] > edge:
+            self._times.extend(times_ns)
+        else:
+            self._times.extend(t for t in times_ns if t > edge)
+        if len(self._times) > 4 * self.rate and self._times[0] - edge > self.KEEP_NS:
+            cut = len(self._times) - 2 * self.rate
+            self._beyond += cut
+            del self._times[:cut]
+
     def on_edge(self, t_ns: int) -> None:
         """A PPS edge resets both counters; samples already seen after it (threads report late) are re-counted."""
         if self.last_edge_ns is not None and t_ns <= self.last_edge_ns:

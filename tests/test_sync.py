@@ -87,6 +87,29 @@ def test_paper_counters_stay_at_most_21_with_pps_and_carry_without() -> None:
     assert timer + imu == since_last_edge and timer % 20 == 0 and imu <= 21  # a minute carried into the timer
 
 
+def test_counters_fed_a_fifo_read_at_a_time_are_those_fed_sample_by_sample() -> None:
+    """1 kHz in reads of 40 samples, PPS for 10 s then 10 s without, an edge reported after the read that holds
+    samples after it: every sample's counters are the same either way."""
+    one, many = PaperCounters(1000.0), PaperCounters(1000.0)
+    t = [int(k * 1e6) + 300_000 for k in range(20_000)]
+    edges = [k * NS + 50_000 for k in range(1, 11)]
+    e = 0
+    for i in range(0, len(t), 40):
+        read = t[i:i + 40]
+        for x in read:
+            one.on_imu(x)
+        many.on_imu_many(read)
+        while e < len(edges) and edges[e] <= read[-1]:  # the PPS thread tells the edge after the read
+            one.on_edge(edges[e])
+            many.on_edge(edges[e])
+            e += 1
+        for x in read:
+            assert one.counters(x) == many.counters(x)
+        ic, tc = many.counters_many(read)
+        assert list(zip(ic.tolist(), tc.tolist(), strict=True)) == [one.counters(x) for x in read]
+    assert many.counters(t[-1]) == (1000, 9000)  # 10 s without PPS: whole seconds carried into the timer
+
+
 def test_an_edge_reported_late_recounts_the_samples_after_it() -> None:
     c = PaperCounters(20.0)
     for k in range(5):
