@@ -171,7 +171,8 @@ def test_replayed_trajectory_matches_its_schemas(recorded: tuple[Drive, list[Pat
     assert r.returncode == 0, r.stderr
     counts, problems = schema_problems(tmp_path / "trajectory.mcap")
     assert not problems, "\n".join(problems)
-    assert counts[NAV_FIX] > 100 and counts["/nav/state"] >= 5, counts
+    # /nav/fix at the live rate (5 Hz) over the ~15 s the filter runs; every row is the CSV's (and --fix-hz 0's).
+    assert counts[NAV_FIX] > 40 and counts["/nav/state"] >= 5, counts
 
 
 # ---- the record builders -------------------------------------------------------------------------------------

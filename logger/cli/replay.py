@@ -3,8 +3,9 @@ over recorded drives.
 
 The work is :mod:`logger.exports.trajectory`'s; this is the command line around it. Writes ``DIR/trajectory.csv``
 (one row per IMU sample once the filter runs; per fix in GNSS-only mode) and ``DIR/trajectory.mcap`` with
-``/nav/fix`` per row and ``/nav/state`` once a second, so Foxglove draws it next to the recording. A drive the
-filter could not start on writes nothing and exits 1, with what the start waited for.
+``/nav/fix`` at the live navigator's rate (``nav.publish_hz``, 5 Hz by default; ``--fix-hz HZ`` another, ``--fix-hz
+0`` every row) and ``/nav/state`` once a second, so Foxglove draws it next to the recording. A drive the filter
+could not start on writes nothing and exits 1, with what the start waited for.
 
 ``--gnss-solution FILE.pos`` fuses a post-processed solution (RTKLIB's ``rnx2rtkp``/``rtkpost`` output, read by
 :mod:`logger.recording.rtklib_pos`): instead of the receiver's positions (``--gnss-solution-mode replace``, the
@@ -15,20 +16,25 @@ and the line, exit 2.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from logger.cli.progress import Progress
-from logger.config import ConfigError, load
-from logger.exports.trajectory import run_filter, write_csv, write_mcap
+from logger.exports.trajectory import columns, run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
-from logger.nav.smoother import SmoothingReport
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.files import is_finished
-from logger.recording.rtklib_pos import SolutionFile, SolutionFileError, read_pos
 from logger.words import plural
+
+if TYPE_CHECKING:
+    from logger.nav.smoother import SmoothingReport
+    from logger.recording.rtklib_pos import SolutionFile
+
+# Imported where used: the configuration file's reader (--config), RTKLIB's .pos reader (--gnss-solution) and the
+# smoother's report (--smooth), which a plain replay does without.
 
 SOLUTION_MODES = ("replace", "add")
 
@@ -41,12 +47,26 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--smooth", action="store_true", help="add the Rauch-Tung-Striebel backward pass")
     p.add_argument("--config", type=Path, help="take the [nav] tuning from this configuration file")
     p.add_argument("--no-mcap", action="store_true", help="write only the CSV")
+    p.add_argument("--fix-hz", type=rate_hz, default=None, metavar="HZ",
+                   help="rate of /nav/fix in trajectory.mcap (default: nav.publish_hz, the live rate, 5 Hz unless "
+                        "--config says otherwise); 0: one per row, as trajectory.csv")
     p.add_argument("--gnss-solution", type=Path, metavar="FILE.pos",
                    help="fuse a post-processed (PPK) solution: RTKLIB rnx2rtkp/rtkpost output")
     p.add_argument("--gnss-solution-mode", choices=SOLUTION_MODES, default="replace",
                    help="replace: the solution's positions instead of the receiver's (its velocities stay); "
                         "add: both (default: replace)")
     return p.parse_args(argv)
+
+
+def rate_hz(text: str) -> float:
+    """``--fix-hz``: a rate in Hz, 0 for every row."""
+    try:
+        hz = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(hz) and hz >= 0.0):
+        raise argparse.ArgumentTypeError(f"a rate is 0 (every row) or more Hz: {text!r}")
+    return hz
 
 
 def main(argv: list[str]) -> int:
@@ -61,6 +81,8 @@ def main(argv: list[str]) -> int:
               f"`logger recover FILE`): {', '.join(unfinished)}", file=sys.stderr)
         return 2
     if args.config is not None:
+        from logger.config import ConfigError, load
+
         try:
             # Only [nav] is used: a file with that section alone will do (no serial port is demanded).
             params = NavParams.from_config(load(args.config, devices=False)["nav"])
@@ -74,6 +96,8 @@ def main(argv: list[str]) -> int:
         params.mode = args.mode
     solution: SolutionFile | None = None
     if args.gnss_solution is not None:
+        from logger.recording.rtklib_pos import SolutionFileError, read_pos
+
         try:
             solution = read_pos(args.gnss_solution)
         except SolutionFileError as exc:
@@ -82,7 +106,11 @@ def main(argv: list[str]) -> int:
     t0 = time.perf_counter()
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
-    smoothing = SmoothingReport()
+    smoothing: SmoothingReport | None = None
+    if args.smooth:
+        from logger.nav.smoother import SmoothingReport
+
+        smoothing = SmoothingReport()
     engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing,
                               solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
     t1 = time.perf_counter()
@@ -97,9 +125,12 @@ def main(argv: list[str]) -> int:
         return 1
     progress.stage("writing the trajectory")
     args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / "trajectory.csv", rows)
+    cols = columns(rows)
+    write_csv(args.out / "trajectory.csv", cols)
+    fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
+    fixes = 0
     if states is not None:
-        write_mcap(args.out / "trajectory.mcap", rows, engine, states)
+        fixes = write_mcap(args.out / "trajectory.mcap", cols, engine, states, fix_hz)
     progress.end()
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
     if engine.mode == "gnss":
@@ -114,8 +145,12 @@ def main(argv: list[str]) -> int:
         print(f"updates accepted: {stats}")
     if solution is not None and engine.solution is not None:
         print(solution_summary(solution, engine.solution, args.gnss_solution_mode))
-    if args.smooth and smoothing.epochs:
+    if smoothing is not None and smoothing.epochs:
         print(smoothing.summary())
+    if states is not None:
+        print("trajectory.mcap: /nav/fix for every solution" if fix_hz == 0 else
+              f"trajectory.mcap: /nav/fix at {fix_hz:g} Hz, {fixes} of {plural(len(rows), 'solution')} "
+              "(--fix-hz 0: every one)")
     print(f"wrote {args.out / 'trajectory.csv'}")
     if states is not None:
         print(f"wrote {args.out / 'trajectory.mcap'}")

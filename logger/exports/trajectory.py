@@ -2,32 +2,52 @@
 
 The same engine as the live navigator, fed by the same record layer, as fast as the files can be read,
 optionally followed by the Rauch-Tung-Striebel backward pass. ``trajectory.csv`` has one row per IMU sample once
-the filter runs (per fix in GNSS-only mode); ``trajectory.mcap`` has ``/nav/fix`` per row and ``/nav/state`` once
-a second, so Foxglove draws it next to the recording.
+the filter runs (per fix in GNSS-only mode): the whole solution, for scoring and analysis. ``trajectory.mcap``
+is for the map: ``/nav/fix`` at the rate the live navigator publishes it (``nav.publish_hz``, 5 Hz by default;
+``fix_hz`` another, 0 every row) and ``/nav/state`` once a second, so Foxglove draws it next to the recording.
+
+Both are written by the block, not by the row: the rows become columns once (angles for all rows at a time), the
+CSV lines a block at a time through one format, and each ``/nav/fix`` message's JSON through a fixed template
+(the same bytes as ``json.dumps`` of :func:`~logger.recording.records.nav_fix_record`).
 """
 
 from __future__ import annotations
 
-import csv
+import itertools
 import json
 import math
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mcap.writer import CompressionType, Writer
+import numpy as np
 
+from logger.exports.tracks import SIGMA_UNKNOWN_M
 from logger.nav.engine import NavEngine, TrajectoryRow
 from logger.nav.inputs import SolutionEpoch
 from logger.nav.params import NavParams
-from logger.nav.rotations import dcm_from_quat, euler_from_dcm
-from logger.nav.smoother import SmoothingReport, smooth_rows
+from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
-from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
+from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
+
+if TYPE_CHECKING:
+    from logger.nav.smoother import SmoothingReport
 
 CSV_HEADER = ("t_sync_ns", "t_mono_ns", "lat_deg", "lon_deg", "height_m", "vn_mps", "ve_mps", "vd_mps", "roll_deg",
               "pitch_deg", "yaw_deg", "sn_m", "se_m", "sd_m")
+# A CSV line: the times as integers, latitude and longitude to 1e-9 deg (0.1 mm), the rest to 3 decimals. The
+# line end is the csv module's (\r\n), which the file always had.
+CSV_LINE = ",".join(("%s", "%s", "%.9f", "%.9f") + ("%.3f",) * 10) + "\r\n"
+BLOCK_ROWS = 2048  # rows formatted and written at a time
+# json.dumps(nav_fix_record(...)) with its values left open: floats as repr (what json writes for a finite float),
+# the source and mode as JSON strings. A test holds the two to the same bytes.
+NAV_FIX_JSON = ('{"t_mono_ns": %d, "t_sync_ns": %d, "timestamp": {"sec": %d, "nsec": %d}, "frame_id": "nav", '
+                '"latitude": %r, "longitude": %r, "altitude": %r, '
+                '"position_covariance": [%r, 0.0, 0.0, 0.0, %r, 0.0, 0.0, 0.0, %r], "position_covariance_type": 2, '
+                '"vel_ned_mps": [%r, %r, %r], "rpy_deg": [%r, %r, %r], "sigma_ned_m": [%r, %r, %r], '
+                '"source": %s, "mode": %s}')
 
 
 def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
@@ -57,28 +77,131 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
             states.append(nav_state_record(engine, msg["t_sync_ns"], msg["t_mono_ns"]))
     rows = engine.rows
     if smooth and engine.mode != "gnss" and engine.ekf is not None and engine.epochs:
+        from logger.nav.smoother import smooth_rows  # only a smoothed replay needs the backward pass
+
         engine.close_epochs()
         rows = smooth_rows(rows, engine.epochs, engine.ekf.p, smoothing)
     return engine, rows
 
 
-def row_fields(row: TrajectoryRow) -> list[Any]:
-    t, t_mono, lat, lon, h, vn, ve, vd, q, sig, _ = row
-    roll, pitch, yaw = euler_from_dcm(dcm_from_quat(q))
-    return [t, t_mono, f"{math.degrees(lat):.9f}", f"{math.degrees(lon):.9f}", f"{h:.3f}", f"{vn:.3f}", f"{ve:.3f}",
-            f"{vd:.3f}", f"{math.degrees(roll):.3f}", f"{math.degrees(pitch):.3f}", f"{math.degrees(yaw):.3f}",
-            f"{sig[0]:.3f}", f"{sig[1]:.3f}", f"{sig[2]:.3f}"]
+@dataclass
+class Columns:
+    """The trajectory by column, in the units of ``trajectory.csv``: what both files are written from. The numbers
+    are the filter's own (Python or numpy floats) where the file has them as they are, the angles in degrees."""
+
+    t_ns: Sequence[int]
+    t_mono_ns: Sequence[int]
+    lat_deg: Sequence[float]
+    lon_deg: Sequence[float]
+    h_m: Sequence[float]
+    vn: Sequence[float]
+    ve: Sequence[float]
+    vd: Sequence[float]
+    roll_deg: Sequence[float]
+    pitch_deg: Sequence[float]
+    yaw_deg: Sequence[float]
+    sn: Sequence[float]
+    se: Sequence[float]
+    sd: Sequence[float]
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def table(self) -> list[Sequence[Any]]:
+        """The columns in ``CSV_HEADER`` order."""
+        return [self.t_ns, self.t_mono_ns, self.lat_deg, self.lon_deg, self.h_m, self.vn, self.ve, self.vd,
+                self.roll_deg, self.pitch_deg, self.yaw_deg, self.sn, self.se, self.sd]
 
 
-def write_csv(path: Path, rows: list[TrajectoryRow]) -> None:
+def columns(rows: Sequence[TrajectoryRow]) -> Columns:
+    """The rows as columns, the attitudes of all rows at a time. The values are those a row at a time gives
+    (``math.degrees``, ``euler_from_dcm(dcm_from_quat(q))``) to the bit: the same operations in the same order,
+    the matrix's arithmetic elementwise in numpy, the arc tangents and degrees ``math``'s own."""
+    if not rows:
+        return Columns(*(() for _ in CSV_HEADER))
+    t, t_mono, lat, lon, h, vn, ve, vd, q, sig, _ = zip(*rows, strict=True)
+    qa = np.fromiter(itertools.chain.from_iterable(q), dtype=float, count=4 * len(q)).reshape(-1, 4)
+    c = dcm_from_quat((qa[:, 0], qa[:, 1], qa[:, 2], qa[:, 3]))  # 3 x 3 x rows
+    c21, c22 = c[2, 1].tolist(), c[2, 2].tolist()
+    roll = map(math.atan2, c21, c22)
+    pitch = map(math.atan2, (-c[2, 0]).tolist(), map(math.hypot, c21, c22))
+    yaw = map(math.atan2, c[1, 0].tolist(), c[0, 0].tolist())
+    sn, se, sd = zip(*sig, strict=True)
+    deg = math.degrees
+    return Columns(t, t_mono, list(map(deg, lat)), list(map(deg, lon)), h, vn, ve, vd, list(map(deg, roll)),
+                   list(map(deg, pitch)), list(map(deg, yaw)), sn, se, sd)
+
+
+def write_csv(path: Path, cols: Columns) -> None:
+    """``trajectory.csv``: the header, then a line per row, formatted and written a block at a time."""
+    table = cols.table()
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(CSV_HEADER)
-        for row in rows:
-            w.writerow(row_fields(row))
+        f.write(",".join(CSV_HEADER) + "\r\n")
+        for i in range(0, len(cols), BLOCK_ROWS):
+            block = list(zip(*(col[i:i + BLOCK_ROWS] for col in table), strict=True))
+            f.write((CSV_LINE * len(block)) % tuple(itertools.chain.from_iterable(block)))
 
 
-def write_mcap(path: Path, rows: list[TrajectoryRow], engine: NavEngine, states: list[dict[str, Any]]) -> None:
+def fix_rows(t_ns: Sequence[int], hz: float) -> list[int]:
+    """The rows ``/nav/fix`` is written for at ``hz``, by the live navigator's rule: the first row, then the first
+    at least a period after the last one written. ``hz`` 0 (or less): every row."""
+    if hz <= 0.0:
+        return list(range(len(t_ns)))
+    period_ns = int(1e9 / hz)
+    keep: list[int] = []
+    due = -math.inf
+    for i, t in enumerate(t_ns):
+        if t >= due:
+            keep.append(i)
+            due = t + period_ns
+    return keep
+
+
+class _JsonNumber(float):
+    """A float whose ``%r`` is what JSON writes for it (``NaN``, ``Infinity``, as ``json.dumps`` does)."""
+
+    def __repr__(self) -> str:
+        return json.dumps(float(self))
+
+
+def nav_fix_json(cols: Columns, rows: Sequence[int], source: str, mode: str) -> list[bytes]:
+    """The ``/nav/fix`` message of each of ``rows`` as JSON bytes: the bytes of ``json.dumps(nav_fix_record(...))``
+    for that row. The numbers are picked and derived (unknown sigmas, the covariance) for all rows at a time, then
+    each message is one fill of the template."""
+    if not len(rows):
+        return []
+    idx = np.asarray(rows, dtype=np.intp)
+
+    def pick(col: Sequence[float]) -> np.ndarray:
+        return np.asarray(col, dtype=float)[idx]
+
+    sig = np.array([pick(cols.sn), pick(cols.se), pick(cols.sd)])
+    sn, se, sd = np.where(np.isfinite(sig), sig, SIGMA_UNKNOWN_M)  # nav_fix_record's rule
+    numbers = np.array([pick(cols.lat_deg), pick(cols.lon_deg), pick(cols.h_m), se * se, sn * sn, sd * sd,
+                        pick(cols.vn), pick(cols.ve), pick(cols.vd), pick(cols.roll_deg), pick(cols.pitch_deg),
+                        pick(cols.yaw_deg), sn, se, sd])
+    finite = np.isfinite(numbers).all(axis=0).tolist()
+    t = [int(cols.t_ns[i]) for i in rows]
+    times = zip([int(cols.t_mono_ns[i]) for i in rows], t, [v // 1_000_000_000 for v in t],
+                [v % 1_000_000_000 for v in t], strict=True)
+    names = (json.dumps(source), json.dumps(mode))
+    out = []
+    for ok, stamp, values in zip(finite, times, zip(*numbers.tolist(), strict=True), strict=True):
+        if not ok:  # a filter gone astray: NaN and Infinity, as json.dumps writes them
+            values = tuple(map(_JsonNumber, values))
+        out.append((NAV_FIX_JSON % (stamp + values + names)).encode())
+    return out
+
+
+def write_mcap(path: Path, cols: Columns, engine: NavEngine, states: list[dict[str, Any]],
+               fix_hz: float | None = None) -> int:
+    """``trajectory.mcap``: ``/nav/fix`` at ``fix_hz`` (None: the engine's ``publish_hz``, the live rate; 0: every
+    row) and the ``/nav/state`` records. Returns how many ``/nav/fix`` messages it wrote."""
+    from mcap.writer import CompressionType, Writer  # not needed before the end (nor at all with --no-mcap)
+
+    hz = engine.params.publish_hz if fix_hz is None else fix_hz
+    rows = fix_rows(cols.t_ns, hz)
+    source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
     with open(path, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)
         w.start(profile="", library=REPLAY_LIBRARY)
@@ -87,15 +210,10 @@ def write_mcap(path: Path, rows: list[TrajectoryRow], engine: NavEngine, states:
             spec = TOPICS[topic]
             sid = w.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
             ids[topic] = w.register_channel(topic, "json", sid)
-        for row in rows:
-            t, t_mono, lat, lon, h, vn, ve, vd, q, sig, _ = row
-            roll, pitch, yaw = euler_from_dcm(dcm_from_quat(q))
-            msg = nav_fix_record(t, t_mono, lat, lon, h, (vn, ve, vd), (roll, pitch, yaw), sig,
-                              "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state", engine.mode)
-            w.add_message(ids[NAV_FIX], log_time=t, publish_time=t_mono, data=json.dumps(msg).encode())
+        fix_id, add = ids[NAV_FIX], w.add_message
+        for i, data in zip(rows, nav_fix_json(cols, rows, source, engine.mode), strict=True):
+            add(fix_id, log_time=cols.t_ns[i], publish_time=cols.t_mono_ns[i], data=data)
         for st in states:
-            w.add_message(ids[NAV_STATE], log_time=st["t_sync_ns"], publish_time=st["t_mono_ns"],
-                          data=json.dumps(st).encode())
+            add(ids[NAV_STATE], log_time=st["t_sync_ns"], publish_time=st["t_mono_ns"], data=json.dumps(st).encode())
         w.finish()
-
-
+    return len(rows)
