@@ -12,6 +12,7 @@ import pytest
 from sensors import mpu6050 as drv
 from sensors.errors import BusError, DeviceNotFound, WrongDevice
 from sensors.mpu6050 import Mpu6050, choose_sample_timing
+from sensors.sim import i2c as sim_i2c
 from sensors.sim.clock import ManualClock
 from sensors.sim.earth import gravity_ned
 from sensors.sim.i2c import SimI2cAdapter, SimI2cBus
@@ -358,7 +359,7 @@ def test_fifo_loses_nothing_and_keeps_order(rig, rate, every_s) -> None:
 def test_fifo_reads_in_pieces_of_at_most_32_bytes_and_stitches_frames(rig) -> None:
     truth = MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5)
     r = rig(truth, errors=Mpu6050Errors.ideal())
-    d = r.driver(rate_hz=1000, fifo=True)
+    d = r.driver(rate_hz=1000, fifo=True, fifo_burst=False)
     d.configure()
     r.clock.advance(0.1)
     d.read_fifo(r.clock.now_ns())
@@ -438,10 +439,43 @@ def test_overflow_seen_by_data_ready_is_not_forgotten(rig) -> None:
     assert d.read_fifo(r.clock.now_ns()).overflowed
 
 
+def test_fifo_is_read_in_one_combined_transfer_with_the_same_samples_as_smbus_blocks(rig) -> None:
+    """Where the adapter does I2C (as i2c-omap on the board does), a FIFO read is one I2C_RDWR transaction of
+    all waiting bytes; the samples are those the 32-byte SMBus blocks give."""
+    got = {}
+    for burst in (True, False):
+        r = rig(MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5), errors=Mpu6050Errors.ideal())
+        d = r.driver(rate_hz=1000, fifo=True, fifo_burst=burst)
+        d.configure()
+        r.clock.advance(0.1)
+        d.read_fifo(r.clock.now_ns())
+        r.adapter.trace = []
+        got[burst], lost = _run_fifo(r, d, 0.4, 0.04)
+        assert lost == 0
+        fifo_reads = [len(data) for addr, kind, data in r.adapter.trace if kind == "R" and len(data) > 2]
+        assert (max(fifo_reads) == 480) if burst else (max(fifo_reads) == 32)
+        assert sum(fifo_reads) == 400 * 12
+    assert np.array_equal(got[True], got[False])
+
+
+def test_an_smbus_only_adapter_refuses_the_combined_read_and_the_fifo_is_read_in_blocks(rig) -> None:
+    r = rig(MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5), errors=Mpu6050Errors.ideal())
+    r.adapter.functionality &= ~sim_i2c.I2C_FUNC_I2C
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.adapter.trace = []
+    gyro_z, lost = _run_fifo(r, d, 0.2, 0.04)
+    assert lost == 0 and len(gyro_z) == 200 and np.all(np.diff(gyro_z) > 0)
+    fifo_reads = [len(data) for addr, kind, data in r.adapter.trace if kind == "R" and len(data) > 2]
+    assert max(fifo_reads) == 32
+
+
 def test_fifo_read_error_keeps_bytes_already_read(rig) -> None:
     truth = MotionTrajectory(w0=(0.0, 0.0, -1.0))
     r = rig(truth, errors=Mpu6050Errors.ideal())
-    d = r.driver(rate_hz=1000, fifo=True)
+    d = r.driver(rate_hz=1000, fifo=True, fifo_burst=False)
     d.configure()
     r.clock.advance(0.1)
     d.read_fifo(r.clock.now_ns())

@@ -447,6 +447,8 @@ class SimI2cAdapter:
         return _ioctl_return(arg)
 
     def _ioctl_rdwr(self, client: _Client, arg: Any) -> Any:
+        if not self.functionality & I2C_FUNC_I2C:  # an SMBus-only controller has no master_xfer: the kernel refuses
+            raise _oserror(errno.EOPNOTSUPP)
         req = _RdwrIoctlData.from_buffer_copy(_read_arg(arg, ctypes.sizeof(_RdwrIoctlData)))
         if not req.msgs or req.nmsgs == 0 or req.nmsgs > I2C_RDWR_IOCTL_MAX_MSGS:
             raise _oserror(errno.EINVAL)
