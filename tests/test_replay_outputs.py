@@ -205,3 +205,22 @@ def test_write_mcap_takes_the_engines_publish_rate_unless_told(tmp_path: Path) -
     got = [m for _, m in read_messages([tmp_path / "b.mcap"], ("/nav/fix",))]
     assert [json.dumps(m).encode() for m in got] == [record_json(r, f"ins {engine.mode}-state", engine.mode)
                                                      for r in rows]
+
+
+def test_the_cycle_collector_is_paused_only_for_the_work() -> None:
+    import gc
+
+    from logger.cli.replay import no_cycle_collector
+
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), no_cycle_collector():
+        assert not gc.isenabled()
+        raise RuntimeError("the filter failed")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with no_cycle_collector():
+            pass
+        assert not gc.isenabled()  # left as the caller had it
+    finally:
+        gc.enable()

@@ -16,9 +16,12 @@ and the line, exit 2.
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -69,6 +72,20 @@ def rate_hz(text: str) -> float:
     return hz
 
 
+@contextmanager
+def no_cycle_collector() -> Iterator[None]:
+    """Python's cyclic garbage collector paused. The filter's and the writers' objects are freed by reference
+    counting (a whole replay leaves a few hundred objects in cycles, from its start), while every collection
+    would walk the rows the trajectory keeps: on a 20-minute drive about 300 collections, some 5 % of the CPU."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     missing = [str(f) for f in args.files if not f.exists()]
@@ -111,8 +128,9 @@ def main(argv: list[str]) -> int:
         from logger.nav.smoother import SmoothingReport
 
         smoothing = SmoothingReport()
-    engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing,
-                              solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
+    with no_cycle_collector():
+        engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing,
+                                  solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
     t1 = time.perf_counter()
     c = engine.counters
     progress.end()
@@ -125,12 +143,13 @@ def main(argv: list[str]) -> int:
         return 1
     progress.stage("writing the trajectory")
     args.out.mkdir(parents=True, exist_ok=True)
-    cols = columns(rows)
-    write_csv(args.out / "trajectory.csv", cols)
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
-    if states is not None:
-        fixes = write_mcap(args.out / "trajectory.mcap", cols, engine, states, fix_hz)
+    with no_cycle_collector():
+        cols = columns(rows)
+        write_csv(args.out / "trajectory.csv", cols)
+        if states is not None:
+            fixes = write_mcap(args.out / "trajectory.mcap", cols, engine, states, fix_hz)
     progress.end()
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
     if engine.mode == "gnss":

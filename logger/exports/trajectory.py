@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from mcap.writer import CompressionType, Writer
 
 from logger.exports.tracks import SIGMA_UNKNOWN_M
 from logger.nav.engine import NavEngine, TrajectoryRow
@@ -197,8 +198,6 @@ def write_mcap(path: Path, cols: Columns, engine: NavEngine, states: list[dict[s
                fix_hz: float | None = None) -> int:
     """``trajectory.mcap``: ``/nav/fix`` at ``fix_hz`` (None: the engine's ``publish_hz``, the live rate; 0: every
     row) and the ``/nav/state`` records. Returns how many ``/nav/fix`` messages it wrote."""
-    from mcap.writer import CompressionType, Writer  # not needed before the end (nor at all with --no-mcap)
-
     hz = engine.params.publish_hz if fix_hz is None else fix_hz
     rows = fix_rows(cols.t_ns, hz)
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
