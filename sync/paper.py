@@ -89,8 +89,11 @@ class PaperCounters:
         if self.last_edge_ns is None:
             n = np.full(len(t), self._beyond, dtype=np.int64)
         else:
-            ts, right = self._times, bisect.bisect_right
-            n = np.array([right(ts, x) for x in times_ns], dtype=np.int64) + self._beyond
+            # Only the registered times between the first and the last instant can tell them apart: search those.
+            ts = self._times
+            lo = bisect.bisect_right(ts, times_ns[0]) if len(t) else 0
+            hi = bisect.bisect_right(ts, times_ns[-1]) if len(t) else 0
+            n = np.searchsorted(np.asarray(ts[lo:hi], dtype=np.int64), t, side="right") + (lo + self._beyond)
             n[t <= self.last_edge_ns] = 0
         limit = self.rate + 1
         carries = np.where(n > limit, -(-(n - limit) // self.rate), 0) * self.rate

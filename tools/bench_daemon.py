@@ -14,9 +14,10 @@ serial and GPIO drivers) is not in either figure; the I2C transfer count is repo
 
 The run is real time (time scale 1) with the default configuration except the IMU rate, as on a board: the
 navigation filter runs live, and the drive is not paced (a paced drive's threads wait in short steps to follow
-its pace, wake-ups a board does not have; at real time a governor has nothing to slow). The simulation's truth topics (``/truth/*``, recorded only by ``--sim``) are left
-out, as the soak does: they would make the recorder write about twice the records a board writes. After
-start-up and a warm-up the counters are read, again after ``--seconds``, and the difference is the figure.
+its pace, wake-ups a board does not have; at real time a governor has nothing to slow). The simulation's truth
+topics (``/truth/*``, recorded only by ``--sim``) are left out, as the soak does: they would make the recorder
+write about twice the records a board writes. After start-up and a warm-up the counters are read, again after
+``--seconds``, and the difference is the figure.
 From the recorded file, within that window: IMU records against the rate, sequence gaps (records lost in the
 daemon), FIFO overflow losses, silences longer than 2.5 periods; from the daemon: late and missed sampler
 periods and recorder drops. ``--profile`` runs the same with cProfile on every thread (on the thread's CPU
@@ -198,11 +199,11 @@ class ThreadProfiles:
             self.profiles.append((threading.current_thread().name, profile))
         profile.enable()
 
-    def top(self, n: int = 20) -> dict[str, Any]:
-        """The daemon threads' functions by own CPU time, and the same summed per module."""
+    def top(self, n: int = 20, thread: str | None = None) -> dict[str, Any]:
+        """The daemon threads' functions by own CPU time (one thread's, if named), and the same summed per module."""
         stats: pstats.Stats | None = None
         for name, profile in self.profiles:
-            if thread_class(name) != "daemon":
+            if thread_class(name) != "daemon" or (thread is not None and name != thread):
                 continue
             profile.disable()
             stats = pstats.Stats(profile) if stats is None else stats.add(profile)
@@ -338,7 +339,8 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
             "imu_records_whole_run": len(imu)}
 
 
-def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool) -> DaemonResult:
+def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool,
+        profile_thread: str | None = None) -> DaemonResult:
     from logger.compose import build
     from logger.runtime import logs
 
@@ -439,7 +441,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     result.sustained = not any((imu.get("late", 1), imu.get("missed", 1), result.counters["recorder_dropped"],
                                 result.file["seq_missing"], result.file["fifo_lost"]))
     if profile:
-        result.profile_top = profiles.top()
+        result.profile_top = profiles.top(thread=profile_thread)
     return result
 
 
@@ -548,6 +550,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=120.0, help="length of the measured window, s")
     ap.add_argument("--warmup", type=float, default=15.0, help="seconds after READY before the window opens")
     ap.add_argument("--profile", action="store_true", help="cProfile every thread (slower: ranking only)")
+    ap.add_argument("--profile-thread", metavar="NAME", help="with --profile, rank only this thread's functions "
+                    "(sampler-imu, recorder, navigator, ...)")
     ap.add_argument("--nice", type=int, default=0,
                     help="run at this niceness (negative needs root): on a shared machine, keeps other jobs from "
                     "delaying the sampler threads as nothing would on the board")
@@ -564,7 +568,7 @@ def main(argv: list[str] | None = None) -> int:
     nice = set_niceness(args.nice)
     with tempfile.TemporaryDirectory(prefix="bench-daemon-") as tmp:
         out = args.out or Path(tmp)
-        result = asdict(run(args.imu_rate, args.seconds, args.warmup, out, args.profile))
+        result = asdict(run(args.imu_rate, args.seconds, args.warmup, out, args.profile, args.profile_thread))
     result["nice"] = nice
     text = json.dumps(result, indent=1)
     if args.json:

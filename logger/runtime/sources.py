@@ -122,7 +122,7 @@ class ImuSource(Source):
         n = len(batch)
         if not n:
             return []  # the lost count waits for the next samples, the first of which it precedes
-        times = [int(t) for t in self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)]
+        times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
         payload = imu_batch_payload(times, batch.accel_mps2, batch.gyro_rps, batch.temp_degc, batch.period_s,
                                     self._pending_lost)
         self._pending_lost = 0
