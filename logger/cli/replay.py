@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from logger.cli.progress import Progress
-from logger.exports.trajectory import columns, run_filter, write_csv, write_mcap
+from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.files import is_finished
@@ -146,10 +146,9 @@ def main(argv: list[str]) -> int:
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
     with no_cycle_collector():
-        cols = columns(rows)
-        write_csv(args.out / "trajectory.csv", cols)
+        write_csv(args.out / "trajectory.csv", rows)
         if states is not None:
-            fixes = write_mcap(args.out / "trajectory.mcap", cols, engine, states, fix_hz)
+            fixes = write_mcap(args.out / "trajectory.mcap", rows, engine, states, fix_hz)
     progress.end()
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
     if engine.mode == "gnss":

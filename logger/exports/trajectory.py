@@ -6,9 +6,9 @@ the filter runs (per fix in GNSS-only mode): the whole solution, for scoring and
 is for the map: ``/nav/fix`` at the rate the live navigator publishes it (``nav.publish_hz``, 5 Hz by default;
 ``fix_hz`` another, 0 every row) and ``/nav/state`` once a second, so Foxglove draws it next to the recording.
 
-Both are written by the block, not by the row: the rows become columns once (angles for all rows at a time), the
-CSV lines a block at a time through one format, and each ``/nav/fix`` message's JSON through a fixed template
-(the same bytes as ``json.dumps`` of :func:`~logger.recording.records.nav_fix_record`).
+Both are written by the block, not by the row: the rows become columns a block at a time (the attitudes of the
+block at once), the CSV lines of a block go through one format, and each ``/nav/fix`` message's JSON is one fill
+of a fixed template (the same bytes as ``json.dumps`` of :func:`~logger.recording.records.nav_fix_record`).
 """
 
 from __future__ import annotations
@@ -133,13 +133,13 @@ def columns(rows: Sequence[TrajectoryRow]) -> Columns:
                    list(map(deg, pitch)), list(map(deg, yaw)), sn, se, sd)
 
 
-def write_csv(path: Path, cols: Columns) -> None:
-    """``trajectory.csv``: the header, then a line per row, formatted and written a block at a time."""
-    table = cols.table()
+def write_csv(path: Path, rows: Sequence[TrajectoryRow]) -> None:
+    """``trajectory.csv``: the header, then a line per row, a block of rows at a time made columns, formatted and
+    written."""
     with open(path, "w", newline="") as f:
         f.write(",".join(CSV_HEADER) + "\r\n")
-        for i in range(0, len(cols), BLOCK_ROWS):
-            block = list(zip(*(col[i:i + BLOCK_ROWS] for col in table), strict=True))
+        for i in range(0, len(rows), BLOCK_ROWS):
+            block = list(zip(*columns(rows[i:i + BLOCK_ROWS]).table(), strict=True))
             f.write((CSV_LINE * len(block)) % tuple(itertools.chain.from_iterable(block)))
 
 
@@ -165,26 +165,23 @@ class _JsonNumber(float):
         return json.dumps(float(self))
 
 
-def nav_fix_json(cols: Columns, rows: Sequence[int], source: str, mode: str) -> list[bytes]:
-    """The ``/nav/fix`` message of each of ``rows`` as JSON bytes: the bytes of ``json.dumps(nav_fix_record(...))``
-    for that row. The numbers are picked and derived (unknown sigmas, the covariance) for all rows at a time, then
-    each message is one fill of the template."""
-    if not len(rows):
+def nav_fix_json(cols: Columns, source: str, mode: str) -> list[bytes]:
+    """The ``/nav/fix`` message of each row of ``cols`` as JSON bytes: the bytes of
+    ``json.dumps(nav_fix_record(...))`` for that row. The numbers are derived (unknown sigmas, the covariance)
+    for all rows at a time, then each message is one fill of the template."""
+    if not len(cols):
         return []
-    idx = np.asarray(rows, dtype=np.intp)
-
-    def pick(col: Sequence[float]) -> np.ndarray:
-        return np.asarray(col, dtype=float)[idx]
-
-    sig = np.array([pick(cols.sn), pick(cols.se), pick(cols.sd)])
+    sig = np.array([cols.sn, cols.se, cols.sd], dtype=float)
     sn, se, sd = np.where(np.isfinite(sig), sig, SIGMA_UNKNOWN_M)  # nav_fix_record's rule
-    numbers = np.array([pick(cols.lat_deg), pick(cols.lon_deg), pick(cols.h_m), se * se, sn * sn, sd * sd,
-                        pick(cols.vn), pick(cols.ve), pick(cols.vd), pick(cols.roll_deg), pick(cols.pitch_deg),
-                        pick(cols.yaw_deg), sn, se, sd])
+    numbers = np.array([np.asarray(cols.lat_deg, dtype=float), np.asarray(cols.lon_deg, dtype=float),
+                        np.asarray(cols.h_m, dtype=float), se * se, sn * sn, sd * sd,
+                        np.asarray(cols.vn, dtype=float), np.asarray(cols.ve, dtype=float),
+                        np.asarray(cols.vd, dtype=float), np.asarray(cols.roll_deg, dtype=float),
+                        np.asarray(cols.pitch_deg, dtype=float), np.asarray(cols.yaw_deg, dtype=float), sn, se, sd])
     finite = np.isfinite(numbers).all(axis=0).tolist()
-    t = [int(cols.t_ns[i]) for i in rows]
-    times = zip([int(cols.t_mono_ns[i]) for i in rows], t, [v // 1_000_000_000 for v in t],
-                [v % 1_000_000_000 for v in t], strict=True)
+    t = [int(v) for v in cols.t_ns]
+    times = zip([int(v) for v in cols.t_mono_ns], t, [v // 1_000_000_000 for v in t], [v % 1_000_000_000 for v in t],
+                strict=True)
     names = (json.dumps(source), json.dumps(mode))
     out = []
     for ok, stamp, values in zip(finite, times, zip(*numbers.tolist(), strict=True), strict=True):
@@ -194,12 +191,12 @@ def nav_fix_json(cols: Columns, rows: Sequence[int], source: str, mode: str) -> 
     return out
 
 
-def write_mcap(path: Path, cols: Columns, engine: NavEngine, states: list[dict[str, Any]],
+def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, states: list[dict[str, Any]],
                fix_hz: float | None = None) -> int:
     """``trajectory.mcap``: ``/nav/fix`` at ``fix_hz`` (None: the engine's ``publish_hz``, the live rate; 0: every
     row) and the ``/nav/state`` records. Returns how many ``/nav/fix`` messages it wrote."""
     hz = engine.params.publish_hz if fix_hz is None else fix_hz
-    rows = fix_rows(cols.t_ns, hz)
+    cols = columns([rows[i] for i in fix_rows([row[0] for row in rows], hz)])
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
     with open(path, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)
@@ -210,9 +207,9 @@ def write_mcap(path: Path, cols: Columns, engine: NavEngine, states: list[dict[s
             sid = w.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
             ids[topic] = w.register_channel(topic, "json", sid)
         fix_id, add = ids[NAV_FIX], w.add_message
-        for i, data in zip(rows, nav_fix_json(cols, rows, source, engine.mode), strict=True):
-            add(fix_id, log_time=cols.t_ns[i], publish_time=cols.t_mono_ns[i], data=data)
+        for t, t_mono, data in zip(cols.t_ns, cols.t_mono_ns, nav_fix_json(cols, source, engine.mode), strict=True):
+            add(fix_id, log_time=t, publish_time=t_mono, data=data)
         for st in states:
             add(ids[NAV_STATE], log_time=st["t_sync_ns"], publish_time=st["t_mono_ns"], data=json.dumps(st).encode())
         w.finish()
-    return len(rows)
+    return len(cols)
