@@ -40,7 +40,15 @@ from logger.nav.inputs import GnssObservation, SolutionEpoch
 from logger.nav.measurements import Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
 from logger.nav.params import MODES, NavParams
-from logger.nav.policies import NHC_INTERVAL_NS, BaroPolicy, GnssPolicy, LastReadings, ObdPolicy, StopPolicy
+from logger.nav.policies import (
+    NHC_INTERVAL_NS,
+    OBD_FRESH_NS,
+    BaroPolicy,
+    GnssPolicy,
+    LastReadings,
+    ObdPolicy,
+    StopPolicy,
+)
 from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
@@ -57,6 +65,8 @@ CONFIG_HEADING_VAR = math.radians(2.0) ** 2
 REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
 REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
 REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
+BATCH_MIN = 8  # shorter batches go sample by sample: numpy's overhead per call is worth a few samples
+NEVER = 2**63 - 1
 
 
 class TrajectoryRow(NamedTuple):
@@ -164,6 +174,8 @@ class NavEngine:
         self._cov_interval_s = p.cov_interval_s
         self._next_idle_check_ns = 0
         self._inflations_seen = 0
+        self._block: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float | None] | None = None  # imu_batch
+        self._block_done = 0  # samples of _block whose bookkeeping is done
 
     # ---- IMU ---------------------------------------------------------------------------------------------
     def imu(self, t_ns: int, t_mono_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
@@ -228,13 +240,136 @@ class NavEngine:
             acc_[2] += fn[2] * dt
         self._after_step(t_ns, t_mono_ns, s, gyro, dt)
 
+    def imu_batch(self, t_ns: np.ndarray | list[int], t_mono_ns: np.ndarray | list[int], acc: np.ndarray,
+                  gyro: np.ndarray, temp_degc: float | None = None) -> None:
+        """Consecutive IMU samples at once: a FIFO read, or a run of ``/imu`` records with nothing between them.
+
+        ``t_ns`` and ``t_mono_ns``: each sample's synchronised and board times (n); ``acc`` and ``gyro``: n x 3
+        specific force (m/s^2) and rate (rad/s) on the chip's axes; ``temp_degc``: the die temperature read with
+        them (one per read), or None. The result is what :meth:`imu` gives fed the samples one by one with that
+        temperature (to round-off): every sample is integrated at its own time, gets its row and its place in
+        the late-fix history, and the covariance is propagated after the same samples. What is per-sample
+        bookkeeping rather than integration (the mounting's rotation, the offsets, the stop detector's window, the
+        noise monitor, the mount alignment's sums, the die temperature) is done for the whole block with numpy.
+        Measurements between samples are not part of a batch: call this for the samples before a measurement,
+        then the measurement, then the rest. Short blocks, blocks with a gap or a sample out of order, and blocks
+        before the filter has started go sample by sample."""
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        n = len(t)
+        if n == 0:
+            return
+        acc = np.asarray(acc, dtype=float).reshape(n, 3)
+        gyro = np.asarray(gyro, dtype=float).reshape(n, 3)
+        mono = np.asarray(t_mono_ns, dtype=np.int64).reshape(n)
+        t_last = self._t_last
+        if (n < BATCH_MIN or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
+                or not bool((np.diff(t) > 0).all())):
+            self._imu_each(t, mono, acc, gyro, temp_degc)
+            return
+        dts = np.diff(t, prepend=t_last) / NS
+        if not bool((dts < IMU_GAP_S).all()):
+            self._imu_each(t, mono, acc, gyro, temp_degc)
+            return
+        if self.alignment is not None:
+            self.alignment.sample_block(t, acc, gyro)
+        if self._mount is not None:
+            m = self._mount_m
+            acc, gyro = acc @ m.T, gyro @ m.T
+        self.counters.imu += n
+        self._block = (t, acc, gyro, dts, temp_degc)  # the bookkeeping owed, done by _catch_up
+        self._block_done = 0
+        s = self.state
+        mech, hist, record, rows = self.mech, self.history.entries, self.record, self.rows
+        times, monos, dtl = t.tolist(), mono.tolist(), dts.tolist()
+        interval = self._cov_interval_s
+        i = 0
+        while i < n:
+            # A segment: the samples up to the next one that closes something besides its integration (the
+            # covariance's interval, the idle check, a solution's epoch); nothing changes the offsets inside it.
+            event_ns = self._event_ns()
+            ba, bg = s.ba, s.bg
+            f_rows = (acc[i:] - ba).tolist()
+            w_rows = (gyro[i:] - bg).tolist()
+            corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
+            cov_dt, dt_mean = self._cov_dt, self._dt_mean
+            j = i
+            due = False
+            for f_, w_ in zip(f_rows, w_rows, strict=False):
+                dt = dtl[j]
+                dt_mean += 0.02 * (dt - dt_mean)
+                mech.coning = dt_mean < CONING_MAX_DT_S
+                mech.step(s, (w_[0], w_[1], w_[2]), (f_[0], f_[1], f_[2]), dt)
+                cov_dt += dt
+                t_j = times[j]
+                if cov_dt >= interval or t_j >= event_ns:
+                    due = True
+                    break
+                hist.append((t_j, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, corr))
+                if record:
+                    rows.append(TrajectoryRow(t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, sigma, epoch))
+                j += 1
+            self._dt_mean = dt_mean
+            last = j if due else n - 1
+            f_, w_ = f_rows[last - i], w_rows[last - i]
+            self._f_last, self._w_last = (f_[0], f_[1], f_[2]), (w_[0], w_[1], w_[2])
+            a_, g_ = acc[last].tolist(), gyro[last].tolist()
+            self._gyro_raw = (g_[0], g_[1], g_[2])
+            self._raw = ((a_[0], a_[1], a_[2]), self._gyro_raw)
+            self._t_last, self._t_mono_last = times[last], monos[last]
+            self._catch_up(last + 1)
+            if not due:
+                self._cov_dt = cov_dt
+                break
+            # The bookkeeping came up to sample j: the rest of it runs as for a single sample.
+            self._cov_dt = cov_dt - dtl[j]
+            self._after_step(times[j], monos[j], s, self._gyro_raw, dtl[j], gyro_sum=False)
+            i = j + 1
+        self._block = None
+
+    def _event_ns(self) -> int:
+        """The first instant from which a sample closes something besides its integration and the covariance's
+        interval: the idle check (17-state, no fresh OBD speed) or a solution's next epoch."""
+        at = NEVER
+        if self.mode == "17":
+            obd = self.last_readings.obd
+            at = max(self._next_idle_check_ns, obd[0] + OBD_FRESH_NS + 1 if obd is not None else 0)
+        if self.solution is not None:
+            at = min(at, self.solution.next_ns)
+        return at
+
+    def _imu_each(self, t: np.ndarray, mono: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
+                  temp_degc: float | None) -> None:
+        """A batch sample by sample, through :meth:`imu`."""
+        sample = self.imu
+        for t_i, m_i, a, g in zip(t.tolist(), mono.tolist(), acc.tolist(), gyro.tolist(), strict=True):
+            sample(t_i, m_i, (a[0], a[1], a[2]), (g[0], g[1], g[2]), temp_degc)
+
+    def _catch_up(self, upto: int) -> None:
+        """The per-sample bookkeeping of the current batch's samples before ``upto``, in blocks: the stop detector,
+        the noise monitor, the die temperature, the gyro sum of a stop."""
+        t, acc, gyro, dts, temp = self._block
+        sl = slice(self._block_done, upto)
+        self._block_done = upto
+        self.stops.add_block(t[sl], acc[sl], gyro[sl])
+        if self.imu_noise is not None:
+            self.imu_noise.add_block(acc[sl], gyro[sl], dts[sl])
+        if temp is not None:
+            self.thermal.add_block(t[sl], float(temp))
+        if self._stop.stopped:
+            ws = self._stop.w_sum
+            g = gyro[sl].sum(axis=0).tolist()
+            ws[0] += g[0]
+            ws[1] += g[1]
+            ws[2] += g[2]
+            ws[3] += len(t[sl])
+
     def _after_step(self, t_ns: int, t_mono_ns: int, s: NavState, gyro: tuple[float, float, float],
-                    dt: float) -> None:
-        """What follows each integrated sample: the stop's gyro sum, the idle check, the history, the row, and the
-        covariance when its interval is up."""
+                    dt: float, gyro_sum: bool = True) -> None:
+        """What follows each integrated sample: the stop's gyro sum (unless a batch did it), the idle check, the
+        history, the row, and the covariance when its interval is up."""
         self._cov_dt += dt
         stop = self._stop
-        if stop.stopped:
+        if stop.stopped and gyro_sum:
             ws = stop.w_sum
             ws[0] += gyro[0]
             ws[1] += gyro[1]

@@ -18,6 +18,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numpy as np
+
 TAU_S = 30.0  # the average's memory, drive time
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
 
@@ -55,6 +57,45 @@ class ImuNoiseMonitor:
             self.seen_s += dt
         self._a2, self._a1 = a1, acc
         self._g2, self._g1 = g1, gyro
+
+    def add_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
+        """Samples at once (``acc``, ``gyro``: n x 3, ``dt``: the interval before each): what :meth:`add` one by
+        one leaves, the running average in closed form (the product of the forgetting factors after each term)."""
+        n = len(dt)
+        if n == 0:
+            return
+        nan = (math.nan,) * 3
+        a = np.concatenate((np.array((self._a2 or nan, self._a1 or nan)), acc))
+        g = np.concatenate((np.array((self._g2 or nan, self._g1 or nan)), gyro))
+        ok = (dt > 0.0) & (dt < 0.5)
+        # A sample's second difference needs its own interval and the one before it good (a bad one restarts the
+        # differences) and two samples before it.
+        valid = ok.copy()
+        valid[1:] &= ok[:-1]
+        da = a[2:] - 2.0 * a[1:-1] + a[:-2]
+        dg = g[2:] - 2.0 * g[1:-1] + g[:-2]
+        va, vg = (da * da).sum(axis=1) / 18.0, (dg * dg).sum(axis=1) / 18.0
+        valid &= np.isfinite(va) & np.isfinite(vg)
+        m = int(valid.sum())
+        if m:
+            d = dt[valid]
+            k = self._k + np.arange(1, m + 1)
+            w = np.maximum(1.0 / k, d / TAU_S)
+            keep = np.cumprod((1.0 - w)[::-1])[::-1]  # what is left of the value before each term after the rest
+            after = np.append(keep[1:], 1.0)
+            wa = w * after
+            self._var_a = float(keep[0] * self._var_a + (wa * va[valid] * d).sum())
+            self._var_g = float(keep[0] * self._var_g + (wa * vg[valid] * d).sum())
+            self._k += m
+            self.seen_s += float(d.sum())
+        last_a, last_g = tuple(acc[-1].tolist()), tuple(gyro[-1].tolist())
+        if not ok[-1]:
+            self._a2 = self._g2 = None
+        elif n >= 2:
+            self._a2, self._g2 = tuple(acc[-2].tolist()), tuple(gyro[-2].tolist())
+        else:
+            self._a2, self._g2 = self._a1, self._g1
+        self._a1, self._g1 = last_a, last_g
 
     def densities(self) -> tuple[float, float] | None:
         """(accelerometer, gyro) white-noise densities measured, None before enough was seen."""

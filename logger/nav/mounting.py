@@ -209,6 +209,17 @@ class MountAlignment:
         row = self._last = (t_ns, a0 + ax, a1 + ay, a2 + az, w0 + wx, w1 + wy, w2 + wz, n + 1)
         self._sums.append(row)
 
+    def sample_block(self, t_ns: np.ndarray, acc_chip: np.ndarray, gyro_chip: np.ndarray) -> None:
+        """Samples at once (n x 3 each): the same running sums as :meth:`sample` one by one."""
+        if len(t_ns) == 0:
+            return
+        last = self._last
+        run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
+                        axis=0)[1:]
+        self._sums.extend(zip(t_ns.tolist(), *run.T.tolist(), range(last[7] + 1, last[7] + 1 + len(t_ns)),
+                              strict=True))
+        self._last = self._sums[-1]
+
     def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
         """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
         sums = self._sums

@@ -180,4 +180,4 @@ class Startup:
         if n > SF_ID:
             p0[SF_ID, SF_ID] = p.obd_scale_sigma**2
             p0[DH_ID, DH_ID] = fix.sigma[2] ** 2 + p.baro_sigma_m**2 + 1.0
-        return s, p0
+        return s.plain(), p0

@@ -48,6 +48,17 @@ class NavState:
     sf: float = 0.0
     dh: float = 0.0
 
+    def plain(self) -> NavState:
+        """Every field as a plain Python float, in place (and returned). The inner loop's arithmetic on numpy
+        scalars, which a state built from arrays would carry, costs several times as much for the same result."""
+        self.lat, self.lon, self.h = float(self.lat), float(self.lon), float(self.h)
+        self.vn, self.ve, self.vd = float(self.vn), float(self.ve), float(self.vd)
+        self.q = (float(self.q[0]), float(self.q[1]), float(self.q[2]), float(self.q[3]))
+        self.ba = (float(self.ba[0]), float(self.ba[1]), float(self.ba[2]))
+        self.bg = (float(self.bg[0]), float(self.bg[1]), float(self.bg[2]))
+        self.sf, self.dh = float(self.sf), float(self.dh)
+        return self
+
     def dcm(self) -> np.ndarray:
         return dcm_from_quat(self.q)
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numpy as np
+
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
@@ -74,6 +76,29 @@ class StopDetector:
         self._dirty = True
         self._adds += 1
         if self._adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
+            self._resum()
+
+    def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
+        """Samples in time order at once (``f``, ``w``: n x 3): the window and sums :meth:`add` would leave, the
+        sums taken with numpy."""
+        if len(t_ns) == 0:
+            return
+        fw = np.concatenate((f, w), axis=1)
+        win = self._win
+        times = t_ns.tolist()
+        win.extend(zip(times, *fw.T.tolist(), strict=True))
+        sums = np.concatenate((fw.sum(axis=0), (fw * fw).sum(axis=0)))
+        limit = times[-1] - WINDOW_NS
+        old = []
+        while win[0][0] < limit:
+            old.append(win.popleft())
+        if old:
+            o = np.array(old, dtype=float)[:, 1:]
+            sums -= np.concatenate((o.sum(axis=0), (o * o).sum(axis=0)))
+        self._sums = tuple((np.array(self._sums) + sums).tolist())
+        self._dirty = True
+        self._adds += len(times)
+        if self._adds >= RESUM_EVERY:
             self._resum()
 
     def _resum(self) -> None:

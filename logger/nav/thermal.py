@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 SMOOTH_S = 20.0  # die temperature follows the board within minutes; its sensor's noise is white per sample
 STEP_DEGC = 0.05  # smallest change counted: above the averaged noise, below any tempco worth modelling
 
@@ -69,6 +71,34 @@ class TemperatureSpan:
         self._hi = max(self._hi, smooth)
         step = abs(d)
         self._owed += step * (2.0 * self.range_degc - step)
+
+    def add_block(self, t_ns: np.ndarray, temp_degc: float) -> None:
+        """One reading for samples at ``t_ns`` (in time order; a FIFO read has one temperature): what :meth:`add`
+        at each leaves, the average in closed form."""
+        if temp_degc - temp_degc != 0.0 or len(t_ns) == 0:
+            return
+        if self._t_ns is None:
+            self.add(int(t_ns[0]), temp_degc)
+            t_ns = t_ns[1:]
+        t = t_ns[t_ns > self._t_ns]
+        if len(t) == 0:
+            return
+        a = np.minimum(np.diff(t, prepend=self._t_ns) / 1e9 / SMOOTH_S, 1.0)
+        smooth = temp_degc - np.cumprod(1.0 - a) * (temp_degc - self._smooth)
+        self._t_ns, self._smooth = int(t[-1]), float(smooth[-1])
+        i = 0
+        while True:  # the steps counted: few if any in a block
+            hit = np.flatnonzero(np.abs(smooth[i:] - self._counted) >= STEP_DEGC)
+            if len(hit) == 0:
+                return
+            i += int(hit[0])
+            d = float(smooth[i]) - self._counted
+            self._counted = float(smooth[i])
+            self._lo = min(self._lo, self._counted)
+            self._hi = max(self._hi, self._counted)
+            step = abs(d)
+            self._owed += step * (2.0 * self.range_degc - step)
+            i += 1
 
     def take(self) -> float:
         """Variance per unit k^2 (degC^2) owed since the last call; the caller adds k^2 times it to the offsets."""

@@ -1,0 +1,159 @@
+"""IMU samples in batches (``NavEngine.imu_batch``: a FIFO read, replay's runs of /imu records) give the trajectory
+the samples give one by one, and the block forms of the per-sample bookkeeping match their per-sample forms."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_nav_synth import records
+
+from logger.nav.engine import BATCH_MIN, NavEngine
+from logger.nav.imu_noise import ImuNoiseMonitor
+from logger.nav.mounting import MountAlignment
+from logger.nav.params import NavParams
+from logger.nav.stops import StopDetector
+from logger.nav.thermal import TemperatureSpan
+from logger.recording.records import feed_record, nav_feeder
+from sensors.sim.scenarios import make_drive
+
+NS = 1_000_000_000
+
+
+def _with_temperature(recs, degc_per_s: float = 0.01):
+    """The records with a die temperature that warms slowly and reads with noise, as the MPU-6050's does."""
+    rng = np.random.default_rng(5)
+    t0 = recs[0][0]
+    for t, topic, msg in recs:
+        if topic == "/imu":
+            msg["temp_degc"] = 30.0 + degc_per_s * (t - t0) / NS + rng.normal(0.0, 0.03)
+    return recs
+
+
+def _runs(recs, longest: int):
+    """Consecutive /imu records (at most ``longest``) as one item, every other record alone."""
+    out, run = [], []
+    for rec in recs:
+        if rec[1] == "/imu":
+            run.append(rec[2])
+            if len(run) < longest:
+                continue
+        if run:
+            out.append(("batch", run))
+            run = []
+        if rec[1] != "/imu":
+            out.append((rec[1], rec[2]))
+    if run:
+        out.append(("batch", run))
+    return out
+
+
+def _twins(items, **params) -> tuple[NavEngine, NavEngine]:
+    """Two engines over the same items: one sample by sample (each with its batch's temperature, as a FIFO read
+    has one), one batch by batch."""
+    one, many = NavEngine(NavParams(**params), record=True), NavEngine(NavParams(**params), record=True)
+    feed_one, feed_many = nav_feeder(one), nav_feeder(many)
+    for topic, item in items:
+        if topic != "batch":
+            feed_record(feed_one, topic, item)
+            feed_record(feed_many, topic, item)
+            continue
+        temp = item[-1].get("temp_degc")
+        t = [m["t_sync_ns"] for m in item]
+        mono = [m["t_mono_ns"] for m in item]
+        acc = np.array([m["accel_mps2"] for m in item])
+        gyro = np.array([m["gyro_rps"] for m in item])
+        for m in item:
+            one.imu(m["t_sync_ns"], m["t_mono_ns"], tuple(m["accel_mps2"]), tuple(m["gyro_rps"]), temp)
+        many.imu_batch(np.array(t), np.array(mono), acc, gyro, temp)
+    return one, many
+
+
+def _same_trajectory(one: NavEngine, many: NavEngine) -> None:
+    assert one.state is not None and many.state is not None
+    assert len(one.rows) == len(many.rows) and len(one.epochs) == len(many.epochs)
+    assert [r.t_ns for r in one.rows] == [r.t_ns for r in many.rows]
+    assert [r.epoch for r in one.rows] == [r.epoch for r in many.rows]
+    a = np.array([(r.lat_rad, r.lon_rad) for r in one.rows]) * 6.4e6
+    b = np.array([(r.lat_rad, r.lon_rad) for r in many.rows]) * 6.4e6
+    assert np.abs(a - b).max() < 1e-6  # metres: round-off
+    for field in ("h_m", "vn_mps", "ve_mps", "vd_mps"):
+        assert np.abs(np.array([getattr(r, field) for r in one.rows])
+                      - np.array([getattr(r, field) for r in many.rows])).max() < 1e-6
+    assert np.abs(np.array([r.q for r in one.rows]) - np.array([r.q for r in many.rows])).max() < 1e-9
+    assert np.abs(np.array([r.sigma_ned_m for r in one.rows])
+                  - np.array([r.sigma_ned_m for r in many.rows])).max() < 1e-6
+    assert np.abs(one.ekf.p - many.ekf.p).max() < 1e-9
+    c1, c2 = vars(one.counters), vars(many.counters)
+    assert c1 == c2
+    assert {k: (v.accepted, v.rejected) for k, v in one.ekf.stats.items()} == \
+        {k: (v.accepted, v.rejected) for k, v in many.ekf.stats.items()}
+
+
+@pytest.fixture(scope="module")
+def fast_drive():
+    """Two and a half minutes of the outage scenario with a 100 Hz IMU: a stop, driving, turns."""
+    drive = make_drive("outage-60s", seed=3, duration_s=150.0)
+    return _with_temperature(records(drive, 150.0, seed=4, imu_hz=100.0))
+
+
+@pytest.mark.parametrize("mode", ["17", "15"])
+def test_batches_of_a_fast_imu_give_the_trajectory_of_its_samples(fast_drive, mode):
+    one, many = _twins(_runs(fast_drive, 40), mode=mode)
+    _same_trajectory(one, many)
+    assert one.mech.coning and many.mech.coning
+
+
+def test_batches_across_the_covariance_interval_a_stop_and_without_obd():
+    """FIFO reads of a second each (the covariance interval, the idle check and a stop fall inside them) on a
+    board mounted at an angle; no OBD speed, so the idle check decides the stops."""
+    drive = make_drive("urban", seed=1, duration_s=150.0)  # stops from 131 s
+    recs = [r for r in _with_temperature(records(drive, 150.0, seed=4, imu_hz=100.0)) if r[1] != "/obd/speed"]
+    one, many = _twins(_runs(recs, 100), mounting_rpy_deg=(2.0, -3.0, 10.0), cov_interval_s=0.3)
+    _same_trajectory(one, many)
+    assert one.counters.zupt > 0
+
+
+def test_short_batches_and_a_sample_out_of_order_go_sample_by_sample(fast_drive):
+    one, many = _twins(_runs(fast_drive, BATCH_MIN - 1))
+    _same_trajectory(one, many)
+    t = many.t_last_ns
+    many.imu_batch(np.array([t + 10_000_000 * k for k in (1, 2, 0, 3, 4, 5, 6, 7, 8, 9)]), np.zeros(10, np.int64),
+                   np.tile((0.0, 0.0, -9.8), (10, 1)), np.zeros((10, 3)))
+    assert many.counters.imu_out_of_order == 1 and many.t_last_ns == t + 90_000_000
+
+
+def test_block_bookkeeping_matches_sample_by_sample():
+    rng = np.random.default_rng(1)
+    n = 3000
+    t = (np.cumsum(rng.uniform(0.004, 0.006, n)) * NS).astype(np.int64)
+    t[1500:] += 2 * NS  # a gap: the noise monitor restarts its differences
+    acc = rng.normal((0.1, -0.2, -9.8), 0.05, (n, 3))
+    gyro = rng.normal(0.0, 0.01, (n, 3))
+    dt = np.diff(t, prepend=t[0]) / NS
+    stops_a, stops_b = StopDetector(), StopDetector()
+    noise_a, noise_b = ImuNoiseMonitor(), ImuNoiseMonitor()
+    temp_a, temp_b = TemperatureSpan(), TemperatureSpan()
+    mount_a, mount_b = MountAlignment((0.0, 0.0, 0.0)), MountAlignment((0.0, 0.0, 0.0))
+    for i in range(n):
+        stops_a.add(int(t[i]), tuple(acc[i]), tuple(gyro[i]))
+        noise_a.add(tuple(acc[i]), tuple(gyro[i]), float(dt[i]))
+        temp_a.add(int(t[i]), 30.0 + i // 50 * 0.04)  # one reading per block of 50, warming by steps
+        mount_a.sample(int(t[i]), tuple(acc[i]), tuple(gyro[i]))
+    for lo in range(0, n, 50):
+        sl = slice(lo, lo + 50)
+        stops_b.add_block(t[sl], acc[sl], gyro[sl])
+        noise_b.add_block(acc[sl], gyro[sl], dt[sl])
+        temp_b.add_block(t[sl], 30.0 + lo // 50 * 0.04)
+        mount_b.sample_block(t[sl], acc[sl], gyro[sl])
+    assert stops_b.var_a == pytest.approx(stops_a.var_a, rel=1e-9)
+    assert stops_b.var_w == pytest.approx(stops_a.var_w, rel=1e-9)
+    assert noise_b.densities() == pytest.approx(noise_a.densities(), rel=1e-9)
+    assert noise_b.seen_s == pytest.approx(noise_a.seen_s, rel=1e-12)
+    assert temp_b.take() == pytest.approx(temp_a.take(), rel=1e-9) and temp_a.range_degc > 0.5
+    assert temp_b.range_degc == pytest.approx(temp_a.range_degc, rel=1e-12)
+    for probe in (t[100], t[1499], t[-1]):
+        a, b = mount_a._sum_at(int(probe)), mount_b._sum_at(int(probe))
+        assert a[0] == b[0] and a[7] == b[7] and np.allclose(a[1:7], b[1:7], rtol=1e-12)
+    assert math.isfinite(noise_a.densities()[0])
