@@ -138,9 +138,10 @@ def _inverse(s: np.ndarray) -> np.ndarray | None:
         return None
 
 
-def inverse3(s: np.ndarray) -> np.ndarray | None:
-    """Inverse of a 3x3 matrix by its adjugate in plain floats, None when singular."""
-    a, b, c, d, e, f, g, h, i = s.ravel().tolist()
+def inverse3(s: np.ndarray | list[float]) -> np.ndarray | None:
+    """Inverse of a 3x3 matrix (or its nine elements row by row) by its adjugate in plain floats, None when
+    singular."""
+    a, b, c, d, e, f, g, h, i = s.ravel().tolist() if isinstance(s, np.ndarray) else s
     ca, cb, cc = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * ca + b * cb + c * cc
     if det == 0.0 or not math.isfinite(det):

@@ -129,6 +129,7 @@ class NavEngine:
             raise ValueError(f"unknown navigation mode {p.mode!r}: choose one of {', '.join(MODES)}")
         self.mode = p.mode
         self.n = N_FULL if p.mode == "17" else N_INS
+        self._full, self._gnss_only = p.mode == "17", p.mode == "gnss"
         self._set_mount(dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg)))
         self.alignment = MountAlignment(p.mounting_rpy_deg) if p.mount_align and p.mode != "gnss" else None
         self.mount_applied: tuple[float, float, float] = tuple(float(a) for a in p.mounting_rpy_deg)
@@ -183,7 +184,7 @@ class NavEngine:
         """One IMU sample: specific force (m/s^2) and rate (rad/s) on the chip's axes, and its die temperature."""
         if temp_degc is not None:
             self.thermal.add(t_ns, float(temp_degc))
-        if self.mode == "gnss":
+        if self._gnss_only:
             return
         al = self.alignment
         if al is not None:
@@ -375,12 +376,13 @@ class NavEngine:
             ws[1] += gyro[1]
             ws[2] += gyro[2]
             ws[3] += 1
-        if t_ns >= self._next_idle_check_ns and self.mode == "17" and not self.last_readings.obd_fresh(t_ns):
+        if t_ns >= self._next_idle_check_ns and self._full and not self.last_readings.obd_fresh(t_ns):
             # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
             # and a solution that already stands, so a parked car does not drift on its IMU alone.
             self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
             stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5, t_ns)
-        self.history.add(t_ns, s)
+        hist = self.history
+        hist.entries.append((t_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, hist.corr))  # SolutionHistory.add
         if self.solution is not None and t_ns >= self.solution.next_ns:
             self._solution_due(t_ns)
         if self.record:

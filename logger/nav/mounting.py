@@ -142,42 +142,50 @@ class _Fit:
         return self._solved
 
     def _solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        sums = self.sums
-        n = float(sums[_N])
+        # In plain floats around the one SVD: a 3x3 problem costs numpy more in calls than in arithmetic.
+        sums = self.sums.tolist()
+        n = sums[_N]
         if n < 3:
             return None
         wa, wg = 1.0 / ACCEL_SIGMA_MPS2**2, 1.0 / GYRO_SIGMA_RPS**2
-        b_acc, s_fc, s_fv = sums[_B_ACC].reshape(3, 3), sums[_S_FC], sums[_S_FV]
-        b_gyro = sums[_B_GYRO].reshape(3, 3)
+        b_acc, s_fc, s_fv, b_gyro = sums[_B_ACC], sums[_S_FC], sums[_S_FV], sums[_B_GYRO]
+        m_fv = [v / n for v in s_fv]
         # With the offset b free, its best value is the mean of fc - R fv, and what is left to fit is the pairs'
         # cross-covariance about their means (the term R sum fv sum fv^T / n adds a constant, R^T R = I):
         # one SVD, for the rotation and the offset together.
-        centred = b_acc - s_fc[:, None] * (s_fv / n)
-        u, _, vt = np.linalg.svd(wa * centred + wg * b_gyro)
-        r = (u * (1.0, 1.0, _det3(u) * _det3(vt))) @ vt
-        bias = (s_fc - r @ s_fv) / n
+        u, _, vt = np.linalg.svd(np.array([wa * (b_acc[k] - s_fc[i] * m_fv[j]) + wg * b_gyro[k]
+                                           for k, i, j in _IJ]).reshape(3, 3))
+        u9, v9 = u.ravel().tolist(), vt.ravel().tolist()
+        sign = _det3(u9) * _det3(v9)
+        us = [u9[0], u9[1], u9[2] * sign, u9[3], u9[4], u9[5] * sign, u9[6], u9[7], u9[8] * sign]
+        r = [us[3 * i] * v9[j] + us[3 * i + 1] * v9[3 + j] + us[3 * i + 2] * v9[6 + j] for _, i, j in _IJ]
+        bias = [(s_fc[i] - (r[3 * i] * s_fv[0] + r[3 * i + 1] * s_fv[1] + r[3 * i + 2] * s_fv[2])) / n
+                for i in range(3)]
         # sum |fc - b - R fv|^2 = sum |fc|^2 - 2 b.sum fc + n |b|^2 + sum |fv|^2 - 2 trace(R^T sum (fc - b) fv^T)
-        sse_acc = float(sums[_CC_ACC]) - 2.0 * float(bias @ s_fc) + n * float(bias @ bias) \
-            - 2.0 * float(np.vdot(r, b_acc - bias[:, None] * s_fv))
-        sse_gyro = float(sums[_CC_GYRO]) - 2.0 * float(np.vdot(r, b_gyro))
+        sse_acc = (sums[_CC_ACC] - 2.0 * sum(bias[i] * s_fc[i] for i in range(3)) + n * sum(b * b for b in bias)
+                   - 2.0 * sum(r[k] * (b_acc[k] - bias[i] * s_fv[j]) for k, i, j in _IJ))
+        sse_gyro = sums[_CC_GYRO] - 2.0 * sum(r[k] * b_gyro[k] for k in range(9))
         chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * n - 6.0, 1.0)
         # The offset takes up the pairs' mean force (gravity, mostly): only their spread about it tells the angles.
         # Information of a vector v: |v|^2 I - v v^T; summed, trace(V) I - V with V = sum v v^T.
-        vv_acc = sums[_VV_ACC].reshape(3, 3) - s_fv[:, None] * (s_fv / n)
-        vv_gyro = sums[_VV_GYRO].reshape(3, 3)
-        m = -(wa * vv_acc + wg * vv_gyro)
-        m[_DIAG3, _DIAG3] += wa * float(np.trace(vv_acc)) + wg * float(np.trace(vv_gyro))
+        vv_acc, vv_gyro = sums[_VV_ACC], sums[_VV_GYRO]
+        m = [-(wa * (vv_acc[k] - s_fv[i] * m_fv[j]) + wg * vv_gyro[k]) for k, i, j in _IJ]
+        tr = wa * sum(vv_acc[4 * i] - s_fv[i] * m_fv[i] for i in range(3)) + wg * (vv_gyro[0] + vv_gyro[4] + vv_gyro[8])
+        m[0] += tr
+        m[4] += tr
+        m[8] += tr
         inv = inverse3(m)
         if inv is None:
             return None
-        return r, max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS * inv, bias
+        inv *= max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS
+        return np.array(r).reshape(3, 3), inv, np.array(bias)
 
 
-_DIAG3 = np.arange(3)
+_IJ = [(3 * i + j, i, j) for i in range(3) for j in range(3)]  # flat index, row, column of a 3x3 matrix
 
 
-def _det3(m: np.ndarray) -> float:
-    a, b, c, d, e, f, g, h, i = m.ravel().tolist()
+def _det3(m: list[float]) -> float:
+    a, b, c, d, e, f, g, h, i = m
     return a * (e * i - f * h) + b * (f * g - d * i) + c * (d * h - e * g)
 
 

@@ -81,11 +81,7 @@ class Strapdown:
             dy += ((pz * ux - px * uz) + (qz * tx - qx * tz)) / 12.0
             dz += ((px * uy - py * ux) + (qx * ty - qy * tx)) / 12.0
         self._w, self._f, self._th, self._dv = w, f, (tx, ty, tz), (ux, uy, uz)
-        self._nav(s, rx, ry, rz, dx, dy, dz, dt)
 
-    def _nav(self, s: NavState, rx: float, ry: float, rz: float, dx: float, dy: float, dz: float, dt: float) -> None:
-        """The navigation-frame part of a step: body angle increment ``r`` and velocity increment ``d`` (rotation,
-        coning and sculling compensated) over ``dt`` into the state."""
         lat, h, vn, ve, vd = s.lat, s.h, s.vn, s.ve, s.vd
         geo = self._geo
         if geo is None or abs(lat - geo[0]) > 1e-6 or abs(h - geo[1]) > 1.0:
