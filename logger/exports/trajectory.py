@@ -41,7 +41,7 @@ CSV_HEADER = ("t_sync_ns", "t_mono_ns", "lat_deg", "lon_deg", "height_m", "vn_mp
 # A CSV line: the times as integers, latitude and longitude to 1e-9 deg (0.1 mm), the rest to 3 decimals. The
 # line end is the csv module's (\r\n), which the file always had.
 CSV_LINE = ",".join(("%s", "%s", "%.9f", "%.9f") + ("%.3f",) * 10) + "\r\n"
-BLOCK_ROWS = 2048  # rows formatted and written at a time
+BLOCK_ROWS = 2048  # rows made columns, formatted and written at a time
 # json.dumps(nav_fix_record(...)) with its values left open: floats as repr (what json writes for a finite float),
 # the source and mode as JSON strings. A test holds the two to the same bytes.
 NAV_FIX_JSON = ('{"t_mono_ns": %d, "t_sync_ns": %d, "timestamp": {"sec": %d, "nsec": %d}, "frame_id": "nav", '
@@ -196,7 +196,7 @@ def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, sta
     """``trajectory.mcap``: ``/nav/fix`` at ``fix_hz`` (None: the engine's ``publish_hz``, the live rate; 0: every
     row) and the ``/nav/state`` records. Returns how many ``/nav/fix`` messages it wrote."""
     hz = engine.params.publish_hz if fix_hz is None else fix_hz
-    cols = columns([rows[i] for i in fix_rows([row[0] for row in rows], hz)])
+    keep = fix_rows([row[0] for row in rows], hz)
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
     with open(path, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)
@@ -207,9 +207,12 @@ def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, sta
             sid = w.register_schema(spec.schema_name, "jsonschema", spec.schema_data)
             ids[topic] = w.register_channel(topic, "json", sid)
         fix_id, add = ids[NAV_FIX], w.add_message
-        for t, t_mono, data in zip(cols.t_ns, cols.t_mono_ns, nav_fix_json(cols, source, engine.mode), strict=True):
-            add(fix_id, log_time=t, publish_time=t_mono, data=data)
+        for i in range(0, len(keep), BLOCK_ROWS):
+            cols = columns([rows[k] for k in keep[i:i + BLOCK_ROWS]])
+            for t, t_mono, data in zip(cols.t_ns, cols.t_mono_ns, nav_fix_json(cols, source, engine.mode),
+                                       strict=True):
+                add(fix_id, log_time=t, publish_time=t_mono, data=data)
         for st in states:
             add(ids[NAV_STATE], log_time=st["t_sync_ns"], publish_time=st["t_mono_ns"], data=json.dumps(st).encode())
         w.finish()
-    return len(cols)
+    return len(keep)
