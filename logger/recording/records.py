@@ -244,12 +244,9 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
 
     def imu_batch(m: dict[str, Any]) -> None:
-        sample = engine.imu
-        sync, mono, temp = m["t_sync_ns"], m["t_mono_ns"], m.get("temp_degc")
-        ax, ay, az = m["accel_x_mps2"], m["accel_y_mps2"], m["accel_z_mps2"]
-        gx, gy, gz = m["gyro_x_rps"], m["gyro_y_rps"], m["gyro_z_rps"]
-        for i in range(len(sync)):
-            sample(sync[i], mono[i], (ax[i], ay[i], az[i]), (gx[i], gy[i], gz[i]), temp)
+        acc = np.array((m["accel_x_mps2"], m["accel_y_mps2"], m["accel_z_mps2"]), dtype=float).T
+        gyro = np.array((m["gyro_x_rps"], m["gyro_y_rps"], m["gyro_z_rps"]), dtype=float).T
+        engine.imu_batch(m["t_sync_ns"], m["t_mono_ns"], acc, gyro, m.get("temp_degc"))
 
     def fix(m: dict[str, Any]) -> None:
         engine.gnss(gnss_observation(m))
