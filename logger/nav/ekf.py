@@ -68,14 +68,14 @@ class ErrorStateEkf:
         if st is None:
             st = self.stats[obs.name] = UpdateStats()
         h, z = obs.h, obs.z
-        ph = self.p @ h.T
+        p0 = self.p
+        ph = p0 @ h.T
         s = h @ ph
         m = len(z)
         if m == 1:
             s_inv = np.array(((1.0 / (float(s[0, 0]) + float(obs.r[0])),),))
         else:
-            d = np.arange(m)
-            s[d, d] += obs.r
+            s.ravel()[::m + 1] += obs.r  # the diagonal (s is a fresh contiguous product)
             s_inv = _inverse(s)
             if s_inv is None:
                 st.rejected += 1
@@ -90,8 +90,11 @@ class ErrorStateEkf:
         dx = k @ z
         # P - K S K^T written as P - K (H P): symmetric by construction up to round-off, which the
         # symmetrisation removes; a diagonal that still fails is repaired and counted.
-        p = self.p - k @ ph.T
-        self.p = 0.5 * (p + p.T)
+        p = k @ ph.T
+        np.subtract(p0, p, out=p)
+        p += p.T
+        p *= 0.5
+        self.p = p
         self._repair()
         st.accepted += 1
         return dx

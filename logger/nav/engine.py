@@ -497,7 +497,7 @@ class NavEngine:
         """Give the alignment the offsets on the chip's axes, and take its estimate once it has settled."""
         al, s = self.alignment, self.state
         assert al is not None and s is not None
-        al.gyro_offset = self._mount_m.T @ np.array(s.bg)
+        al.offsets(self._mount_m, s.bg)
         t = self._t_last or 0
         if t < self._next_remount_ns:
             return

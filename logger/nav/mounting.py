@@ -206,7 +206,18 @@ class MountAlignment:
         # The filter's gyro offset on the chip's axes (from the standstills: the mounting does not enter), removed
         # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
         # part of the mounting's tilt while the mounting was wrong.
-        self.gyro_offset = np.zeros(3)
+        self.gyro_offset_source: tuple[np.ndarray, tuple[float, float, float]] | None = None
+
+    @property
+    def gyro_offset(self) -> np.ndarray:
+        """The filter's gyro offset on the chip's axes, from what it last gave (:meth:`offsets`): mounting and offset
+        are kept as given and turned only when a window needs them."""
+        src = self.gyro_offset_source
+        return np.zeros(3) if src is None else src[0].T @ np.array(src[1])
+
+    def offsets(self, mount: np.ndarray, gyro_offset_body: tuple[float, float, float]) -> None:
+        """The filter's gyro offset in the vehicle's axes and the mounting (vehicle from chip) it applies."""
+        self.gyro_offset_source = (mount, gyro_offset_body)
 
     # ---- windows ---------------------------------------------------------------------------------------
     def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
