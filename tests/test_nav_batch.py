@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from test_nav_synth import records
 
+from logger.nav import engine as engine_module
 from logger.nav.engine import BATCH_MIN, NavEngine
 from logger.nav.imu_noise import ImuNoiseMonitor
 from logger.nav.mounting import MountAlignment
@@ -91,6 +92,12 @@ def _same_trajectory(one: NavEngine, many: NavEngine) -> None:
         {k: (v.accepted, v.rejected) for k, v in many.ekf.stats.items()}
 
 
+@pytest.fixture
+def short_blocks(monkeypatch):
+    """Blocks of 8 samples and more go through the block forms (the records' runs are shorter than BATCH_MIN)."""
+    monkeypatch.setattr(engine_module, "BATCH_MIN", 8)
+
+
 @pytest.fixture(scope="module")
 def fast_drive():
     """Two and a half minutes of the outage scenario with a 100 Hz IMU: a stop, driving, turns."""
@@ -99,13 +106,13 @@ def fast_drive():
 
 
 @pytest.mark.parametrize("mode", ["17", "15"])
-def test_batches_of_a_fast_imu_give_the_trajectory_of_its_samples(fast_drive, mode):
+def test_batches_of_a_fast_imu_give_the_trajectory_of_its_samples(fast_drive, mode, short_blocks):
     one, many = _twins(_runs(fast_drive, 40), mode=mode)
     _same_trajectory(one, many)
     assert one.mech.coning and many.mech.coning
 
 
-def test_batches_across_the_covariance_interval_a_stop_and_without_obd():
+def test_batches_across_the_covariance_interval_a_stop_and_without_obd(short_blocks):
     """FIFO reads of a second each (the covariance interval, the idle check and a stop fall inside them) on a
     board mounted at an angle; no OBD speed, so the idle check decides the stops."""
     drive = make_drive("urban", seed=1, duration_s=150.0)  # stops from 131 s
@@ -119,9 +126,11 @@ def test_short_batches_and_a_sample_out_of_order_go_sample_by_sample(fast_drive)
     one, many = _twins(_runs(fast_drive, BATCH_MIN - 1))
     _same_trajectory(one, many)
     t = many.t_last_ns
-    many.imu_batch(np.array([t + 10_000_000 * k for k in (1, 2, 0, 3, 4, 5, 6, 7, 8, 9)]), np.zeros(10, np.int64),
-                   np.tile((0.0, 0.0, -9.8), (10, 1)), np.zeros((10, 3)))
-    assert many.counters.imu_out_of_order == 1 and many.t_last_ns == t + 90_000_000
+    k = BATCH_MIN + 10
+    order = [1, 2, 0, *range(3, k)]
+    many.imu_batch(np.array([t + 10_000_000 * i for i in order]), np.zeros(k, np.int64),
+                   np.tile((0.0, 0.0, -9.8), (k, 1)), np.zeros((k, 3)))
+    assert many.counters.imu_out_of_order == 1 and many.t_last_ns == t + 10_000_000 * (k - 1)
 
 
 def test_block_bookkeeping_matches_sample_by_sample():

@@ -65,7 +65,7 @@ CONFIG_HEADING_VAR = math.radians(2.0) ** 2
 REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
 REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
 REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
-BATCH_MIN = 8  # shorter batches go sample by sample: numpy's overhead per call is worth a few samples
+BATCH_MIN = 64  # shorter batches go sample by sample: the block forms cost numpy calls worth tens of samples
 NEVER = 2**63 - 1
 
 
