@@ -85,6 +85,11 @@ class TrajectoryRow(NamedTuple):
     epoch: int  # index of the covariance epoch the sample follows (the smoother's), -1 for none
 
 
+# A row made straight from its fields' tuple: TrajectoryRow(...) goes through a generated Python __new__, a frame per
+# IMU sample for nothing.
+_new_row = tuple.__new__
+
+
 @dataclass
 class Epoch:
     """A covariance time step, kept for the backward smoother."""
@@ -307,7 +312,8 @@ class NavEngine:
                     break
                 hist.append((t_j, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, corr))
                 if record:
-                    rows.append(TrajectoryRow(t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, sigma, epoch))
+                    rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q,
+                                                         sigma, epoch)))
                 j += 1
             self._dt_mean = dt_mean
             last = j if due else n - 1
@@ -386,8 +392,8 @@ class NavEngine:
         if self.solution is not None and t_ns >= self.solution.next_ns:
             self._solution_due(t_ns)
         if self.record:
-            self.rows.append(TrajectoryRow(t_ns, t_mono_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, self.sigma,
-                                           len(self.epochs) - 1))
+            self.rows.append(_new_row(TrajectoryRow, (t_ns, t_mono_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q,
+                                                      self.sigma, len(self.epochs) - 1)))
         if self._cov_dt >= self._cov_interval_s:
             self.propagate()
 

@@ -270,8 +270,9 @@ class ObdPolicy:
         # repeats keep the weight they had then, and hold the speed again.
         sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._run))
         snap = core.state_at(t_ns)
-        obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, snap.dcm(), core.n)
-        if self.velocity.judge(core, obs, core.apply(obs), t_ns, True, snap.dcm()):
+        c_bn = snap.dcm()
+        obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, c_bn, core.n)
+        if self.velocity.judge(core, obs, core.apply(obs), t_ns, True, c_bn):
             self.last_readings.nhc_ns = t_ns
             if speed_mps > 5.0:  # a mounting turned about the vertical shows as a steady side slip
                 self.mount_yaw_stat[0] += float(obs.z[1]) / speed_mps
