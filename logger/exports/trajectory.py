@@ -24,13 +24,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from logger.exports.tracks import SIGMA_UNKNOWN_M
 from logger.nav.engine import NavEngine, TrajectoryRow
 from logger.nav.inputs import SolutionEpoch
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
-from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_state_record
+from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
 
 if TYPE_CHECKING:
@@ -42,6 +41,9 @@ CSV_HEADER = ("t_sync_ns", "t_mono_ns", "lat_deg", "lon_deg", "height_m", "vn_mp
 # line end is the csv module's (\r\n), which the file always had.
 CSV_LINE = ",".join(("%s", "%s", "%.9f", "%.9f") + ("%.3f",) * 10) + "\r\n"
 BLOCK_ROWS = 2048  # rows made columns, formatted and written at a time
+# What /nav/fix carries for a sigma the filter does not know yet, as the record layer writes it.
+SIGMA_UNKNOWN_M: float = nav_fix_record(0, 0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (math.inf,) * 3, "",
+                                        "")["sigma_ned_m"][0]
 # json.dumps(nav_fix_record(...)) with its values left open: floats as repr (what json writes for a finite float),
 # the source and mode as JSON strings. A test holds the two to the same bytes.
 NAV_FIX_JSON = ('{"t_mono_ns": %d, "t_sync_ns": %d, "timestamp": {"sec": %d, "nsec": %d}, "frame_id": "nav", '
