@@ -83,21 +83,16 @@ GYRO_SIGMA_RPS = math.radians(0.5)  # a window's rate against the course's: pitc
 _B_ACC, _S_FC, _S_FV, _VV_ACC, _B_GYRO, _VV_GYRO = (slice(0, 9), slice(9, 12), slice(12, 15), slice(15, 24),
                                                     slice(24, 33), slice(33, 42))
 _CC_ACC, _CC_GYRO, _N, _SIZE = 42, 43, 44, 45
+_IJ = [(3 * i + j, i, j) for i in range(3) for j in range(3)]  # flat index, row, column of a 3x3 matrix
 
 
-def _window_sums(fc: np.ndarray, fv: np.ndarray, wc: np.ndarray, wv: np.ndarray) -> np.ndarray:
-    """What one window adds to a fit's sums (see :class:`_Fit`)."""
-    v = np.empty(_SIZE)
-    v[_B_ACC] = (fc[:, None] * fv).ravel()
-    v[_S_FC] = fc
-    v[_S_FV] = fv
-    v[_VV_ACC] = (fv[:, None] * fv).ravel()
-    v[_B_GYRO] = (wc[:, None] * wv).ravel()
-    v[_VV_GYRO] = (wv[:, None] * wv).ravel()
-    v[_CC_ACC] = float(fc @ fc) + float(fv @ fv)
-    v[_CC_GYRO] = float(wc @ wc) + float(wv @ wv)
-    v[_N] = 1.0
-    return v
+def _window_sums(fc: list[float], fv: list[float], wc: list[float], wv: list[float]) -> np.ndarray:
+    """What one window adds to a fit's sums (see :class:`_Fit`), from plain floats."""
+    return np.array([fc[i] * fv[j] for _, i, j in _IJ] + fc + fv + [fv[i] * fv[j] for _, i, j in _IJ]
+                    + [wc[i] * wv[j] for _, i, j in _IJ] + [wv[i] * wv[j] for _, i, j in _IJ]
+                    + [fc[0] * fc[0] + fc[1] * fc[1] + fc[2] * fc[2] + (fv[0] * fv[0] + fv[1] * fv[1] + fv[2] * fv[2]),
+                       wc[0] * wc[0] + wc[1] * wc[1] + wc[2] * wc[2] + (wv[0] * wv[0] + wv[1] * wv[1] + wv[2] * wv[2]),
+                       1.0])
 
 
 class _Fit:
@@ -127,7 +122,7 @@ class _Fit:
         self._fresh = False
 
     def add(self, fc: np.ndarray, fv: np.ndarray, wc: np.ndarray, wv: np.ndarray) -> None:
-        self.add_sums(_window_sums(fc, fv, wc, wv))
+        self.add_sums(_window_sums(*(np.asarray(v, float).tolist() for v in (fc, fv, wc, wv))))
 
     def copy_from(self, other: _Fit) -> None:
         self.sums = other.sums.copy()
@@ -179,9 +174,6 @@ class _Fit:
             return None
         inv *= max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS
         return np.array(r).reshape(3, 3), inv, np.array(bias)
-
-
-_IJ = [(3 * i + j, i, j) for i in range(3) for j in range(3)]  # flat index, row, column of a 3x3 matrix
 
 
 def _det3(m: list[float]) -> float:
@@ -269,8 +261,9 @@ class MountAlignment:
         if a is None or b is None or b[7] - a[7] < 2:
             return
         k = b[7] - a[7]
-        fc = np.array((b[1] - a[1], b[2] - a[2], b[3] - a[3])) / k
-        wc = np.array((b[4] - a[4], b[5] - a[5], b[6] - a[6])) / k - self.gyro_offset
+        go = self.gyro_offset.tolist()
+        fc = [(b[1] - a[1]) / k, (b[2] - a[2]) / k, (b[3] - a[3]) / k]
+        wc = [(b[4] - a[4]) / k - go[0], (b[5] - a[5]) / k - go[1], (b[6] - a[6]) / k - go[2]]
         v1 = vel_ned
         h0, h1 = math.hypot(v0[0], v0[1]), math.hypot(v1[0], v1[1])
         if min(h0, h1) < MIN_SPEED_MPS:
@@ -284,23 +277,26 @@ class MountAlignment:
         g0 = G0
         # The car turns about its own vertical: the chip's rate is that axis, at the gyro's rate (more exact than
         # the course's change between two velocities), turning the way the course turned.
-        rate = math.copysign(float(np.linalg.norm(wc)), turn) if abs(math.degrees(turn)) > MIN_TURN_DPS else 0.0
+        rate = (math.copysign(math.sqrt(wc[0] * wc[0] + wc[1] * wc[1] + wc[2] * wc[2]), turn)
+                if abs(math.degrees(turn)) > MIN_TURN_DPS else 0.0)
         # Forward: the change of speed and the grade; right: the centripetal force of the turn; down: gravity.
-        fv = np.array((accel + g0 * math.sin(theta), speed * rate, -g0 * math.cos(theta)))
+        fx, fy, fz = accel + g0 * math.sin(theta), speed * rate, -g0 * math.cos(theta)
         # The turn is about the vertical: on a grade, that axis leans back in the car's axes by the grade.
-        wv = np.array((-rate * math.sin(theta), 0.0, rate * math.cos(theta)))
+        wx, wy, wz = -rate * math.sin(theta), 0.0, rate * math.cos(theta)
         # And the body leans out of the turn on its springs (roll = -gradient x lateral acceleration): both are in
         # the body's axes turned by that roll. Left out, the leaning of a drive that turns one way more than the
         # other came out as a mounting roll (1 deg on the simulated urban lap).
-        phi = -ROLL_GRADIENT * fv[1]
+        phi = -ROLL_GRADIENT * fy
         c, s_ = math.cos(phi), math.sin(phi)
-        fv = np.array((fv[0], c * fv[1] + s_ * fv[2], -s_ * fv[1] + c * fv[2]))
-        wv = np.array((wv[0], c * wv[1] + s_ * wv[2], -s_ * wv[1] + c * wv[2]))
-        self.add(fc, fv, wc if rate else np.zeros(3), wv)
+        fv = [fx, c * fy + s_ * fz, -s_ * fy + c * fz]
+        wv = [wx, c * wy + s_ * wz, -s_ * wy + c * wz]
+        self._add_window(_window_sums(fc, fv, wc if rate else [0.0, 0.0, 0.0], wv))
 
     def add(self, f_chip: np.ndarray, f_vehicle: np.ndarray, w_chip: np.ndarray, w_vehicle: np.ndarray) -> None:
         """One window: the chip's mean specific force and rate, and the vehicle's."""
-        window = _window_sums(*(np.asarray(v, float) for v in (f_chip, f_vehicle, w_chip, w_vehicle)))
+        self._add_window(_window_sums(*(np.asarray(v, float).tolist() for v in (f_chip, f_vehicle, w_chip, w_vehicle))))
+
+    def _add_window(self, window: np.ndarray) -> None:
         self._long.add_sums(window)
         self._recent.add_sums(window)
         self._estimate = None
