@@ -22,12 +22,13 @@ import numpy as np
 
 TAU_S = 30.0  # the average's memory, drive time
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
+PENDING_MAX = 1024  # samples kept before they are taken into the average anyway
 
 
 class ImuNoiseMonitor:
     """Running white-noise densities of the accelerometer (m/s^2/sqrt(Hz)) and gyro (rad/s/sqrt(Hz))."""
 
-    __slots__ = ("_a1", "_a2", "_g1", "_g2", "_k", "_var_a", "_var_g", "seen_s")
+    __slots__ = ("_a1", "_a2", "_g1", "_g2", "_k", "_pending", "_seen_s", "_var_a", "_var_g")
 
     def __init__(self) -> None:
         self._a1: tuple[float, float, float] | None = None
@@ -37,30 +38,53 @@ class ImuNoiseMonitor:
         self._var_a = 0.0  # mean over axes of (second difference)^2 / 6
         self._var_g = 0.0
         self._k = 0
-        self.seen_s = 0.0
+        self._seen_s = 0.0
+        self._pending: list[tuple[tuple[float, float, float], tuple[float, float, float], float]] = []
+
+    @property
+    def seen_s(self) -> float:
+        """Drive time the average has seen, s."""
+        self._flush()
+        return self._seen_s
 
     def add(self, acc: tuple[float, float, float], gyro: tuple[float, float, float], dt: float) -> None:
-        """One sample and the interval since the previous one (a gap restarts the differences)."""
-        if not 0.0 < dt < 0.5:
-            self._a1 = self._a2 = self._g1 = self._g2 = None
+        """One sample and the interval since the previous one (a gap restarts the differences). Kept until a figure
+        is asked for, then taken in order in one loop: a call per sample cost more than the arithmetic."""
+        pending = self._pending
+        pending.append((acc, gyro, dt))
+        if len(pending) >= PENDING_MAX:
+            self._flush()
+
+    def _flush(self) -> None:
+        pending = self._pending
+        if not pending:
+            return
         a1, a2, g1, g2 = self._a1, self._a2, self._g1, self._g2
-        if a2 is not None and a1 is not None and g1 is not None and g2 is not None:
-            x, y, z = acc
-            ex, ey, ez = x - 2.0 * a1[0] + a2[0], y - 2.0 * a1[1] + a2[1], z - 2.0 * a1[2] + a2[2]
-            x, y, z = gyro
-            gx, gy, gz = x - 2.0 * g1[0] + g2[0], y - 2.0 * g1[1] + g2[1], z - 2.0 * g1[2] + g2[2]
-            k = self._k = self._k + 1
-            w = max(1.0 / k, dt / TAU_S)
-            # variance per sample times the interval: the density squared, whatever the rate
-            self._var_a += w * ((ex * ex + ey * ey + ez * ez) / 18.0 * dt - self._var_a)
-            self._var_g += w * ((gx * gx + gy * gy + gz * gz) / 18.0 * dt - self._var_g)
-            self.seen_s += dt
-        self._a2, self._a1 = a1, acc
-        self._g2, self._g1 = g1, gyro
+        k, va, vg, seen = self._k, self._var_a, self._var_g, self._seen_s
+        for acc, gyro, dt in pending:
+            if not 0.0 < dt < 0.5:
+                a1 = a2 = g1 = g2 = None
+            if a2 is not None and a1 is not None and g1 is not None and g2 is not None:
+                x, y, z = acc
+                ex, ey, ez = x - 2.0 * a1[0] + a2[0], y - 2.0 * a1[1] + a2[1], z - 2.0 * a1[2] + a2[2]
+                x, y, z = gyro
+                gx, gy, gz = x - 2.0 * g1[0] + g2[0], y - 2.0 * g1[1] + g2[1], z - 2.0 * g1[2] + g2[2]
+                k += 1
+                w = max(1.0 / k, dt / TAU_S)
+                # variance per sample times the interval: the density squared, whatever the rate
+                va += w * ((ex * ex + ey * ey + ez * ez) / 18.0 * dt - va)
+                vg += w * ((gx * gx + gy * gy + gz * gz) / 18.0 * dt - vg)
+                seen += dt
+            a2, a1 = a1, acc
+            g2, g1 = g1, gyro
+        pending.clear()
+        self._a1, self._a2, self._g1, self._g2 = a1, a2, g1, g2
+        self._k, self._var_a, self._var_g, self._seen_s = k, va, vg, seen
 
     def add_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
         """Samples at once (``acc``, ``gyro``: n x 3, ``dt``: the interval before each): what :meth:`add` one by
         one leaves, the running average in closed form (the product of the forgetting factors after each term)."""
+        self._flush()
         n = len(dt)
         if n == 0:
             return
@@ -87,7 +111,7 @@ class ImuNoiseMonitor:
             self._var_a = float(keep[0] * self._var_a + (wa * va[valid] * d).sum())
             self._var_g = float(keep[0] * self._var_g + (wa * vg[valid] * d).sum())
             self._k += m
-            self.seen_s += float(d.sum())
+            self._seen_s += float(d.sum())
         last_a, last_g = tuple(acc[-1].tolist()), tuple(gyro[-1].tolist())
         if not ok[-1]:
             self._a2 = self._g2 = None
@@ -99,7 +123,8 @@ class ImuNoiseMonitor:
 
     def densities(self) -> tuple[float, float] | None:
         """(accelerometer, gyro) white-noise densities measured, None before enough was seen."""
-        if self.seen_s < MIN_S:
+        self._flush()
+        if self._seen_s < MIN_S:
             return None
         return math.sqrt(self._var_a), math.sqrt(self._var_g)
 

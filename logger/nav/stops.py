@@ -19,6 +19,7 @@ WINDOW_NS = int(WINDOW_S * 1e9)
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
 RESUM_EVERY = 4096
+PENDING_MAX = 1024  # samples kept before they go into the window anyway
 
 
 class StopDetector:
@@ -33,54 +34,69 @@ class StopDetector:
         self._var_w = math.inf
         self._dirty = False
         self._adds = 0
+        self._pending: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]] = []
         self._log_a: float | None = None
         self._log_w: float | None = None
         self.learned = 0
 
     def add(self, t_ns: int, f: tuple[float, float, float], w: tuple[float, float, float]) -> None:
-        """One sample into the one-second window (running sums: the variances are computed when asked)."""
-        fx, fy, fz = f
-        wx, wy, wz = w
-        win = self._win
-        win.append((t_ns, fx, fy, fz, wx, wy, wz))
-        # The sums as one tuple rebuilt per sample: cheaper than twelve element updates of a list.
-        a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
-        a0 += fx
-        a1 += fy
-        a2 += fz
-        a3 += wx
-        a4 += wy
-        a5 += wz
-        b0 += fx * fx
-        b1 += fy * fy
-        b2 += fz * fz
-        b3 += wx * wx
-        b4 += wy * wy
-        b5 += wz * wz
-        limit = t_ns - WINDOW_NS
-        while win[0][0] < limit:
-            _, ox, oy, oz, ux, uy, uz = win.popleft()
-            a0 -= ox
-            a1 -= oy
-            a2 -= oz
-            a3 -= ux
-            a4 -= uy
-            a5 -= uz
-            b0 -= ox * ox
-            b1 -= oy * oy
-            b2 -= oz * oz
-            b3 -= ux * ux
-            b4 -= uy * uy
-            b5 -= uz * uz
-        self._sums = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5)
+        """One sample into the one-second window. Kept until the variances are asked for, then taken in order in one
+        loop (running sums: a call per sample cost more than the arithmetic)."""
+        pending = self._pending
+        pending.append((t_ns, f, w))
         self._dirty = True
-        self._adds += 1
-        if self._adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
-            self._resum()
+        if len(pending) >= PENDING_MAX:
+            self._flush()
+
+    def _flush(self) -> None:
+        pending = self._pending
+        if not pending:
+            return
+        win = self._win
+        a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
+        adds = self._adds
+        for t_ns, (fx, fy, fz), (wx, wy, wz) in pending:
+            win.append((t_ns, fx, fy, fz, wx, wy, wz))
+            a0 += fx
+            a1 += fy
+            a2 += fz
+            a3 += wx
+            a4 += wy
+            a5 += wz
+            b0 += fx * fx
+            b1 += fy * fy
+            b2 += fz * fz
+            b3 += wx * wx
+            b4 += wy * wy
+            b5 += wz * wz
+            limit = t_ns - WINDOW_NS
+            while win[0][0] < limit:
+                _, ox, oy, oz, ux, uy, uz = win.popleft()
+                a0 -= ox
+                a1 -= oy
+                a2 -= oz
+                a3 -= ux
+                a4 -= uy
+                a5 -= uz
+                b0 -= ox * ox
+                b1 -= oy * oy
+                b2 -= oz * oz
+                b3 -= ux * ux
+                b4 -= uy * uy
+                b5 -= uz * uz
+            adds += 1
+            if adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
+                self._resum()
+                a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
+                adds = 0
+        pending.clear()
+        self._sums = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5)
+        self._adds = adds
 
     def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         """Samples in time order at once (``f``, ``w``: n x 3): the window and sums :meth:`add` would leave, the
         sums taken with numpy."""
+        self._flush()
         if len(t_ns) == 0:
             return
         fw = np.concatenate((f, w), axis=1)
@@ -111,6 +127,7 @@ class StopDetector:
         if not self._dirty:
             return
         self._dirty = False
+        self._flush()
         n = len(self._win)
         if n < 4:
             self._var_a = self._var_w = math.inf
