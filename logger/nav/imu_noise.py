@@ -20,12 +20,13 @@ from collections import deque
 
 import numpy as np
 
+from logger.nav.deferred import PENDING_MAX, Deferred
+
 TAU_S = 30.0  # the average's memory, drive time
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
-PENDING_MAX = 1024  # samples kept before they are taken into the average anyway
 
 
-class ImuNoiseMonitor:
+class ImuNoiseMonitor(Deferred):
     """Running white-noise densities of the accelerometer (m/s^2/sqrt(Hz)) and gyro (rad/s/sqrt(Hz))."""
 
     __slots__ = ("_a1", "_a2", "_g1", "_g2", "_k", "_pending", "_seen_s", "_var_a", "_var_g")
@@ -55,10 +56,7 @@ class ImuNoiseMonitor:
         if len(pending) >= PENDING_MAX:
             self._flush()
 
-    def _flush(self) -> None:
-        pending = self._pending
-        if not pending:
-            return
+    def _take(self, pending: list[tuple[tuple[float, float, float], tuple[float, float, float], float]]) -> None:
         a1, a2, g1, g2 = self._a1, self._a2, self._g1, self._g2
         k, va, vg, seen = self._k, self._var_a, self._var_g, self._seen_s
         for acc, gyro, dt in pending:
@@ -77,7 +75,6 @@ class ImuNoiseMonitor:
                 seen += dt
             a2, a1 = a1, acc
             g2, g1 = g1, gyro
-        pending.clear()
         self._a1, self._a2, self._g1, self._g2 = a1, a2, g1, g2
         self._k, self._var_a, self._var_g, self._seen_s = k, va, vg, seen
 

@@ -14,15 +14,16 @@ from collections import deque
 
 import numpy as np
 
+from logger.nav.deferred import PENDING_MAX, Deferred
+
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
 RESUM_EVERY = 4096
-PENDING_MAX = 1024  # samples kept before they go into the window anyway
 
 
-class StopDetector:
+class StopDetector(Deferred):
     def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
         self.thr_a = still_accel_mps2**2
         self.thr_w = still_gyro_rps**2
@@ -48,10 +49,7 @@ class StopDetector:
         if len(pending) >= PENDING_MAX:
             self._flush()
 
-    def _flush(self) -> None:
-        pending = self._pending
-        if not pending:
-            return
+    def _take(self, pending: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]]) -> None:
         win = self._win
         a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
         adds = self._adds
@@ -89,7 +87,6 @@ class StopDetector:
                 self._resum()
                 a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
                 adds = 0
-        pending.clear()
         self._sums = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5)
         self._adds = adds
 
