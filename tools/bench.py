@@ -40,6 +40,7 @@ sys.path.insert(0, str(TOOLS))
 
 import bench_board  # noqa: E402
 import bench_daemon  # noqa: E402
+import bench_kfgins  # noqa: E402
 import bench_nav  # noqa: E402
 import bench_recorder  # noqa: E402
 import bench_startup  # noqa: E402
@@ -234,6 +235,16 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
                                                                            else "") + ".", ""]
         lines += _doc(module)
         lines += [*module.render(section["runs"] if name == "daemon" else section), ""]
+    kf = results.get("kfgins")
+    if kf:
+        lines += ["## Side by side with KF-GINS", "", *_doc(bench_kfgins),
+                  *bench_kfgins.render(kf["drives"], kf["machine"]["repeat"], kf["machine"]["stat"]), "",
+                  f"Measured {kf['machine']['load']['started']} on {kf['machine']['cpu']} ({kf['machine']['cores']} "
+                  f"cores), commit {kf['machine']['commit']}: load average {kf['machine']['load']['loadavg_before']} "
+                  f"-> {kf['machine']['load']['loadavg_after']}, machine busy "
+                  f"{kf['machine']['load']['machine_busy_pct']:.0f} %, of which other jobs "
+                  f"{kf['machine']['load']['others_pct_of_machine']:.0f} %. Recorded with `python tools/bench.py "
+                  "--record-kfgins FILE` from `tools/bench_kfgins.py --json FILE`.", ""]
     lines += ["## On a BeagleBone-class board", "", *bench_board.render(results), ""]
     lines += ["## Load on this machine while measuring", "",
               "Other jobs shared the machine. *Busy* is the share of all cores in use while the step ran, *others* "
@@ -308,7 +319,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--daemon-nice", type=int, default=-10,
                     help="niceness of the daemon benchmark (default -10, as root): other jobs on a shared machine "
                     "then delay its sampler threads less, as nothing would on the board; CPU times are unaffected")
+    ap.add_argument("--record-kfgins", type=Path, metavar="FILE",
+                    help="put tools/bench_kfgins.py's --json FILE into the saved figures and write the report again")
     args = ap.parse_args(argv)
+    if args.record_kfgins is not None:
+        raw_path = (args.out or ROOT / "BENCHMARKS.md").with_suffix(".json")
+        if not args.record_kfgins.is_file() or not raw_path.is_file():
+            ap.error(f"--record-kfgins: need {args.record_kfgins} and the saved figures {raw_path}")
+        saved_all = json.loads(raw_path.read_text())
+        saved_all["results"]["kfgins"] = json.loads(args.record_kfgins.read_text())
+        raw_path.write_text(json.dumps(saved_all, indent=1))
+        (args.out or ROOT / "BENCHMARKS.md").write_text(report(saved_all["results"], saved_all["machine"],
+                                                                saved_all["command"]))
+        print(f"[bench] added the KF-GINS figures to {raw_path} and wrote the report again")
+        return 0
     selected = list(BENCHMARKS)
     if args.only:
         selected = [s.strip() for s in args.only.split(",") if s.strip()]
