@@ -13,16 +13,16 @@ PENDING_MAX = 1024  # samples kept before they are taken anyway
 
 
 class Deferred:
-    """Mixin: ``self._pending`` holds the samples not yet taken; :meth:`_take` takes them, in order."""
+    """Mixin: ``self._pending`` holds the samples not yet taken; :meth:`take_pending` takes them, in order."""
 
     __slots__ = ()
     _pending: list[Any]
 
-    def _flush(self) -> None:
+    def flush_pending(self) -> None:
         pending = self._pending
         if pending:
-            self._take(pending)
+            self.take_pending(pending)
             pending.clear()
 
-    def _take(self, pending: list[Any]) -> None:
+    def take_pending(self, pending: list[Any]) -> None:
         raise NotImplementedError

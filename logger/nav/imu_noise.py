@@ -45,7 +45,7 @@ class ImuNoiseMonitor(Deferred):
     @property
     def seen_s(self) -> float:
         """Drive time the average has seen, s."""
-        self._flush()
+        self.flush_pending()
         return self._seen_s
 
     def add(self, acc: tuple[float, float, float], gyro: tuple[float, float, float], dt: float) -> None:
@@ -54,9 +54,9 @@ class ImuNoiseMonitor(Deferred):
         pending = self._pending
         pending.append((acc, gyro, dt))
         if len(pending) >= PENDING_MAX:
-            self._flush()
+            self.flush_pending()
 
-    def _take(self, pending: list[tuple[tuple[float, float, float], tuple[float, float, float], float]]) -> None:
+    def take_pending(self, pending: list[tuple[tuple[float, float, float], tuple[float, float, float], float]]) -> None:
         a1, a2, g1, g2 = self._a1, self._a2, self._g1, self._g2
         k, va, vg, seen = self._k, self._var_a, self._var_g, self._seen_s
         for acc, gyro, dt in pending:
@@ -81,7 +81,7 @@ class ImuNoiseMonitor(Deferred):
     def add_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
         """Samples at once (``acc``, ``gyro``: n x 3, ``dt``: the interval before each): what :meth:`add` one by
         one leaves, the running average in closed form (the product of the forgetting factors after each term)."""
-        self._flush()
+        self.flush_pending()
         n = len(dt)
         if n == 0:
             return
@@ -120,7 +120,7 @@ class ImuNoiseMonitor(Deferred):
 
     def densities(self) -> tuple[float, float] | None:
         """(accelerometer, gyro) white-noise densities measured, None before enough was seen."""
-        self._flush()
+        self.flush_pending()
         if self._seen_s < MIN_S:
             return None
         return math.sqrt(self._var_a), math.sqrt(self._var_g)

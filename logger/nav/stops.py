@@ -47,9 +47,9 @@ class StopDetector(Deferred):
         pending.append((t_ns, f, w))
         self._dirty = True
         if len(pending) >= PENDING_MAX:
-            self._flush()
+            self.flush_pending()
 
-    def _take(self, pending: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]]) -> None:
+    def take_pending(self, pending: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]]) -> None:
         win = self._win
         a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
         adds = self._adds
@@ -93,7 +93,7 @@ class StopDetector(Deferred):
     def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         """Samples in time order at once (``f``, ``w``: n x 3): the window and sums :meth:`add` would leave, the
         sums taken with numpy."""
-        self._flush()
+        self.flush_pending()
         if len(t_ns) == 0:
             return
         fw = np.concatenate((f, w), axis=1)
@@ -124,7 +124,7 @@ class StopDetector(Deferred):
         if not self._dirty:
             return
         self._dirty = False
-        self._flush()
+        self.flush_pending()
         n = len(self._win)
         if n < 4:
             self._var_a = self._var_w = math.inf
