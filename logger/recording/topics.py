@@ -168,8 +168,8 @@ _add(IMU_BATCH, "vehicle_logger.ImuBatch", {
     "temp_degc": ("number", "die temperature read with the batch, degC"),
     "period_s": ("number", "the chip's sample period, s"),
     "lost": ("integer", "samples lost to a FIFO overflow just before the first one"),
-}, "MPU-6050 FIFO read (the rates read through the chip's FIFO): every sample of one read as columns, one message per read, so that "
-   "writing and filtering cost per read, not per sample. The logger's own readers (replay, export, plot, info, the "
+}, "MPU-6050 FIFO read (the rates read through the chip's FIFO): every sample of one read as columns, one "
+   "message per read, so that writing and filtering cost per read, not per sample. The logger's own readers (replay, export, plot, info, the "
    "sync report) hand its samples on as /imu records. In Foxglove's Plot panel, set the X axis to 'Message path' "
    "with /imu/batch.t_sync_ns[:] and plot /imu/batch.accel_x_mps2[:] (or any column) over the whole range",
    stamped=False)
@@ -258,7 +258,8 @@ _add(NAV_FIX, "foxglove.LocationFix", {
     "sigma_ned_m": ("number[3]", "1-sigma position uncertainty north, east, down, m"),
     "source": ("string", "what the solution rests on: 'ins 17-state', 'ins 15-state' or 'gnss'"),
     "mode": ("string", "filter mode: 17, 15 or gnss"),
-}, "navigation filter solution (live: at nav.publish_hz; logger replay: one per IMU sample)", stamped=False)
+}, "navigation filter solution (live and logger replay: at nav.publish_hz; logger replay --fix-hz 0: one "
+   "per IMU sample)", stamped=False)
 _add(NAV_STATE, "vehicle_logger.NavState", {
     "t_mono_ns": ("integer", "board monotonic time of the IMU sample this state is for, ns"),
     "t_sync_ns": ("integer", "synchronised time of that sample, Unix ns UTC"),
