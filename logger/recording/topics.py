@@ -169,9 +169,10 @@ _add(IMU_BATCH, "vehicle_logger.ImuBatch", {
     "period_s": ("number", "the chip's sample period, s"),
     "lost": ("integer", "samples lost to a FIFO overflow just before the first one"),
 }, "MPU-6050 FIFO read (the rates read through the chip's FIFO): every sample of one read as columns, one "
-   "message per read, so that writing and filtering cost per read, not per sample. The logger's own readers (replay, export, plot, info, the "
-   "sync report) hand its samples on as /imu records. In Foxglove's Plot panel, set the X axis to 'Message path' "
-   "with /imu/batch.t_sync_ns[:] and plot /imu/batch.accel_x_mps2[:] (or any column) over the whole range",
+   "message per read, so that writing and filtering cost per read, not per sample. The logger's own readers "
+   "(replay, export, plot, info, the sync report) hand its samples on as /imu records. In Foxglove's Plot panel, "
+   "set the X axis to 'Message path' with /imu/batch.t_sync_ns[:] and plot /imu/batch.accel_x_mps2[:] (or any "
+   "column) over the whole range",
    stamped=False)
 _add(BARO, "vehicle_logger.Baro", {
     "pressure_pa": ("number", "compensated static pressure, Pa"),
