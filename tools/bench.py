@@ -40,7 +40,6 @@ sys.path.insert(0, str(TOOLS))
 
 import bench_board  # noqa: E402
 import bench_daemon  # noqa: E402
-import bench_kfgins  # noqa: E402
 import bench_nav  # noqa: E402
 import bench_recorder  # noqa: E402
 import bench_startup  # noqa: E402
@@ -237,6 +236,8 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
         lines += [*module.render(section["runs"] if name == "daemon" else section), ""]
     kf = results.get("kfgins")
     if kf:
+        import bench_kfgins  # here, not at the top: it takes its machine readings from this module
+
         lines += ["## Side by side with KF-GINS", "", *_doc(bench_kfgins),
                   *bench_kfgins.render(kf["drives"], kf["machine"]["repeat"], kf["machine"]["stat"]), "",
                   f"Measured {kf['machine']['load']['started']} on {kf['machine']['cpu']} ({kf['machine']['cores']} "
