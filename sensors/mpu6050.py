@@ -391,10 +391,10 @@ class Mpu6050:
         if self._overflow_seen or count >= FIFO_SIZE_BYTES:
             return self._recover_from_overflow(read_time_ns)
         want = count if max_bytes is None else min(count, max_bytes)
+        remaining = want
         if want and self._combined:
             self._partial += self._read_fifo_combined(want)
-            want = 0
-        remaining = want
+            remaining = 0
         while remaining > 0:
             piece = min(remaining, SMBUS_BLOCK_MAX)
             # Each piece joins the buffer at once: a failure later in the loop keeps what was read.
@@ -403,7 +403,7 @@ class Mpu6050:
         whole = len(self._partial) // FIFO_FRAME_BYTES * FIFO_FRAME_BYTES
         frames = bytes(self._partial[:whole])
         del self._partial[:whole]
-        undelivered = count - (count if max_bytes is None else min(count, max_bytes)) + len(self._partial)
+        undelivered = count - want + len(self._partial)
         self._backlog_frames = -(-undelivered // FIFO_FRAME_BYTES)
         self._last_read_ns = read_time_ns
         values = np.frombuffer(frames, dtype=">i2").astype(np.float64).reshape(-1, 6)

@@ -7,12 +7,13 @@ arithmetic, when the result is read (or when many are waiting).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 PENDING_MAX = 1024  # samples kept before they are taken anyway
 
 
-class Deferred:
+class Deferred(ABC):
     """Mixin: ``self._pending`` holds the samples not yet taken; :meth:`take_pending` takes them, in order."""
 
     __slots__ = ()
@@ -24,5 +25,6 @@ class Deferred:
             self.take_pending(pending)
             pending.clear()
 
+    @abstractmethod
     def take_pending(self, pending: list[Any]) -> None:
-        raise NotImplementedError
+        """Take the kept samples, oldest first, as the per-sample method would have one by one."""

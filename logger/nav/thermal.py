@@ -66,11 +66,7 @@ class TemperatureSpan:
         d = smooth - self._counted
         if -STEP_DEGC < d < STEP_DEGC:
             return
-        self._counted = smooth
-        self._lo = min(self._lo, smooth)
-        self._hi = max(self._hi, smooth)
-        step = abs(d)
-        self._owed += step * (2.0 * self.range_degc - step)
+        self._count(smooth)
 
     def add_block(self, t_ns: np.ndarray, temp_degc: float) -> None:
         """One reading for samples at ``t_ns`` (in time order; a FIFO read has one temperature): what :meth:`add`
@@ -92,13 +88,16 @@ class TemperatureSpan:
             if len(hit) == 0:
                 return
             i += int(hit[0])
-            d = float(smooth[i]) - self._counted
-            self._counted = float(smooth[i])
-            self._lo = min(self._lo, self._counted)
-            self._hi = max(self._hi, self._counted)
-            step = abs(d)
-            self._owed += step * (2.0 * self.range_degc - step)
+            self._count(float(smooth[i]))
             i += 1
+
+    def _count(self, smooth: float) -> None:
+        """A change of at least STEP_DEGC since the last one counted: the span widens and its variance is owed."""
+        step = abs(smooth - self._counted)
+        self._counted = smooth
+        self._lo = min(self._lo, smooth)
+        self._hi = max(self._hi, smooth)
+        self._owed += step * (2.0 * self.range_degc - step)
 
     def take(self) -> float:
         """Variance per unit k^2 (degC^2) owed since the last call; the caller adds k^2 times it to the offsets."""
