@@ -52,7 +52,7 @@ from logger.nav.policies import (
 from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
-from logger.nav.state import BA_ID, BG_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
+from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown
 from logger.nav.thermal import TemperatureSpan
@@ -65,6 +65,7 @@ CONFIG_HEADING_VAR = math.radians(2.0) ** 2
 REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
 REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
 REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
+FORWARD_TAKE_DEG = 3.0  # an unsettled estimate's forward axis (pitch, yaw) known this well is taken when far off
 BATCH_MIN = 64  # shorter batches go sample by sample: the block forms cost numpy calls worth tens of samples
 NEVER = 2**63 - 1
 
@@ -278,9 +279,9 @@ class NavEngine:
             return
         if self.alignment is not None:
             self.alignment.sample_block(t, acc, gyro)
+        chip_acc, chip_gyro, mount = acc, gyro, self._mount_m
         if self._mount is not None:
-            m = self._mount_m
-            acc, gyro = acc @ m.T, gyro @ m.T
+            acc, gyro = acc @ mount.T, gyro @ mount.T
         self.counters.imu += n
         self._block = (t, acc, gyro, dts, temp_degc)  # the bookkeeping owed, done by _catch_up
         self._block_done = 0
@@ -331,6 +332,13 @@ class NavEngine:
             self._cov_dt = cov_dt - dtl[j]
             self._after_step(times[j], monos[j], s, self._gyro_raw, dtl[j], gyro_sum=False)
             i = j + 1
+            if self._mount_m is not mount:
+                # The covariance step took a new mounting: the rest of the block is turned the new way, as the
+                # samples one by one would be.
+                mount = self._mount_m
+                acc = np.concatenate((acc[:i], chip_acc[i:] @ mount.T))
+                gyro = np.concatenate((gyro[:i], chip_gyro[i:] @ mount.T))
+                self._block = (t, acc, gyro, dts, temp_degc)
         self._block = None
 
     def _event_ns(self) -> int:
@@ -510,6 +518,14 @@ class NavEngine:
         self._next_remount_ns = t + REMOUNT_INTERVAL_NS
         est = al.estimate()
         if est.state != SETTLED:
+            # Before it settles, the car's forward axis is taken as soon as it is known and far from the one in
+            # use: that axis is what the OBD speed and the non-holonomic rows hold the body on, and a board turned
+            # 30 deg would otherwise be driven unaligned for the minutes the roll takes to show (or the whole drive,
+            # on roads without turns). The roll stays the guess until the estimate settles.
+            if (math.isfinite(est.sigma_deg[1]) and max(est.sigma_deg[1], est.sigma_deg[2]) <= FORWARD_TAKE_DEG
+                    and al.forward_axis_deg(self.mount_applied, est)
+                    >= max(REOPEN_DEG, 3.0 * max(est.sigma_deg[1], est.sigma_deg[2]))):
+                self.remount(est, reopen=True)
             return
         d = mount_matrix(est.rpy_deg) @ self._mount_m.T  # new body from old body
         angle = math.degrees(float(np.linalg.norm(rotvec_from_dcm(d))))
@@ -542,6 +558,8 @@ class NavEngine:
         self._f_last = tuple(float(v) for v in d @ np.array(self._f_last))
         self.mech.prime(self._w_last, self._f_last)
         self._obd.mount_yaw_stat = [0.0, 0.0]
+        if self.offset_wander is not None:
+            self.offset_wander.restart()
         self.counters.remounts += 1
         if not reopen:
             t = np.eye(self.n)
@@ -550,6 +568,11 @@ class NavEngine:
             self.ekf.p = t @ self.ekf.p @ t.T
             return
         self.reopen_attitude_and_offsets()
+        if self.n > DH_ID:
+            # The barometer's offset was learnt against heights the wrong mounting bent (the non-holonomic rows
+            # held a body pitched on the car): it is learnt again.
+            old = float(self.ekf.p[DH_ID, DH_ID])
+            self.ekf.inflate(slice(DH_ID, DH_ID + 1), np.array([max(old, self.params.baro_sigma_m ** 2 + 1.0)]))
         self.velocity_evidence.clear()
 
     def refresh_sigma(self) -> None:

@@ -12,6 +12,7 @@ from collections import deque
 
 from logger.nav.earth import G0
 from logger.nav.engine import NavEngine
+from logger.nav.mounting import FORWARD
 from logger.nav.state import DH_ID, SF_ID
 
 ACCEL_LIMIT_MG = (50.0, 50.0, 80.0)  # MPU-6050 zero-g output tolerance, x y z
@@ -106,6 +107,8 @@ def mounting_verdict(engine: NavEngine) -> str:
         est = al.estimate()
         if math.isfinite(est.sigma_deg[0]):
             moved = f"; the mounting moved {al.moves} times this drive" if al.moves else ""
+            if est.state == FORWARD:  # the roll's sigma is the guess's: what is known is the forward axis
+                return f"{est.words()} (forward axis +-{max(est.sigma_deg[1:]):.1f} deg, {est.windows} windows){moved}"
             sig = max(est.sigma_deg)
             return f"{est.words()} (+-{sig:.1f} deg, {est.windows} windows){moved}"
     lev = engine.startup.levelled

@@ -163,6 +163,12 @@ class OffsetWander:
             d2 = sum((offset[i] - b0[i]) ** 2 for i in range(3)) / 3.0
             self._q.append(d2 / (t_s - t0))
 
+    def restart(self) -> None:
+        """Forget the estimates seen so far (the learnt changes stay): after a new mounting the offset is on other
+        axes, and a change across it is the turn, not a wander (a 30 deg remount read as a walk 200 times the
+        chip's)."""
+        self._hist.clear()
+
     def walk(self) -> float | None:
         """The offset's random walk, rad/s/sqrt(s), once WANDER_MIN changes were seen: the median of the recent
         ones, since the first minutes hold the estimate's convergence from its start, not the chip's wander."""

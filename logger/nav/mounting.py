@@ -18,10 +18,16 @@ and the turn axis) the roll and pitch. A drive without turns tells no roll. Wind
 (the grade is noise), sharper than MAX_TURN_DPS or harder than MAX_ACCEL_MPS2 are left out. A road's bank is not
 modelled: it averages out over roads, and is in the residuals, hence in the uncertainty.
 
-The uncertainty is the fit's: the residuals' scatter over the information the pairs' spread gives, widened by
-the windows' correlation (a grade or a bank lasts several windows). The estimate is shown once every angle is
-known to USABLE_SIGMA_DEG, and ``settled`` once roll and pitch are known to SETTLED_TILT_DEG and the yaw to
-SETTLED_YAW_DEG over at least MIN_WINDOWS windows. A second, short-memory fit over the last minutes of windows
+The configured mounting is a prior of PRIOR_SIGMA_DEG on every axis (pairs of its own axes in the same
+problem), so an axis the drive does not show stays at the guess while the others are estimated: on a straight
+road the forward axis (the yaw and the pitch of the chip's view of the car's forward direction) is known within a
+minute of driving, the roll only after turns. What the filter needs first is that forward axis (the OBD speed and
+the non-holonomic rows hold the body on it); an error about the forward axis itself is a roll the filter's
+attitude takes up. The uncertainty is the fit's: the residuals' scatter over the information the pairs' spread
+gives, widened by the windows' correlation (a grade or a bank lasts several windows), and the prior's. The
+estimate is ``forward`` once pitch and yaw are known to USABLE_SIGMA_DEG (the roll still the guess), complete
+(``learning``) once every angle is, and ``settled`` once roll and pitch are known to SETTLED_TILT_DEG and the yaw
+to SETTLED_YAW_DEG over at least MIN_WINDOWS windows. A second, short-memory fit over the last minutes of windows
 watches for a mounting that moved (the board knocked): when it disagrees with the long one by more than both its
 uncertainty and MOVED_DEG, the long fit starts again from the recent windows (counted in ``moves``).
 """
@@ -55,8 +61,12 @@ SETTLED_YAW_DEG = 1.0
 MIN_WINDOWS = 60
 RECENT_WINDOWS = 120  # the short memory that notices a mounting that moved
 MOVED_DEG = 2.0
+# The configured mounting's weight: a board is fixed by hand to within a few degrees of what its installer wrote,
+# and a guess 30 deg off is still a 1.5-sigma one. Against a minute of driving (3 deg) it pulls an estimate by 2 %.
+PRIOR_SIGMA_DEG = 20.0
 
-LEARNING, SETTLED = "learning", "settled"
+# ``forward``: the car's forward axis on the chip is known (pitch, yaw), the roll is still the guess.
+LEARNING, FORWARD, SETTLED = "learning", "forward", "settled"
 
 
 @dataclass(frozen=True)
@@ -71,7 +81,8 @@ class MountEstimate:
 
     def words(self) -> str:
         r, p, y = self.rpy_deg
-        return f"mount alignment: {r:.1f} / {p:.1f} / {y:.1f} deg, {self.state}"
+        state = "forward axis only, roll not yet known" if self.state == FORWARD else self.state
+        return f"mount alignment: {r:.1f} / {p:.1f} / {y:.1f} deg, {state}"
 
 
 CHI2_FLOOR = 0.25  # the residuals may show the windows better than their nominal sigmas, by this much at most
@@ -104,8 +115,9 @@ class _Fit:
     of a vector v about the rotation, |v|^2 I - v v^T, is a linear function of v v^T: taken from the sum at the
     solve."""
 
-    def __init__(self, memory: float | None = None) -> None:
+    def __init__(self, prior: np.ndarray, memory: float | None = None) -> None:
         self.memory = memory
+        self.prior = prior  # chip from vehicle: the configured mounting, weighed PRIOR_SIGMA_DEG per axis
         self.sums = np.zeros(_SIZE)
         self._solved: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._fresh = False  # _solved is the solution of the sums as they are
@@ -148,12 +160,8 @@ class _Fit:
         # With the offset b free, its best value is the mean of fc - R fv, and what is left to fit is the pairs'
         # cross-covariance about their means (the term R sum fv sum fv^T / n adds a constant, R^T R = I):
         # one SVD, for the rotation and the offset together.
-        u, _, vt = np.linalg.svd(np.array([wa * (b_acc[k] - s_fc[i] * m_fv[j]) + wg * b_gyro[k]
-                                           for k, i, j in _IJ]).reshape(3, 3))
-        u9, v9 = u.ravel().tolist(), vt.ravel().tolist()
-        sign = _det3(u9) * _det3(v9)
-        us = [u9[0], u9[1], u9[2] * sign, u9[3], u9[4], u9[5] * sign, u9[6], u9[7], u9[8] * sign]
-        r = [us[3 * i] * v9[j] + us[3 * i + 1] * v9[3 + j] + us[3 * i + 2] * v9[6 + j] for _, i, j in _IJ]
+        cross = [wa * (b_acc[k] - s_fc[i] * m_fv[j]) + wg * b_gyro[k] for k, i, j in _IJ]
+        r = _wahba(cross)
         bias = [(s_fc[i] - (r[3 * i] * s_fv[0] + r[3 * i + 1] * s_fv[1] + r[3 * i + 2] * s_fv[2])) / n
                 for i in range(3)]
         # sum |fc - b - R fv|^2 = sum |fc|^2 - 2 b.sum fc + n |b|^2 + sum |fv|^2 - 2 trace(R^T sum (fc - b) fv^T)
@@ -161,19 +169,38 @@ class _Fit:
                    - 2.0 * sum(r[k] * (b_acc[k] - bias[i] * s_fv[j]) for k, i, j in _IJ))
         sse_gyro = sums[_CC_GYRO] - 2.0 * sum(r[k] * b_gyro[k] for k in range(9))
         chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * n - 6.0, 1.0)
+        # The windows' information counts 1 / scale of its nominal (their correlation, the residuals' scatter);
+        # the prior is added as pairs of the configured mounting's axes, sum_i (R0 e_i) e_i^T = R0, whose
+        # information is 2 w I: w = 1 / (2 sigma^2) gives sigma per axis.
+        scale = max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS
+        w_prior = 0.5 / math.radians(PRIOR_SIGMA_DEG) ** 2
+        r0 = self.prior.ravel().tolist()
+        r = _wahba([c / scale + w_prior * r0[k] for k, c in enumerate(cross)])
+        bias = [(s_fc[i] - (r[3 * i] * s_fv[0] + r[3 * i + 1] * s_fv[1] + r[3 * i + 2] * s_fv[2])) / n
+                for i in range(3)]
         # The offset takes up the pairs' mean force (gravity, mostly): only their spread about it tells the angles.
         # Information of a vector v: |v|^2 I - v v^T; summed, trace(V) I - V with V = sum v v^T.
         vv_acc, vv_gyro = sums[_VV_ACC], sums[_VV_GYRO]
-        m = [-(wa * (vv_acc[k] - s_fv[i] * m_fv[j]) + wg * vv_gyro[k]) for k, i, j in _IJ]
-        tr = wa * sum(vv_acc[4 * i] - s_fv[i] * m_fv[i] for i in range(3)) + wg * (vv_gyro[0] + vv_gyro[4] + vv_gyro[8])
+        m = [-(wa * (vv_acc[k] - s_fv[i] * m_fv[j]) + wg * vv_gyro[k]) / scale for k, i, j in _IJ]
+        tr = (wa * sum(vv_acc[4 * i] - s_fv[i] * m_fv[i] for i in range(3))
+              + wg * (vv_gyro[0] + vv_gyro[4] + vv_gyro[8])) / scale + 2.0 * w_prior
         m[0] += tr
         m[4] += tr
         m[8] += tr
         inv = inverse3(m)
         if inv is None:
             return None
-        inv *= max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS
         return np.array(r).reshape(3, 3), inv, np.array(bias)
+
+
+def _wahba(cross: list[float]) -> list[float]:
+    """The rotation (row-major, 9 floats) that best turns the second vectors of the pairs onto the first, from
+    their weighted cross-covariance sum a b^T (row-major): one SVD, its sign kept a rotation (Markley)."""
+    u, _, vt = np.linalg.svd(np.array(cross).reshape(3, 3))
+    u9, v9 = u.ravel().tolist(), vt.ravel().tolist()
+    sign = _det3(u9) * _det3(v9)
+    us = [u9[0], u9[1], u9[2] * sign, u9[3], u9[4], u9[5] * sign, u9[6], u9[7], u9[8] * sign]
+    return [us[3 * i] * v9[j] + us[3 * i + 1] * v9[3 + j] + us[3 * i + 2] * v9[6 + j] for _, i, j in _IJ]
 
 
 def _det3(m: list[float]) -> float:
@@ -186,8 +213,9 @@ class MountAlignment:
 
     def __init__(self, configured_rpy_deg: tuple[float, float, float]) -> None:
         self.configured = tuple(float(a) for a in configured_rpy_deg)
-        self._long = _Fit()
-        self._recent = _Fit(memory=RECENT_WINDOWS)
+        prior = mount_matrix(self.configured).T  # chip from vehicle
+        self._long = _Fit(prior)
+        self._recent = _Fit(prior, memory=RECENT_WINDOWS)
         self.moves = 0
         self._estimate: MountEstimate | None = None  # the last estimate, until the next window changes it
         # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) per sample, so a
@@ -325,16 +353,24 @@ class MountAlignment:
         if sol is None:
             return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)
         r, cov, _ = sol
-        if not all(math.isfinite(float(cov[i, i])) and cov[i, i] < math.radians(USABLE_SIGMA_DEG) ** 2
-                   for i in range(3)):
-            # A drive without turns tells no roll (the offset takes it): the estimate is no estimate yet.
+        sig = tuple(math.degrees(math.sqrt(max(float(cov[i, i]), 0.0))) for i in range(3))
+        if not max(sig[1], sig[2]) < USABLE_SIGMA_DEG:
+            # Not even the forward axis yet (the car has hardly sped up or braked): no estimate.
             return MountEstimate(self.configured, (math.inf, math.inf, math.inf), int(self._long.n), LEARNING)
         m = r.T  # vehicle from chip: what the engine applies to a sample (dcm_from_euler(mounting_rpy_deg))
         rpy = tuple(math.degrees(a) for a in euler_from_dcm(m))
-        sig = tuple(math.degrees(math.sqrt(max(float(cov[i, i]), 0.0))) for i in range(3))
+        if not sig[0] < USABLE_SIGMA_DEG:
+            # A drive without turns tells no roll (the offset takes it): the roll is the guess's, about the forward
+            # axis the drive has shown.
+            return MountEstimate(rpy, sig, int(self._long.n), FORWARD)
         settled = (self._long.n >= MIN_WINDOWS and max(sig[0], sig[1]) <= SETTLED_TILT_DEG
                    and sig[2] <= SETTLED_YAW_DEG)
         return MountEstimate(rpy, sig, int(self._long.n), SETTLED if settled else LEARNING)
+
+    def forward_axis_deg(self, rpy_deg: tuple[float, float, float], est: MountEstimate) -> float:
+        """Angle between the car's forward axis on the chip under mounting ``rpy_deg`` and under the estimate."""
+        a, b = mount_matrix(rpy_deg)[0], mount_matrix(est.rpy_deg)[0]  # vehicle x on the chip's axes
+        return math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b)))))
 
 
 def mount_matrix(rpy_deg: tuple[float, float, float]) -> np.ndarray:

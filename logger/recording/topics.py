@@ -286,9 +286,11 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "mount_rpy_deg": ("number[3]?", "the IMU's mounting as the drive shows it: roll, pitch, yaw of the chip against "
                                     "the vehicle, deg (nav.mounting_rpy_deg's convention); null until estimated"),
     "mount_sigma_deg": ("number[3]?", "1-sigma of mount_rpy_deg, deg"),
-    "mount_state": ("string?", "the mount alignment: learning or settled; null when nav.mount_align is off"),
+    "mount_state": ("string?", "the mount alignment: learning, forward (the car's forward axis known, the roll "
+                               "still the guess: no turns yet) or settled; null when nav.mount_align is off"),
     "mount_applied_rpy_deg": ("number[3]", "the mounting the filter turns the samples with now, deg"),
-    "remounts": ("integer", "times a settled mount alignment replaced the mounting in use"),
+    "remounts": ("integer", "times the mount alignment replaced the mounting in use (its forward axis once known, "
+                            "then the settled estimate)"),
     "mount_moves": ("integer", "times the mounting was seen to move during the drive (the board knocked)"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay, "
                             "by arrival for a fix without a valid time, none before the first fix"),
