@@ -136,9 +136,9 @@ def test_the_filter_takes_the_settled_mounting_and_drives_as_if_it_had_been_conf
     # better than the filter left unaware of it.
     assert rmse_after(auto, 450.0) <= 1.2 * rmse_after(configured, 450.0) + 0.02
     assert rmse_after(auto, 450.0) < rmse_after(unaware, 450.0)
-    # The forward axis is taken within the first minutes, so the whole drive is near the configured mounting's
-    # (1.3x measured; 3.8x when only a settled estimate was taken, some 400 s in).
-    assert rmse_after(auto, 0.0) <= 1.5 * rmse_after(configured, 0.0)
+    # The forward axis is taken 36 s in, so the whole drive is near the configured mounting's (1.09x measured;
+    # 3.8x when only a settled estimate was taken, some 400 s in).
+    assert rmse_after(auto, 0.0) <= 1.25 * rmse_after(configured, 0.0)
 
 
 def test_the_forward_axis_is_taken_on_a_drive_without_turns():
