@@ -1,0 +1,165 @@
+"""Foxglove's own JavaScript library, ``@mcap/core``, reads our files as the project's Python reader does.
+
+Every other test reads the files with Python (the ``mcap`` package, the record walk of
+:mod:`logger.recording.drive`); a reader in another language, written by the format's authors, is the
+independent check that the files are MCAP and not merely what our code expects. ``tools/mcap_js/read.mjs``
+reads a file with ``McapIndexedReader`` (through its summary and index) and with a plain ``McapStreamReader``
+walk (what a file cut short has), and the two readings are compared with the project's: the channels' topics,
+schema names and encodings, messages per topic, the time range, the chunks, every message JSON, and the
+samples of ``/imu/batch`` (a FIFO drive: the IMU at 200 Hz). A copy cut at 60 % of its size is read as a power
+cut leaves a file: the stream walk keeps what the project's reader recovers, and neither crashes.
+
+The test needs ``node`` and ``npm ci --prefix tools/mcap_js``; without them it skips, except in CI, which
+installs both (.ci/run) and where it fails instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import subprocess
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import pytest
+from helpers_drive import run_logger
+from mcap.reader import make_reader
+from test_schemas import DRIVES
+
+from logger.recording.drive import iter_messages, open_drive
+from logger.recording.files import walk
+from logger.recording.topics import IMU, IMU_BATCH, TOPICS
+
+ROOT = Path(__file__).resolve().parents[1]
+READER = ROOT / "tools" / "mcap_js" / "read.mjs"
+NODE_MODULES = ROOT / "tools" / "mcap_js" / "node_modules"
+IN_CI = os.environ.get("LOGGER_TESTS_NO_SKIP") == "1"
+FIFO = next(d for d in DRIVES if d.name == "imu-fifo")  # test_schemas' profile: the IMU at 200 Hz, /imu/batch
+# (compression, simulated seconds): the default, and the other compression the recorder offers, shorter.
+DRIVES_HERE = {"zstd": 20, "lz4": 10}
+CUT_AT = 0.6  # share of the file a power cut leaves
+
+
+def need_node() -> str:
+    """``node`` with the reader's packages installed; a skip where either is missing, a failure in CI."""
+    node = shutil.which("node")
+    missing = ("node is not installed (apt-get install nodejs npm)" if node is None else
+               "tools/mcap_js/node_modules is not installed (npm ci --prefix tools/mcap_js)"
+               if not (NODE_MODULES / "@mcap" / "core").is_dir() else "")
+    if missing:
+        if IN_CI:
+            pytest.fail(f"{missing}: .ci/run installs both")
+        pytest.skip(missing)
+    assert node is not None
+    return node
+
+
+def read_js(node: str, path: Path) -> dict[str, Any]:
+    """What ``read.mjs`` prints for the file: one JSON line."""
+    r = subprocess.run([node, str(READER), str(path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 1, r.stdout
+    return json.loads(lines[0])
+
+
+@dataclasses.dataclass
+class PythonView:
+    """What the project's drive reader (:mod:`logger.recording.drive`) reads from one file, in read.mjs's terms."""
+
+    counts: dict[str, int]
+    time_range: list[int]
+    imu_batch_samples: int
+
+
+def python_view(path: Path) -> PythonView:
+    """A finished file is read through the record walk or the mcap package, an unfinished one as recovery reads it
+    (every CRC-valid chunk up to the cut); every message is decoded as JSON on the way (a DriveFileError if not).
+    ``/imu/batch`` samples are counted as the project's readers of samples get them: asked for ``/imu``."""
+    files = open_drive([path])
+    counts: Counter[str] = Counter()
+    times = []
+    for m in iter_messages(files, TOPICS):
+        counts[m.topic] += 1
+        times.append(m.log_time)
+    samples = sum(1 for m in iter_messages(files, [IMU]) if m.msg.get("fifo"))
+    return PythonView(dict(counts), [min(times), max(times)] if times else [], samples)
+
+
+@pytest.fixture(scope="module", params=sorted(DRIVES_HERE))
+def recorded(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path]:
+    """(node, the drive's one file): the IMU-FIFO profile, with the chunks compressed as ``request.param``."""
+    node = need_node()
+    compression = request.param
+    out = tmp_path_factory.mktemp(f"mcap-js-{compression}")
+    cfg = out / "logger.toml"
+    cfg.write_text(f'[logger]\nstate_dir = "{out / "state"}"\n{FIFO.config}'
+                   f'[recorder]\ncompression = "{compression}"\n')
+    r = run_logger("--sim", "--scenario", FIFO.scenario, "--duration", str(DRIVES_HERE[compression]),
+                   "--time-scale", "5", "--out", str(out / "drive"), "--status-socket", str(out / "status.sock"),
+                   "--config", str(cfg))
+    assert r.returncode == 0, r.stderr
+    files = sorted((out / "drive").glob("*.mcap"))
+    assert len(files) == 1, files
+    return node, files[0]
+
+
+def test_mcap_core_reads_a_drive_as_the_python_reader_does(recorded: tuple[str, Path]) -> None:
+    node, path = recorded
+    js = read_js(node, path)
+    indexed, stream = js["indexed"], js["stream"]
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    stats = summary.statistics
+    channels = {ch.topic: {"schema": summary.schemas[ch.schema_id].name,
+                           "schema_encoding": summary.schemas[ch.schema_id].encoding,
+                           "message_encoding": ch.message_encoding} for ch in summary.channels.values()}
+    py = python_view(path)
+
+    # The profile's topics (/nav/* once the filter runs, about 15 s in), /imu/batch among them, each with our schema
+    # and JSON.
+    assert IMU_BATCH in channels and not set(channels) & set(FIFO.absent), sorted(channels)
+    ours = {t: {"schema": TOPICS[t].schema_name, "schema_encoding": "jsonschema", "message_encoding": "json"}
+            for t in channels if t in TOPICS}
+    assert channels == ours, channels
+    # The indexed reader and the stream walk each read what the Python side reads.
+    for name, got in (("indexed", indexed), ("stream", stream)):
+        assert got["topics"] == channels, name
+        assert got["counts"] == py.counts, name
+        assert got["messages"] == sum(py.counts.values()) == stats.message_count, name
+        assert got["time_range"] == py.time_range == [stats.message_start_time, stats.message_end_time], name
+        assert got["chunks"] == stats.chunk_count == len(summary.chunk_indexes), name
+        assert got["all_json"] and got["not_json"] == 0, name
+        assert got["imu_batch_samples"] == py.imu_batch_samples > 0, name
+    assert indexed["statistics"] == {"messages": stats.message_count, "chunks": stats.chunk_count,
+                                     "time_range": [stats.message_start_time, stats.message_end_time]}
+    assert stream["complete"] and stream["bytes_unread"] == 0
+    assert py.counts[IMU_BATCH] > 0 and py.imu_batch_samples >= py.counts[IMU_BATCH]
+
+
+def test_mcap_core_stream_walk_recovers_a_cut_file(recorded: tuple[str, Path], tmp_path: Path) -> None:
+    node, path = recorded
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:int(len(data) * CUT_AT)])
+    js = read_js(node, cut)
+    salvage = walk(cut)
+    py = python_view(cut)
+    assert not open_drive([cut])[0].finished and salvage.stopped_at.startswith("cut at byte"), salvage.stopped_at
+
+    # The index is at the end, gone: the indexed reader says so (read.mjs keeps its error, exits 0).
+    assert "error" in js["indexed"], js["indexed"]
+    stream = js["stream"]
+    assert not stream["complete"] and stream["bytes_unread"] > 0, stream
+    # The stream walk stops at the cut chunk and keeps every message of the whole ones, as recovery does.
+    assert stream["chunks"] == salvage.chunks_ok > 0 and salvage.chunks_bad == 0
+    assert set(stream["topics"]) == {ch.topic for ch in salvage.channels.values()}
+    assert stream["counts"] == py.counts
+    assert stream["messages"] == len(salvage.messages) == sum(py.counts.values()) > 0
+    assert stream["time_range"] == py.time_range
+    assert stream["all_json"]
+    assert stream["imu_batch_samples"] == py.imu_batch_samples > 0
