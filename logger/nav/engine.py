@@ -247,13 +247,14 @@ class NavEngine:
         self._after_step(t_ns, t_mono_ns, s, gyro, dt)
 
     def imu_batch(self, t_ns: np.ndarray | list[int], t_mono_ns: np.ndarray | list[int], acc: np.ndarray,
-                  gyro: np.ndarray, temp_degc: float | None = None) -> None:
+                  gyro: np.ndarray, temp_degc: float | np.ndarray | None = None) -> None:
         """Consecutive IMU samples at once: a FIFO read, or a run of ``/imu`` records with nothing between them.
 
         ``t_ns`` and ``t_mono_ns``: each sample's synchronised and board times (n); ``acc`` and ``gyro``: n x 3
         specific force (m/s^2) and rate (rad/s) on the chip's axes; ``temp_degc``: the die temperature read with
-        them (one per read), or None. The result is what :meth:`imu` gives fed the samples one by one with that
-        temperature (to round-off): every sample is integrated at its own time, gets its row and its place in
+        them (one per read), or None; or one per sample (n, NaN where none was read) when the block is several
+        reads, each with its own. The result is what :meth:`imu` gives fed the samples one by one with their
+        temperatures (to round-off): every sample is integrated at its own time, gets its row and its place in
         the late-fix history, and the covariance is propagated after the same samples. What is per-sample
         bookkeeping rather than integration (the mounting's rotation, the offsets, the stop detector's window, the
         noise monitor, the mount alignment's sums, the die temperature) is done for the whole block with numpy.
@@ -267,6 +268,8 @@ class NavEngine:
         acc = np.asarray(acc, dtype=float).reshape(n, 3)
         gyro = np.asarray(gyro, dtype=float).reshape(n, 3)
         mono = np.asarray(t_mono_ns, dtype=np.int64).reshape(n)
+        if temp_degc is not None and np.ndim(temp_degc):
+            temp_degc = np.asarray(temp_degc, dtype=float).reshape(n)  # one per sample: the reads' own
         t_last = self._t_last
         if (n < BATCH_MIN or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
                 or not bool((np.diff(t) > 0).all())):
@@ -352,11 +355,12 @@ class NavEngine:
         return at
 
     def _imu_each(self, t: np.ndarray, mono: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
-                  temp_degc: float | None) -> None:
-        """A batch sample by sample, through :meth:`imu`."""
+                  temp_degc: float | np.ndarray | None) -> None:
+        """A batch sample by sample, through :meth:`imu` (each with its temperature when there is one per sample)."""
         sample = self.imu
-        for t_i, m_i, a, g in zip(t.tolist(), mono.tolist(), acc.tolist(), gyro.tolist(), strict=True):
-            sample(t_i, m_i, (a[0], a[1], a[2]), (g[0], g[1], g[2]), temp_degc)
+        temps = temp_degc.tolist() if isinstance(temp_degc, np.ndarray) else [temp_degc] * len(t)
+        for t_i, m_i, a, g, c in zip(t.tolist(), mono.tolist(), acc.tolist(), gyro.tolist(), temps, strict=True):
+            sample(t_i, m_i, (a[0], a[1], a[2]), (g[0], g[1], g[2]), c)
 
     def _catch_up(self, upto: int) -> None:
         """The per-sample bookkeeping of the current batch's samples before ``upto``, in blocks: the stop detector,
@@ -367,7 +371,15 @@ class NavEngine:
         self.stops.add_block(t[sl], acc[sl], gyro[sl])
         if self.imu_noise is not None:
             self.imu_noise.add_block(acc[sl], gyro[sl], dts[sl])
-        if temp is not None:
+        if isinstance(temp, np.ndarray):
+            # One temperature per read of a run of reads: a block for each read's samples (a missing reading,
+            # NaN, is unequal to its neighbours and ignored as imu() ignores it).
+            ts, tt = temp[sl], t[sl]
+            lo = 0
+            for hi in (*(np.flatnonzero(ts[1:] != ts[:-1]) + 1).tolist(), len(ts)):
+                self.thermal.add_block(tt[lo:hi], float(ts[lo]))
+                lo = hi
+        elif temp is not None:
             self.thermal.add_block(t[sl], float(temp))
         if self._stop.stopped:
             ws = self._stop.w_sum

@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import math
 from collections.abc import Callable, Sequence
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -261,6 +262,36 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         engine.pps(m["t_sync_ns"])
 
     return {IMU: imu, IMU_BATCH: imu_batch, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
+
+
+def imu_reads_feeder(engine: NavEngine) -> Callable[[Sequence[dict[str, Any]]], None]:
+    """``/imu/batch`` records that follow one another (nothing between them, each one's samples after the last
+    one's) as one :meth:`NavEngine.imu_batch` call: a block long enough for the engine's block forms, where each
+    FIFO read alone is shorter. Each read's die temperature goes with its own samples, so the engine gives what it
+    gives fed the reads one by one (to round-off); which reads may go together is the caller's to judge."""
+    one = nav_feeder(engine)[IMU_BATCH]
+
+    def reads(ms: Sequence[dict[str, Any]]) -> None:
+        if len(ms) == 1:
+            one(ms[0])
+            return
+        temps = [m.get("temp_degc") for m in ms]
+        temp: float | np.ndarray | None = temps[0]
+        if any(c != temp for c in temps):
+            temp = np.repeat(np.array([math.nan if c is None else c for c in temps], dtype=float),
+                             [len(m["t_sync_ns"]) for m in ms])
+        engine.imu_batch(_joined(ms, "t_sync_ns"), _joined(ms, "t_mono_ns"),
+                         np.array([_joined(ms, k) for k in ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")],
+                                  dtype=float).T,
+                         np.array([_joined(ms, k) for k in ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")],
+                                  dtype=float).T, temp)
+
+    return reads
+
+
+def _joined(ms: Sequence[dict[str, Any]], key: str) -> list[Any]:
+    """One column of consecutive batch records, end to end."""
+    return list(chain.from_iterable(m[key] for m in ms))
 
 
 def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:

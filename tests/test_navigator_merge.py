@@ -1,0 +1,178 @@
+"""The navigator hands a run of consecutive FIFO reads to the filter as one block (``Navigator.take``): at 1 kHz a
+read is 40 samples, too few for the engine's block forms alone. The trajectory, its rows and epochs, the counters
+and what is published are those of the reads fed one by one, as the navigator fed them before."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from test_nav_batch import _runs, _same_trajectory, _with_temperature
+from test_nav_synth import records
+
+from logger.nav.engine import BATCH_MIN, NavEngine
+from logger.nav.params import NavParams
+from logger.recording.records import imu_reads_feeder, nav_feeder
+from logger.recording.topics import IMU_BATCH, NAV_FIX, NAV_STATE
+from logger.runtime.navigator import WAKE_S, Navigator
+from logger.runtime.sampler import Reading
+from sensors.sim.scenarios import make_drive
+
+NS = 1_000_000_000
+IMU_HZ = 1000.0
+PER_READ = 40  # 25 FIFO reads a second at 1 kHz
+
+Item = tuple[int, str, dict[str, Any]]  # (time queued, topic, record)
+
+
+def _read(msgs: list[dict[str, Any]], temp_degc: float, lost: int = 0) -> dict[str, Any]:
+    """An /imu/batch record (the fields the navigator uses) from /imu samples: one die temperature per read."""
+    a, g = np.array([m["accel_mps2"] for m in msgs]).T, np.array([m["gyro_rps"] for m in msgs]).T
+    return {"t_sync_ns": [m["t_sync_ns"] for m in msgs], "t_mono_ns": [m["t_mono_ns"] for m in msgs],
+            "accel_x_mps2": a[0].tolist(), "accel_y_mps2": a[1].tolist(), "accel_z_mps2": a[2].tolist(),
+            "gyro_x_rps": g[0].tolist(), "gyro_y_rps": g[1].tolist(), "gyro_z_rps": g[2].tolist(),
+            "temp_degc": round(temp_degc, 3), "period_s": 1.0 / IMU_HZ, "lost": lost}
+
+
+@pytest.fixture(scope="module")
+def reads() -> list[Item]:
+    """A minute of the outage scenario as a 1 kHz FIFO IMU gives it: reads of 40 samples (shorter where a GNSS
+    fix, an OBD speed or a barometer reading came in between), each with its die temperature, which warms, reads
+    with noise, and steps by half a degree at 30 s; the filter starts at about 15 s."""
+    recs = _with_temperature(records(make_drive("outage-60s", seed=3, duration_s=60.0), 60.0, seed=4,
+                                     imu_hz=IMU_HZ))
+    t0 = recs[0][0]
+    out: list[Item] = []
+    for topic, item in _runs(recs, PER_READ):
+        if topic == "batch":
+            t = item[-1]["t_sync_ns"]
+            out.append((t, IMU_BATCH, _read(item, item[-1]["temp_degc"] + (0.5 if t - t0 > 30 * NS else 0.0))))
+        else:
+            out.append((item["t_sync_ns"], topic, item))
+    return out
+
+
+def _navigator(**params: Any) -> tuple[Navigator, list[Reading], list[tuple[int, int]]]:
+    """A navigator (no thread) whose engine keeps its rows and epochs, what it publishes, and each engine call
+    for IMU samples as (first sample's time, samples)."""
+    published: list[Reading] = []
+    nav = Navigator(NavParams(**params), publish=published.append)
+    nav.engine = engine = NavEngine(nav.params, record=True)
+    calls: list[tuple[int, int]] = []
+    block = engine.imu_batch
+
+    def imu_batch(t: Any, *rest: Any) -> None:
+        calls.append((int(t[0]), len(t)))
+        block(t, *rest)
+
+    engine.imu_batch = imu_batch  # type: ignore[method-assign]
+    nav._feed, nav._feed_reads = nav_feeder(engine), imu_reads_feeder(engine)
+    return nav, published, calls
+
+
+def _read_by_read(nav: Navigator, items: list[Item]) -> None:
+    """What the navigator did before runs were merged: each record fed alone, a publish check after each read."""
+    for _, topic, m in items:
+        nav._feed[topic](m)
+        if topic == IMU_BATCH:
+            nav._maybe_publish()
+
+
+def _merged(nav: Navigator, items: list[Item], merge: bool = True) -> None:
+    """The navigator's wake-ups: what was queued in each WAKE_S, taken at once."""
+    wake = int(WAKE_S * NS)
+    chunk: list[tuple[str, dict[str, Any]]] = []
+    end = items[0][0] + wake
+    for t, topic, m in items:
+        if t >= end:
+            nav.take(chunk, merge)
+            chunk, end = [], end + (t - end) // wake * wake + wake
+        chunk.append((topic, m))
+    nav.take(chunk, merge)
+
+
+def _same_publishing(one: list[Reading], many: list[Reading]) -> None:
+    for topic in (NAV_FIX, NAV_STATE):
+        a = [r.payload for r in one if r.topic == topic]
+        b = [r.payload for r in many if r.topic == topic]
+        assert len(a) > (10 if topic == NAV_STATE else 100)
+        assert [m["t_sync_ns"] for m in a] == [m["t_sync_ns"] for m in b]
+        assert [m["t_mono_ns"] for m in a] == [m["t_mono_ns"] for m in b]
+    fa = np.array([(m["latitude"], m["longitude"]) for m in (r.payload for r in one if r.topic == NAV_FIX)])
+    fb = np.array([(m["latitude"], m["longitude"]) for m in (r.payload for r in many if r.topic == NAV_FIX)])
+    assert np.abs(fa - fb).max() * 111_000 < 1e-6  # metres
+
+
+@pytest.mark.parametrize("mode", ["17", "15"])
+def test_merged_reads_give_the_trajectory_and_fixes_of_reads_one_by_one(reads, mode):
+    one, pub_one, calls_one = _navigator(mode=mode)
+    many, pub_many, calls_many = _navigator(mode=mode)
+    _read_by_read(one, reads)
+    _merged(many, reads)
+    _same_trajectory(one.engine, many.engine)
+    assert many.processed == len(reads)
+    assert many.engine.thermal.range_degc == pytest.approx(one.engine.thermal.range_degc, rel=1e-9)
+    assert one.engine.thermal.range_degc > 0.5  # the step counted, in both
+    assert one.engine.counters.imu == sum(len(m["t_sync_ns"]) for _, topic, m in reads if topic == IMU_BATCH)
+    _same_publishing(pub_one, pub_many)
+    # Read by read, no call reaches the block forms; merged, most samples after the start go through them.
+    assert max(n for _, n in calls_one) <= PER_READ
+    start = many.engine.counters.initialised_ns
+    after = [n for t, n in calls_many if t > start + NS]
+    # Runs end at every other record, at each publishing and at each wake-up: here about 11 times a second.
+    assert sum(n for n in after if n >= BATCH_MIN) > 0.75 * sum(after)
+    assert max(after) == 5 * PER_READ  # a fifth of a second between fixes
+
+
+def test_fixes_go_out_at_publish_hz_after_merged_reads(reads):
+    nav, published, _ = _navigator(publish_hz=5.0)
+    _merged(nav, reads)
+    fixes = [r.payload for r in published if r.topic == NAV_FIX]
+    states = [r.payload for r in published if r.topic == NAV_STATE]
+    t = np.array([m["t_sync_ns"] for m in fixes])
+    span_s = (reads[-1][0] - nav.engine.counters.initialised_ns) / NS
+    gaps = np.diff(t) / NS
+    # Each fix after the first read to reach 0.2 s past the last: never sooner, later by at most that read.
+    assert gaps.min() >= 0.2 and gaps.max() <= 0.2 + PER_READ / IMU_HZ + 1e-9
+    assert span_s / (0.2 + PER_READ / IMU_HZ) <= len(fixes) <= span_s / 0.2 + 1
+    assert span_s / (1.0 + PER_READ / IMU_HZ) <= len(states) <= span_s + 1
+    assert t[0] >= nav.engine.counters.initialised_ns
+
+
+def test_a_gap_lost_samples_and_a_read_out_of_order_go_alone(reads):
+    """Half a second without reads (a gap the filter counts), a read after a FIFO overflow, and two reads queued
+    the wrong way round: each goes to the filter alone, as before, and nothing else changes."""
+    items = list(reads)
+    at = [i for i, (t, topic, _) in enumerate(items) if topic == IMU_BATCH and t > reads[0][0] + 35 * NS]
+    gap = at[:15]  # 0.6 s of reads: gone
+    overflow = at[40]
+    swapped = at[60], at[61]
+    t_over, _, m = items[overflow]
+    items[overflow] = (t_over, IMU_BATCH, {**{k: v[3:] if isinstance(v, list) else v for k, v in m.items()},
+                                           "lost": 3})
+    items[swapped[0]], items[swapped[1]] = items[swapped[1]], items[swapped[0]]
+    alone = [items[i][2] for i in (at[15], overflow, *swapped)]  # the later of the two jumps ahead: alone too
+    items = [r for i, r in enumerate(items) if i not in set(gap)]
+    one, pub_one, _ = _navigator()
+    many, pub_many, calls = _navigator()
+    _read_by_read(one, items)
+    _merged(many, items)
+    _same_trajectory(one.engine, many.engine)
+    _same_publishing(pub_one, pub_many)
+    c = many.engine.counters
+    assert c.imu_gaps == 1 and c.imu_out_of_order == len(alone[3]["t_sync_ns"])
+    for m in alone:
+        assert (m["t_sync_ns"][0], len(m["t_sync_ns"])) in calls
+
+
+def test_take_without_merging_is_read_by_read(reads):
+    """``take(records, merge=False)``, the benchmark's comparison, feeds every read alone as before."""
+    part = reads[: len(reads) // 2]
+    one, pub_one, calls_one = _navigator()
+    alone, pub_alone, calls_alone = _navigator()
+    _read_by_read(one, part)
+    _merged(alone, part, merge=False)
+    assert calls_alone == calls_one and max(n for _, n in calls_alone) <= PER_READ
+    _same_trajectory(one.engine, alone.engine)
+    assert [r.payload for r in pub_alone] == [r.payload for r in pub_one]
