@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import statistics
 import subprocess
 import sys
@@ -226,3 +227,19 @@ def test_replay_of_a_drive_that_never_moves_says_why_and_fails(tmp_path: Path) -
     assert r.stderr.strip().startswith("logger replay: no solution from 801 IMU samples and 41 GNSS fixes: ")
     assert "waiting for the car to move to find the heading" in r.stderr and "Traceback" not in r.stderr
     assert f"nothing written to {out}" in r.stderr and not out.exists() and r.stdout == ""
+
+
+def test_a_gnss_only_navigator_publishes_its_fixes_live():
+    """nav.mode = "gnss" integrates no IMU sample: its solution is the last fix's, and goes out as such."""
+    drive = make_drive("outage-60s", seed=1, duration_s=40.0)
+    published: list[Reading] = []
+    nav = Navigator(NavParams(mode="gnss", publish_hz=2.0), publish=published.append)
+    nav.take([(topic, msg) for _, topic, msg in records(drive, 40.0, seed=1)])
+    fixes = [r.payload for r in published if r.topic == "/nav/fix"]
+    states = [r.payload for r in published if r.topic == "/nav/state"]
+    assert len(fixes) >= 30 and len(states) >= 30, (len(fixes), len(states))
+    assert all(f["source"] == "gnss" and f["mode"] == "gnss" for f in fixes)
+    times = [f["t_sync_ns"] for f in fixes]
+    assert times == sorted(set(times))  # one per fix at most, in order
+    truth = drive.state(40.0)
+    assert abs(fixes[-1]["latitude"] - math.degrees(truth.lat_rad)) * 111_000 < 10.0

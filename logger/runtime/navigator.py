@@ -31,7 +31,7 @@ from logger.recording.records import (
     nav_fix_record,
     nav_state_record,
 )
-from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE
+from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state
 from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import Reading
@@ -178,7 +178,7 @@ class Navigator:
                 run = []
                 self._maybe_publish()
             feed[topic](payload)
-            if topic in (IMU, IMU_BATCH):
+            if topic in (IMU, IMU_BATCH) or (topic == GNSS_FIX and self.engine.mode == "gnss"):
                 self._maybe_publish()
         if run:
             feed_reads(run)
@@ -190,7 +190,8 @@ class Navigator:
         return self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
 
     def _maybe_publish(self) -> None:
-        t_last = self.engine.t_last_ns
+        # GNSS-only, the solution is the last fix's and no IMU sample is integrated: its time is the fix's.
+        t_last = self.engine.t_last_ns if self.engine.mode != "gnss" else getattr(self.engine.current(), "t_ns", None)
         if self.publish is None or t_last is None or (t_last < self._next_fix_ns and t_last < self._next_state_ns):
             return
         sol = self.engine.current()
