@@ -529,13 +529,13 @@ class NavEngine:
         self._next_remount_ns = t + REMOUNT_INTERVAL_NS
         est = al.estimate()
         if est.state != SETTLED:
-            # Before it settles, the car's forward axis is taken as soon as it is known and far from the one in
-            # use: that axis is what the OBD speed and the non-holonomic rows hold the body on, and a board turned
-            # 30 deg would otherwise be driven unaligned for the minutes the roll takes to show (or the whole drive,
-            # on roads without turns). The roll stays the guess until the estimate settles.
-            # Taken as soon as shown (pitch and yaw within USABLE_SIGMA_DEG) when three sigmas away: on the
-            # synthetic outage drive with the board at (5, -4, 30) deg, that is 36 s in; waiting for 3 deg took it
-            # 30 s later, and the minute without GNSS after it ended 3.0 m off instead of 1.1 m.
+            # Before it settles, the car's forward axis is taken as soon as it is shown (pitch and yaw within
+            # USABLE_SIGMA_DEG) and three sigmas from the one in use: that axis is what the OBD speed and the
+            # non-holonomic rows hold the body on, and a board turned 30 deg would otherwise be driven unaligned for
+            # the minutes the roll takes to show (the whole drive, on roads without turns). The roll stays near the
+            # guess until the estimate settles. On the synthetic outage drive with the board at (5, -4, 30) deg it
+            # is taken 36 s in; waiting for 3 deg took it 30 s later, and the minute without GNSS after it ended
+            # 3.0 m off instead of 1.1 m.
             if (math.isfinite(est.sigma_deg[1])
                     and al.forward_axis_deg(self.mount_applied, est)
                     >= max(REOPEN_DEG, 3.0 * max(est.sigma_deg[1], est.sigma_deg[2]))):
