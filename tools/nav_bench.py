@@ -1,6 +1,6 @@
 """Speed of the navigation filter: replay throughput and the live navigator's share of one core.
 
-    python tools/nav_bench.py DRIVE.mcap... [--live-s 60] [--repeat 3] [--batch]
+    python tools/nav_bench.py DRIVE.mcap... [--live-s 60] [--repeat 3] [--batch] [--only filter|decode]
     python tools/nav_bench.py --fifo-s 60 [--fifo-feed per-read|merged|none]
 
 Replay: the whole ``logger replay`` pipeline (read, decode, filter, no output files) over the drive, timed as
@@ -8,7 +8,9 @@ process CPU time and as wall time, per IMU sample and as a multiple of real time
 records read and decoded first (not timed), then the engine fed from memory as replay feeds it, per mode, the
 best of ``--repeat`` runs (a shared machine only ever adds time); with ``--batch`` also with every run of
 consecutive IMU samples handed over at once through ``NavEngine.imu_batch`` (its arrays built beforehand, as a
-FIFO read's are). Live: the drive's records
+FIFO read's are). ``--only filter`` stops after the filter alone; ``--only decode`` only reads and decodes the
+drive: under ``valgrind --tool=callgrind`` the difference of the two runs' instruction totals, divided by the IMU
+samples, is the filter's instructions per sample (GNSS, OBD and barometer updates included). Live: the drive's records
 are offered to a running :class:`~logger.runtime.navigator.Navigator` paced at the drive's own rate for ``--live-s``
 seconds of real time, and the CPU time of the navigator thread plus that of every ``offer`` call (the part
 the sampler threads pay) is divided by the elapsed time. Figures go to stdout; no test asserts on them.
@@ -248,6 +250,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     ap.add_argument("--repeat", type=int, default=3, help="runs of the filter alone per mode (the best is shown)")
     ap.add_argument("--batch", action="store_true", help="also time the filter alone fed through imu_batch")
+    ap.add_argument("--only", choices=("filter", "decode"),
+                    help="filter: the filter alone and nothing after it (no replays, no live run); decode: only read "
+                         "and decode the drive (the baseline to subtract from a filter-only instruction count)")
     ap.add_argument("--fifo-s", type=float, default=0.0,
                     help="instead of a drive: seconds of simulated 1 kHz FIFO reads through the navigator")
     ap.add_argument("--fifo-head", type=float, default=20.0, help="seconds fed untimed before (the start)")
@@ -261,6 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.files:
         ap.error("a drive (DRIVE.mcap...) or --fifo-s")
     msgs = list(read_drive(args.files, NAV_INPUT_TOPICS))
+    if args.only == "decode":
+        print(f"read and decoded {len(msgs)} records, {sum(t == IMU for t, _ in msgs)} IMU samples")
+        return 0
     batches = imu_runs(msgs) if args.batch else None
     for mode in args.modes:
         if mode != "gnss":
@@ -268,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
             if batches is not None:
                 bench_filter_alone(msgs, mode, args.repeat, batches)
     del msgs, batches
+    if args.only == "filter":
+        return 0
     for mode in args.modes:
         bench_replay(args.files, mode, False)
     bench_replay(args.files, "17", True)
