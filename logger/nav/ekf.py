@@ -36,8 +36,7 @@ class ErrorStateEkf:
         self.stats: dict[str, UpdateStats] = {}
         self.repairs = 0
         self.inflations = 0  # times inflate() forgot something (restarts, re-anchors, reopenings, widenings)
-        self._eye = np.eye(self.n)
-        self._diag = np.arange(self.n)
+        self._work: _Scratch | None = None  # propagate_trapezoid's arrays, made on its first call
 
     def propagate(self, phi: np.ndarray, qd: np.ndarray) -> None:
         p = phi @ self.p @ phi.T + qd
@@ -47,12 +46,17 @@ class ErrorStateEkf:
         """:meth:`propagate` with the trapezoidal discrete noise Q_d = (Phi Q Phi^T + Q) dt / 2 of a diagonal Q,
         given as ``half_q`` = Q dt / 2: Phi P Phi^T + Q_d = Phi (P + Q dt / 2) Phi^T + Q dt / 2, one product of
         Phi fewer."""
-        d = self._diag
-        m = self.p.copy()
-        m[d, d] += half_q
-        p = phi @ m @ phi.T
-        p[d, d] += half_q
-        p += p.T
+        w = self._work
+        if w is None:
+            w = self._work = _Scratch(self.n)
+        m, s = w.m, w.s
+        np.copyto(m, self.p)
+        w.m_diag += half_q
+        s = np.matmul(np.matmul(phi, m, out=w.t), phi.T, out=s)
+        w.s_diag += half_q
+        # The symmetrised sum into a fresh array (P is handed out); (x + x) / 2 is x, so Q dt / 2 added to the
+        # diagonal before is what it was after.
+        p = np.add(s, w.s_t)
         p *= 0.5
         self.p = p
 
@@ -121,6 +125,20 @@ class ErrorStateEkf:
         idx = range(*indices.indices(self.n))
         for i, v in zip(idx, variances, strict=True):
             self.p[i, i] = float(v)
+
+
+class _Scratch:
+    """Preallocated n x n arrays of :meth:`ErrorStateEkf.propagate_trapezoid`, with views of their diagonals and
+    of a transpose made once: a numpy call per product instead of an allocation, an index and a view each."""
+
+    def __init__(self, n: int) -> None:
+        self.m, self.t, self.s = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+        self.m_diag = self.m.reshape(-1)[::n + 1]
+        self.s_diag = self.s.reshape(-1)[::n + 1]
+        self.s_t = self.s.T
+
+    def __deepcopy__(self, memo: dict[int, object]) -> _Scratch:
+        return _Scratch(self.m.shape[0])  # fresh views on fresh arrays (a copied view would not be one)
 
 
 def _inverse(s: np.ndarray) -> np.ndarray | None:
