@@ -21,6 +21,7 @@ from logger.nav import earth
 from logger.nav.state import NavState
 
 _OMEGA = earth.OMEGA_IE
+_sqrt, _sin, _cos = math.sqrt, math.sin, math.cos  # module globals: one lookup where math.x takes two
 
 
 class Strapdown:
@@ -37,7 +38,7 @@ class Strapdown:
         self.dv_ned_sum = [0.0, 0.0, 0.0]
         self._dv_ned = (0.0, 0.0, -earth.G0)  # the last step's increment in NED, and its interval
         self._dt = 1.0
-        self._geo: tuple[float, ...] | None = None
+        self._geo: tuple[float, ...] = _NO_GEOMETRY
 
     @property
     def f_ned(self) -> tuple[float, float, float]:
@@ -60,35 +61,37 @@ class Strapdown:
         if pw is None:
             self.prime(w, f)
             return
-        pf = self._f
+        # Locals and unpacking throughout: an attribute or an index costs as much as the arithmetic it feeds.
+        pwx, pwy, pwz = pw
+        pfx, pfy, pfz = self._f
         h2 = 0.5 * dt
         wx, wy, wz = w
         fx, fy, fz = f
-        tx, ty, tz = (pw[0] + wx) * h2, (pw[1] + wy) * h2, (pw[2] + wz) * h2
-        ux, uy, uz = (pf[0] + fx) * h2, (pf[1] + fy) * h2, (pf[2] + fz) * h2
+        tx, ty, tz = (pwx + wx) * h2, (pwy + wy) * h2, (pwz + wz) * h2
+        ux, uy, uz = (pfx + fx) * h2, (pfy + fy) * h2, (pfz + fz) * h2
         # Rotation compensation: the velocity increment is taken in the body frame as it turns.
         dx = ux + 0.5 * (ty * uz - tz * uy)
         dy = uy + 0.5 * (tz * ux - tx * uz)
         dz = uz + 0.5 * (tx * uy - ty * ux)
-        rx, ry, rz = tx, ty, tz
         if self.coning:
             (px, py, pz), (qx, qy, qz) = self._th, self._dv
             # Two-sample coning and sculling with the previous interval (Savage, Strapdown Analytics 7.1).
-            rx += (py * tz - pz * ty) / 12.0
-            ry += (pz * tx - px * tz) / 12.0
-            rz += (px * ty - py * tx) / 12.0
+            rx = tx + (py * tz - pz * ty) / 12.0
+            ry = ty + (pz * tx - px * tz) / 12.0
+            rz = tz + (px * ty - py * tx) / 12.0
             dx += ((py * uz - pz * uy) + (qy * tz - qz * ty)) / 12.0
             dy += ((pz * ux - px * uz) + (qz * tx - qx * tz)) / 12.0
             dz += ((px * uy - py * ux) + (qx * ty - qy * tx)) / 12.0
+        else:
+            rx, ry, rz = tx, ty, tz
         self._w, self._f, self._th, self._dv = w, f, (tx, ty, tz), (ux, uy, uz)
 
         lat, h, vn, ve, vd = s.lat, s.h, s.vn, s.ve, s.vd
-        geo = self._geo
-        if geo is None or abs(lat - geo[0]) > 1e-6 or abs(h - geo[1]) > 1.0:
+        glat, gh, tl, rn, rm, g, wie_n, wie_d, wie2_n, wie2_d = self._geo
+        if abs(lat - glat) > 1e-6 or abs(h - gh) > 1.0:
             # Radii, earth rate and gravity change by parts per million over 6 m of latitude or 1 m of height:
             # computed again only then (a third of the step's cost otherwise).
-            geo = self._geo = _geometry(lat, h)
-        _, _, tl, rn, rm, g, wie_n, wie_d = geo
+            glat, gh, tl, rn, rm, g, wie_n, wie_d, wie2_n, wie2_d = self._geo = _geometry(lat, h)
         rnh = rn + h
         wen_n, wen_e = ve / rnh, -vn / (rm + h)
         wen_d = -wen_n * tl
@@ -108,14 +111,14 @@ class Strapdown:
         acc[0] += fn
         acc[1] += fe
         acc[2] += fd
-        cx, cy, cz = 2.0 * wie_n + wen_n, wen_e, 2.0 * wie_d + wen_d
-        vn2 = vn + fn - (cy * vd - cz * ve) * dt
+        cx, cz = wie2_n + wen_n, wie2_d + wen_d
+        vn2 = vn + fn - (wen_e * vd - cz * ve) * dt
         ve2 = ve + fe - (cz * vn - cx * vd) * dt
-        vd2 = vd + fd + (g - (cx * ve - cy * vn)) * dt
+        vd2 = vd + fd + (g - (cx * ve - wen_e * vn)) * dt
         h2_ = h - 0.5 * (vd + vd2) * dt
         hm = 0.5 * (h + h2_)
         lat2 = lat + 0.5 * (vn + vn2) * dt / (rm + hm)
-        s.lon += 0.5 * (ve + ve2) * dt / ((rn + hm) * math.cos(0.5 * (lat + lat2)))
+        s.lon += 0.5 * (ve + ve2) * dt / ((rn + hm) * _cos(0.5 * (lat + lat2)))
         s.lat, s.h, s.vn, s.ve, s.vd = lat2, h2_, vn2, ve2, vd2
         # q <- q(-zeta) * q * q(r); the body increment through its exact quaternion, the navigation frame's
         # (a few 1e-5 rad per step) to first order, which is exact to 1e-10 rad.
@@ -123,8 +126,8 @@ class Strapdown:
         if a2 < 1e-8:
             cq, sq = 1.0 - a2 / 8.0 + a2 * a2 / 384.0, 0.5 - a2 / 48.0
         else:
-            an = math.sqrt(a2)
-            cq, sq = math.cos(0.5 * an), math.sin(0.5 * an) / an
+            an = _sqrt(a2)
+            cq, sq = _cos(0.5 * an), _sin(0.5 * an) / an
         bx, by, bz = sq * rx, sq * ry, sq * rz
         aw = qw * cq - qx * bx - qy * by - qz * bz
         ax = qw * bx + qx * cq + qy * bz - qz * by
@@ -135,14 +138,20 @@ class Strapdown:
         x_ = ax + hn * aw + he * az - hd * ay
         y_ = ay - hn * az + he * aw + hd * ax
         z_ = az + hn * ay - he * ax + hd * aw
-        k = 1.0 / math.sqrt(w_ * w_ + x_ * x_ + y_ * y_ + z_ * z_)
+        k = 1.0 / _sqrt(w_ * w_ + x_ * x_ + y_ * y_ + z_ * z_)
         s.q = (w_ * k, x_ * k, y_ * k, z_ * k)
 
 
 def _geometry(lat: float, h: float) -> tuple[float, ...]:
-    """(lat, h, tan lat, R_N, R_M, gravity, earth rate north and down) at a point: the slowly varying part of a
-    step."""
+    """(lat, h, tan lat, R_N, R_M, gravity, earth rate north and down, and twice those two) at a point: the slowly
+    varying part of a step."""
     sl, cl = math.sin(lat), math.cos(lat)
     w2 = 1.0 - earth.E2 * sl * sl
     rn = earth.A / math.sqrt(w2)
-    return lat, h, sl / cl, rn, rn * (1.0 - earth.E2) / w2, earth.gravity(lat, h), _OMEGA * cl, -_OMEGA * sl
+    wie_n, wie_d = _OMEGA * cl, -_OMEGA * sl
+    return lat, h, sl / cl, rn, rn * (1.0 - earth.E2) / w2, earth.gravity(lat, h), wie_n, wie_d, 2.0 * wie_n, \
+        2.0 * wie_d
+
+
+# No point yet: every latitude is further than the threshold from it.
+_NO_GEOMETRY = (math.inf, math.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
