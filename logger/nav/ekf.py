@@ -54,8 +54,7 @@ class ErrorStateEkf:
         w.m_diag += half_q
         s = np.dot(np.dot(phi, m, out=w.t), phi.T, out=s)  # np.dot: the same product as @, less dispatch
         w.s_diag += half_q
-        # The symmetrised sum into a fresh array (P is handed out); (x + x) / 2 is x, so Q dt / 2 added to the
-        # diagonal before is what it was after.
+        # The symmetrised sum into a fresh array: P is handed out (the smoother's epochs keep copies, callers read it).
         p = np.add(s, w.s_t)
         p *= 0.5
         self.p = p
