@@ -30,10 +30,12 @@ def _restore_root_logging() -> Iterator[None]:
 # tree (tests/data), so a skip for anything but a missing tool is a test that silently stopped testing: the run
 # fails (CI runs exactly README's test command, so the rule lives here). A missing package of the [test] extra
 # (tests/extras.py) is a missing tool on a board with Debian's packages; where the extra is installed for sure
-# (CI: .ci/run sets LOGGER_TESTS_NO_SKIP=1, and installs RTKLIB) such a skip would hide a regression, and fails
-# the run too, as a skip for a missing RTKLIB does there.
+# (CI: .ci/run sets LOGGER_TESTS_NO_SKIP=1, and installs RTKLIB and node) such a skip would hide a regression,
+# and fails the run too, as a skip for a missing RTKLIB or node does there.
 TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "needs root")  # root: to mount a small disk of its own
 EXTRAS_INSTALLED = os.environ.get("LOGGER_TESTS_NO_SKIP") == "1"
+# What .ci/run installs besides the extra, as the skip reasons name it: RTKLIB, and node with @mcap/core.
+CI_INSTALLS = ("rtklib", "nodejs", "tools/mcap_js")
 _unexpected_skips: list[str] = []
 
 # On a board's single slow core (or an emulated one: tools/board-check.sh sets LOGGER_BOARD=1) the tests that spend
@@ -68,7 +70,7 @@ def _note_skip(report: pytest.CollectReport | pytest.TestReport) -> None:
     if report.skipped and not hasattr(report, "wasxfail"):
         reason = str(report.longrepr[-1]) if isinstance(report.longrepr, tuple) else str(report.longrepr)
         allowed = (*TOOL_SKIP_REASONS, BOARD_SKIP_REASON) if ON_BOARD else TOOL_SKIP_REASONS
-        expected_here = extras.MISSING in reason or "rtklib" in reason  # .ci/run installs RTKLIB as well
+        expected_here = extras.MISSING in reason or any(tool in reason for tool in CI_INSTALLS)
         if not any(words in reason for words in allowed) or (EXTRAS_INSTALLED and expected_here):
             _unexpected_skips.append(f"{report.nodeid}: {reason}")
 

@@ -12,7 +12,7 @@ from test_nav_synth import records
 
 from logger.nav.health import mounting_verdict
 from logger.nav.imu_noise import OffsetWander
-from logger.nav.mounting import FORWARD, LEARNING, SETTLED, MountAlignment, mount_matrix
+from logger.nav.mounting import FORWARD, LEARNING, SETTLED, MountAlignment, forward_axis_deg
 from logger.nav.rotations import dcm_from_euler
 from sensors.sim.scenarios import make_drive
 
@@ -47,12 +47,6 @@ def test_the_mounting_comes_out_of_the_drive_with_an_honest_uncertainty():
     assert est.words() == f"mount alignment: {r:.1f} / {p:.1f} / {y:.1f} deg, settled"
 
 
-def _forward_error_deg(rpy_a, rpy_b) -> float:
-    """Angle between the car's forward axis on the chip under two mountings."""
-    a, b = mount_matrix(tuple(rpy_a))[0], mount_matrix(tuple(rpy_b))[0]
-    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
-
-
 def test_a_drive_without_turns_shows_the_forward_axis_and_leaves_the_roll_at_the_guess():
     al = MountAlignment((0.0, 0.0, 0.0))
     _windows(al, MOUNT, 300, seed=7, turns=False)
@@ -62,7 +56,7 @@ def test_a_drive_without_turns_shows_the_forward_axis_and_leaves_the_roll_at_the
     # The roll is that of the mounting nearest the guess with that forward axis: near the guess's, not the truth's.
     assert abs(est.rpy_deg[0]) < 2.0, est
     # The forward axis is, to within its own 3 sigma and a degree.
-    err = _forward_error_deg(est.rpy_deg, MOUNT)
+    err = forward_axis_deg(est.rpy_deg, MOUNT)
     assert err < 1.0 and err < 3.0 * max(est.sigma_deg[1:]), (err, est)
     assert "forward axis only, roll not yet known" in est.words()
     # Then turns tell the roll too.
@@ -150,7 +144,7 @@ def test_the_forward_axis_is_taken_on_a_drive_without_turns():
     auto = run(recs)
     est = auto.alignment.estimate()
     assert est.state == FORWARD and auto.counters.remounts == 1 and auto.counters.resets == 0
-    assert _forward_error_deg(auto.mount_applied, MOUNT) < 3.0, auto.mount_applied
+    assert forward_axis_deg(auto.mount_applied, MOUNT) < 3.0, auto.mount_applied
     assert abs(auto.mount_applied[0]) < 2.0  # the roll still near the guess
     assert "forward axis only" in mounting_verdict(auto)
 

@@ -38,7 +38,7 @@ from logger.nav.history import SolutionHistory
 from logger.nav.imu_noise import CONSUMER_NOISE_RATIO, ImuNoiseMonitor, OffsetWander
 from logger.nav.inputs import GnssObservation, SolutionEpoch
 from logger.nav.measurements import Observation
-from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, mount_matrix
+from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, forward_axis_deg, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import (
     NHC_INTERVAL_NS,
@@ -51,7 +51,7 @@ from logger.nav.policies import (
 )
 from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
-from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup
+from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown
@@ -402,11 +402,9 @@ class NavEngine:
             ws[1] += gyro[1]
             ws[2] += gyro[2]
             ws[3] += 1
-        if (self._full and t_ns >= self._next_idle_check_ns
-                and not ((obd := self.last_readings.obd) is not None and t_ns - obd[0] <= OBD_FRESH_NS)):
+        if t_ns >= self._next_idle_check_ns and self._full and not self.last_readings.obd_fresh(t_ns):
             # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
-            # and a solution that already stands, so a parked car does not drift on its IMU alone. (The OBD
-            # reading's freshness, LastReadings.obd_fresh, written out: it is asked every sample while fresh.)
+            # and a solution that already stands, so a parked car does not drift on its IMU alone.
             self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
             stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5, t_ns)
         hist = self.history
@@ -550,7 +548,7 @@ class NavEngine:
             # is taken 36 s in; waiting for 3 deg took it 30 s later, and the minute without GNSS after it ended
             # 3.0 m off instead of 1.1 m.
             if (math.isfinite(est.sigma_deg[1])
-                    and al.forward_axis_deg(self.mount_applied, est)
+                    and forward_axis_deg(self.mount_applied, est.rpy_deg)
                     >= max(REOPEN_DEG, 3.0 * max(est.sigma_deg[1], est.sigma_deg[2]))):
                 self.remount(est, reopen=True)
             return
@@ -599,7 +597,7 @@ class NavEngine:
             # The barometer's offset was learnt against heights the wrong mounting bent (the non-holonomic rows
             # held a body pitched on the car): it is learnt again.
             old = float(self.ekf.p[DH_ID, DH_ID])
-            self.ekf.inflate(slice(DH_ID, DH_ID + 1), np.array([max(old, self.params.baro_sigma_m ** 2 + 1.0)]))
+            self.ekf.inflate(slice(DH_ID, DH_ID + 1), np.array([max(old, height_offset_variance(self.params))]))
         self.velocity_evidence.clear()
 
     def refresh_sigma(self) -> None:

@@ -107,10 +107,10 @@ def mounting_verdict(engine: NavEngine) -> str:
         est = al.estimate()
         if math.isfinite(est.sigma_deg[0]):
             moved = f"; the mounting moved {al.moves} times this drive" if al.moves else ""
-            if est.state == FORWARD:  # the roll's sigma is the guess's: what is known is the forward axis
-                return f"{est.words()} (forward axis +-{max(est.sigma_deg[1:]):.1f} deg, {est.windows} windows){moved}"
-            sig = max(est.sigma_deg)
-            return f"{est.words()} (+-{sig:.1f} deg, {est.windows} windows){moved}"
+            # Forward axis only: the roll's sigma is the guess's, what is known is the pitch and yaw's.
+            sig, what = ((max(est.sigma_deg[1:]), "forward axis +-") if est.state == FORWARD
+                         else (max(est.sigma_deg), "+-"))
+            return f"{est.words()} ({what}{sig:.1f} deg, {est.windows} windows){moved}"
     lev = engine.startup.levelled
     slip_sum, slip_n = engine.mount_yaw_stat
     parts = []

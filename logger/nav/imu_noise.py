@@ -24,7 +24,8 @@ from logger.nav.deferred import PENDING_MAX, Deferred
 
 TAU_S = 30.0  # the average's memory, drive time
 # A chip measured this many times noisier than its datasheet is not of the datasheet's grade: a car's vibration
-# adds less on a bolted board (the simulated MPU-6050 read up to 1.9x while starting off, then 1.0x).
+# adds less on a bolted board (the simulated MPU-6050 of the matrix's tunnel drive read up to 1.9x while starting
+# off, then 1.0x; the simulated phone 6.6x).
 CONSUMER_NOISE_RATIO = 3.0
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
 

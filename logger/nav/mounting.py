@@ -169,7 +169,8 @@ class _Fit:
                    - 2.0 * sum(r[k] * (b_acc[k] - bias[i] * s_fv[j]) for k, i, j in _IJ))
         sse_gyro = sums[_CC_GYRO] - 2.0 * sum(r[k] * b_gyro[k] for k in range(9))
         chi2 = (wa * max(sse_acc, 0.0) + wg * max(sse_gyro, 0.0)) / max(6.0 * n - 6.0, 1.0)
-        # The windows' information counts 1 / scale of its nominal (their correlation, the residuals' scatter);
+        # The windows' information counts 1 / scale of its nominal (their correlation, and the scatter of their
+        # residuals about the windows' own best rotation, the one just found, before the prior);
         # the prior is added as pairs of the configured mounting's axes, sum_i (R0 e_i) e_i^T = R0, whose
         # information is 2 w I: w = 1 / (2 sigma^2) gives sigma per axis.
         scale = max(chi2, CHI2_FLOOR) * CORRELATION_WINDOWS
@@ -367,12 +368,13 @@ class MountAlignment:
                    and sig[2] <= SETTLED_YAW_DEG)
         return MountEstimate(rpy, sig, int(self._long.n), SETTLED if settled else LEARNING)
 
-    def forward_axis_deg(self, rpy_deg: tuple[float, float, float], est: MountEstimate) -> float:
-        """Angle between the car's forward axis on the chip under mounting ``rpy_deg`` and under the estimate."""
-        a, b = mount_matrix(rpy_deg)[0], mount_matrix(est.rpy_deg)[0]  # vehicle x on the chip's axes
-        return math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b)))))
+
+def forward_axis_deg(rpy_a_deg: tuple[float, ...], rpy_b_deg: tuple[float, ...]) -> float:
+    """Angle between the car's forward axis on the chip under two mountings (roll about that axis left out)."""
+    a, b = mount_matrix(rpy_a_deg)[0], mount_matrix(rpy_b_deg)[0]  # vehicle x on the chip's axes
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b)))))
 
 
-def mount_matrix(rpy_deg: tuple[float, float, float]) -> np.ndarray:
+def mount_matrix(rpy_deg: tuple[float, ...]) -> np.ndarray:
     """Vehicle from chip, as the engine applies ``nav.mounting_rpy_deg``."""
     return dcm_from_euler(*(math.radians(a) for a in rpy_deg))

@@ -40,6 +40,13 @@ MAX_IMU_GAP_S = 5.0  # beyond this the rates at both ends say nothing about the 
 CONFIG_HEADING = "config heading"
 
 
+def height_offset_variance(p: NavParams, fix_v_sigma: float = 0.0) -> float:
+    """The barometer's offset (ellipsoidal height minus barometric altitude) before GNSS heights have told it: the
+    fix's vertical error, the barometer's own and a metre more. The start's prior, and a remount's (the offset learnt
+    through a wrong mounting is learnt again)."""
+    return fix_v_sigma**2 + p.baro_sigma_m**2 + 1.0
+
+
 class Startup:
     """The levelling, the provisional attitude, and the initial state and covariance built from them."""
 
@@ -179,5 +186,5 @@ class Startup:
         p0[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba
         if n > SF_ID:
             p0[SF_ID, SF_ID] = p.obd_scale_sigma**2
-            p0[DH_ID, DH_ID] = fix.sigma[2] ** 2 + p.baro_sigma_m**2 + 1.0
+            p0[DH_ID, DH_ID] = height_offset_variance(p, fix.sigma[2])
         return s.plain(), p0

@@ -245,9 +245,7 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
 
     def imu_batch(m: dict[str, Any]) -> None:
-        acc = np.array((m["accel_x_mps2"], m["accel_y_mps2"], m["accel_z_mps2"]), dtype=float).T
-        gyro = np.array((m["gyro_x_rps"], m["gyro_y_rps"], m["gyro_z_rps"]), dtype=float).T
-        engine.imu_batch(m["t_sync_ns"], m["t_mono_ns"], acc, gyro, m.get("temp_degc"))
+        _feed_reads(engine, (m,))
 
     def fix(m: dict[str, Any]) -> None:
         engine.gnss(gnss_observation(m))
@@ -269,29 +267,32 @@ def imu_reads_feeder(engine: NavEngine) -> Callable[[Sequence[dict[str, Any]]], 
     one's) as one :meth:`NavEngine.imu_batch` call: a block long enough for the engine's block forms, where each
     FIFO read alone is shorter. Each read's die temperature goes with its own samples, so the engine gives what it
     gives fed the reads one by one (to round-off); which reads may go together is the caller's to judge."""
-    one = nav_feeder(engine)[IMU_BATCH]
+    return lambda ms: _feed_reads(engine, ms)
 
-    def reads(ms: Sequence[dict[str, Any]]) -> None:
-        if len(ms) == 1:
-            one(ms[0])
-            return
-        temps = [m.get("temp_degc") for m in ms]
-        temp: float | np.ndarray | None = temps[0]
+
+_ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
+_GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
+
+
+def _feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
+    """One or more consecutive ``/imu/batch`` records through one :meth:`NavEngine.imu_batch` call: their columns
+    end to end, and the die temperature one per read (one per sample where the reads' differ)."""
+    if len(ms) == 1:
+        m = ms[0]
+
+        def column(key: str) -> list[Any]:
+            return m[key]
+        temp: float | np.ndarray | None = m.get("temp_degc")
+    else:
+        def column(key: str) -> list[Any]:
+            return list(chain.from_iterable(r[key] for r in ms))
+        temps = [r.get("temp_degc") for r in ms]
+        temp = temps[0]
         if any(c != temp for c in temps):
             temp = np.repeat(np.array([math.nan if c is None else c for c in temps], dtype=float),
-                             [len(m["t_sync_ns"]) for m in ms])
-        engine.imu_batch(_joined(ms, "t_sync_ns"), _joined(ms, "t_mono_ns"),
-                         np.array([_joined(ms, k) for k in ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")],
-                                  dtype=float).T,
-                         np.array([_joined(ms, k) for k in ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")],
-                                  dtype=float).T, temp)
-
-    return reads
-
-
-def _joined(ms: Sequence[dict[str, Any]], key: str) -> list[Any]:
-    """One column of consecutive batch records, end to end."""
-    return list(chain.from_iterable(m[key] for m in ms))
+                             [len(r["t_sync_ns"]) for r in ms])
+    engine.imu_batch(column("t_sync_ns"), column("t_mono_ns"), np.array([column(k) for k in _ACC], dtype=float).T,
+                     np.array([column(k) for k in _GYRO], dtype=float).T, temp)
 
 
 def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:

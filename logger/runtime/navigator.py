@@ -34,13 +34,12 @@ from logger.recording.records import (
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state
 from logger.runtime.daemon import Attachments
-from logger.runtime.sampler import Reading
+from logger.runtime.sampler import GAP_PERIODS, Reading
 
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = frozenset((*NAV_INPUT_TOPICS, IMU_BATCH))  # live, a FIFO read comes as one batch
 WAKE_S = 0.5  # the filter runs in batches: a wake-up per sample would cost more than the filter
-GAP_PERIODS = 2.5  # a read starting later than this many sample periods after the last is after a gap (sampler's)
 
 
 def _follows(m: dict[str, Any], last: int | None) -> bool:
@@ -192,7 +191,7 @@ class Navigator:
     def _maybe_publish(self) -> None:
         # GNSS-only, the solution is the last fix's and no IMU sample is integrated: its time is the fix's.
         t_last = self.engine.t_last_ns if self.engine.mode != "gnss" else getattr(self.engine.current(), "t_ns", None)
-        if self.publish is None or t_last is None or (t_last < self._next_fix_ns and t_last < self._next_state_ns):
+        if t_last is None or not self._publish_due(t_last):
             return
         sol = self.engine.current()
         if sol is None:

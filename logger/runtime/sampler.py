@@ -130,6 +130,10 @@ class SensorHealth:
         return self.last_incident
 
 
+# A silence longer than this many sample periods is a gap: one lost sample is jitter, two and a half are not.
+GAP_PERIODS = 2.5
+
+
 class Sampler(threading.Thread):
     """Runs one source: periodic at ``rate_hz``, or as its events arrive when ``rate_hz`` is None."""
 
@@ -138,7 +142,7 @@ class Sampler(threading.Thread):
     LOG_REPEAT_S = PROBLEM_LOG_REPEAT_S
 
     def __init__(self, source: Source, sink: Sink, timebase: TimeBase, rate_hz: float | None,
-                 stop: threading.Event, expected_hz: float | None = None, gap_factor: float = 2.5) -> None:
+                 stop: threading.Event, expected_hz: float | None = None, gap_factor: float = GAP_PERIODS) -> None:
         super().__init__(name=f"sampler-{source.name}", daemon=True)
         self.source = source
         self.sink = sink
@@ -147,7 +151,6 @@ class Sampler(threading.Thread):
         self.stop_event = stop
         expected_hz = expected_hz or rate_hz
         self.health = SensorHealth(source.name, expected_hz, origin=source.origin)
-        # A silence longer than gap_factor periods is a gap: one lost sample is jitter, two and a half are not.
         self._gap_ns = int(gap_factor * 1e9 / expected_hz) if expected_hz else None
         self._log_limiter = RateLimiter(1, self.LOG_REPEAT_S, max_keys=64)
         # Which readings are this sensor's samples for rates and gaps (a receiver also sends time pulses).
