@@ -243,7 +243,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "nhc_sigma_mps": Key(NUM, FIELD, _range(0.001, 10), "lateral and vertical body velocity allowed"),
         "baro_sigma_m": Key(NUM, FIELD, _range(0.01, 100), "barometric altitude noise"),
         "baro_offset_walk_m_rts": Key(NUM, FIELD, _range(0, 10), "random walk of baro-GNSS height offset"),
-        "gnss_uere_m": Key(NUM, FIELD, _range(0.01, 100), "range error for receivers that give DOP but no accuracy"),
+        "gnss_uere_m": Key(NUM, FIELD, _range(0.01, 100), "range error for receivers giving DOPs, no accuracy"),
         "gnss_acc_scale": Key(NUM, FIELD, _range(0.1, 100), "multiply the receiver's own accuracies"),
         "gnss_nominal_h_acc_m": Key(NUM, FIELD, _range(0.01, 100),
                                     "horizontal accuracy (2D RMS) of fixes without accuracy or DOP, m"),

@@ -188,6 +188,8 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -
         s_acc_mps=number(tpv.get("eps")),
         num_sv=sky_used(sky),
         pdop=number(sky.get("pdop")) if sky is not None else None,
+        hdop=number(sky.get("hdop")) if sky is not None else None,
+        vdop=number(sky.get("vdop")) if sky is not None else None,
     )
 
 

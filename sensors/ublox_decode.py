@@ -70,6 +70,8 @@ class GnssFix:
     s_acc_mps: float | None
     num_sv: int | None
     pdop: float | None
+    hdop: float | None = None  # horizontal and vertical DOPs, where the receiver gives them (NAV-DOP, GGA, GSA)
+    vdop: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -508,8 +510,10 @@ class GnssDecoder:
                 s_acc = velned.sAcc / 100.0
         elif hp is not None and mode >= 2:
             lat, lon, hae, msl = _ubx_llh(hp)
-        if pdop is None and dop is not None:
-            pdop = _num(dop.pDOP)
+        hdop = vdop = None
+        if dop is not None:
+            pdop = pdop if pdop is not None else _num(dop.pDOP)
+            hdop, vdop = _num(_attr(dop, "hDOP")), _num(_attr(dop, "vDOP"))
 
         if timegps is not None:
             if week is None and _flag(timegps, "weekValid"):
@@ -544,6 +548,8 @@ class GnssDecoder:
             s_acc_mps=s_acc,
             num_sv=num_sv,
             pdop=pdop,
+            hdop=hdop,
+            vdop=vdop,
         )
 
     def _fix_from_hnr(self, msg: Any) -> GnssFix | None:
@@ -752,4 +758,8 @@ class GnssDecoder:
             s_acc_mps=None,
             num_sv=num_sv,
             pdop=_num(_attr(gsa, "PDOP")) if gsa is not None else None,
+            # GSA's HDOP is the solution's own; GGA's (the only DOP of a receiver sending GGA and RMC) the same.
+            hdop=next((d for d in (_num(_attr(m, "HDOP")) for m in (gsa, gga) if m is not None) if d is not None),
+                      None),
+            vdop=_num(_attr(gsa, "VDOP")) if gsa is not None else None,
         )

@@ -137,6 +137,22 @@ def test_figures_come_from_the_receiver_then_the_dop_then_the_nominal_model():
     assert NavParams().gnss_nominal_h_acc_m == 3.0  # the model's defaults are NavParams' (one place)
 
 
+def test_dop_figures_follow_the_dops_definition_and_the_receivers_own_split():
+    """HDOP x UERE is the horizontal 2D RMS (what hAcc is), VDOP x UERE the vertical sigma; the receiver's own
+    HDOP and VDOP come first, PDOP's usual split fills in, and a GGA-only receiver's HDOP is not thrown away."""
+    uere = NavParams().gnss_uere_m
+    model = AccuracyModel(uere, (3.0, 5.0, 0.1), learn=False)
+    fig = model.figures(None, None, None, 2.0, 1.0, 1.7)
+    assert (fig.source, fig.h_acc, fig.v_acc) == (DOP, pytest.approx(uere), pytest.approx(1.7 * uere))
+    fig = model.figures(None, None, None, 2.0)  # PDOP only: split 0.6 / 0.8
+    assert (fig.h_acc, fig.v_acc) == (pytest.approx(1.2 * uere), pytest.approx(1.6 * uere))
+    fig = model.figures(None, None, None, None, 2.5)  # GGA and RMC: HDOP only, the vertical by the nominal ratio
+    assert (fig.source, fig.h_acc, fig.v_acc) == (DOP, pytest.approx(2.5 * uere), pytest.approx(2.5 * uere * 5 / 3))
+    assert model.figures(None, None, None, 0.0, 0.0, 0.0).source == NOMINAL  # DOPs of 0: none given
+    # The default range error puts an open sky's fix (HDOP 0.75) at the nominal figure: one receiver either way.
+    assert model.figures(None, None, None, None, 0.75).h_acc == pytest.approx(NavParams().gnss_nominal_h_acc_m)
+
+
 @pytest.mark.parametrize(("true_scale", "learnt"), [(9.0, 9.0), (4.0, 4.0), (0.25, 1.0), (100.0, 25.0)])
 def test_the_scatter_widens_nominal_figures_and_never_narrows_them(true_scale, learnt):
     rng = np.random.default_rng(1)

@@ -368,7 +368,15 @@ def test_nmea_sentences_are_combined_per_epoch() -> None:
     assert north == pytest.approx(0.0, abs=1e-9) and east == pytest.approx(1.0, abs=1e-3) and math.isnan(down)
     assert first.h_acc_m == pytest.approx(0.05) and first.v_acc_m == 0.088
     assert first.num_sv == 12 and first.pdop == 0.98
+    assert (first.hdop, first.vdop) == (0.49, 0.84)  # GSA's own
     assert second.time_utc_ns == calendar.timegm((2021, 12, 24, 0, 0, 0)) * NS  # the date moved on
+    assert (second.pdop, second.hdop, second.vdop) == (None, 0.49, None)  # GGA's HDOP: the only DOP without GSA
+
+
+def test_nav_dop_gives_its_horizontal_and_vertical_dops() -> None:
+    dop = UBXMessage("NAV", "NAV-DOP", GET, iTOW=345_600_250, pDOP=1.9, hDOP=1.1, vDOP=1.55).serialize()
+    (fix,) = [i for i in decode(nav_pvt() + dop + nav_eoe(345_600_250)) if isinstance(i, GnssFix)]
+    assert (fix.pdop, fix.hdop, fix.vdop) == (1.37, 1.1, 1.55)  # NAV-PVT's PDOP, NAV-DOP's split
 
 
 def test_ubx_solutions_take_over_from_nmea() -> None:

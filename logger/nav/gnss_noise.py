@@ -112,6 +112,7 @@ NOMINAL = "nominal"  # nothing from the receiver: the configured nominal figures
 LEARN_TAU_S = 120.0  # the scatter is averaged over this much drive time
 LEARN_MIN_S = 30.0  # ... and used once this much has been seen
 LEARN_SCALE = (1.0, 25.0)  # the learnt variance stays between the nominal sigma and 5 times it (see below)
+PDOP_SPLIT = (0.6, 0.8)  # HDOP and VDOP over PDOP for satellites spread over the sky
 LEARN_CLIP = 16.0  # an innovation counts for at most 4 sigma of its prediction (one reflection is not scatter)
 
 
@@ -189,15 +190,29 @@ class ScatterLearner:
         return out[0], out[1]
 
 
+def dops(pdop: float | None, hdop: float | None, vdop: float | None) -> tuple[float | None, float | None]:
+    """The HDOP and VDOP to use: the receiver's own where it gives them (a DOP of 0 or less is none), else the split
+    of PDOP a sky of satellites spread over it gives (HDOP 0.6, VDOP 0.8 of PDOP, as PDOP^2 = HDOP^2 + VDOP^2)."""
+    h = hdop if hdop is not None and hdop > 0.0 else None
+    v = vdop if vdop is not None and vdop > 0.0 else None
+    if pdop is not None and pdop > 0.0:
+        h = h if h is not None else PDOP_SPLIT[0] * pdop
+        v = v if v is not None else PDOP_SPLIT[1] * pdop
+    return h, v
+
+
 class AccuracyModel:
     """A fix's accuracy figures, from the receiver when it gives them and from the error model when not.
 
     In order: the receiver's own figures (UBX hAcc/vAcc/sAcc, NMEA GST's standard deviations, gpsd's eph/epv);
-    a DOP (NMEA GSA's PDOP, UBX NAV-DOP) times ``gnss_uere_m``, the user range error; and with neither, the
+    DOPs (NMEA GSA or GGA, UBX NAV-DOP, gpsd SKY) times ``gnss_uere_m``, the user range error; and with neither, the
     nominal figures ``gnss_nominal_h_acc_m`` / ``gnss_nominal_v_acc_m`` / ``gnss_nominal_s_acc_mps`` (see
-    :class:`logger.nav.params.NavParams` for where their defaults come from). A missing vertical figure is the
-    horizontal one times the nominal ratio. DOP-based and nominal figures are guesses about this receiver, so
-    their variance is scaled by what :class:`ScatterLearner` learnt of the fixes' scatter (``gnss_learn_scatter``).
+    :class:`logger.nav.params.NavParams` for where their defaults come from). By the DOPs' definition the
+    horizontal 2D RMS is UERE x HDOP and the vertical sigma UERE x VDOP; a receiver's own HDOP and VDOP are used
+    where it gives them (GGA carries an HDOP even where no GSA comes), else the usual split of PDOP (HDOP 0.6,
+    VDOP 0.8 of it, :func:`dops`). A missing vertical figure is the horizontal one times the nominal ratio.
+    DOP-based and nominal figures are guesses about this receiver, so their variance is scaled by what
+    :class:`ScatterLearner` learnt of the fixes' scatter (``gnss_learn_scatter``).
     """
 
     def __init__(self, uere_m: float, nominal: tuple[float, float, float], learn: bool) -> None:
@@ -207,7 +222,7 @@ class AccuracyModel:
         self.learner = ScatterLearner()
 
     def figures(self, h_acc: float | None, v_acc: float | None, s_acc: float | None,
-                pdop: float | None) -> FixFigures:
+                pdop: float | None, hdop: float | None = None, vdop: float | None = None) -> FixFigures:
         nh, nv, ns = self.nominal
         if h_acc is not None:
             source = RECEIVER
@@ -215,9 +230,10 @@ class AccuracyModel:
             scale = (1.0, 1.0)
             h = h_acc
         else:
-            if pdop is not None and pdop > 0.0:
-                # HDOP and VDOP are about 0.6 and 0.8 of PDOP for a typical sky; hAcc is the 2D RMS.
-                source, h, v = DOP, self.uere_m * pdop * 0.6 * math.sqrt(2.0), self.uere_m * pdop * 0.8
+            hd, vd = dops(pdop, hdop, vdop)
+            if hd is not None:
+                source, h = DOP, self.uere_m * hd
+                v = self.uere_m * vd if vd is not None else h * nv / nh
             else:
                 source, h, v = NOMINAL, nh, nv
             scale = self.learner.scale() if self.learn else (1.0, 1.0)

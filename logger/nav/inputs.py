@@ -30,6 +30,8 @@ class GnssObservation:
     s_acc_mps: float | None
     pdop: float | None
     num_sv: int | None
+    hdop: float | None = None  # recordings made before the DOPs were kept have none
+    vdop: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

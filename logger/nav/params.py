@@ -49,7 +49,10 @@ class NavParams:
     nhc_sigma_mps: float = 0.1
     baro_sigma_m: float = 0.5
     baro_offset_walk_m_rts: float = 0.02
-    gnss_uere_m: float = 3.0  # for receivers that report a DOP but no accuracy
+    # For receivers that report DOPs but no accuracy: the user range error, so that the horizontal 2D RMS is UERE x
+    # HDOP and the vertical sigma UERE x VDOP. 4 m puts an open sky's fix (HDOP about 0.75 with the 15-20 satellites
+    # of a multi-GNSS receiver) at the nominal 3.0 m 2D RMS below: the same data-sheet receiver either way.
+    gnss_uere_m: float = 4.0
     # Receivers that report neither accuracy nor DOP (NMEA RMC and GGA only): what such receivers achieve in a
     # car. Single-frequency receivers are specified at 1.5-2.5 m CEP in open sky (u-blox M8: 2.5 m CEP; ST
     # TESEO-LIV3: 1.5 m CEP); 2.5 m CEP is sigma 2.1 m per axis (CEP = 1.18 sigma), hAcc (the 2D RMS) 3.0 m;

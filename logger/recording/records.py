@@ -136,7 +136,8 @@ def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[
         "gnss_time_ns": fix.time_utc_ns if fix.time_valid else None, "itow_ms": fix.itow_ms,
         "fix_mode": fix.fix_mode, "fix_ok": bool(fix.fix_ok), "height_msl_m": fix.height_msl_m,
         "vel_ned_mps": vel, "h_acc_m": fix.h_acc_m, "v_acc_m": fix.v_acc_m, "s_acc_mps": fix.s_acc_mps,
-        "num_sv": fix.num_sv, "pdop": fix.pdop, "source": fix.source, "late_read": late_read,
+        "num_sv": fix.num_sv, "pdop": fix.pdop, "hdop": fix.hdop,
+        "vdop": fix.vdop, "source": fix.source, "late_read": late_read,
     }
 
 
@@ -234,7 +235,8 @@ def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
         lat_deg=msg.get("latitude"), lon_deg=msg.get("longitude"),
         height_m=None if msg.get("altitude") is None else float(msg["altitude"]),
         vel_ned_mps=None if vel is None else tuple(vel), h_acc_m=msg.get("h_acc_m"), v_acc_m=msg.get("v_acc_m"),
-        s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"))
+        s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"),
+        hdop=msg.get("hdop"), vdop=msg.get("vdop"))
 
 
 def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:

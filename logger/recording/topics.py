@@ -130,6 +130,8 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     "s_acc_mps": ("number?", "speed accuracy estimate, m/s"),
     "num_sv": ("integer?", "satellites used in the solution"),
     "pdop": ("number?", "position dilution of precision"),
+    "hdop": ("number?", "horizontal dilution of precision (UBX NAV-DOP, NMEA GSA or GGA, gpsd SKY)"),
+    "vdop": ("number?", "vertical dilution of precision (UBX NAV-DOP, NMEA GSA, gpsd SKY)"),
     "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA, or gpsd (its TPV and SKY reports)"),
     "late_read": LATE_READ,
 }
