@@ -378,3 +378,55 @@ def test_a_fix_record_without_a_position_is_no_fix() -> None:
     assert (engine.counters.gnss_no_fix, engine.counters.gnss_fixes, len(engine.rows)) == (3, 0, 0)
     engine.gnss(gnss_observation(full))
     assert (engine.counters.gnss_fixes, len(engine.rows)) == (1, 1)
+
+
+def _reopening_core(p0: np.ndarray) -> Any:
+    """The filter as the evidence rooms see it: a real covariance, updates through the gate, a reopening that
+    (like the engine's) forgets attitude and offsets."""
+    from types import SimpleNamespace
+
+    from logger.nav.core import EngineCounters
+    from logger.nav.ekf import ErrorStateEkf
+    from logger.nav.state import BA_ID, PHI_ID
+
+    ekf = ErrorStateEkf(np.diag(p0).copy())
+    ekf.p = p0.copy()
+    core = SimpleNamespace(ekf=ekf, counters=EngineCounters())
+    core.apply = lambda obs: ekf.update(obs) is not None
+    core.reopen_attitude_and_offsets = lambda: ekf.inflate(slice(PHI_ID, BA_ID + 3), np.full(6, 1e-2))
+    return core
+
+
+def test_reopening_on_refused_velocities_admits_more_uncertainty_and_never_gains_any():
+    """Velocities refused in a row widen position and velocity by the drift they show. Widening is added
+    variance: of the height and the barometer's offset, which every barometer reading ties together, neither
+    may come out better known, and the next barometer reading may not then count their old values as two
+    independent measurements (forgetting the correlation did: the offset's sigma fell 0.75 -> 0.55 m per
+    reopening on the simulated NMEA urban drive, seed 2, with no height coming in, and the height sat 1.4 m off
+    inside a 0.3 m sigma)."""
+    from logger.nav.evidence import VELOCITY_REFUSALS, VelocityEvidence
+    from logger.nav.measurements import BaroHeight, Observation
+    from logger.nav.state import DH_ID, N_FULL, P_ID, V_ID, NavState
+
+    p0 = np.diag(np.full(N_FULL, 0.04))
+    sd, sh = 0.75, 0.79  # the offset's and the height's sigma, tied by the barometer's readings
+    p0[DH_ID, DH_ID], p0[P_ID + 2, P_ID + 2] = sd**2, sh**2
+    p0[DH_ID, P_ID + 2] = p0[P_ID + 2, DH_ID] = -0.95 * sd * sh  # down and up: their sum is what is known
+    core = _reopening_core(p0)
+    evidence = VelocityEvidence()
+    h = np.zeros((2, N_FULL))
+    h[0, V_ID], h[1, V_ID + 1] = 1.0, 1.0
+    for k in range(VELOCITY_REFUSALS + 2):  # a receiver's horizontal velocity, 0.8 m/s off, refused each second
+        evidence.judge(core, Observation("gnss_vel", np.array([0.8, 0.3]), h.copy(), np.full(2, 0.01)), False,
+                       k * NS, True)
+    assert core.counters.reopens == 1
+    tied = [P_ID + 2, DH_ID]  # the height and the offset: horizontal velocities say nothing of them
+    added = core.ekf.p[np.ix_(tied, tied)] - p0[np.ix_(tied, tied)]
+    assert np.linalg.eigvalsh(added).min() > -1e-12  # no combination of them got better known
+    assert core.ekf.p[P_ID, P_ID] > p0[P_ID, P_ID]  # the position widened by the drift the velocities show
+    before_dh = math.sqrt(core.ekf.p[DH_ID, DH_ID])
+    s = NavState(0.6, 2.2, 50.0, 0.0, 0.0, 0.0, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    s.dh = -10.0
+    baro = BaroHeight(60.0, 0.5).observe(s, s.dcm(), N_FULL)
+    core.apply(baro)
+    assert math.sqrt(core.ekf.p[DH_ID, DH_ID]) > 0.97 * before_dh  # a reading of their difference: no news of it

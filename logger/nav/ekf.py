@@ -116,6 +116,19 @@ class ErrorStateEkf:
     def sigma(self, i: int) -> float:
         return math.sqrt(max(float(self.p[i, i]), 0.0))
 
+    def widen(self, indices: slice, added: list[float]) -> None:
+        """Admit more uncertainty in some states than the filter held (an unmodelled error found): add ``added`` to
+        their variances as independent process noise, keeping what is known of how they go with the others.
+
+        Unlike :meth:`inflate`, never a gain of information: P + Q >= P. Zeroing the correlations of a state while
+        keeping its variance is not a widening; of two states tied by a measurement (the height and the barometer's
+        offset, held together by every barometer reading) it makes their sum better known than it was, and the next
+        reading of their difference then counts the old values of both as two independent measurements."""
+        self.inflations += 1
+        idx = range(*indices.indices(self.n))
+        for i, v in zip(idx, added, strict=True):
+            self.p[i, i] += max(0.0, float(v))
+
     def inflate(self, indices: slice, variances: np.ndarray) -> None:
         """Forget what is known about some states (a divergence reset): zero their correlations, set P."""
         self.inflations += 1

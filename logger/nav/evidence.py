@@ -142,14 +142,13 @@ class VelocityEvidence:
         z, r = zv.tolist(), obs.r.tolist()
         if body_to_ned is not None:  # the rows' noise, turned the same way (per axis, upper bound)
             r = (np.abs(body_to_ned) @ np.asarray(obs.r[:3])).tolist()
-        old = ekf.p.diagonal().copy()
-        # The velocity was off by up to this much since the first refusal: so was the position's drift.
+        # The velocity was off by up to this much since the first refusal: so was the position's drift. Added to
+        # what the filter held, as the process noise it had missed (correlations kept: the height stays tied to the
+        # barometer's offset, which the velocities say nothing about).
         span_s = rv.span_ns() / NS
-        ekf.inflate(slice(P_ID, V_ID + 3),
-                    [float(old[P_ID + i]) + (z[i] * span_s) ** 2 if i < len(z) else float(old[P_ID + i])
-                     for i in range(3)]
-                    + [float(old[V_ID + i]) + z[i] ** 2 + r[i] if i < len(z) else float(old[V_ID + i])
-                       for i in range(3)])
+        ekf.widen(slice(P_ID, V_ID + 3),
+                  [(z[i] * span_s) ** 2 if i < len(z) else 0.0 for i in range(3)]
+                  + [z[i] ** 2 + r[i] if i < len(z) else 0.0 for i in range(3)])
         core.reopen_attitude_and_offsets()
         core.counters.reopens += 1
         rv.clear()
@@ -186,13 +185,12 @@ class HeightEvidence:
             return False
         ekf = core.ekf
         assert ekf is not None
-        old = ekf.p.diagonal().copy()
         grow = float(obs.z[0]) ** 2 + float(obs.r[0])
         receiver_heights_in = t_ns - last_height_in_ns <= GNSS_ARBITER_NS
         if not receiver_heights_in:
-            ekf.inflate(slice(P_ID + 2, P_ID + 3), [float(old[P_ID + 2]) + grow])
+            ekf.widen(slice(P_ID + 2, P_ID + 3), [grow])
         if receiver_heights_in or t_ns - last_good_fix_ns <= GNSS_ARBITER_NS:
-            ekf.inflate(slice(DH_ID, DH_ID + 1), [float(old[DH_ID]) + grow])
+            ekf.widen(slice(DH_ID, DH_ID + 1), [grow])
         core.counters.reanchors += 1
         rb.clear()
         return core.apply(obs)
@@ -233,8 +231,7 @@ class PositionEvidence:
             ekf = core.ekf
             assert ekf is not None
             inno = np.array((*rj.latest[1:], 0.0, 0.0)[:3])
-            ekf.inflate(slice(P_ID, P_ID + 3), [float(ekf.p[P_ID + i, P_ID + i]) + inno[i] ** 2
-                                                 + fix.sigma[i] ** 2 for i in range(3)])
+            ekf.widen(slice(P_ID, P_ID + 3), [inno[i] ** 2 + fix.sigma[i] ** 2 for i in range(3)])
             core.counters.reanchors += 1
             snap = core.state_at(fix.t_ns)
             if core.apply(GnssPosition(fix.lat, fix.lon, fix.h, fix.sigma, core.lever, not fix.fix_3d)

@@ -93,15 +93,21 @@ class CorrelatedGnssNoise:
         return max(1.0, self.independent_s / self.interval_s)
 
     def sigmas(self, t_ns: int, h_acc: float, v_acc: float, s_acc: float,
-               floor_correlated: bool = True) -> tuple[float, float, float]:
+               floor_correlated: bool = True, scale: tuple[float, float] = (1.0, 1.0)) -> tuple[float, float, float]:
         """1-sigma horizontal per axis, vertical and speed, with the excess over the floor widened (and the floor
-        too, as lasting ``floor_corr_s``, unless ``floor_correlated`` is False)."""
+        too, as lasting ``floor_corr_s``, unless ``floor_correlated`` is False).
+
+        ``scale``: the variance scale (horizontal, vertical) learnt of guessed figures, which the figures given here
+        do not include. It is this receiver's figures all being that much worse, its floor as well: applied to floor
+        and excess alike, and the floor is the lowest unscaled figure. (Kept in the figures, a scale learnt in a
+        canyon would read as excess over a floor remembered from before it, and be widened again as multipath for
+        as long as that floor is remembered.)"""
         c = self.factor(t_ns)
         r = max(self.rate_factor(), self.floor_factor() if floor_correlated else 1.0)
         out = []
-        for value, floor in zip((h_acc, v_acc, s_acc), self._floors, strict=True):
+        for value, floor, k in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), strict=True):
             low = floor.add(value)
-            out.append(math.sqrt(r * low * low + c * (value * value - low * low)))
+            out.append(math.sqrt(k * (r * low * low + c * (value * value - low * low))))
         return out[0] / math.sqrt(2.0), out[1], out[2]
 
 
