@@ -740,6 +740,10 @@ class GnssDecoder:
             lat = lon = hae = msl = None
             vel = None
         num_sv = _int(_attr(src, "numSV")) if src is not None else None
+        # GSA's HDOP is the solution's own; GGA's is the same, and the only DOP of a receiver sending GGA and RMC.
+        hdop = _num(_attr(gsa, "HDOP")) if gsa is not None else None
+        if hdop is None and gga is not None:
+            hdop = _num(_attr(gga, "HDOP"))
         return GnssFix(
             source="NMEA",
             itow_ms=None,
@@ -758,8 +762,6 @@ class GnssDecoder:
             s_acc_mps=None,
             num_sv=num_sv,
             pdop=_num(_attr(gsa, "PDOP")) if gsa is not None else None,
-            # GSA's HDOP is the solution's own; GGA's (the only DOP of a receiver sending GGA and RMC) the same.
-            hdop=next((d for d in (_num(_attr(m, "HDOP")) for m in (gsa, gga) if m is not None) if d is not None),
-                      None),
+            hdop=hdop,
             vdop=_num(_attr(gsa, "VDOP")) if gsa is not None else None,
         )

@@ -70,7 +70,8 @@ def tpv(t_ns: int | None, device: str = "/dev/ttyACM0", **fields: Any) -> dict[s
 
 
 def sky(t_ns: int | None, used: int = 9, **fields: Any) -> dict[str, Any]:
-    obj: dict[str, Any] = {"class": "SKY", "device": "/dev/ttyACM0", "pdop": 1.5, "uSat": used, "nSat": used + 3}
+    obj: dict[str, Any] = {"class": "SKY", "device": "/dev/ttyACM0", "pdop": 1.5, "hdop": 0.9, "vdop": 1.2,
+                           "uSat": used, "nSat": used + 3}
     if t_ns is not None:
         obj["time"] = iso(t_ns)
     obj.update(fields)
@@ -99,11 +100,12 @@ def test_a_tpv_fills_the_fields_of_a_serial_fix() -> None:
     assert fix.vel_ned_mps[0] == pytest.approx(0.0, abs=1e-12) and fix.vel_ned_mps[1] == pytest.approx(10.0)
     assert fix.vel_ned_mps[2] == -0.5  # climb is up, the record's velocity is down
     assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps, fix.num_sv, fix.pdop) == (1.5, 2.5, 0.3, 11, 1.5)
+    assert (fix.hdop, fix.vdop) == (0.9, 1.2)
     assert (fix.itow_ms, fix.week) == (None, None)  # gpsd does not tell
     # velN/E/D win over speed and track; heights and accuracies from the alternatives gpsd may send instead
     fix = fix_from_tpv(tpv(t, velN=1.0, velE=2.0, velD=-0.25, altHAE=None, altMSL=None, alt=30.0, geoidSep=20.0,
                            epx=3.0, epy=4.0))
-    assert fix.vel_ned_mps == (1.0, 2.0, -0.25) and fix.num_sv is None and fix.pdop is None
+    assert fix.vel_ned_mps == (1.0, 2.0, -0.25) and fix.num_sv is None and fix.pdop is None and fix.hdop is None
     assert (fix.height_msl_m, fix.height_hae_m, fix.h_acc_m) == (30.0, 50.0, 5.0)
     # no fix: gpsd's position (if any) is not one, and its time is not valid
     fix = fix_from_tpv(tpv(t, mode=1))
@@ -578,7 +580,7 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
     slope = statistics.linear_regression([(g - timed[0][0]) / NS for g, _ in timed],
                                          [(m - timed[0][1]) / NS for _, m in timed]).slope
     assert abs(slope - 1.0) < 0.05 and len(fixes) >= duration_s - 4, (slope, len(fixes))
-    assert all(f["num_sv"] and f["pdop"] for f in fixes if f["fix_mode"] == 3)
+    assert all(f["num_sv"] and f["pdop"] and f["hdop"] and f["vdop"] for f in fixes if f["fix_mode"] == 3)
     # each fix sits within metres of the truth of its epoch
     truth: dict[int, dict[str, Any]] = {}
     for m in msgs["/truth/nav"]:

@@ -13,7 +13,7 @@ from test_nav_synth import records
 
 from logger.nav.engine import BATCH_MIN, NavEngine
 from logger.nav.params import NavParams
-from logger.recording.records import imu_reads_feeder, nav_feeder
+from logger.recording.records import nav_feeder
 from logger.recording.topics import IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime.navigator import WAKE_S, Navigator
 from logger.runtime.sampler import Reading
@@ -67,7 +67,7 @@ def _navigator(**params: Any) -> tuple[Navigator, list[Reading], list[tuple[int,
         block(t, *rest)
 
     engine.imu_batch = imu_batch  # type: ignore[method-assign]
-    nav._feed, nav._feed_reads = nav_feeder(engine), imu_reads_feeder(engine)
+    nav._feed = nav_feeder(engine)
     return nav, published, calls
 
 

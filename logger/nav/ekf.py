@@ -35,7 +35,7 @@ class ErrorStateEkf:
         self._gates = {m: chi2_gate(m, gate_probability) for m in range(1, 7)}
         self.stats: dict[str, UpdateStats] = {}
         self.repairs = 0
-        self.inflations = 0  # times inflate() forgot something (restarts, re-anchors, reopenings, widenings)
+        self.inflations = 0  # times the covariance was reset (inflate) or widened (widen): the smoother's cuts
         self._work: _Scratch | None = None  # propagate_trapezoid's arrays, made on its first call
 
     def propagate(self, phi: np.ndarray, qd: np.ndarray) -> None:

@@ -124,13 +124,23 @@ LEARN_CLIP = 16.0  # an innovation counts for at most 4 sigma of its prediction 
 
 @dataclass(frozen=True, slots=True)
 class FixFigures:
-    """A fix's accuracy (1 sigma: horizontal as hAcc, the 2D RMS; vertical; speed) and where it came from."""
+    """A fix's accuracy (1 sigma: horizontal as hAcc, the 2D RMS; vertical; speed) and where it came from: the
+    receiver's or the error model's figures, and the variance scale learnt of this receiver's scatter."""
 
-    h_acc: float
-    v_acc: float
+    h_model: float  # before the learnt scale (the receiver's own figure, or the DOP or nominal model's)
+    v_model: float
     s_acc: float
     source: str  # RECEIVER, DOP or NOMINAL
-    scale: tuple[float, float]  # learnt variance scale (horizontal, vertical) applied; 1.0 when not learnt
+    scale: tuple[float, float]  # learnt variance scale (horizontal, vertical); 1.0 when not learnt
+
+    @property
+    def h_acc(self) -> float:
+        """The horizontal figure to use, learnt scale included."""
+        return self.h_model * math.sqrt(self.scale[0])
+
+    @property
+    def v_acc(self) -> float:
+        return self.v_model * math.sqrt(self.scale[1])
 
 
 class ScatterLearner:
@@ -243,14 +253,12 @@ class AccuracyModel:
             else:
                 source, h, v = NOMINAL, nh, nv
             scale = self.learner.scale() if self.learn else (1.0, 1.0)
-            h, v = h * math.sqrt(scale[0]), v * math.sqrt(scale[1])
         return FixFigures(h, v, s_acc if s_acc is not None else ns, source, scale)
 
     def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
         """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
         if not self.learn or figures.source == RECEIVER:
             return
-        kh, kv = figures.scale
-        rh = (figures.h_acc**2 / kh) / 2.0
-        rv = figures.v_acc**2 / kv
+        rh = figures.h_model**2 / 2.0
+        rv = figures.v_model**2
         self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)])

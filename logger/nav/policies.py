@@ -99,9 +99,8 @@ class GnssPolicy:
         k = p.gnss_acc_scale
         # The receiver's own figures describe the error of the moment, which lasts: its floor is taken as
         # correlated. Guessed figures are a data sheet's broad spread already (and widened by the scatter).
-        kh, kv = fig.scale
-        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, fig.h_acc / math.sqrt(kh), fig.v_acc / math.sqrt(kv), fig.s_acc,
-                                                 fig.source == RECEIVER, fig.scale)
+        sig_h, sig_v, s_vel = self._noise.sigmas(t_e, fig.h_model, fig.v_model, fig.s_acc, fig.source == RECEIVER,
+                                                 fig.scale)
         sig_h, sig_v, s_vel = max(0.1, k * sig_h), max(0.2, k * sig_v), max(0.03, k * s_vel)
         vel = msg.vel_ned_mps
         vel_arr, vel_3d = None, False

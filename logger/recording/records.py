@@ -247,7 +247,7 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
 
     def imu_batch(m: dict[str, Any]) -> None:
-        _feed_reads(engine, (m,))
+        feed_reads(engine, (m,))
 
     def fix(m: dict[str, Any]) -> None:
         engine.gnss(gnss_observation(m))
@@ -264,21 +264,16 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
     return {IMU: imu, IMU_BATCH: imu_batch, GNSS_FIX: fix, OBD_SPEED: obd, BARO: baro, PPS: pps}
 
 
-def imu_reads_feeder(engine: NavEngine) -> Callable[[Sequence[dict[str, Any]]], None]:
-    """``/imu/batch`` records that follow one another (nothing between them, each one's samples after the last
-    one's) as one :meth:`NavEngine.imu_batch` call: a block long enough for the engine's block forms, where each
-    FIFO read alone is shorter. Each read's die temperature goes with its own samples, so the engine gives what it
-    gives fed the reads one by one (to round-off); which reads may go together is the caller's to judge."""
-    return lambda ms: _feed_reads(engine, ms)
-
-
 _ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
 _GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
 
 
-def _feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
-    """One or more consecutive ``/imu/batch`` records through one :meth:`NavEngine.imu_batch` call: their columns
-    end to end, and the die temperature one per read (one per sample where the reads' differ)."""
+def feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
+    """One or more ``/imu/batch`` records that follow one another (nothing between them, each one's samples after
+    the last one's) through one :meth:`NavEngine.imu_batch` call: their columns end to end, a block long enough for
+    the engine's block forms where each FIFO read alone is shorter. The die temperature goes one per read (one per
+    sample where the reads' differ), so the engine gives what it gives fed the reads one by one (to round-off);
+    which reads may go together is the caller's to judge."""
     if len(ms) == 1:
         m = ms[0]
 

@@ -26,7 +26,7 @@ from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.recording.records import (
     NAV_INPUT_TOPICS,
-    imu_reads_feeder,
+    feed_reads,
     nav_feeder,
     nav_fix_record,
     nav_state_record,
@@ -68,7 +68,6 @@ class Navigator:
         self._next_mount_save_ns = 0
         self.engine = NavEngine(params)
         self._feed = nav_feeder(self.engine)
-        self._feed_reads = imu_reads_feeder(self.engine)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
         self.judge = HealthJudge()
@@ -147,7 +146,6 @@ class Navigator:
                 with self._lock:
                     self.engine = NavEngine(self.params)
                     self._feed = nav_feeder(self.engine)
-                    self._feed_reads = imu_reads_feeder(self.engine)
             self.cpu_s = time.thread_time() - cpu0
 
     def take(self, records: list[tuple[str, dict[str, Any]]], merge: bool = True) -> None:
@@ -155,32 +153,32 @@ class Navigator:
 
         At 1 kHz a FIFO read is 40 samples, too few for the engine's block forms (``BATCH_MIN``), and nothing
         else comes between most reads: so a run of reads that follow one another (:func:`_follows`) goes in as
-        one block (:func:`imu_reads_feeder`). A run ends before any other record, at the end of the wake-up, and
+        one block (:func:`feed_reads`). A run ends before any other record, at the end of the wake-up, and
         with the read that reaches the next publishing time, so /nav/fix and /nav/state go out after the same
         reads, with the same solutions, as fed read by read. A read after a gap, lost samples or out of order
         goes alone, as before. ``merge=False``: every read alone (what the benchmark and the tests compare with)."""
-        feed, feed_reads, run = self._feed, self._feed_reads, []
+        feed, engine, run = self._feed, self.engine, []
         last: int | None = None  # the run's last sample
         for topic, payload in records:
             if topic == IMU_BATCH and merge:
                 t = payload["t_sync_ns"]
-                if _follows(payload, last if run else self.engine.t_last_ns):
+                if _follows(payload, last if run else engine.t_last_ns):
                     run.append(payload)
                     last = t[-1]
                     if self._publish_due(last):
-                        feed_reads(run)
+                        feed_reads(engine, run)
                         run = []
                         self._maybe_publish()
                     continue
             if run:
-                feed_reads(run)
+                feed_reads(engine, run)
                 run = []
                 self._maybe_publish()
             feed[topic](payload)
-            if topic in (IMU, IMU_BATCH) or (topic == GNSS_FIX and self.engine.mode == "gnss"):
+            if topic in (IMU, IMU_BATCH) or (topic == GNSS_FIX and engine.mode == "gnss"):
                 self._maybe_publish()
         if run:
-            feed_reads(run)
+            feed_reads(engine, run)
             self._maybe_publish()
         self.processed += len(records)
 
@@ -189,13 +187,19 @@ class Navigator:
         return self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
 
     def _maybe_publish(self) -> None:
-        # GNSS-only, the solution is the last fix's and no IMU sample is integrated: its time is the fix's.
-        t_last = self.engine.t_last_ns if self.engine.mode != "gnss" else getattr(self.engine.current(), "t_ns", None)
-        if t_last is None or not self._publish_due(t_last):
-            return
-        sol = self.engine.current()
-        if sol is None:
-            return
+        engine = self.engine
+        if engine.mode == "gnss":
+            # GNSS-only, the solution is the last fix's and no IMU sample is integrated: its time is the fix's.
+            sol = engine.current()
+            if sol is None or not self._publish_due(sol.t_ns):
+                return
+        else:
+            t_last = engine.t_last_ns
+            if t_last is None or not self._publish_due(t_last):
+                return
+            sol = engine.current()
+            if sol is None:
+                return
         t = sol.t_ns
         if t >= self._next_fix_ns:
             period_ns = int(1e9 / max(self.params.publish_hz, 0.1))
