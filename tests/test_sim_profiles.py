@@ -290,17 +290,48 @@ def test_a_phone_grade_imu_is_about_ten_times_noisier_at_rest() -> None:
 
 
 def test_a_phone_grade_gyro_offset_wanders() -> None:
-    """Ten-second means of the rate over ten minutes at rest: the Gauss-Markov wander (0.3 deg/s) shows against
-    what the random walk and the noise alone leave (some hundredths)."""
+    """Ten-second means of the rate over ten minutes at rest, with the warming off: the Gauss-Markov wander
+    (0.03 deg/s over 200 s) shows against what the random walk and the noise alone leave."""
     def spread(errors: Mpu6050Errors) -> float:
         _, gyro = imu_samples(ParkedTrajectory(), errors, 600.0, rate_hz=20.0, seed=9)
         means = np.degrees(gyro.reshape(60, -1, 3).mean(axis=1))
         return float(means.std(axis=0).mean())
 
-    phone = Mpu6050Errors.phone_grade()
-    steady = spread(replace(phone, gyro_bias_gm_dps=0.0))
+    phone = replace(Mpu6050Errors.phone_grade(), accel_tempco_mg_per_degc=0.0, gyro_tempco_dps_per_degc=0.0)
+    steady = spread(replace(phone, gyro_bias_gm_dps=0.0, gyro_bias_walk_dps_per_rts=0.0))
     wandering = spread(phone)
-    assert steady < 0.06 and wandering > 0.1, (steady, wandering)
+    assert steady < 0.013 and wandering > 0.018, (steady, wandering)  # noise alone: 0.05/sqrt(2 x 10 s)
+
+
+def test_a_phone_grade_chip_warms_and_its_offsets_follow_the_die_temperature() -> None:
+    """Parked for half an hour from power-up: the die warms by most of its 8 degC, and the offsets move with
+    what the temperature sensor reads by the coefficients drawn at power-up."""
+    phone = replace(Mpu6050Errors.phone_grade(), gyro_bias_gm_dps=0.0, gyro_bias_walk_dps_per_rts=0.0,
+                    accel_bias_walk_mg_per_rts=0.0)
+    clock = ManualClock()
+    model = Mpu6050Model(clock, ParkedTrajectory(), seed=4, errors=phone)
+    bus = SimI2cBus(SimI2cAdapter({0x68: model}))
+    try:
+        drv = Mpu6050(bus, rate_hz=20.0, fifo=True, sleep=clock.sleep)
+        drv.configure()
+        temps, acc, gyro = [], [], []
+        for _ in range(3600):  # half-second reads (the FIFO holds 2.5 s at 20 Hz) over 30 min
+            clock.advance(0.5)
+            batch = drv.read_fifo(clock.now_ns())
+            temps.append(batch.temp_degc)
+            acc.append(batch.accel_mps2.mean(axis=0))
+            gyro.append(batch.gyro_rps.mean(axis=0))
+    finally:
+        bus.close()
+    temps_a = np.array(temps).reshape(180, 20).mean(axis=1)  # 10 s means
+    acc = np.array(acc).reshape(180, 20, 3).mean(axis=1)
+    gyro = np.array(gyro).reshape(180, 20, 3).mean(axis=1)
+    assert 6.5 < temps_a[-1] - temps_a[0] < 8.0  # 8 (1 - e^-3) less the first 10 s
+    slope = np.polyfit(temps_a, np.hstack((np.array(acc), np.array(gyro))), 1)[0]
+    # Within the noise of a slope fitted to 180 ten-second means (accelerometer 3e-4 m/s^2/K, gyro 6e-6 rad/s/K).
+    assert np.allclose(slope[:3], model._tempco[:3], rtol=0.0, atol=1e-3), (slope, model._tempco)
+    assert np.allclose(slope[3:], model._tempco[3:], rtol=0.0, atol=3e-5), (slope, model._tempco)
+    assert np.all(model._tempco != 0.0)
 
 
 def test_a_phone_grade_imu_shakes_while_moving_and_the_mpu6050_does_not() -> None:

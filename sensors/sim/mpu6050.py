@@ -27,8 +27,8 @@ frequency exactly, since that density is what a navigation filter's tuning rests
 
 A phone-grade part (:meth:`Mpu6050Errors.phone_grade`, the simulator's ``imu = "phone"``) is the same register
 map with a worse error budget: ten times the noise densities, a larger turn-on gyro offset that also wanders
-(a first-order Gauss-Markov process on top of the random walk: the offset of a consumer part drifts with its
-die and package stress over minutes, by tenths of a deg/s), and vibration while the car moves, which a phone
+(a first-order Gauss-Markov process on top of the random walk) and follows the die's temperature as the
+phone warms itself, and vibration while the car moves, which a phone
 in a holder picks up and a board bolted to the chassis mostly does not: broadband acceleration and rate growing
 with speed, the body's bounce on its springs (about 1.3 Hz, vertical) and the engine's firing frequency (25 Hz
 at idle, rising with speed), each through the chip's low-pass filter like any motion.
@@ -132,6 +132,12 @@ class Mpu6050Errors:
     # Beyond the datasheet's part (all off for it): a wandering gyro offset and the vehicle's vibration.
     gyro_bias_gm_dps: float = 0.0  # 1-sigma of a first-order Gauss-Markov gyro offset, per axis
     gyro_bias_gm_tau_s: float = 300.0  # its correlation time
+    # The offsets' temperature coefficients, 1-sigma per axis (drawn at each power-up), and the die's own warming
+    # after power-up (a phone's processor, screen and charger): the offsets follow the die's temperature.
+    accel_tempco_mg_per_degc: float = 0.0
+    gyro_tempco_dps_per_degc: float = 0.0
+    warmup_degc: float = 0.0  # the die's rise above the cabin after power-up, reached exponentially
+    warmup_tau_s: float = 600.0  # ... with this time constant
     vibration_accel_mps2_per_mps: float = 0.0  # broadband acceleration RMS per m/s of speed (vertical; 0.6 across)
     vibration_gyro_dps_per_mps: float = 0.0  # broadband rate RMS per m/s of speed, per axis
     bounce_mps2_per_mps: float = 0.0  # body bounce (BOUNCE_HZ, vertical) amplitude per m/s of speed
@@ -146,14 +152,27 @@ class Mpu6050Errors:
     def phone_grade(cls) -> Mpu6050Errors:
         """A phone-grade MEMS IMU in a holder: ten times the MPU-6050's noise densities (what such a part gives
         in a car, mount and all, against the datasheet's bench figure), a turn-on gyro offset of 5 deg/s with a
-        ten times faster random walk and a Gauss-Markov wander of 0.3 deg/s over 200 s, accelerometer offsets
-        of 50 mg walking four times faster; vibration while moving of 0.015 m/s^2 and 0.01 deg/s RMS per m/s
-        of speed (0.2 m/s^2 at 50 km/h), a body bounce of 0.01 m/s^2 per m/s, and the engine's tone at
-        0.05 m/s^2."""
+        ten times faster random walk, accelerometer offsets of 50 mg walking four times faster; vibration while
+        moving of 0.015 m/s^2 and 0.01 deg/s RMS per m/s of speed (0.2 m/s^2 at 50 km/h), a body bounce of
+        0.01 m/s^2 per m/s, and the engine's tone at 0.05 m/s^2.
+
+        The gyro offset wanders as a consumer part's does, from data-sheet figures of phone IMUs (Bosch BMI160:
+        bias instability 6 deg/h typical, offset temperature coefficient +-0.08 deg/s/K, accelerometer
+        +-0.4 mg/K; TDK ICM-20602: +-0.01 deg/s/K and +-0.5 to 1 mg/K):
+        - an in-run Gauss-Markov wander of 0.03 deg/s over 200 s: ten times the BMI160's bias instability, as the
+          noise is ten times the datasheet's (an Allan minimum is about 0.6 of a Gauss-Markov process' sigma);
+        - temperature coefficients of 0.05 deg/s/K and 0.5 mg/K (1-sigma per axis), with a die that warms by
+          8 degC over its first half hour (10 min time constant) as a phone running a navigation app does. Ten
+          minutes into a drive, a minute moves the gyro offset by about 0.015 deg/s through the warming (at a
+          1-sigma coefficient) and 0.02 deg/s through the wander.
+        The wander was 0.3 deg/s before (1080 deg/h), beyond the 10 to 1000 deg/h that bounds even rate-grade
+        MEMS gyros' bias drift: a phone's outage was then set by a gyro no phone carries."""
         return cls(accel_noise_ug_per_rthz=4000.0, gyro_noise_dps_per_rthz=0.05, accel_turn_on_bias_mg=50.0,
                    gyro_turn_on_bias_dps=5.0, accel_bias_walk_mg_per_rts=0.2, gyro_bias_walk_dps_per_rts=1.0e-3,
-                   gyro_bias_gm_dps=0.3, gyro_bias_gm_tau_s=200.0, vibration_accel_mps2_per_mps=0.015,
-                   vibration_gyro_dps_per_mps=0.01, bounce_mps2_per_mps=0.01, engine_vibration_mps2=0.05)
+                   gyro_bias_gm_dps=0.03, gyro_bias_gm_tau_s=200.0, accel_tempco_mg_per_degc=0.5,
+                   gyro_tempco_dps_per_degc=0.05, warmup_degc=8.0, warmup_tau_s=600.0,
+                   vibration_accel_mps2_per_mps=0.015, vibration_gyro_dps_per_mps=0.01, bounce_mps2_per_mps=0.01,
+                   engine_vibration_mps2=0.05)
 
     @property
     def vibrates(self) -> bool:
@@ -234,6 +253,11 @@ class Mpu6050Model(RegisterChip):
         # without it keeps its random sequence).
         self._gyro_gm = (self.rng.standard_normal(3) * math.radians(e.gyro_bias_gm_dps) if e.gyro_bias_gm_dps
                          else np.zeros(3))
+        # Temperature coefficients, drawn only for a chip that has them (a chip without keeps its random sequence).
+        tc = (e.accel_tempco_mg_per_degc * 1e-3 * G0_MPS2, math.radians(e.gyro_tempco_dps_per_degc))
+        self._tempco = (self.rng.standard_normal(6) * np.repeat(tc, 3)) if any(tc) else None
+        self._powered_s = self.clock.now_ns() / 1e9
+        self._die_ref: float | None = None  # the die's temperature at the first sample: the turn-on bias's
         self._engine_phase = 0.0
         self._device_reset()
 
@@ -361,11 +385,18 @@ class Mpu6050Model(RegisterChip):
         measured = truth + self._bias_on + walk + noise
         if self.errors.gyro_bias_gm_dps:
             measured[:, 3:6] += self._gyro_wander(m, period_s)
+        e = self.errors
+        die = ambient + e.self_heating_degc
+        if e.warmup_degc:
+            die += e.warmup_degc * -np.expm1(-np.maximum(times_s - self._powered_s, 0.0) / e.warmup_tau_s)
+        if self._tempco is not None:
+            if self._die_ref is None:
+                self._die_ref = float(die[0])
+            measured += np.outer(die - self._die_ref, self._tempco)
 
         accel_sens = ACCEL_LSB_PER_G[(self.regs[ACCEL_CONFIG] >> 3) & 3]
         gyro_sens = GYRO_LSB_PER_DPS[(self.regs[GYRO_CONFIG] >> 3) & 3]
-        e = self.errors
-        temp = ambient + e.self_heating_degc + self.rng.standard_normal(m) * e.temp_noise_degc
+        temp = die + self.rng.standard_normal(m) * e.temp_noise_degc
         counts = np.empty((m, 7))
         counts[:, 0:3] = measured[:, 0:3] / G0_MPS2 * accel_sens
         counts[:, 3] = (temp - 36.53) * 340.0
