@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from test_nav_synth import records
+from test_nav_synth import SynthErrors, records
 
 from logger.nav.engine import NavEngine
 from logger.nav.params import NavParams
 from logger.nav.state import BA_ID, BG_ID
-from logger.nav.thermal import SMOOTH_S, STEP_DEGC, TemperatureSpan
+from logger.nav.thermal import SMOOTH_S, STEP_DEGC, TempcoLearner, TemperatureSpan
 from logger.recording.records import feed_record, nav_feeder
 from sensors.sim.scenarios import make_drive
 
@@ -57,15 +57,21 @@ def test_a_swing_back_inside_the_range_seen_owes_at_least_its_square() -> None:
 DATASHEET = {"gyro_bias_tempco_dps_degc": 0.16, "accel_bias_tempco_mg_degc": 0.5}
 
 
-def run(temp_of_t, **params) -> NavEngine:
-    drive = make_drive("outage-60s", seed=1, duration_s=150.0)
+def run(temp_of_t, gyro_tempco_rps_degc: tuple[float, float, float] = (0.0, 0.0, 0.0), duration_s: float = 150.0,
+        **params) -> NavEngine:
+    """The synthetic drive with a die temperature ``temp_of_t`` (s from the first sample), the gyro's offsets
+    following it by ``gyro_tempco_rps_degc`` from where they start."""
+    drive = make_drive("outage-60s", seed=1, duration_s=duration_s)
     engine = NavEngine(NavParams(**{**DATASHEET, **params}))
     t0 = None
     feed = nav_feeder(engine)
-    for _, topic, msg in records(drive, 150.0, seed=2):
+    k = np.array(gyro_tempco_rps_degc)
+    for _, topic, msg in records(drive, duration_s, seed=2):
         if topic == "/imu":
             t0 = msg["t_sync_ns"] if t0 is None else t0
-            msg = {**msg, "temp_degc": temp_of_t((msg["t_sync_ns"] - t0) / 1e9)}
+            temp = temp_of_t((msg["t_sync_ns"] - t0) / 1e9)
+            gyro = np.array(msg["gyro_rps"]) + k * (temp - temp_of_t(0.0))
+            msg = {**msg, "temp_degc": temp, "gyro_rps": gyro.tolist()}
         feed_record(feed, topic, msg)
     assert engine.ekf is not None
     return engine
@@ -94,3 +100,74 @@ def test_a_warming_die_widens_the_offsets_by_the_configured_tempco(steady: NavEn
 def test_without_a_tempco_the_temperature_changes_nothing(steady: NavEngine) -> None:
     warm = run(lambda t: 25.0 + 3.0 * t / 150.0, gyro_bias_tempco_dps_degc=0.0, accel_bias_tempco_mg_degc=0.0)
     assert np.allclose(np.diag(warm.ekf.p), np.diag(steady.ekf.p))
+
+
+def learner_on(k_true: np.ndarray, temps: np.ndarray, sigma: float, seed: int = 3) -> TempcoLearner:
+    rng = np.random.default_rng(seed)
+    learner = TempcoLearner([0.16] * 6)
+    for i, temp in enumerate(temps):
+        offsets = 0.01 + k_true * (temp - temps[0]) + rng.standard_normal(6) * sigma
+        learner.add(30.0 * i, float(temp), offsets.tolist(), [sigma**2] * 6, [0.0] * 6, aided=True)
+    return learner
+
+
+def test_the_learner_finds_a_coefficient_the_temperature_range_shows() -> None:
+    k_true = np.array([0.0, 0.01, -0.02, 0.05, -0.08, 0.0])
+    learner = learner_on(k_true, np.linspace(20.0, 28.0, 40), sigma=0.02)
+    k, sigma = map(np.array, learner.coefficients())
+    assert np.all(sigma < 0.01) and np.all(np.abs(k - k_true) < 3.0 * sigma), (k, sigma)
+    applied = np.array(learner.applied())
+    assert np.all((applied != 0.0) == (k_true != 0.0))  # the coefficients proven beyond 2 sigma (0.0013 here)
+    residual = np.array(learner.residual_sigma())
+    assert np.all(residual < 0.16)
+    assert np.allclose(residual[applied != 0.0], sigma[applied != 0.0])
+
+
+def test_without_a_temperature_range_the_configured_bound_stands() -> None:
+    learner = learner_on(np.full(6, 0.05), np.full(40, 24.0), sigma=0.02)
+    k, sigma = learner.coefficients()
+    assert np.allclose(k, 0.0) and np.allclose(sigma, 0.16)
+    assert not any(learner.applied()) and np.allclose(learner.residual_sigma(), 0.16)
+    fresh = TempcoLearner([0.16] * 6)
+    fresh.add(0.0, 24.0, [0.0] * 6, [1e-4] * 6, [0.0] * 6, aided=False)  # not aided: not taken
+    assert fresh.coefficients() == ([0.0] * 6, [0.16] * 6)
+
+
+def test_noisy_estimates_and_their_wander_count_for_less() -> None:
+    temps = np.linspace(20.0, 22.0, 10)
+    sharp = learner_on(np.zeros(6), temps, sigma=0.005)
+    loose = learner_on(np.zeros(6), temps, sigma=0.05)
+    assert max(sharp.coefficients()[1]) < min(loose.coefficients()[1])
+    wandering = TempcoLearner([0.16] * 6)
+    for i, temp in enumerate(temps):
+        wandering.add(30.0 * i, float(temp), [0.0] * 6, [0.005**2] * 6, [1e-4] * 6, aided=True)
+    assert min(wandering.coefficients()[1]) > max(sharp.coefficients()[1])
+
+
+def test_turned_axes_turn_the_learnt_coefficients() -> None:
+    k_true = np.array([0.0, 0.0, 0.0, 0.06, 0.0, 0.0])
+    learner = learner_on(k_true, np.linspace(20.0, 28.0, 40), sigma=0.01)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z: x goes to y
+    learner.turn(turn)
+    k, sigma = learner.coefficients()
+    assert abs(k[4] - 0.06) < 3.0 * sigma[4] and abs(k[3]) < 3.0 * sigma[3]
+
+
+def warming(t: float) -> float:
+    """A phone's die warming after power-up, degC."""
+    return 25.0 + 6.0 * (1.0 - math.exp(-t / 200.0))
+
+
+def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> None:
+    """The synthetic drive with the die warming by 4.7 degC and the gyro's z offset following it at
+    0.05 deg/s/degC: learnt from the aided driving, the coefficient moves the offset with the temperature, and the
+    covariance covers what is left of it instead of the 0.16 deg/s/degC bound."""
+    k = math.radians(0.05)
+    follows = run(warming, gyro_tempco_rps_degc=(0.0, 0.0, k), duration_s=330.0)
+    kz, sz = follows.tempco.coefficients()[0][5], follows.tempco.coefficients()[1][5]
+    assert abs(kz - k) < 3.0 * sz and sz < math.radians(0.03), (math.degrees(kz), math.degrees(sz))
+    assert follows.tempco.applied()[5] != 0.0
+    assert math.sqrt(follows._tempco_var[5]) < math.radians(0.16) / 4.0
+    # The offset estimate at the end is where the die temperature put the chip's.
+    true_bg = SynthErrors().gyro_bias[2] + k * (warming(330.0) - warming(0.0))
+    assert abs(follows.state.bg[2] - true_bg) < 3.0 * math.sqrt(follows.ekf.p[BG_ID + 2, BG_ID + 2])

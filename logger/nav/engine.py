@@ -55,7 +55,7 @@ from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_of
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown
-from logger.nav.thermal import TemperatureSpan
+from logger.nav.thermal import TempcoLearner, TemperatureSpan
 
 NS = 1_000_000_000
 IMU_GAP_S = 0.5  # samples further apart than this are a gap: counted, and still integrated across
@@ -150,6 +150,13 @@ class NavEngine:
         self.imu_noise = ImuNoiseMonitor() if p.imu_noise_from_drive else None
         self.offset_wander = OffsetWander() if p.imu_noise_from_drive else None
         self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
+        # The offsets' temperature coefficients learnt from the drive, the configured bounds their prior.
+        self.tempco = TempcoLearner((p.accel_bias_tempco,) * 3 + (p.gyro_bias_tempco,) * 3)
+        self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3  # what the covariance covers
+        self._tempco_at = math.nan  # the smoothed die temperature the offsets were last moved to
+        # The offsets' walks at the chip's grade (the configured ones scaled by the noise measured), without the
+        # wander read from the estimates (OffsetWander), which holds the temperature's drift the learner models.
+        self._grade_walk = (p.accel_bias_walk, p.gyro_bias_walk)
         self.state: NavState | None = None
         self.ekf: ErrorStateEkf | None = None
         self.counters = EngineCounters()
@@ -447,6 +454,7 @@ class NavEngine:
         self.ekf.p = p0
         self._inflations_seen = 0
         self.thermal.restart()
+        self._restart_tempco()
         self.sigma = tuple(math.sqrt(p0[P_ID + i, P_ID + i]) for i in range(3))
         self.mech.reset()
         acc, gyro = self._raw  # the latest sample starts the integration, corrected as the state now says
@@ -473,20 +481,52 @@ class NavEngine:
         self.ekf.propagate_trapezoid(phi, self.q_diag * (0.5 * dt))
         owed = self.thermal.take()
         if owed > 0.0:
-            # The offsets follow the die temperature through a fixed, unknown coefficient (thermal.py).
+            # The offsets follow the die temperature through a fixed coefficient, known as far as the drive showed
+            # it (thermal.py).
             pk = self.ekf.p
+            kv = self._tempco_var
             for i in range(3):
-                pk[BA_ID + i, BA_ID + i] += self.params.accel_bias_tempco**2 * owed
-                pk[BG_ID + i, BG_ID + i] += self.params.gyro_bias_tempco**2 * owed
+                pk[BA_ID + i, BA_ID + i] += kv[i] * owed
+                pk[BG_ID + i, BG_ID + i] += kv[3 + i] * owed
         if self.record:
             self.epochs.append(Epoch(self._t_last or 0, phi.astype(np.float32), self.ekf.p.copy(), dx=np.zeros(self.n)))
         self._cov_dt = 0.0
         self.mech.dv_ned_sum = [0.0, 0.0, 0.0]
         self.refresh_sigma()
+        self._follow_temperature()
         if self.alignment is not None:
             self._follow_alignment()
         if self.imu_noise is not None:
             self._follow_imu_noise()
+
+    def _restart_tempco(self) -> None:
+        """New offsets or new axes: the coefficients are learnt again, from the configured bounds."""
+        p = self.params
+        self.tempco.restart()
+        self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3
+        self._tempco_at = self.thermal.smoothed
+
+    def _follow_temperature(self) -> None:
+        """The offsets against the die temperature (thermal.py): the estimates go to the learner while fixes go
+        in; a coefficient it proves moves the offsets with the temperature since the last propagation, and what
+        it leaves unknown is what the covariance covers from here on."""
+        s, ekf = self.state, self.ekf
+        temp = self.thermal.smoothed
+        if s is None or ekf is None or temp - temp != 0.0:
+            return
+        t = self._t_last or 0
+        pd = ekf.p.diagonal()
+        wa, wg = self._grade_walk
+        self.tempco.add(t / NS, temp, (*s.ba, *s.bg), pd[BA_ID:BG_ID + 3].tolist(), (wa * wa,) * 3 + (wg * wg,) * 3,
+                        0 < t - self.last_readings.pos_ok[0] < 3 * NS)
+        k = self.tempco.applied()
+        d = temp - self._tempco_at
+        if d - d == 0.0 and d != 0.0 and any(k):
+            ba, bg = s.ba, s.bg
+            s.ba = (ba[0] + k[0] * d, ba[1] + k[1] * d, ba[2] + k[2] * d)
+            s.bg = (bg[0] + k[3] * d, bg[1] + k[4] * d, bg[2] + k[5] * d)
+        self._tempco_at = temp
+        self._tempco_var = [r * r for r in self.tempco.residual_sigma()]
 
     def _follow_imu_noise(self) -> None:
         """Process noise from what the drive shows, never below the configured densities (imu_noise.py)."""
@@ -506,6 +546,7 @@ class NavEngine:
         # filter's own offset estimate shows of the wander (OffsetWander) widens the gyro's walk further.
         ratio = arw / p.gyro_arw
         gyro_walk = p.gyro_bias_walk * ratio
+        self._grade_walk = (p.accel_bias_walk * vrw / p.accel_vrw, gyro_walk)
         wander = self.offset_wander.walk() if self.offset_wander is not None else None
         if wander is not None:
             gyro_walk = max(gyro_walk, wander)
@@ -587,12 +628,14 @@ class NavEngine:
             self.offset_wander.restart()
         self.counters.remounts += 1
         if not reopen:
+            self.tempco.turn(d)
             t = np.eye(self.n)
             t[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = d
             t[BG_ID:BG_ID + 3, BG_ID:BG_ID + 3] = d
             self.ekf.p = t @ self.ekf.p @ t.T
             return
         self.reopen_attitude_and_offsets()
+        self._restart_tempco()  # after the variance owed to the temperature so far went into the reopening
         if self.n > DH_ID:
             # The barometer's offset was learnt against heights the wrong mounting bent (the non-holonomic rows
             # held a body pitched on the car): it is learnt again.
@@ -660,7 +703,7 @@ class NavEngine:
         att = np.diag((math.radians(0.3) ** 2, math.radians(0.3) ** 2, math.radians(5.0) ** 2))
         ekf.p[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + att
         ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba  # uncorrelated with the tilt: their sum was just shown off
-        bg_var += p.gyro_bias_tempco**2 * self.thermal.range_degc**2
+        bg_var += max(self._tempco_var[3:]) * self.thermal.range_degc**2
         for i in range(3):
             ekf.p[BG_ID + i, BG_ID + i] = max(bg_var, float(old[BG_ID + i]))
             ekf.p[PHI_ID + i, PHI_ID + i] = max(float(ekf.p[PHI_ID + i, PHI_ID + i]), float(old[PHI_ID + i]))
