@@ -167,6 +167,9 @@ def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> 
     kz, sz = follows.tempco.coefficients()[0][5], follows.tempco.coefficients()[1][5]
     assert abs(kz - k) < 3.0 * sz and sz < math.radians(0.03), (math.degrees(kz), math.degrees(sz))
     assert follows.tempco.applied()[5] != 0.0
+    # It moved the offset by its share of the warming once proven (0.05 x 4.7 degC at most), and that is kept
+    # apart from the wander read from the estimates.
+    assert 0.02 < math.degrees(follows._tempco_moved[2]) < 0.05 * (warming(330.0) - warming(0.0))
     assert math.sqrt(follows._tempco_var[5]) < math.radians(0.16) / 4.0
     # The offset estimate at the end is where the die temperature put the chip's.
     true_bg = SynthErrors().gyro_bias[2] + k * (warming(330.0) - warming(0.0))

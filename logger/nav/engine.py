@@ -154,6 +154,7 @@ class NavEngine:
         self.tempco = TempcoLearner((p.accel_bias_tempco,) * 3 + (p.gyro_bias_tempco,) * 3)
         self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3  # what the covariance covers
         self._tempco_at = math.nan  # the smoothed die temperature the offsets were last moved to
+        self._tempco_moved = (0.0, 0.0, 0.0)  # how far that moved the gyro's offsets since the learner started
         # The offsets' walks at the chip's grade (the configured ones scaled by the noise measured), without the
         # wander read from the estimates (OffsetWander), which holds the temperature's drift the learner models.
         self._grade_walk = (p.accel_bias_walk, p.gyro_bias_walk)
@@ -505,6 +506,7 @@ class NavEngine:
         self.tempco.restart()
         self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3
         self._tempco_at = self.thermal.smoothed
+        self._tempco_moved = (0.0, 0.0, 0.0)
 
     def _follow_temperature(self) -> None:
         """The offsets against the die temperature (thermal.py): the estimates go to the learner while fixes go
@@ -522,9 +524,10 @@ class NavEngine:
         k = self.tempco.applied()
         d = temp - self._tempco_at
         if d - d == 0.0 and d != 0.0 and any(k):
-            ba, bg = s.ba, s.bg
+            ba, bg, m = s.ba, s.bg, self._tempco_moved
             s.ba = (ba[0] + k[0] * d, ba[1] + k[1] * d, ba[2] + k[2] * d)
             s.bg = (bg[0] + k[3] * d, bg[1] + k[4] * d, bg[2] + k[5] * d)
+            self._tempco_moved = (m[0] + k[3] * d, m[1] + k[4] * d, m[2] + k[5] * d)
         self._tempco_at = temp
         self._tempco_var = [r * r for r in self.tempco.residual_sigma()]
 
@@ -539,7 +542,9 @@ class NavEngine:
         t = self._t_last or 0
         aided = 0 < t - self.last_readings.pos_ok[0] < 3 * NS
         if self.offset_wander is not None and s is not None:
-            self.offset_wander.add(t / NS, s.bg, aided)
+            # What the temperature moved is the learner's (_follow_temperature), not a wander.
+            m = self._tempco_moved
+            self.offset_wander.add(t / NS, (s.bg[0] - m[0], s.bg[1] - m[1], s.bg[2] - m[2]), aided)
         vrw, arw = max(p.accel_vrw, measured[0]), max(p.gyro_arw, measured[1])
         # A chip noisier than its datasheet by some factor wanders by as much more too: consumer MEMS grades scale
         # noise and bias instability together (an MPU-6050 against a phone's IMU: about 10x both); and what the
@@ -629,6 +634,7 @@ class NavEngine:
         self.counters.remounts += 1
         if not reopen:
             self.tempco.turn(d)
+            self._tempco_moved = tuple(float(v) for v in d @ np.array(self._tempco_moved))
             t = np.eye(self.n)
             t[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = d
             t[BG_ID:BG_ID + 3, BG_ID:BG_ID + 3] = d
