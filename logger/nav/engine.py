@@ -558,11 +558,12 @@ class NavEngine:
         elif ratio > CONSUMER_NOISE_RATIO:
             # Not the datasheet's grade at all, and its wander not yet read (OffsetWander wants a few minutes of
             # aided driving): until then the pessimistic side of consumer parts, ratio^2, so that the covariance
-            # stays what the filter can stand behind. The simulated phone (6.6x the noise, its offset wandering 60x
-            # the datasheet's walk) took the ratio alone, 0.0033 deg/s/sqrt(s), into a tunnel 85 s in and came out
-            # 402 m off with 73 % of the drive inside 3 sigma; with ratio^2, 261 m and 100 %. The price, on a chip
-            # as noisy whose offset does not wander (synthetic): a minute's outage 3.7 m off instead of 1.1 m.
-            # Taken only while no fixes came, the phone's tunnel stayed 432 m off and 80 % inside 3 sigma.
+            # stays what the filter can stand behind. An earlier simulated phone (6.6x the noise, its offset
+            # wandering 0.3 deg/s over 200 s, beyond any phone's data sheet) took the ratio alone, 0.0033
+            # deg/s/sqrt(s), into a tunnel 85 s in and came out 402 m off with 73 % of the drive inside 3 sigma;
+            # with ratio^2, 261 m and 100 %. The price, on a chip as noisy whose offset does not wander
+            # (synthetic): a minute's outage 3.7 m off instead of 1.1 m. Taken only while no fixes came, that
+            # phone's tunnel stayed 432 m off and 80 % inside 3 sigma.
             gyro_walk *= ratio
         if (abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1
                 or abs(gyro_walk / self.noise.gyro_bias_walk - 1.0) > 0.1):

@@ -129,7 +129,8 @@ class Mpu6050Errors:
     gyro_bias_walk_dps_per_rts: float = 1.0e-4  # Allan-variance figures above, not the datasheet
     temp_noise_degc: float = 0.02
     self_heating_degc: float = 0.0
-    # Beyond the datasheet's part (all off for it): a wandering gyro offset and the vehicle's vibration.
+    # Beyond the datasheet's part (all off for it): a wandering gyro offset, the offsets following a warming die,
+    # and the vehicle's vibration.
     gyro_bias_gm_dps: float = 0.0  # 1-sigma of a first-order Gauss-Markov gyro offset, per axis
     gyro_bias_gm_tau_s: float = 300.0  # its correlation time
     # The offsets' temperature coefficients, 1-sigma per axis (drawn at each power-up), and the die's own warming
