@@ -153,6 +153,44 @@ def test_dop_figures_follow_the_dops_definition_and_the_receivers_own_split():
     assert model.figures(None, None, None, None, 0.75).h_acc == pytest.approx(NavParams().gnss_nominal_h_acc_m)
 
 
+def test_guessed_heights_that_keep_one_offset_count_it_as_variance_and_stop_when_it_ends():
+    """A canyon's reflections put an NMEA receiver's heights 15 m high for 40 s behind a DOP figure of about
+    6 m: the innovations' running mean shows the offset, and the next fixes' vertical figure carries it; the
+    horizontal is left as the DOP says. Noise alone, or an offset the filter's own variance explains (after an
+    outage), adds next to nothing; once the fixes agree again, or none come, the excess fades."""
+    ns = 1_000_000_000
+    model = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    base = model.figures(None, None, None, None, 1.0, 1.5, 0)
+    rng = np.random.default_rng(4)
+
+    def feed(t0_s: float, seconds: int, offset_d: float, p_d: float) -> int:
+        for k in range(seconds):
+            t = int((t0_s + k) * ns)
+            fig = model.figures(None, None, None, None, 1.0, 1.5, t)
+            z = [float(rng.normal(0.0, 2.0)), float(rng.normal(0.0, 2.0)), offset_d + float(rng.normal(0.0, 4.0))]
+            model.observe(t, fig, z, [0.5, 0.5, p_d])
+        return t
+
+    t = feed(0.0, 60, 0.0, 0.7)  # an open sky: noise only
+    quiet = model.figures(None, None, None, None, 1.0, 1.5, t + ns)
+    assert quiet.v_model < 1.1 * base.v_model and quiet.h_model == base.h_model
+    t = feed(60.0, 40, 15.0, 0.7)  # the canyon
+    canyon = model.figures(None, None, None, None, 1.0, 1.5, t + ns)
+    assert canyon.v_model > math.hypot(base.v_model, 12.0) and canyon.h_model == base.h_model
+    t = feed(100.0, 40, 0.0, 0.7)  # out of it: the fixes agree with the filter again
+    assert model.figures(None, None, None, None, 1.0, 1.5, t + ns).v_model < 1.2 * base.v_model
+    feed(140.0, 40, 15.0, 0.7)
+    later = model.figures(None, None, None, None, 1.0, 1.5, int(240 * ns))  # a minute without fixes
+    assert later.v_model < 1.1 * base.v_model
+    outage = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    for k in range(20):  # the first fixes after an outage: the filter is 15 m off, and its variance says so
+        outage.observe(k * ns, base, [0.0, 0.0, 15.0], [0.5, 0.5, 300.0])
+    assert outage.figures(None, None, None, None, 1.0, 1.5, 20 * ns).v_model == pytest.approx(base.v_model)
+    unlearnt = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=False)
+    unlearnt.observe(0, base, [0.0, 0.0, 15.0], [0.5, 0.5, 0.7])
+    assert unlearnt.figures(None, None, None, None, 1.0, 1.5, ns).v_model == base.v_model
+
+
 @pytest.mark.parametrize(("true_scale", "learnt"), [(9.0, 9.0), (4.0, 4.0), (0.25, 1.0), (100.0, 25.0)])
 def test_the_scatter_widens_nominal_figures_and_never_narrows_them(true_scale, learnt):
     rng = np.random.default_rng(1)
