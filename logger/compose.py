@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from logger.config import SIM_SECTIONS, Config, ConfigError
 from logger.recording.records import truth_clock_record
 from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
-from logger.runtime import mount_state
+from logger.runtime import mount_state, tempco_state
 from logger.runtime.daemon import Attachments, Daemon
 from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
 from logger.runtime.navigator import attach_navigator
@@ -116,7 +116,10 @@ def build(cfg: Config, duration_s: float | None,
         "partly simulated" if vehicle else "")
     installation = (mount_state.simulated(vehicle.profile.mounting_rpy_deg) if vehicle is not None and simulated["imu"]
                     else mount_state.BOARD)
-    navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]), installation)
+    imu_installation = (tempco_state.simulated(vehicle.profile.imu, cfg["sim"]["seed"])
+                        if vehicle is not None and simulated["imu"] else mount_state.BOARD)
+    navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]), installation,
+                                 imu_installation)
     daemon = Daemon(cfg, plans, timebase=tb, clock=clock, attachments=attachments, mode=mode)
     if navigator is not None:
         navigator.bind(daemon)

@@ -174,3 +174,40 @@ def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> 
     # The offset estimate at the end is where the die temperature put the chip's.
     true_bg = SynthErrors().gyro_bias[2] + k * (warming(330.0) - warming(0.0))
     assert abs(follows.state.bg[2] - true_bg) < 3.0 * math.sqrt(follows.ekf.p[BG_ID + 2, BG_ID + 2])
+
+
+def test_learnt_coefficients_are_kept_for_the_next_drive_of_the_same_part(tmp_path, caplog) -> None:
+    """What a drive learnt of the part is saved on the chip's axes once it narrowed some coefficient to under half
+    its bound, and is the next start's prior (its sigma doubled), whatever the mounting then; another part, an
+    unreadable file or a drive that learnt nothing leave the configured bounds."""
+    from logger.runtime import tempco_state
+    from logger.runtime.navigator import Navigator
+
+    k = math.radians(0.05)
+    learnt = run(warming, gyro_tempco_rps_degc=(0.0, 0.0, k), duration_s=330.0)
+    k_chip, sigma_chip = learnt.learnt_tempco()
+    bounds = [NavParams(**DATASHEET).accel_bias_tempco] * 3 + [NavParams(**DATASHEET).gyro_bias_tempco] * 3
+    path = tmp_path / "imu_tempco.json"
+    assert not tempco_state.save(path, "board", [0.0] * 6, bounds, bounds) and not path.exists()  # nothing learnt
+    assert tempco_state.save(path, "board", k_chip, sigma_chip, bounds)
+    assert tempco_state.load(path, tempco_state.simulated("phone", 3)) is None  # another part
+    saved = tempco_state.load(path, "board")
+    assert saved is not None and saved[0] == pytest.approx(k_chip) and saved[1] == pytest.approx(
+        [2.0 * s for s in sigma_chip])
+
+    # The next start: the prior is the saved coefficient, applied from the first propagation on.
+    nav = Navigator(NavParams(**DATASHEET), tempco_path=path, imu_installation="board")
+    kz, sz = nav.engine.tempco.coefficients()[0][5], nav.engine.tempco.coefficients()[1][5]
+    assert kz == pytest.approx(k_chip[5]) and sz == pytest.approx(2.0 * sigma_chip[5])
+    assert nav.engine.tempco.applied()[5] == pytest.approx(k_chip[5])
+    assert math.sqrt(nav.engine._tempco_var[5]) < math.radians(0.16) / 2.0
+
+    # Turned 90 deg in yaw: the chip's x is the body's y, and what the engine learns comes back on chip axes.
+    turned = NavEngine(NavParams(**DATASHEET, mounting_rpy_deg=(0.0, 0.0, 90.0)))
+    turned.start_tempco_from([0.0] * 3 + [0.001, 0.0, 0.0], [1e-4] * 6)
+    body_k = turned.tempco.coefficients()[0]
+    assert body_k[4] == pytest.approx(0.001) and abs(body_k[3]) < 1e-12
+    assert turned.learnt_tempco()[0][3:] == pytest.approx([0.001, 0.0, 0.0], abs=1e-12)
+
+    path.write_text("{not json")
+    assert tempco_state.load(path, "board") is None and "ignoring the saved IMU temperature" in caplog.text

@@ -155,6 +155,7 @@ class NavEngine:
         self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3  # what the covariance covers
         self._tempco_at = math.nan  # the smoothed die temperature the offsets were last moved to
         self._tempco_moved = (0.0, 0.0, 0.0)  # how far that moved the gyro's offsets since the learner started
+        self._tempco_saved: tuple[list[float], list[float]] | None = None  # an earlier drive's, chip axes
         # The offsets' walks at the chip's grade (the configured ones scaled by the noise measured), without the
         # wander read from the estimates (OffsetWander), which holds the temperature's drift the learner models.
         self._grade_walk = (p.accel_bias_walk, p.gyro_bias_walk)
@@ -501,12 +502,31 @@ class NavEngine:
             self._follow_imu_noise()
 
     def _restart_tempco(self) -> None:
-        """New offsets or new axes: the coefficients are learnt again, from the configured bounds."""
-        p = self.params
+        """New offsets or new axes: the coefficients are learnt again, from the configured bounds or from what an
+        earlier drive learnt of this part (:meth:`start_tempco_from`), turned onto the body axes in use."""
         self.tempco.restart()
-        self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3
+        saved = self._tempco_saved
+        if saved is not None:
+            k, sigma = saved
+            m = self._mount_m
+            self.tempco.set_prior([*(m @ np.array(k[:3])).tolist(), *(m @ np.array(k[3:])).tolist()],
+                                  _turned_sigmas(m, sigma))
+        self._tempco_var = [r * r for r in self.tempco.residual_sigma()]
         self._tempco_at = self.thermal.smoothed
         self._tempco_moved = (0.0, 0.0, 0.0)
+
+    def start_tempco_from(self, k_chip: list[float], sigma_chip: list[float]) -> None:
+        """Coefficients (accelerometer x y z in m/s^2/degC, gyro x y z in rad/s/degC, the chip's axes) and their
+        sigmas that an earlier drive learnt of this part: the learner's prior from now on."""
+        self._tempco_saved = (list(k_chip), list(sigma_chip))
+        self._restart_tempco()
+
+    def learnt_tempco(self) -> tuple[list[float], list[float]]:
+        """The coefficients as learnt so far and their sigmas, on the chip's axes (what :meth:`start_tempco_from`
+        takes at the next start, whatever the mounting then)."""
+        k, sigma = self.tempco.coefficients()
+        mt = self._mount_m.T
+        return ([*(mt @ np.array(k[:3])).tolist(), *(mt @ np.array(k[3:])).tolist()], _turned_sigmas(mt, sigma))
 
     def _follow_temperature(self) -> None:
         """The offsets against the die temperature (thermal.py): the estimates go to the learner while fixes go
@@ -881,3 +901,10 @@ class NavEngine:
         roll, pitch, yaw = euler_from_dcm(s.dcm())
         return Solution(self._t_last or 0, self._t_mono_last, s.lat, s.lon, s.h, (s.vn, s.ve, s.vd),
                         (roll, pitch, yaw), self.sigma, f"ins {self.mode}-state")
+
+
+def _turned_sigmas(m: np.ndarray, sigma: list[float]) -> list[float]:
+    """Per-axis sigmas of the accelerometer's and the gyro's three coefficients turned by ``m`` (independent
+    axes: each new axis's variance is the sum of the old ones' weighted by the squared direction cosines)."""
+    m2 = m * m
+    return [*np.sqrt(m2 @ np.square(sigma[:3])).tolist(), *np.sqrt(m2 @ np.square(sigma[3:])).tolist()]

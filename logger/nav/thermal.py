@@ -140,13 +140,22 @@ class TempcoLearner:
     seen the bound stands, and the posterior narrows only as far as the drive's range and the estimates' quality
     allow."""
 
-    __slots__ = ("_fit", "_next_s", "_prior_var", "_samples")
+    __slots__ = ("_bound_var", "_fit", "_next_s", "_prior_mean", "_prior_var", "_samples")
 
-    def __init__(self, prior_sigma: Sequence[float]) -> None:
-        self._prior_var = [s * s for s in prior_sigma]
+    def __init__(self, prior_sigma: Sequence[float], prior_mean: Sequence[float] | None = None) -> None:
+        self._bound_var = [s * s for s in prior_sigma]  # the configured bound: never more uncertain than that
+        self._prior_var = list(self._bound_var)
+        self._prior_mean = [0.0] * len(prior_sigma) if prior_mean is None else list(prior_mean)
         self._samples: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
         self._next_s = -math.inf
         self._fit: tuple[list[float], list[float]] | None = None
+
+    def set_prior(self, mean: Sequence[float], sigma: Sequence[float]) -> None:
+        """Start from what an earlier drive learnt of this part (its coefficients are the part's, not the
+        drive's), each sigma no larger than the configured bound."""
+        self._prior_mean = list(mean)
+        self._prior_var = [min(s * s, b) for s, b in zip(sigma, self._bound_var, strict=True)]
+        self._fit = None
 
     def restart(self) -> None:
         """New offsets or new axes (a restart, a remount): the estimates so far no longer line up with the next."""
@@ -156,11 +165,14 @@ class TempcoLearner:
 
     def turn(self, d: np.ndarray) -> None:
         """The body axes turned by ``d`` (new from old; a refined mounting): the estimates so far turn with them,
-        each axis keeping the larger of the variances it mixes."""
+        each axis keeping the larger of the variances it mixes, and so does the prior."""
         for i, (temp, off, err) in enumerate(self._samples):
             ba, bg = d @ np.array(off[:3]), d @ np.array(off[3:])
             va, vg = max(err[:3]), max(err[3:])
             self._samples[i] = (temp, (*ba.tolist(), *bg.tolist()), (va,) * 3 + (vg,) * 3)
+        m, d2, pv = self._prior_mean, d * d, self._prior_var
+        self._prior_mean = [*(d @ np.array(m[:3])).tolist(), *(d @ np.array(m[3:])).tolist()]
+        self._prior_var = [*(d2 @ np.array(pv[:3])).tolist(), *(d2 @ np.array(pv[3:])).tolist()]
         self._fit = None
 
     def add(self, t_s: float, temp_degc: float, offsets: Sequence[float], variances: Sequence[float],
@@ -183,9 +195,8 @@ class TempcoLearner:
         return self._fit
 
     def _solve(self) -> tuple[list[float], list[float]]:
-        n_axes = len(self._prior_var)
         if len(self._samples) < 2:
-            return [0.0] * n_axes, [math.sqrt(v) for v in self._prior_var]
+            return list(self._prior_mean), [math.sqrt(v) for v in self._prior_var]
         temp = np.array([s[0] for s in self._samples])
         b = np.array([s[1] for s in self._samples])
         # The filter's estimates a few samples apart share most of their error: each counts for the share of an
@@ -194,10 +205,11 @@ class TempcoLearner:
         sw = w.sum(axis=0)
         dt = temp[:, None] - (w * temp[:, None]).sum(axis=0) / sw
         db = b - (w * b).sum(axis=0) / sw
-        prior = np.array(self._prior_var)
-        with np.errstate(divide="ignore"):
-            precision = (w * dt * dt).sum(axis=0) + np.where(prior > 0.0, 1.0 / prior, np.inf)
-        k = np.where(np.isfinite(precision), (w * dt * db).sum(axis=0) / precision, 0.0)
+        prior, mean = np.array(self._prior_var), np.array(self._prior_mean)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            prior_info = np.where(prior > 0.0, 1.0 / prior, np.inf)
+            precision = (w * dt * dt).sum(axis=0) + prior_info
+            k = np.where(np.isfinite(precision), ((w * dt * db).sum(axis=0) + mean * prior_info) / precision, mean)
         sigma = np.where(np.isfinite(precision), 1.0 / np.sqrt(precision), 0.0)
         return k.tolist(), sigma.tolist()
 
@@ -210,5 +222,5 @@ class TempcoLearner:
         """Per axis, the coefficient the covariance must still cover: sigma where k is applied, else
         sqrt(k^2 + sigma^2), never above the prior bound."""
         k, sigma = self.coefficients()
-        return [min(math.sqrt(sj * sj + (0.0 if abs(kj) > SIGNIFICANT * sj else kj * kj)), math.sqrt(pv))
-                for kj, sj, pv in zip(k, sigma, self._prior_var, strict=True)]
+        return [min(math.sqrt(sj * sj + (0.0 if abs(kj) > SIGNIFICANT * sj else kj * kj)), math.sqrt(bv))
+                for kj, sj, bv in zip(k, sigma, self._bound_var, strict=True)]

@@ -32,7 +32,7 @@ from logger.recording.records import (
     nav_state_record,
 )
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
-from logger.runtime import mount_state
+from logger.runtime import mount_state, tempco_state
 from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import GAP_PERIODS, Reading
 
@@ -57,7 +57,8 @@ class Navigator:
 
     def __init__(self, params: NavParams, publish: Callable[[Reading], None] | None = None,
                  monotonic_ns: Callable[[], int] = time.monotonic_ns, mount_path: Path | None = None,
-                 installation: str = mount_state.BOARD) -> None:
+                 installation: str = mount_state.BOARD, tempco_path: Path | None = None,
+                 imu_installation: str = mount_state.BOARD) -> None:
         # The mounting the last drive settled on is this one's first guess (mount_state.py).
         self.configured_mount = tuple(float(a) for a in params.mounting_rpy_deg)
         self.mount_path = mount_path if params.mount_align else None
@@ -67,6 +68,11 @@ class Navigator:
         params = self.params
         self._next_mount_save_ns = 0
         self.engine = NavEngine(params)
+        # The IMU offsets' temperature coefficients earlier drives learnt of this part (tempco_state.py).
+        self.tempco_path, self.imu_installation = tempco_path, imu_installation
+        self._tempco_saved = tempco_state.load(tempco_path, imu_installation) if tempco_path else None
+        if self._tempco_saved is not None:
+            self.engine.start_tempco_from(*self._tempco_saved)
         self._feed = nav_feeder(self.engine)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
@@ -125,10 +131,15 @@ class Navigator:
             self._save_mount()
 
     def _save_mount(self) -> None:
-        """Keep a settled mount alignment for the next start (called with the filter's lock held)."""
+        """Keep a settled mount alignment and learnt temperature coefficients for the next start (called with the
+        filter's lock held)."""
         al = self.engine.alignment
         if self.mount_path is not None and al is not None:
             mount_state.save(self.mount_path, self.configured_mount, self.installation, al.estimate())
+        if self.tempco_path is not None and self.engine.ekf is not None:
+            p = self.params
+            tempco_state.save(self.tempco_path, self.imu_installation, *self.engine.learnt_tempco(),
+                              [p.accel_bias_tempco] * 3 + [p.gyro_bias_tempco] * 3)
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
@@ -145,6 +156,8 @@ class Navigator:
                 self.error = f"{type(exc).__name__}: {exc}"
                 with self._lock:
                     self.engine = NavEngine(self.params)
+                    if self._tempco_saved is not None:
+                        self.engine.start_tempco_from(*self._tempco_saved)
                     self._feed = nav_feeder(self.engine)
             self.cpu_s = time.thread_time() - cpu0
 
@@ -247,14 +260,18 @@ class Navigator:
 
 
 def attach_navigator(section: dict[str, Any], attachments: Attachments, state_dir: Path | None = None,
-                     installation: str = mount_state.BOARD) -> Navigator | None:
+                     installation: str = mount_state.BOARD,
+                     imu_installation: str = mount_state.BOARD) -> Navigator | None:
     """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
     to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists. The mount
-    alignment is kept in ``state_dir`` from one drive to the next, for the same ``installation``."""
+    alignment is kept in ``state_dir`` from one drive to the next, for the same ``installation``, and the IMU's
+    temperature coefficients for the same ``imu_installation`` (the part)."""
     if not section.get("enabled", True):
         return None
     nav = Navigator(NavParams.from_config(section),
-                    mount_path=state_dir / "mount.json" if state_dir is not None else None, installation=installation)
+                    mount_path=state_dir / "mount.json" if state_dir is not None else None, installation=installation,
+                    tempco_path=state_dir / "imu_tempco.json" if state_dir is not None else None,
+                    imu_installation=imu_installation)
     attachments.taps.append(nav)
     attachments.sections["nav"] = nav.section
     attachments.close.append(nav.stop)

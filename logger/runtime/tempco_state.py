@@ -1,0 +1,72 @@
+"""The IMU offsets' temperature coefficients kept from one drive to the next, like the mount alignment.
+
+A coefficient is the part's, not the drive's (a phone's or an automotive receiver's over-temperature gyro
+calibration is kept the same way): what a drive learnt of it (:class:`logger.nav.thermal.TempcoLearner`) is the
+next start's prior, so the first minutes' warming, which teach little, start from what earlier drives showed.
+Kept on the chip's axes, so a new mounting turns it; only for the same installation (a real IMU, or a simulated
+part of given profile and seed: simulated drives with other profiles share a state folder), and only once a
+drive has narrowed some coefficient to under half its configured bound. The saved sigma is doubled on loading:
+a drive's posterior counts its estimates as partly independent, and a part ages.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+LEARNT_SHARE = 0.5  # saved once some coefficient's sigma is under this share of its configured bound
+LOAD_WIDENING = 2.0  # the saved sigma times this is the next start's prior
+
+
+def simulated(imu: str, seed: int) -> str:
+    """The installation of a simulated IMU: its profile and the seed its part was drawn with."""
+    return f"simulated {imu} IMU, seed {seed}"
+
+
+def load(path: Path, installation: str) -> tuple[list[float], list[float]] | None:
+    """The saved coefficients and sigmas (accelerometer x y z in m/s^2/degC, gyro x y z in rad/s/degC, chip
+    axes), the sigmas widened by LOAD_WIDENING, when saved for the same installation; None otherwise."""
+    if not path.exists():
+        return None
+    try:
+        st = json.loads(path.read_text())
+        k = [float(v) for v in st["k_chip"]]
+        sigma = [float(v) * LOAD_WIDENING for v in st["sigma_chip"]]
+        saved_on = str(st.get("installation", ""))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        log.warning("ignoring the saved IMU temperature coefficients %s: %s", path, exc)
+        return None
+    if saved_on != installation:
+        return None  # another part: says nothing of this one
+    if len(k) != 6 or len(sigma) != 6 or not all(math.isfinite(v) for v in (*k, *sigma)) or min(sigma) < 0.0:
+        log.warning("ignoring the saved IMU temperature coefficients %s: not six finite coefficients and sigmas",
+                    path)
+        return None
+    log.info("starting from the IMU temperature coefficients of earlier drives: gyro %s deg/s/degC",
+             " / ".join(f"{math.degrees(v):.3f}" for v in k[3:]))
+    return k, sigma
+
+
+def save(path: Path, installation: str, k_chip: list[float], sigma_chip: list[float],
+         bounds: list[float]) -> bool:
+    """Keep coefficients a drive has learnt (some sigma under LEARNT_SHARE of its bound ``bounds``); written to a
+    temporary file and renamed, so a power cut leaves the old one. Returns whether it was written."""
+    if not any(s < LEARNT_SHARE * b for s, b in zip(sigma_chip, bounds, strict=True) if b > 0.0):
+        return False
+    state = {"installation": installation, "k_chip": list(k_chip), "sigma_chip": list(sigma_chip),
+             "units": "m/s^2/degC (accelerometer x y z), rad/s/degC (gyro x y z), chip axes",
+             "saved_unix_s": round(time.time())}
+    tmp = path.with_suffix(".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(state))
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("cannot save the IMU temperature coefficients to %s: %s", path, exc.strerror or exc)
+        return False
+    return True
