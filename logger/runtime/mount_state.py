@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from pathlib import Path
 
 from logger.nav.mounting import SETTLED, MountEstimate
+from logger.runtime.state_file import save_json
 
 log = logging.getLogger(__name__)
 SAVE_INTERVAL_S = 60.0
@@ -57,10 +57,4 @@ def save(path: Path, configured: tuple[float, float, float], installation: str, 
         return
     state = {"installation": installation, "configured_rpy_deg": list(configured), "rpy_deg": list(est.rpy_deg),
              "sigma_deg": list(est.sigma_deg), "windows": est.windows, "saved_unix_s": round(time.time())}
-    tmp = path.with_suffix(".tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(state))
-        os.replace(tmp, path)
-    except OSError as exc:
-        log.warning("cannot save the mount alignment to %s: %s", path, exc.strerror or exc)
+    save_json(path, state, "the mount alignment")

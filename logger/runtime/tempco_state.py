@@ -14,9 +14,10 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from pathlib import Path
+
+from logger.runtime.state_file import save_json
 
 log = logging.getLogger(__name__)
 LEARNT_SHARE = 0.5  # saved once some coefficient's sigma is under this share of its configured bound
@@ -54,19 +55,11 @@ def load(path: Path, installation: str) -> tuple[list[float], list[float]] | Non
 
 def save(path: Path, installation: str, k_chip: list[float], sigma_chip: list[float],
          bounds: list[float]) -> bool:
-    """Keep coefficients a drive has learnt (some sigma under LEARNT_SHARE of its bound ``bounds``); written to a
-    temporary file and renamed, so a power cut leaves the old one. Returns whether it was written."""
+    """Keep coefficients a drive has learnt (some sigma under LEARNT_SHARE of its bound ``bounds``), written whole
+    or not at all. Returns whether it was written."""
     if not any(s < LEARNT_SHARE * b for s, b in zip(sigma_chip, bounds, strict=True) if b > 0.0):
         return False
     state = {"installation": installation, "k_chip": list(k_chip), "sigma_chip": list(sigma_chip),
              "units": "m/s^2/degC (accelerometer x y z), rad/s/degC (gyro x y z), chip axes",
              "saved_unix_s": round(time.time())}
-    tmp = path.with_suffix(".tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(state))
-        os.replace(tmp, path)
-    except OSError as exc:
-        log.warning("cannot save the IMU temperature coefficients to %s: %s", path, exc.strerror or exc)
-        return False
-    return True
+    return save_json(path, state, "the IMU temperature coefficients")
