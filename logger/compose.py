@@ -117,7 +117,8 @@ def build(cfg: Config, duration_s: float | None,
     installation = (mount_state.simulated(vehicle.profile.mounting_rpy_deg) if vehicle is not None and simulated["imu"]
                     else mount_state.BOARD)
     imu_installation = (tempco_state.simulated(vehicle.profile.imu, cfg["sim"]["seed"])
-                        if vehicle is not None and simulated["imu"] else mount_state.BOARD)
+                        if vehicle is not None and simulated["imu"]
+                        else tempco_state.board(cfg["imu"]["bus"], cfg["imu"]["address"]))
     navigator = attach_navigator(cfg["nav"], attachments, Path(cfg["logger"]["state_dir"]), installation,
                                  imu_installation)
     daemon = Daemon(cfg, plans, timebase=tb, clock=clock, attachments=attachments, mode=mode)

@@ -189,6 +189,17 @@ def test_guessed_heights_that_keep_one_offset_count_it_as_variance_and_stop_when
     unlearnt = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=False)
     unlearnt.observe(0, base, [0.0, 0.0, 15.0], [0.5, 0.5, 0.7])
     assert unlearnt.figures(None, None, None, None, 1.0, 1.5, ns).v_model == base.v_model
+    # A receiver that gives its own figures is never widened: neither learnt from nor added to.
+    own = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    for k in range(40):
+        own.observe(k * ns, base, [0.0, 0.0, 15.0], [0.5, 0.5, 0.7])  # even after guessed fixes showed an offset
+    given = own.figures(0.5, 0.9, 0.05, 1.5, 1.0, 1.5, 41 * ns)
+    assert (given.source, given.h_model, given.v_model, given.scale) == (RECEIVER, 0.5, 0.9, (1.0, 1.0))
+    # A 2D fix has no height of its own: it does not move the vertical mean.
+    flat = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    for k in range(40):
+        flat.observe(k * ns, base, [0.0, 30.0], [0.5, 0.5])
+    assert flat.figures(None, None, None, None, 1.0, 1.5, 41 * ns).v_model == base.v_model
 
 
 @pytest.mark.parametrize(("true_scale", "learnt"), [(9.0, 9.0), (4.0, 4.0), (0.25, 1.0), (100.0, 25.0)])

@@ -524,7 +524,7 @@ class NavEngine:
     def learnt_tempco(self) -> tuple[list[float], list[float]]:
         """The coefficients as learnt so far and their sigmas, on the chip's axes (what :meth:`start_tempco_from`
         takes at the next start, whatever the mounting then)."""
-        k, sigma = self.tempco.coefficients()
+        k, sigma = self.tempco.proven()
         mt = self._mount_m.T
         return ([*(mt @ np.array(k[:3])).tolist(), *(mt @ np.array(k[3:])).tolist()], _turned_sigmas(mt, sigma))
 
@@ -537,10 +537,12 @@ class NavEngine:
         if s is None or ekf is None or temp - temp != 0.0:
             return
         t = self._t_last or 0
-        pd = ekf.p.diagonal()
-        wa, wg = self._grade_walk
-        self.tempco.add(t / NS, temp, (*s.ba, *s.bg), pd[BA_ID:BG_ID + 3].tolist(), (wa * wa,) * 3 + (wg * wg,) * 3,
-                        0 < t - self.last_readings.pos_ok[0] < 3 * NS)
+        if t / NS >= self.tempco.due_s and 0 < t - self.last_readings.pos_ok[0] < 3 * NS:  # a sample due, aided
+            wa, wg = self._grade_walk
+            nz = self.noise
+            self.tempco.add(t / NS, temp, (*s.ba, *s.bg), ekf.p.diagonal()[BA_ID:BG_ID + 3].tolist(),
+                            (wa * wa,) * 3 + (wg * wg,) * 3, True,
+                            (nz.accel_bias_walk**2,) * 3 + (nz.gyro_bias_walk**2,) * 3)
         k = self.tempco.applied()
         d = temp - self._tempco_at
         if d - d == 0.0 and d != 0.0 and any(k):
@@ -791,6 +793,7 @@ class NavEngine:
         self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, fix.sigma[2] ** 2,
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
         self.reopen_attitude_and_offsets()
+        self._restart_tempco()  # the offsets it estimated while losing itself teach nothing of the temperature
         self.counters.resets += 1
         # Refusals judged against the lost solution say nothing of the new one.
         self.position_evidence.run.clear()

@@ -240,6 +240,7 @@ class AccuracyModel:
         self._offset = [0.0, 0.0, 0.0]  # running mean of the guessed fixes' innovations N, E, D (m)
         self._offset_p = [0.0, 0.0, 0.0]  # ... and of the filter's variance they were taken against
         self._offset_t: int | None = None
+        self._offset_seen_s = 0.0  # drive time the running mean spans since it (re)started
 
     def figures(self, h_acc: float | None, v_acc: float | None, s_acc: float | None,
                 pdop: float | None, hdop: float | None = None, vdop: float | None = None,
@@ -272,11 +273,12 @@ class AccuracyModel:
         the fixes share, and it counts as variance on top of the DOP's. Noise alone leaves the mean small against
         the DOP figure (a fifth of it at 1 Hz), so an open sky's fixes keep their weight; the excess fades with
         the mean once the fixes agree with the filter again, and with time while none come."""
-        if self._offset_t is None:
-            return 0.0, 0.0, 0.0
+        if self._offset_t is None or self._offset_seen_s < BIAS_TAU_S:
+            return 0.0, 0.0, 0.0  # a mean of a few innovations is one innovation's noise, not an offset
         fade = math.exp(-max(0.0, (t_ns - self._offset_t) / 1e9) / BIAS_TAU_S)
         m, pv = self._offset, self._offset_p
-        return tuple(max(0.0, (fade * m[i]) ** 2 - pv[i]) for i in range(3))  # type: ignore[return-value]
+        return (max(0.0, (fade * m[0]) ** 2 - pv[0]), max(0.0, (fade * m[1]) ** 2 - pv[1]),
+                max(0.0, (fade * m[2]) ** 2 - pv[2]))
 
     def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
         """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
@@ -285,10 +287,15 @@ class AccuracyModel:
         rh = figures.h_model**2 / 2.0
         rv = figures.v_model**2
         self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)])
+        if len(innovation) < 3:
+            return  # a 2D fix has no height of its own: the vertical mean waits for the next 3D one
         t0 = self._offset_t
         dt = 0.0 if t0 is None else max(0.0, (t_ns - t0) / 1e9)
-        a = 1.0 if t0 is None else 1.0 - math.exp(-dt / BIAS_TAU_S)
+        if t0 is None or dt > BIAS_TAU_S:
+            self._offset_seen_s = 0.0  # after a gap the mean starts again, and is used once it spans BIAS_TAU_S
+        a = 1.0 if self._offset_seen_s == 0.0 else 1.0 - math.exp(-dt / BIAS_TAU_S)
+        self._offset_seen_s += dt
         self._offset_t = t_ns
-        for i in range(len(innovation)):
+        for i in range(3):
             self._offset[i] += a * (innovation[i] - self._offset[i])
             self._offset_p[i] += a * (p_diag[i] - self._offset_p[i])

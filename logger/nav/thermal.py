@@ -3,9 +3,9 @@
 A MEMS offset follows the die temperature through a coefficient k that is fixed for the part but unknown to the
 filter (the MPU-6050 datasheet bounds it only as a variation over the operating range). That is not a random
 walk: warming by D moves the offset by k D, with a variance k^2 D^2 that grows with the square of the excursion,
-and cooling back undoes it. The filter carries no state for k (the drive rarely sweeps enough temperature to
-learn it), so the covariance must instead cover, over any interval, the square of what the offset can have moved
-in it. :class:`TemperatureSpan` turns the smoothed die temperature into that variance, in degC^2 per unit k^2:
+and cooling back undoes it. The filter carries no state for k (learnt beside it, below, where the drive shows
+it), so the covariance must cover, over any interval, the square of what the offset can have moved in it.
+:class:`TemperatureSpan` turns the smoothed die temperature into that variance, in degC^2 per unit k^2:
 
 - a step d that widens the range R of temperatures seen since the offsets were calibrated adds
   d (2 R_after - d) = R_after^2 - R_before^2, so a steady warming by D adds exactly D^2 (k^2 D^2 in all);
@@ -126,6 +126,8 @@ LEARN_EVERY_S = 30.0  # the offset estimates are sampled this often while aided 
 WANDER_MEMORY_S = 120.0  # the offsets' own wander over this long counts as each sample's error beside its sigma
 LEARN_KEPT = 240  # samples kept: the last two hours
 SIGNIFICANT = 2.0  # a coefficient this many sigmas from zero moves the offsets with the temperature
+PRIOR_FLOOR = 0.05  # an earlier drive's sigma is taken at no less than this share of the configured bound
+MAX_RHO = 0.95  # the residuals' lag-one correlation counted at most (a factor of 39 on the data's variance)
 
 
 class TempcoLearner:
@@ -135,27 +137,37 @@ class TempcoLearner:
     Per axis a weighted regression, offset = c + k (T - T_mean), each sample weighted by the inverse of its
     error: the filter's variance of that offset plus the offset's wander over ``WANDER_MEMORY_S``; and since
     estimates minutes apart share most of their error (the filter's memory, the offset's wander), each counts
-    for LEARN_EVERY_S / WANDER_MEMORY_S of an independent one. The
-    intercept is free; k has the configured bound as its prior sigma around zero, so with no temperature range
-    seen the bound stands, and the posterior narrows only as far as the drive's range and the estimates' quality
-    allow."""
+    for LEARN_EVERY_S / WANDER_MEMORY_S of an independent one. Where the estimates scatter about the line more
+    than those errors say (an offset wandering faster than the chip's grade, which a warm-up's monotonic
+    temperature would otherwise pass off as a coefficient), the data's variance is scaled by their reduced
+    chi-square. The intercept is free; k's prior is the configured bound around zero, or what an earlier drive
+    learnt of the part (:meth:`set_prior`), so with no temperature range seen the prior stands, and the
+    posterior narrows only as far as the drive's range and the estimates' quality allow. An axis whose bound is
+    0 is off: no coefficient, whatever the prior."""
 
     __slots__ = ("_bound_var", "_fit", "_next_s", "_prior_mean", "_prior_var", "_samples")
+    _fit: tuple[list[float], ...] | None
 
     def __init__(self, prior_sigma: Sequence[float], prior_mean: Sequence[float] | None = None) -> None:
         self._bound_var = [s * s for s in prior_sigma]  # the configured bound: never more uncertain than that
         self._prior_var = list(self._bound_var)
         self._prior_mean = [0.0] * len(prior_sigma) if prior_mean is None else list(prior_mean)
-        self._samples: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
+        self._samples: list[tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]] = []
         self._next_s = -math.inf
-        self._fit: tuple[list[float], list[float]] | None = None
+        self._fit = None
 
     def set_prior(self, mean: Sequence[float], sigma: Sequence[float]) -> None:
         """Start from what an earlier drive learnt of this part (its coefficients are the part's, not the
-        drive's), each sigma no larger than the configured bound."""
-        self._prior_mean = list(mean)
-        self._prior_var = [min(s * s, b) for s, b in zip(sigma, self._bound_var, strict=True)]
+        drive's): each sigma between PRIOR_FLOOR of the configured bound and the bound; an axis whose bound is
+        0 stays off."""
+        self._prior_mean = [m if b > 0.0 else 0.0 for m, b in zip(mean, self._bound_var, strict=True)]
+        self._prior_var = [min(max(s * s, PRIOR_FLOOR**2 * b), b) for s, b in zip(sigma, self._bound_var, strict=True)]
         self._fit = None
+
+    @property
+    def due_s(self) -> float:
+        """Drive time (s) from which the next sample is taken."""
+        return self._next_s
 
     def restart(self) -> None:
         """New offsets or new axes (a restart, a remount): the estimates so far no longer line up with the next."""
@@ -165,62 +177,107 @@ class TempcoLearner:
 
     def turn(self, d: np.ndarray) -> None:
         """The body axes turned by ``d`` (new from old; a refined mounting): the estimates so far turn with them,
-        each axis keeping the larger of the variances it mixes, and so does the prior."""
-        for i, (temp, off, err) in enumerate(self._samples):
+        each sensor's axes taking the largest of its three variances; the prior turns too, its variances weighted
+        by the squared direction cosines (correlations dropped: a turn and its inverse widen an unequal pair)."""
+        for i, (temp, off, err, err_drive) in enumerate(self._samples):
             ba, bg = d @ np.array(off[:3]), d @ np.array(off[3:])
-            va, vg = max(err[:3]), max(err[3:])
-            self._samples[i] = (temp, (*ba.tolist(), *bg.tolist()), (va,) * 3 + (vg,) * 3)
+            self._samples[i] = (temp, (*ba.tolist(), *bg.tolist()), (max(err[:3]),) * 3 + (max(err[3:]),) * 3,
+                                (max(err_drive[:3]),) * 3 + (max(err_drive[3:]),) * 3)
         m, d2, pv = self._prior_mean, d * d, self._prior_var
         self._prior_mean = [*(d @ np.array(m[:3])).tolist(), *(d @ np.array(m[3:])).tolist()]
         self._prior_var = [*(d2 @ np.array(pv[:3])).tolist(), *(d2 @ np.array(pv[3:])).tolist()]
         self._fit = None
 
     def add(self, t_s: float, temp_degc: float, offsets: Sequence[float], variances: Sequence[float],
-            wander_var_per_s: Sequence[float], aided: bool) -> None:
+            wander_var_per_s: Sequence[float], aided: bool,
+            drive_wander_var_per_s: Sequence[float] | None = None) -> None:
         """The filter's offset estimates and their variances at ``t_s``, taken when ``aided`` (fixes going in) and
-        at most every LEARN_EVERY_S; ``wander_var_per_s`` the offsets' random walk squared, per axis."""
+        at most every LEARN_EVERY_S; ``wander_var_per_s`` the offsets' random walk squared at the chip's grade,
+        ``drive_wander_var_per_s`` the one the drive showed (the filter's own, when larger; default the grade's)."""
         if not aided or t_s < self._next_s or temp_degc - temp_degc != 0.0:
             return
         self._next_s = t_s + LEARN_EVERY_S
+        drive = wander_var_per_s if drive_wander_var_per_s is None else drive_wander_var_per_s
         err = tuple(v + w * WANDER_MEMORY_S for v, w in zip(variances, wander_var_per_s, strict=True))
-        self._samples.append((temp_degc, tuple(offsets), err))
+        err_drive = tuple(v + max(w, d) * WANDER_MEMORY_S
+                          for v, w, d in zip(variances, wander_var_per_s, drive, strict=True))
+        self._samples.append((temp_degc, tuple(offsets), err, err_drive))
         if len(self._samples) > LEARN_KEPT:
             del self._samples[0]
         self._fit = None
 
     def coefficients(self) -> tuple[list[float], list[float]]:
-        """Posterior mean and sigma of k per axis (prior: 0 and the configured bound)."""
+        """Posterior mean and sigma of k per axis, each estimate's error at the chip's grade: what the covariance
+        is narrowed by."""
+        fit = self._solved()
+        return fit[0], fit[1]
+
+    def proven(self) -> tuple[list[float], list[float]]:
+        """Posterior mean and sigma of k per axis with the offsets' wander as the drive showed it (the filter's
+        walk, when larger than the grade's): what moves the offsets and what is kept for the next drive. A
+        wander the grade does not know would otherwise pass for a coefficient over a monotonic warm-up."""
+        fit = self._solved()
+        return fit[3], fit[4]
+
+    def data_sigma(self) -> list[float]:
+        """Per axis, the sigma of k from this drive's estimates alone (infinite before two), the wander as the
+        drive showed it: what the drive taught."""
+        return self._solved()[5]
+
+    def _solved(self) -> tuple[list[float], ...]:
         if self._fit is None:
-            self._fit = self._solve()
+            self._fit = (*self._solve(2), *self._solve(3))
         return self._fit
 
-    def _solve(self) -> tuple[list[float], list[float]]:
+    def _solve(self, column: int) -> tuple[list[float], list[float], list[float]]:
+        """The posterior with each sample's error from ``column`` of the samples (2: the grade's, 3: the
+        drive's)."""
+        n_axes = len(self._prior_var)
         if len(self._samples) < 2:
-            return list(self._prior_mean), [math.sqrt(v) for v in self._prior_var]
+            return list(self._prior_mean), [math.sqrt(v) for v in self._prior_var], [math.inf] * n_axes
         temp = np.array([s[0] for s in self._samples])
         b = np.array([s[1] for s in self._samples])
-        # The filter's estimates a few samples apart share most of their error: each counts for the share of an
-        # independent one that its interval is of the memory.
-        w = (LEARN_EVERY_S / WANDER_MEMORY_S) / np.array([s[2] for s in self._samples])
+        err = np.array([s[column] for s in self._samples])
+        w = 1.0 / err
         sw = w.sum(axis=0)
         dt = temp[:, None] - (w * temp[:, None]).sum(axis=0) / sw
         db = b - (w * b).sum(axis=0) / sw
+        sxx, sxy = (w * dt * dt).sum(axis=0), (w * dt * db).sum(axis=0)
+        # The filter's estimates a few samples apart share most of their error: each counts for the share of an
+        # independent one that its interval is of the memory. Where they scatter about the line more than their
+        # errors say (reduced chi-square), or their residuals run together longer than that (lag-one
+        # correlation rho: a sum of n such residuals has (1 + rho) / (1 - rho) times the variance of n
+        # independent ones), the data count for correspondingly less.
+        inflation = np.full(n_axes, WANDER_MEMORY_S / LEARN_EVERY_S)
+        n = len(self._samples)
+        if n > 2:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                k_data = np.where(sxx > 0.0, sxy / sxx, 0.0)
+                r = (db - k_data * dt) * np.sqrt(w)
+                rr = (r * r).sum(axis=0)
+                rho = np.where(rr > 0.0, (r[1:] * r[:-1]).sum(axis=0) / rr, 0.0)
+            rho = np.clip(rho, 0.0, MAX_RHO)
+            inflation = np.maximum(1.0, rr / (n - 2)) * np.maximum(inflation, (1.0 + rho) / (1.0 - rho))
+        sxx, sxy = sxx / inflation, sxy / inflation
         prior, mean = np.array(self._prior_var), np.array(self._prior_mean)
         with np.errstate(divide="ignore", invalid="ignore"):
             prior_info = np.where(prior > 0.0, 1.0 / prior, np.inf)
-            precision = (w * dt * dt).sum(axis=0) + prior_info
-            k = np.where(np.isfinite(precision), ((w * dt * db).sum(axis=0) + mean * prior_info) / precision, mean)
+            precision = sxx + prior_info
+            k = np.where(np.isfinite(precision), (sxy + mean * prior_info) / precision, mean)
+            data_sigma = np.where(sxx > 0.0, 1.0 / np.sqrt(sxx), np.inf)
         sigma = np.where(np.isfinite(precision), 1.0 / np.sqrt(precision), 0.0)
-        return k.tolist(), sigma.tolist()
+        return k.tolist(), sigma.tolist(), data_sigma.tolist()
 
     def applied(self) -> list[float]:
-        """The coefficients that move the offsets with the temperature: those beyond SIGNIFICANT sigmas, else 0."""
-        k, sigma = self.coefficients()
+        """The coefficients that move the offsets with the temperature: those proven (:meth:`proven`) beyond
+        SIGNIFICANT sigmas, else 0."""
+        k, sigma = self.proven()
         return [kj if abs(kj) > SIGNIFICANT * sj else 0.0 for kj, sj in zip(k, sigma, strict=True)]
 
     def residual_sigma(self) -> list[float]:
-        """Per axis, the coefficient the covariance must still cover: sigma where k is applied, else
-        sqrt(k^2 + sigma^2), never above the prior bound."""
+        """Per axis, the coefficient the covariance must still cover: the proven sigma where a coefficient is
+        applied, else sqrt(k^2 + sigma^2) at the chip's grade, never above the configured bound."""
         k, sigma = self.coefficients()
-        return [min(math.sqrt(sj * sj + (0.0 if abs(kj) > SIGNIFICANT * sj else kj * kj)), math.sqrt(bv))
-                for kj, sj, bv in zip(k, sigma, self._bound_var, strict=True)]
+        kp, sp = self.proven()
+        return [min(spj if abs(kpj) > SIGNIFICANT * spj else math.sqrt(sj * sj + kj * kj), math.sqrt(bv))
+                for kj, sj, kpj, spj, bv in zip(k, sigma, kp, sp, self._bound_var, strict=True)]

@@ -58,7 +58,7 @@ class Navigator:
     def __init__(self, params: NavParams, publish: Callable[[Reading], None] | None = None,
                  monotonic_ns: Callable[[], int] = time.monotonic_ns, mount_path: Path | None = None,
                  installation: str = mount_state.BOARD, tempco_path: Path | None = None,
-                 imu_installation: str = mount_state.BOARD) -> None:
+                 imu_installation: str = "") -> None:
         # The mounting the last drive settled on is this one's first guess (mount_state.py).
         self.configured_mount = tuple(float(a) for a in params.mounting_rpy_deg)
         self.mount_path = mount_path if params.mount_align else None
@@ -70,7 +70,9 @@ class Navigator:
         self.engine = NavEngine(params)
         # The IMU offsets' temperature coefficients earlier drives learnt of this part (tempco_state.py).
         self.tempco_path, self.imu_installation = tempco_path, imu_installation
-        self._tempco_saved = tempco_state.load(tempco_path, imu_installation) if tempco_path else None
+        self._tempco_bounds = [params.accel_bias_tempco] * 3 + [params.gyro_bias_tempco] * 3
+        self._tempco_saved = (tempco_state.load(tempco_path, imu_installation, self._tempco_bounds) if tempco_path
+                              else None)
         if self._tempco_saved is not None:
             self.engine.start_tempco_from(*self._tempco_saved)
         self._feed = nav_feeder(self.engine)
@@ -137,9 +139,8 @@ class Navigator:
         if self.mount_path is not None and al is not None:
             mount_state.save(self.mount_path, self.configured_mount, self.installation, al.estimate())
         if self.tempco_path is not None and self.engine.ekf is not None:
-            p = self.params
             tempco_state.save(self.tempco_path, self.imu_installation, *self.engine.learnt_tempco(),
-                              [p.accel_bias_tempco] * 3 + [p.gyro_bias_tempco] * 3)
+                              self._tempco_bounds, self.engine.tempco.data_sigma())
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
@@ -260,8 +261,7 @@ class Navigator:
 
 
 def attach_navigator(section: dict[str, Any], attachments: Attachments, state_dir: Path | None = None,
-                     installation: str = mount_state.BOARD,
-                     imu_installation: str = mount_state.BOARD) -> Navigator | None:
+                     installation: str = mount_state.BOARD, imu_installation: str = "") -> Navigator | None:
     """A navigator for the daemon from the ``[nav]`` section, registered as a tap, a status section and a thing
     to stop; ``None`` when the section disables it. Call :meth:`Navigator.bind` once the daemon exists. The mount
     alignment is kept in ``state_dir`` from one drive to the next, for the same ``installation``, and the IMU's

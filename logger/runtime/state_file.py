@@ -12,14 +12,25 @@ log = logging.getLogger(__name__)
 
 
 def save_json(path: Path, state: dict[str, Any], what: str) -> bool:
-    """Write ``state`` as JSON to a temporary file and rename it over ``path``, so a power cut leaves the old one;
-    a failure is a warning naming ``what``, never an error (the drive goes on). Returns whether it was written."""
+    """Write ``state`` as JSON to a temporary file, flushed to the card, and rename it over ``path``, the folder
+    flushed too: a power cut (how a car's logger stops) leaves the old file or the new one, never an empty one.
+    A failure is a warning naming ``what``, never an error (the drive goes on). Returns whether it was
+    written."""
     tmp = path.with_suffix(".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(state))
+        with open(tmp, "w") as f:
+            f.write(json.dumps(state))
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
+        fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
     except OSError as exc:
         log.warning("cannot save %s to %s: %s", what, path, exc.strerror or exc)
+        tmp.unlink(missing_ok=True)
         return False
     return True

@@ -240,6 +240,7 @@ class Mpu6050Model(RegisterChip):
         xg, yg, zg, xa, ya, za = (int(v) for v in self.rng.integers(8, 24, 6))
         self._self_test = bytes((((xa >> 2) << 5) | xg, ((ya >> 2) << 5) | yg, ((za >> 2) << 5) | zg,
                                  ((xa & 3) << 4) | ((ya & 3) << 2) | (za & 3)))
+        self._tempco: np.ndarray | None = None  # the offsets' temperature coefficients, set at the first power-up
         self.power_on_reset()
 
     # ---- power and reset -------------------------------------------------------------------------
@@ -254,9 +255,12 @@ class Mpu6050Model(RegisterChip):
         # without it keeps its random sequence).
         self._gyro_gm = (self.rng.standard_normal(3) * math.radians(e.gyro_bias_gm_dps) if e.gyro_bias_gm_dps
                          else np.zeros(3))
-        # Temperature coefficients, drawn only for a chip that has them (a chip without keeps its random sequence).
+        # Temperature coefficients: the part's, drawn at its first power-up and only for a chip that has them (a
+        # chip without keeps its random sequence). A power cycle restarts the die's warming from the cabin's
+        # temperature at once (a simplification: a die cools over minutes).
         tc = (e.accel_tempco_mg_per_degc * 1e-3 * G0_MPS2, math.radians(e.gyro_tempco_dps_per_degc))
-        self._tempco = (self.rng.standard_normal(6) * np.repeat(tc, 3)) if any(tc) else None
+        if self._tempco is None and any(tc):
+            self._tempco = self.rng.standard_normal(6) * np.repeat(tc, 3)
         self._powered_s = self.clock.now_ns() / 1e9
         self._die_ref: float | None = None  # the die's temperature at the first sample: the turn-on bias's
         self._engine_phase = 0.0
