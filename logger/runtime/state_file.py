@@ -24,13 +24,19 @@ def save_json(path: Path, state: dict[str, Any], what: str) -> bool:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("cannot save %s to %s: %s", what, path, exc.strerror or exc)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass  # what stands in its way is not ours to remove
+        return False
+    try:  # the rename itself to the card; best effort (some file systems refuse a folder's fsync)
         fd = os.open(path.parent, os.O_RDONLY)
         try:
             os.fsync(fd)
         finally:
             os.close(fd)
-    except OSError as exc:
-        log.warning("cannot save %s to %s: %s", what, path, exc.strerror or exc)
-        tmp.unlink(missing_ok=True)
-        return False
+    except OSError:
+        pass
     return True
