@@ -155,7 +155,8 @@ SOURCES_I2C = ("i2c", "sim")
 SCHEMA: dict[str, dict[str, Key]] = {
     "logger": {
         "out_dir": Key(str, "/var/lib/vehicle-logger/drives", _abs_path, "folder for the MCAP files"),
-        "state_dir": Key(str, "/var/lib/vehicle-logger", _abs_path, "saved clock state"),
+        "state_dir": Key(str, "/var/lib/vehicle-logger", _abs_path,
+                         "kept between runs: the clock state, the mount alignment, the IMU temperature coefficients"),
         "status_socket": Key(str, "/run/vehicle-logger/status.sock", _abs_path, "Unix socket of `logger status`"),
     },
     "recorder": _defaults_from(RecorderSettings, {
