@@ -195,6 +195,13 @@ def test_guessed_heights_that_keep_one_offset_count_it_as_variance_and_stop_when
         own.observe(k * ns, base, [0.0, 0.0, 15.0], [0.5, 0.5, 0.7])  # even after guessed fixes showed an offset
     given = own.figures(0.5, 0.9, 0.05, 1.5, 1.0, 1.5, 41 * ns)
     assert (given.source, given.h_model, given.v_model, given.scale) == (RECEIVER, 0.5, 0.9, (1.0, 1.0))
+    # After a minute without fixes, one fix 20 m off is one innovation, not an offset: nothing is added until
+    # five have gone in again.
+    gap = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    for k in range(30):
+        gap.observe(k * ns, base, [0.0, 0.0, 0.0], [0.5, 0.5, 0.7])
+    gap.observe(90 * ns, base, [0.0, 0.0, 20.0], [0.5, 0.5, 0.7])
+    assert gap.figures(None, None, None, None, 1.0, 1.5, 91 * ns).v_model == base.v_model
     # A 2D fix has no height of its own: it does not move the vertical mean.
     flat = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
     for k in range(40):

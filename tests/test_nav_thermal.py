@@ -117,13 +117,15 @@ def learner_on(k_true: np.ndarray, temps: np.ndarray, sigma: float, seed: int = 
 def test_the_learner_finds_a_coefficient_the_temperature_range_shows() -> None:
     k_true = np.array([0.0, 0.01, -0.02, 0.05, -0.08, 0.0])
     learner = learner_on(k_true, np.linspace(20.0, 28.0, 40), sigma=0.02)
-    k, sigma = map(np.array, learner.coefficients())
+    k, sigma = map(np.array, learner.coefficients())  # the levels: quick, what narrows the covariance
     assert np.all(sigma < 0.01) and np.all(np.abs(k - k_true) < 3.0 * sigma), (k, sigma)
+    kp, sp = map(np.array, learner.proven())  # the steps: slower (0.02-0.026 here), what is applied
+    assert np.all(sp > sigma) and np.all(np.abs(kp - k_true) < 3.0 * sp), (kp, sp)
     applied = np.array(learner.applied())
-    assert np.all((applied != 0.0) == (k_true != 0.0))  # the coefficients proven beyond 2 sigma (0.0013 here)
+    assert np.all((applied != 0.0) == (np.abs(k_true) >= 0.05))  # beyond 2 sigma of the steps' fit
     residual = np.array(learner.residual_sigma())
     assert np.all(residual < 0.16)
-    assert np.allclose(residual[applied != 0.0], sigma[applied != 0.0])
+    assert np.allclose(residual[applied != 0.0], sp[applied != 0.0])
 
 
 def test_without_a_temperature_range_the_configured_bound_stands() -> None:
@@ -163,9 +165,9 @@ def warming(t: float) -> float:
 
 def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> None:
     """The synthetic drive with the die warming by 4.7 degC and the gyro's z offset following it at
-    0.05 deg/s/degC: learnt from the aided driving, the coefficient moves the offset with the temperature, and the
-    covariance covers what is left of it instead of the 0.16 deg/s/degC bound."""
-    k = math.radians(0.05)
+    0.15 deg/s/degC (a part at the data sheet's bound): learnt from the aided driving, the coefficient moves the
+    offset with the temperature, and the covariance covers what is left of it instead of the bound."""
+    k = math.radians(0.15)
     seen: list[tuple[float, float]] = []  # what the wander reader got, and the offset less what the learner moved
 
     def spy(engine: NavEngine) -> None:
@@ -178,14 +180,16 @@ def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> 
         engine.offset_wander = Seen()
 
     follows = run(warming, gyro_tempco_rps_degc=(0.0, 0.0, k), duration_s=330.0, setup=spy)
+    # The levels' fit is quick and optimistic (0.165 +- 0.004 here): it only narrows the covariance.
     kz, sz = follows.tempco.coefficients()[0][5], follows.tempco.coefficients()[1][5]
-    assert abs(kz - k) < 3.0 * sz and sz < math.radians(0.03), (math.degrees(kz), math.degrees(sz))
-    assert follows.tempco.applied()[5] != 0.0
-    # It moved the offset by its share of the warming once proven (0.05 x 4.7 degC at most), and that is kept
+    assert abs(kz - k) < 0.2 * k and sz < math.radians(0.03), (math.degrees(kz), math.degrees(sz))
+    kp, sp = follows.tempco.proven()[0][5], follows.tempco.proven()[1][5]
+    assert abs(kp - k) < 3.0 * sp and follows.tempco.applied()[5] == kp
+    assert math.sqrt(follows._tempco_var[5]) == pytest.approx(sp) and sp < math.radians(0.16) / 3.0
+    # It moved the offset by its share of the warming once proven (0.15 x 4.7 degC at most), and that is kept
     # apart from the wander read from the estimates.
-    assert 0.02 < math.degrees(follows._tempco_moved[2]) < 0.05 * (warming(330.0) - warming(0.0))
+    assert 0.1 < math.degrees(follows._tempco_moved[2]) < 0.15 * (warming(330.0) - warming(0.0))
     assert seen and all(a == b for a, b in seen) and seen[-1][0] != follows.state.bg[2]
-    assert math.sqrt(follows._tempco_var[5]) < math.radians(0.16) / 4.0
     # The offset estimate at the end is where the die temperature put the chip's.
     true_bg = SynthErrors().gyro_bias[2] + k * (warming(330.0) - warming(0.0))
     assert abs(follows.state.bg[2] - true_bg) < 3.0 * math.sqrt(follows.ekf.p[BG_ID + 2, BG_ID + 2])
@@ -198,7 +202,7 @@ def test_learnt_coefficients_are_kept_for_the_next_drive_of_the_same_part(tmp_pa
     from logger.runtime import tempco_state
     from logger.runtime.navigator import Navigator
 
-    k = math.radians(0.05)
+    k = math.radians(0.15)
     learnt = run(warming, gyro_tempco_rps_degc=(0.0, 0.0, k), duration_s=330.0)
     k_chip, sigma_chip = learnt.learnt_tempco()
     bounds = [NavParams(**DATASHEET).accel_bias_tempco] * 3 + [NavParams(**DATASHEET).gyro_bias_tempco] * 3
@@ -214,13 +218,11 @@ def test_learnt_coefficients_are_kept_for_the_next_drive_of_the_same_part(tmp_pa
     assert saved is not None and saved[0] == pytest.approx(k_chip) and saved[1] == pytest.approx(
         [2.0 * s for s in sigma_chip])
 
-    # The next start: the prior is the saved coefficient (its sigma at least 5 % of the bound), applied from the
-    # first propagation on.
+    # The next start: the prior is the saved coefficient, its sigma doubled (and at least 5 % of the bound).
     nav = Navigator(NavParams(**DATASHEET), tempco_path=path, imu_installation=board)
-    kz, sz = nav.engine.tempco.coefficients()[0][5], nav.engine.tempco.coefficients()[1][5]
-    assert kz == pytest.approx(k_chip[5]) and sz == pytest.approx(max(2.0 * sigma_chip[5], 0.05 * bounds[5]))
-    assert nav.engine.tempco.applied()[5] == pytest.approx(k_chip[5])
-    assert math.sqrt(nav.engine._tempco_var[5]) < math.radians(0.16) / 2.0
+    for kz, sz in (nav.engine.tempco.coefficients(), nav.engine.tempco.proven()):
+        assert kz[5] == pytest.approx(k_chip[5]) and sz[5] == pytest.approx(max(2 * sigma_chip[5], 0.05 * bounds[5]))
+    assert math.sqrt(nav.engine._tempco_var[5]) <= bounds[5] + 1e-12
     # A bound of 0 turns the term off, whatever was saved.
     off = NavEngine(NavParams(gyro_bias_tempco_dps_degc=0.0, accel_bias_tempco_mg_degc=0.0))
     off.start_tempco_from(*saved)

@@ -794,6 +794,8 @@ class NavEngine:
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
         self.reopen_attitude_and_offsets()
         self._restart_tempco()  # the offsets it estimated while losing itself teach nothing of the temperature
+        if self.offset_wander is not None:
+            self.offset_wander.restart()  # nor of the wander (what the learner had moved is no longer counted)
         self.counters.resets += 1
         # Refusals judged against the lost solution say nothing of the new one.
         self.position_evidence.run.clear()

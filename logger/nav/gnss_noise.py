@@ -120,6 +120,7 @@ LEARN_MIN_S = 30.0  # ... and used once this much has been seen
 LEARN_SCALE = (1.0, 25.0)  # the learnt variance stays between the nominal sigma and 5 times it (see below)
 PDOP_SPLIT = (0.6, 0.8)  # HDOP and VDOP over PDOP for satellites spread over the sky
 BIAS_TAU_S = 10.0  # the guessed fixes' innovations are averaged over this much drive time to see a lasting offset
+BIAS_MIN_FIXES = 5  # ... and their mean used once this many went in since it (re)started
 LEARN_CLIP = 16.0  # an innovation counts for at most 4 sigma of its prediction (one reflection is not scatter)
 
 
@@ -240,7 +241,7 @@ class AccuracyModel:
         self._offset = [0.0, 0.0, 0.0]  # running mean of the guessed fixes' innovations N, E, D (m)
         self._offset_p = [0.0, 0.0, 0.0]  # ... and of the filter's variance they were taken against
         self._offset_t: int | None = None
-        self._offset_seen_s = 0.0  # drive time the running mean spans since it (re)started
+        self._offset_n = 0  # fixes in the running mean since it (re)started
 
     def figures(self, h_acc: float | None, v_acc: float | None, s_acc: float | None,
                 pdop: float | None, hdop: float | None = None, vdop: float | None = None,
@@ -273,7 +274,7 @@ class AccuracyModel:
         the fixes share, and it counts as variance on top of the DOP's. Noise alone leaves the mean small against
         the DOP figure (a fifth of it at 1 Hz), so an open sky's fixes keep their weight; the excess fades with
         the mean once the fixes agree with the filter again, and with time while none come."""
-        if self._offset_t is None or self._offset_seen_s < BIAS_TAU_S:
+        if self._offset_t is None or self._offset_n < BIAS_MIN_FIXES:
             return 0.0, 0.0, 0.0  # a mean of a few innovations is one innovation's noise, not an offset
         fade = math.exp(-max(0.0, (t_ns - self._offset_t) / 1e9) / BIAS_TAU_S)
         m, pv = self._offset, self._offset_p
@@ -292,9 +293,10 @@ class AccuracyModel:
         t0 = self._offset_t
         dt = 0.0 if t0 is None else max(0.0, (t_ns - t0) / 1e9)
         if t0 is None or dt > BIAS_TAU_S:
-            self._offset_seen_s = 0.0  # after a gap the mean starts again, and is used once it spans BIAS_TAU_S
-        a = 1.0 if self._offset_seen_s == 0.0 else 1.0 - math.exp(-dt / BIAS_TAU_S)
-        self._offset_seen_s += dt
+            a, self._offset_n = 1.0, 0  # after a gap the mean starts again, used once BIAS_MIN_FIXES went in
+        else:
+            a = 1.0 - math.exp(-dt / BIAS_TAU_S)
+        self._offset_n += 1
         self._offset_t = t_ns
         for i in range(3):
             self._offset[i] += a * (innovation[i] - self._offset[i])

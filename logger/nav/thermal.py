@@ -123,27 +123,30 @@ class TemperatureSpan:
 
 
 LEARN_EVERY_S = 30.0  # the offset estimates are sampled this often while aided (closer ones repeat each other)
-WANDER_MEMORY_S = 120.0  # the offsets' own wander over this long counts as each sample's error beside its sigma
+WANDER_MEMORY_S = 120.0  # fitting the levels: the walk over this long counts as each sample's error beside its sigma
+MAX_RHO = 0.95  # fitting the levels: the residuals' lag-one correlation counted at most (a factor of 39)
 LEARN_KEPT = 240  # samples kept: the last two hours
 SIGNIFICANT = 2.0  # a coefficient this many sigmas from zero moves the offsets with the temperature
 PRIOR_FLOOR = 0.05  # an earlier drive's sigma is taken at no less than this share of the configured bound
-MAX_RHO = 0.95  # the residuals' lag-one correlation counted at most (a factor of 39 on the data's variance)
 
 
 class TempcoLearner:
     """The offsets' temperature coefficients (accelerometer x y z, gyro x y z), learnt from the filter's own
     offset estimates against the die temperature while it is aided.
 
-    Per axis a weighted regression, offset = c + k (T - T_mean), each sample weighted by the inverse of its
-    error: the filter's variance of that offset plus the offset's wander over ``WANDER_MEMORY_S``; and since
-    estimates minutes apart share most of their error (the filter's memory, the offset's wander), each counts
-    for LEARN_EVERY_S / WANDER_MEMORY_S of an independent one. Where the estimates scatter about the line more
-    than those errors say (an offset wandering faster than the chip's grade, which a warm-up's monotonic
-    temperature would otherwise pass off as a coefficient), the data's variance is scaled by their reduced
-    chi-square. The intercept is free; k's prior is the configured bound around zero, or what an earlier drive
-    learnt of the part (:meth:`set_prior`), so with no temperature range seen the prior stands, and the
-    posterior narrows only as far as the drive's range and the estimates' quality allow. An axis whose bound is
-    0 is off: no coefficient, whatever the prior."""
+    The offset is a random walk (the filter's own model of it) plus k times the die temperature, so from one
+    sample to the next, per axis, d(offset) = k dT + the walk's step, with a variance of q dt (q the walk's
+    density squared) plus the two estimates' variances (an upper bound: the filter's errors a sample apart are
+    much alike). The steps are independent, so k is a weighted regression of the offset's steps on the
+    temperature's, through zero: a drift of the offset that happens to run with a warm-up is a walk the
+    variance expects, not a slope (fitting the levels instead, a pure walk over a 30 min warming passed for a
+    coefficient on 40 % of the axes). Where the steps scatter more than that variance says, the data's variance
+    is scaled by their reduced chi-square. That fit, with the walk the drive showed, is what is applied and
+    kept (:meth:`proven`). The covariance is narrowed by a quicker fit of the levels at the chip grade's walk
+    (:meth:`coefficients`, :meth:`_solve_levels`), which covers k^2 + sigma^2 of what it finds. k's prior is the
+    configured bound around zero, or what an earlier drive learnt of the part (:meth:`set_prior`), so with no
+    temperature change seen the prior stands, and the posterior narrows only as far as the drive's warming and
+    the estimates' quality allow. An axis whose bound is 0 is off: no coefficient, whatever the prior."""
 
     __slots__ = ("_bound_var", "_fit", "_next_s", "_prior_mean", "_prior_var", "_samples")
     _fit: tuple[list[float], ...] | None
@@ -152,7 +155,9 @@ class TempcoLearner:
         self._bound_var = [s * s for s in prior_sigma]  # the configured bound: never more uncertain than that
         self._prior_var = list(self._bound_var)
         self._prior_mean = [0.0] * len(prior_sigma) if prior_mean is None else list(prior_mean)
-        self._samples: list[tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]] = []
+        # (time s, temperature, offsets, their variances, walk density^2 at the grade, and as the drive showed)
+        self._samples: list[tuple[float, float, tuple[float, ...], tuple[float, ...], tuple[float, ...],
+                                  tuple[float, ...]]] = []
         self._next_s = -math.inf
         self._fit = None
 
@@ -179,10 +184,12 @@ class TempcoLearner:
         """The body axes turned by ``d`` (new from old; a refined mounting): the estimates so far turn with them,
         each sensor's axes taking the largest of its three variances; the prior turns too, its variances weighted
         by the squared direction cosines (correlations dropped: a turn and its inverse widen an unequal pair)."""
-        for i, (temp, off, err, err_drive) in enumerate(self._samples):
+        def widest(v: tuple[float, ...]) -> tuple[float, ...]:
+            return (max(v[:3]),) * 3 + (max(v[3:]),) * 3
+
+        for i, (t, temp, off, var, q, q_drive) in enumerate(self._samples):
             ba, bg = d @ np.array(off[:3]), d @ np.array(off[3:])
-            self._samples[i] = (temp, (*ba.tolist(), *bg.tolist()), (max(err[:3]),) * 3 + (max(err[3:]),) * 3,
-                                (max(err_drive[:3]),) * 3 + (max(err_drive[3:]),) * 3)
+            self._samples[i] = (t, temp, (*ba.tolist(), *bg.tolist()), widest(var), widest(q), widest(q_drive))
         m, d2, pv = self._prior_mean, d * d, self._prior_var
         self._prior_mean = [*(d @ np.array(m[:3])).tolist(), *(d @ np.array(m[3:])).tolist()]
         self._prior_var = [*(d2 @ np.array(pv[:3])).tolist(), *(d2 @ np.array(pv[3:])).tolist()]
@@ -198,10 +205,8 @@ class TempcoLearner:
             return
         self._next_s = t_s + LEARN_EVERY_S
         drive = wander_var_per_s if drive_wander_var_per_s is None else drive_wander_var_per_s
-        err = tuple(v + w * WANDER_MEMORY_S for v, w in zip(variances, wander_var_per_s, strict=True))
-        err_drive = tuple(v + max(w, d) * WANDER_MEMORY_S
-                          for v, w, d in zip(variances, wander_var_per_s, drive, strict=True))
-        self._samples.append((temp_degc, tuple(offsets), err, err_drive))
+        self._samples.append((t_s, temp_degc, tuple(offsets), tuple(variances), tuple(wander_var_per_s),
+                              tuple(max(w, d) for w, d in zip(wander_var_per_s, drive, strict=True))))
         if len(self._samples) > LEARN_KEPT:
             del self._samples[0]
         self._fit = None
@@ -226,28 +231,41 @@ class TempcoLearner:
 
     def _solved(self) -> tuple[list[float], ...]:
         if self._fit is None:
-            self._fit = (*self._solve(2), *self._solve(3))
+            self._fit = (*self._solve_levels(), *self._solve_steps())
         return self._fit
 
-    def _solve(self, column: int) -> tuple[list[float], list[float], list[float]]:
-        """The posterior with each sample's error from ``column`` of the samples (2: the grade's, 3: the
-        drive's)."""
+    def _prior_only(self) -> tuple[list[float], list[float], list[float]]:
+        return list(self._prior_mean), [math.sqrt(v) for v in self._prior_var], [math.inf] * len(self._prior_var)
+
+    def _posterior(self, sxx: np.ndarray, sxy: np.ndarray) -> tuple[list[float], list[float], list[float]]:
+        """k's posterior from the data's normal equations and the prior; and the data's sigma alone."""
+        prior, mean = np.array(self._prior_var), np.array(self._prior_mean)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            prior_info = np.where(prior > 0.0, 1.0 / prior, np.inf)
+            precision = sxx + prior_info
+            k = np.where(np.isfinite(precision), (sxy + mean * prior_info) / precision, mean)
+            data_sigma = np.where(sxx > 0.0, 1.0 / np.sqrt(sxx), np.inf)
+        sigma = np.where(np.isfinite(precision), 1.0 / np.sqrt(precision), 0.0)
+        return k.tolist(), sigma.tolist(), data_sigma.tolist()
+
+    def _solve_levels(self) -> tuple[list[float], list[float], list[float]]:
+        """The offsets' levels regressed on the temperature, at the chip grade's walk: each estimate weighted by
+        1 / (its variance + the walk over WANDER_MEMORY_S) and counted for LEARN_EVERY_S / WANDER_MEMORY_S of an
+        independent one (estimates minutes apart share most of their error), less where the residuals scatter
+        more (reduced chi-square) or run together longer ((1 + rho) / (1 - rho), rho their lag-one
+        correlation). Quick to narrow; a walk that runs with a warm-up passes for a slope here, so this only
+        narrows the covariance, which then covers k^2 + sigma^2."""
         n_axes = len(self._prior_var)
         if len(self._samples) < 2:
-            return list(self._prior_mean), [math.sqrt(v) for v in self._prior_var], [math.inf] * n_axes
-        temp = np.array([s[0] for s in self._samples])
-        b = np.array([s[1] for s in self._samples])
-        err = np.array([s[column] for s in self._samples])
+            return self._prior_only()
+        temp = np.array([s[1] for s in self._samples])
+        b = np.array([s[2] for s in self._samples])
+        err = np.array([s[3] for s in self._samples]) + np.array([s[4] for s in self._samples]) * WANDER_MEMORY_S
         w = 1.0 / err
         sw = w.sum(axis=0)
         dt = temp[:, None] - (w * temp[:, None]).sum(axis=0) / sw
         db = b - (w * b).sum(axis=0) / sw
         sxx, sxy = (w * dt * dt).sum(axis=0), (w * dt * db).sum(axis=0)
-        # The filter's estimates a few samples apart share most of their error: each counts for the share of an
-        # independent one that its interval is of the memory. Where they scatter about the line more than their
-        # errors say (reduced chi-square), or their residuals run together longer than that (lag-one
-        # correlation rho: a sum of n such residuals has (1 + rho) / (1 - rho) times the variance of n
-        # independent ones), the data count for correspondingly less.
         inflation = np.full(n_axes, WANDER_MEMORY_S / LEARN_EVERY_S)
         n = len(self._samples)
         if n > 2:
@@ -258,15 +276,29 @@ class TempcoLearner:
                 rho = np.where(rr > 0.0, (r[1:] * r[:-1]).sum(axis=0) / rr, 0.0)
             rho = np.clip(rho, 0.0, MAX_RHO)
             inflation = np.maximum(1.0, rr / (n - 2)) * np.maximum(inflation, (1.0 + rho) / (1.0 - rho))
-        sxx, sxy = sxx / inflation, sxy / inflation
-        prior, mean = np.array(self._prior_var), np.array(self._prior_mean)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            prior_info = np.where(prior > 0.0, 1.0 / prior, np.inf)
-            precision = sxx + prior_info
-            k = np.where(np.isfinite(precision), (sxy + mean * prior_info) / precision, mean)
-            data_sigma = np.where(sxx > 0.0, 1.0 / np.sqrt(sxx), np.inf)
-        sigma = np.where(np.isfinite(precision), 1.0 / np.sqrt(precision), 0.0)
-        return k.tolist(), sigma.tolist(), data_sigma.tolist()
+        return self._posterior(sxx / inflation, sxy / inflation)
+
+    def _solve_steps(self) -> tuple[list[float], list[float], list[float]]:
+        """The offsets' steps regressed on the temperature's, at the walk the drive showed (see the class)."""
+        if len(self._samples) < 2:
+            return self._prior_only()
+        t = np.array([s[0] for s in self._samples])
+        temp = np.array([s[1] for s in self._samples])
+        b = np.array([s[2] for s in self._samples])
+        var = np.array([s[3] for s in self._samples])
+        q = np.array([s[5] for s in self._samples])
+        d_temp = np.diff(temp)[:, None]
+        d_b = np.diff(b, axis=0)
+        w = 1.0 / (q[1:] * np.diff(t)[:, None] + var[1:] + var[:-1])
+        sxx, sxy = (w * d_temp * d_temp).sum(axis=0), (w * d_temp * d_b).sum(axis=0)
+        m = len(d_b)
+        if m > 1:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                k_data = np.where(sxx > 0.0, sxy / sxx, 0.0)
+            chi2 = (w * (d_b - k_data * d_temp) ** 2).sum(axis=0) / (m - 1)
+            inflation = np.maximum(1.0, chi2)
+            sxx, sxy = sxx / inflation, sxy / inflation
+        return self._posterior(sxx, sxy)
 
     def applied(self) -> list[float]:
         """The coefficients that move the offsets with the temperature: those proven (:meth:`proven`) beyond

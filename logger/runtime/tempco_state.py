@@ -54,11 +54,12 @@ def load(path: Path, installation: str, bounds: list[float]) -> tuple[list[float
         return None
     if saved_on != installation:
         return None  # another part: says nothing of this one
-    if len(k) != 6 or len(sigma) != 6 or not all(math.isfinite(v) for v in (*k, *sigma)) or min(sigma) <= 0.0:
+    if (len(k) != 6 or len(sigma) != 6 or len(saved_bounds) != 6 or not all(math.isfinite(v) for v in (*k, *sigma))
+            or any(sv <= 0.0 < b for sv, b in zip(sigma, saved_bounds, strict=True))):
         log.warning("ignoring the saved IMU temperature coefficients %s: not six finite coefficients and positive "
-                    "sigmas", path)
+                    "sigmas (an axis whose bound is 0 has none)", path)
         return None
-    if len(saved_bounds) != 6 or any(abs(a - b) > 1e-12 for a, b in zip(saved_bounds, bounds, strict=True)):
+    if any(abs(a - b) > 1e-12 for a, b in zip(saved_bounds, bounds, strict=True)):
         log.info("the configured temperature coefficient bounds changed since the IMU's were saved: starting from "
                  "the configuration")
         return None
