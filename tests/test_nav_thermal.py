@@ -185,7 +185,7 @@ def test_a_gyro_offset_that_follows_the_warming_die_is_learnt_and_followed() -> 
     assert abs(kz - k) < 0.2 * k and sz < math.radians(0.03), (math.degrees(kz), math.degrees(sz))
     kp, sp = follows.tempco.proven()[0][5], follows.tempco.proven()[1][5]
     assert abs(kp - k) < 3.0 * sp and follows.tempco.applied()[5] == kp
-    assert math.sqrt(follows._tempco_var[5]) == pytest.approx(sp) and sp < math.radians(0.16) / 3.0
+    assert math.sqrt(follows.tempco.residual_var()[5]) == pytest.approx(sp) and sp < math.radians(0.16) / 3.0
     # It moved the offset by its share of the warming once proven (0.15 x 4.7 degC at most), and that is kept
     # apart from the wander read from the estimates.
     assert 0.1 < math.degrees(follows._tempco_moved[2]) < 0.15 * (warming(330.0) - warming(0.0))
@@ -222,11 +222,11 @@ def test_learnt_coefficients_are_kept_for_the_next_drive_of_the_same_part(tmp_pa
     nav = Navigator(NavParams(**DATASHEET), tempco_path=path, imu_installation=board)
     for kz, sz in (nav.engine.tempco.coefficients(), nav.engine.tempco.proven()):
         assert kz[5] == pytest.approx(k_chip[5]) and sz[5] == pytest.approx(max(2 * sigma_chip[5], 0.05 * bounds[5]))
-    assert math.sqrt(nav.engine._tempco_var[5]) <= bounds[5] + 1e-12
+    assert math.sqrt(nav.engine.tempco.residual_var()[5]) <= bounds[5] + 1e-12
     # A bound of 0 turns the term off, whatever was saved.
     off = NavEngine(NavParams(gyro_bias_tempco_dps_degc=0.0, accel_bias_tempco_mg_degc=0.0))
     off.start_tempco_from(*saved)
-    assert off.tempco.applied() == [0.0] * 6 and off._tempco_var == [0.0] * 6
+    assert off.tempco.applied() == [0.0] * 6 and off.tempco.residual_var() == [0.0] * 6
 
     # Turned 90 deg in yaw: the chip's x is the body's y, and what the engine learns comes back on chip axes.
     turned = NavEngine(NavParams(**DATASHEET, mounting_rpy_deg=(0.0, 0.0, 90.0)))

@@ -55,7 +55,7 @@ from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_of
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown
-from logger.nav.thermal import TempcoLearner, TemperatureSpan
+from logger.nav.thermal import TempcoLearner, TemperatureSpan, turned
 
 NS = 1_000_000_000
 IMU_GAP_S = 0.5  # samples further apart than this are a gap: counted, and still integrated across
@@ -152,7 +152,6 @@ class NavEngine:
         self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
         # The offsets' temperature coefficients learnt from the drive, the configured bounds their prior.
         self.tempco = TempcoLearner((p.accel_bias_tempco,) * 3 + (p.gyro_bias_tempco,) * 3)
-        self._tempco_var = [p.accel_bias_tempco**2] * 3 + [p.gyro_bias_tempco**2] * 3  # what the covariance covers
         self._tempco_at = math.nan  # the smoothed die temperature the offsets were last moved to
         self._tempco_moved = (0.0, 0.0, 0.0)  # how far that moved the gyro's offsets since the learner started
         self._tempco_saved: tuple[list[float], list[float]] | None = None  # an earlier drive's, chip axes
@@ -486,7 +485,7 @@ class NavEngine:
             # The offsets follow the die temperature through a fixed coefficient, known as far as the drive showed
             # it (thermal.py).
             pk = self.ekf.p
-            kv = self._tempco_var
+            kv = self.tempco.residual_var()
             for i in range(3):
                 pk[BA_ID + i, BA_ID + i] += kv[i] * owed
                 pk[BG_ID + i, BG_ID + i] += kv[3 + i] * owed
@@ -505,13 +504,8 @@ class NavEngine:
         """New offsets or new axes: the coefficients are learnt again, from the configured bounds or from what an
         earlier drive learnt of this part (:meth:`start_tempco_from`), turned onto the body axes in use."""
         self.tempco.restart()
-        saved = self._tempco_saved
-        if saved is not None:
-            k, sigma = saved
-            m = self._mount_m
-            self.tempco.set_prior([*(m @ np.array(k[:3])).tolist(), *(m @ np.array(k[3:])).tolist()],
-                                  _turned_sigmas(m, sigma))
-        self._tempco_var = [r * r for r in self.tempco.residual_sigma()]
+        if self._tempco_saved is not None:
+            self.tempco.set_prior(*turned(self._mount_m, *self._tempco_saved))
         self._tempco_at = self.thermal.smoothed
         self._tempco_moved = (0.0, 0.0, 0.0)
 
@@ -524,9 +518,7 @@ class NavEngine:
     def learnt_tempco(self) -> tuple[list[float], list[float]]:
         """The coefficients as learnt so far and their sigmas, on the chip's axes (what :meth:`start_tempco_from`
         takes at the next start, whatever the mounting then)."""
-        k, sigma = self.tempco.proven()
-        mt = self._mount_m.T
-        return ([*(mt @ np.array(k[:3])).tolist(), *(mt @ np.array(k[3:])).tolist()], _turned_sigmas(mt, sigma))
+        return turned(self._mount_m.T, *self.tempco.proven())
 
     def _follow_temperature(self) -> None:
         """The offsets against the die temperature (thermal.py): the estimates go to the learner while fixes go
@@ -551,7 +543,6 @@ class NavEngine:
             s.bg = (bg[0] + k[3] * d, bg[1] + k[4] * d, bg[2] + k[5] * d)
             self._tempco_moved = (m[0] + k[3] * d, m[1] + k[4] * d, m[2] + k[5] * d)
         self._tempco_at = temp
-        self._tempco_var = [r * r for r in self.tempco.residual_sigma()]
 
     def _follow_imu_noise(self) -> None:
         """Process noise from what the drive shows, never below the configured densities (imu_noise.py)."""
@@ -732,7 +723,7 @@ class NavEngine:
         att = np.diag((math.radians(0.3) ** 2, math.radians(0.3) ** 2, math.radians(5.0) ** 2))
         ekf.p[PHI_ID:PHI_ID + 3, PHI_ID:PHI_ID + 3] = pphi + att
         ekf.p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = pba  # uncorrelated with the tilt: their sum was just shown off
-        bg_var += max(self._tempco_var[3:]) * self.thermal.range_degc**2
+        bg_var += max(self.tempco.residual_var()[3:]) * self.thermal.range_degc**2
         for i in range(3):
             ekf.p[BG_ID + i, BG_ID + i] = max(bg_var, float(old[BG_ID + i]))
             ekf.p[PHI_ID + i, PHI_ID + i] = max(float(ekf.p[PHI_ID + i, PHI_ID + i]), float(old[PHI_ID + i]))
@@ -906,10 +897,3 @@ class NavEngine:
         roll, pitch, yaw = euler_from_dcm(s.dcm())
         return Solution(self._t_last or 0, self._t_mono_last, s.lat, s.lon, s.h, (s.vn, s.ve, s.vd),
                         (roll, pitch, yaw), self.sigma, f"ins {self.mode}-state")
-
-
-def _turned_sigmas(m: np.ndarray, sigma: list[float]) -> list[float]:
-    """Per-axis sigmas of the accelerometer's and the gyro's three coefficients turned by ``m`` (independent
-    axes: each new axis's variance is the sum of the old ones' weighted by the squared direction cosines)."""
-    m2 = m * m
-    return [*np.sqrt(m2 @ np.square(sigma[:3])).tolist(), *np.sqrt(m2 @ np.square(sigma[3:])).tolist()]
