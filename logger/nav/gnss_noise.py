@@ -238,8 +238,8 @@ class AccuracyModel:
         self.nominal = nominal
         self.learn = learn
         self.learner = ScatterLearner()
-        self._offset = [0.0, 0.0, 0.0]  # running mean of the guessed fixes' innovations N, E, D (m)
-        self._offset_p = [0.0, 0.0, 0.0]  # ... and of the filter's variance they were taken against
+        self._offset = 0.0  # running mean of the guessed fixes' vertical innovations (m, down)
+        self._offset_p = 0.0  # ... and of the filter's vertical variance they were taken against
         self._offset_t: int | None = None
         self._offset_n = 0  # fixes in the running mean since it (re)started
 
@@ -261,11 +261,12 @@ class AccuracyModel:
                 source, h, v = NOMINAL, nh, nv
             scale = self.learner.scale() if self.learn else (1.0, 1.0)
             if self.learn and t_ns is not None:
-                v = math.sqrt(v * v + self.offset_excess(t_ns)[2])
+                v = math.sqrt(v * v + self.offset_excess(t_ns))
         return FixFigures(h, v, s_acc if s_acc is not None else ns, source, scale)
 
-    def offset_excess(self, t_ns: int) -> tuple[float, float, float]:
-        """The variance (m^2, N E D) a lasting offset of the recent guessed fixes adds to the next one's figure.
+    def offset_excess(self, t_ns: int) -> float:
+        """The variance (m^2) a lasting vertical offset of the recent guessed fixes adds to the next one's figure
+        (horizontally the filter's own drift in a canyon reads as the fixes' offset: not done there).
 
         A DOP knows no multipath: in a street canyon an NMEA receiver's heights ran 10-30 m high for 80 s (the
         simulated urban drive, seed 2) behind a DOP figure of 6-10 m, each fix passing the gate, together moving
@@ -275,11 +276,9 @@ class AccuracyModel:
         the DOP figure (a fifth of it at 1 Hz), so an open sky's fixes keep their weight; the excess fades with
         the mean once the fixes agree with the filter again, and with time while none come."""
         if self._offset_t is None or self._offset_n < BIAS_MIN_FIXES:
-            return 0.0, 0.0, 0.0  # a mean of a few innovations is one innovation's noise, not an offset
+            return 0.0  # a mean of a few innovations is one innovation's noise, not an offset
         fade = math.exp(-max(0.0, (t_ns - self._offset_t) / 1e9) / BIAS_TAU_S)
-        m, pv = self._offset, self._offset_p
-        return (max(0.0, (fade * m[0]) ** 2 - pv[0]), max(0.0, (fade * m[1]) ** 2 - pv[1]),
-                max(0.0, (fade * m[2]) ** 2 - pv[2]))
+        return max(0.0, (fade * self._offset) ** 2 - self._offset_p)
 
     def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
         """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
@@ -298,6 +297,5 @@ class AccuracyModel:
             a = 1.0 - math.exp(-dt / BIAS_TAU_S)
         self._offset_n += 1
         self._offset_t = t_ns
-        for i in range(3):
-            self._offset[i] += a * (innovation[i] - self._offset[i])
-            self._offset_p[i] += a * (p_diag[i] - self._offset_p[i])
+        self._offset += a * (innovation[2] - self._offset)
+        self._offset_p += a * (p_diag[2] - self._offset_p)

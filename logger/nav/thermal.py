@@ -169,6 +169,11 @@ class TempcoLearner:
         self._fit = None
 
     @property
+    def bound(self) -> list[float]:
+        """The configured bounds of the six coefficients (the prior's sigma with nothing learnt)."""
+        return [math.sqrt(v) for v in self._bound_var]
+
+    @property
     def due_s(self) -> float:
         """Drive time (s) from which the next sample is taken."""
         return self._next_s

@@ -70,9 +70,8 @@ class Navigator:
         self.engine = NavEngine(params)
         # The IMU offsets' temperature coefficients earlier drives learnt of this part (tempco_state.py).
         self.tempco_path, self.imu_installation = tempco_path, imu_installation
-        self._tempco_bounds = [params.accel_bias_tempco] * 3 + [params.gyro_bias_tempco] * 3
-        self._tempco_saved = (tempco_state.load(tempco_path, imu_installation, self._tempco_bounds) if tempco_path
-                              else None)
+        self._tempco_saved = (tempco_state.load(tempco_path, imu_installation, self.engine.tempco.bound)
+                              if tempco_path else None)
         if self._tempco_saved is not None:
             self.engine.start_tempco_from(*self._tempco_saved)
         self._feed = nav_feeder(self.engine)
@@ -140,7 +139,7 @@ class Navigator:
             mount_state.save(self.mount_path, self.configured_mount, self.installation, al.estimate())
         if self.tempco_path is not None and self.engine.ekf is not None:
             tempco_state.save(self.tempco_path, self.imu_installation, *self.engine.learnt_tempco(),
-                              self._tempco_bounds, self.engine.tempco.data_sigma())
+                              self.engine.tempco.bound, self.engine.tempco.data_sigma())
 
     def _run(self) -> None:
         cpu0 = time.thread_time()
