@@ -21,7 +21,8 @@ whatever the rate.
 
 Receivers that give no accuracy figure at all (an NMEA-only receiver without GST, a u-blox set to RMC and GGA)
 are not uninformative: :class:`AccuracyModel` gives them a documented error model (below), and learns from
-the fixes' own scatter how good this receiver on this drive is.
+the fixes' own scatter how good this receiver on this drive is: its positions over minutes (:class:`ScatterLearner`),
+its speeds over seconds (:class:`SpeedScatter`), since a reflection spoils a Doppler for as long as it lasts.
 """
 
 from __future__ import annotations
@@ -134,6 +135,7 @@ class FixFigures:
     s_acc: float
     source: str  # RECEIVER, DOP or NOMINAL
     scale: tuple[float, float]  # learnt variance scale (horizontal, vertical); 1.0 when not learnt
+    speed_guessed: bool = False  # s_acc is the nominal speed figure (widened by SpeedScatter), not the receiver's
 
     @property
     def h_acc(self) -> float:
@@ -208,6 +210,53 @@ class ScatterLearner:
         return out[0], out[1]
 
 
+class SpeedScatter:
+    """The variance of a receiver's speeds about the truth when it gives no speed figure, learnt over seconds from
+    the filter's velocity innovations (Mehra's rule, as :class:`ScatterLearner`, per axis north and east).
+
+    The nominal speed figure is an open sky's (``gnss_nominal_s_acc_mps``, a data sheet's 0.05-0.1 m/s). In a
+    street canyon a reflected carrier puts a Doppler 0.3-1 m/s off for as long as the reflection lasts, seconds,
+    while the receiver says nothing and its DOP barely moves (the simulated NMEA urban drives: 0.2-1.0 m/s errors
+    at HDOP 0.8-1.0; elsewhere HDOP 2-5 with speeds good to 0.3 m/s). Taken at 0.1 m/s, such speeds outweighed
+    the OBD speed (0.2 m/s) and led the filter 9 m off with a sigma of 1.4 m. So the mean of the innovations
+    squared over BIAS_TAU_S, less the filter's own variance, is the speed's variance while it exceeds the nominal
+    one. Every innovation counts, refused ones included: the gate refuses exactly the worst speeds, and learning
+    from the rest alone would call a receiver good that is half the time off (each is clipped at LEARN_CLIP of
+    its prediction, so one reflection is not scatter; a filter off in velocity is pulled back by the OBD speed
+    within seconds, and what it taught fades as fast). Used once BIAS_MIN_FIXES went in since it (re)started, a
+    gap longer than BIAS_TAU_S restarting it; it never narrows the nominal figure.
+    """
+
+    def __init__(self, tau_s: float = BIAS_TAU_S) -> None:
+        self.tau_s = tau_s
+        self._z2 = [0.0, 0.0]  # mean innovation squared, north and east
+        self._p = [0.0, 0.0]  # mean filter variance they were taken against
+        self._t_ns: int | None = None
+        self._n = 0
+
+    def add(self, t_ns: int, z: list[float], p: list[float], r: float) -> None:
+        """One fix's velocity innovation (north, east; m/s), the filter's variances and the speed variance used."""
+        dt = 0.0 if self._t_ns is None else max(0.0, (t_ns - self._t_ns) / 1e9)
+        if self._t_ns is None or dt > self.tau_s:
+            self._n = 0
+        self._n += 1
+        self._t_ns = t_ns
+        # A plain mean while short, then an exponential one over tau of drive time (whatever the fix rate).
+        a = max(1.0 / self._n, 1.0 - math.exp(-dt / self.tau_s))
+        for i in range(2):
+            z2 = min(z[i] * z[i], LEARN_CLIP * (p[i] + r))
+            self._z2[i] += a * (z2 - self._z2[i])
+            self._p[i] += a * (p[i] - self._p[i])
+
+    def variance(self, t_ns: int) -> float:
+        """The speed variance the recent innovations show (m^2/s^2, the larger axis; 0 until enough were seen),
+        fading over tau while no fix comes."""
+        if self._t_ns is None or self._n < BIAS_MIN_FIXES:
+            return 0.0
+        fade = math.exp(-max(0.0, (t_ns - self._t_ns) / 1e9) / self.tau_s)
+        return fade * max(0.0, self._z2[0] - self._p[0], self._z2[1] - self._p[1])
+
+
 def dops(pdop: float | None, hdop: float | None, vdop: float | None) -> tuple[float | None, float | None]:
     """The HDOP and VDOP to use: the receiver's own where it gives them (a DOP of 0 or less is none), else the split
     of PDOP a sky of satellites spread over it gives (HDOP 0.6, VDOP 0.8 of PDOP, as PDOP^2 = HDOP^2 + VDOP^2)."""
@@ -230,7 +279,8 @@ class AccuracyModel:
     where it gives them (GGA carries an HDOP even where no GSA comes), else the usual split of PDOP (HDOP 0.6,
     VDOP 0.8 of it, :func:`dops`). A missing vertical figure is the horizontal one times the nominal ratio.
     DOP-based and nominal figures are guesses about this receiver, so their variance is scaled by what
-    :class:`ScatterLearner` learnt of the fixes' scatter (``gnss_learn_scatter``).
+    :class:`ScatterLearner` learnt of the fixes' scatter (``gnss_learn_scatter``). A missing speed figure is the
+    nominal one, widened to what :class:`SpeedScatter` learnt of the last seconds' speeds.
     """
 
     def __init__(self, uere_m: float, nominal: tuple[float, float, float], learn: bool) -> None:
@@ -238,6 +288,7 @@ class AccuracyModel:
         self.nominal = nominal
         self.learn = learn
         self.learner = ScatterLearner()
+        self.speeds = SpeedScatter()
         self._offset = 0.0  # running mean of the guessed fixes' vertical innovations (m, down)
         self._offset_p = 0.0  # ... and of the filter's vertical variance they were taken against
         self._offset_t: int | None = None
@@ -262,7 +313,10 @@ class AccuracyModel:
             scale = self.learner.scale() if self.learn else (1.0, 1.0)
             if self.learn and t_ns is not None:
                 v = math.sqrt(v * v + self.offset_excess(t_ns))
-        return FixFigures(h, v, s_acc if s_acc is not None else ns, source, scale)
+        if s_acc is not None:
+            return FixFigures(h, v, s_acc, source, scale)
+        learnt = self.speeds.variance(t_ns) if self.learn and t_ns is not None else 0.0
+        return FixFigures(h, v, math.sqrt(max(ns * ns, learnt)), source, scale, speed_guessed=True)
 
     def offset_excess(self, t_ns: int) -> float:
         """The variance (m^2) a lasting vertical offset of the recent guessed fixes adds to the next one's figure
@@ -279,6 +333,13 @@ class AccuracyModel:
             return 0.0  # a mean of a few innovations is one innovation's noise, not an offset
         fade = math.exp(-max(0.0, (t_ns - self._offset_t) / 1e9) / BIAS_TAU_S)
         return max(0.0, (fade * self._offset) ** 2 - self._offset_p)
+
+    def observe_speed(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float],
+                      r: float) -> None:
+        """A running filter's velocity innovation (north, east) of a fix whose speed figure was guessed, with the
+        filter's variances before it and the speed variance it was given."""
+        if self.learn and figures.speed_guessed:
+            self.speeds.add(t_ns, innovation, p_diag, r)
 
     def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
         """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
