@@ -254,6 +254,28 @@ def test_guessed_speeds_widen_while_the_innovations_show_a_reflection_and_never_
     assert own.figures(None, None, None, None, 0.8, 1.2, 30 * ns).s_acc == pytest.approx(0.1)
 
 
+def test_a_scatter_learnt_too_wide_is_learnt_again_from_fixes_too_weak_to_go_in():
+    """After a tunnel, a 10 Hz NMEA receiver's first fixes (few satellites, a high DOP) taught the scatter learner a
+    horizontal scale of 14 on the simulated drive: every open-sky fix after them was then too weak to go in, and
+    a learner fed by accepted fixes only never learnt again. Fed by those too weak for the gate as well, the scale
+    comes back down within a few minutes and the fixes go in again."""
+    drive = make_drive("outage-60s", seed=1, duration_s=270.0)
+    recs = records(drive, 270.0, seed=3, receiver="nmea", gnss_hz=10.0, gnss_corr_s=3.0,
+                   errors=SynthErrors(obd_factor=1.02, gnss_h_sigma=1.0, gnss_v_sigma=2.0))
+
+    def taught_too_wide(engine) -> None:
+        learner = engine._gnss.accuracy.learner
+        learner._z2[0] = learner._p[0] + 14.0 * learner._r[0]
+        assert learner.scale()[0] == pytest.approx(14.0)
+
+    engine, done = fed_with_upset(recs, 100.0, taught_too_wide)
+    assert done and engine.counters.resets == 0
+    assert engine._gnss.accuracy.learner.scale()[0] < 3.0  # 14 when it learnt from accepted fixes only
+    t, e, s = errors(drive, engine.rows)
+    late = t > 250.0
+    assert s[late, :2].max() < 3.0 and np.hypot(e[late, 0], e[late, 1]).max() < 1.5  # sigma 5.2 m and growing
+
+
 @pytest.mark.parametrize(("true_scale", "learnt"), [(9.0, 9.0), (4.0, 4.0), (0.25, 1.0), (100.0, 25.0)])
 def test_the_scatter_widens_nominal_figures_and_never_narrows_them(true_scale, learnt):
     rng = np.random.default_rng(1)

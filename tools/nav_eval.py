@@ -71,6 +71,7 @@ OBD_HIGH = {"urban": 0.02, "outage-60s": 0.02, "tunnel-130s": 0.03}  # what sens
 PROFILES: dict[str, dict[str, Any]] = {
     "default": {},
     "nmea": {"receiver": "nmea"},  # NMEA-only: no accuracy figures, no vertical velocity, no TIM-TP
+    "nmea-10hz": {"receiver": "nmea", "gnss_rate_hz": 10},  # the same at 10 Hz: one error reported ten times
     "phone": {"imu": "phone", "gnss_rate_hz": 10},  # phone-grade IMU at 100 Hz, fixes at 10 Hz
     "mounted": {"mounting_rpy_deg": [5.0, -4.0, 30.0]},  # the filter is not told
     "late": {"gnss_latency_s": 0.3},  # fixes at least 0.3 s after their epoch
