@@ -213,7 +213,8 @@ def test_guessed_speeds_widen_while_the_innovations_show_a_reflection_and_never_
     """An NMEA receiver gives no speed figure: the nominal 0.1 m/s is an open sky's. A reflection puts its speeds
     0.6 m/s off for 30 s (the DOP unchanged); the velocity innovations show it within seconds and the speed figure
     covers it; once the speeds agree again, or none come, it is back at the
-    nominal figure, which good speeds never narrow. A receiver's own speed figure is never touched."""
+    nominal figure, which good speeds never narrow. Before any scatter is known (the first fixes, the first after
+    an outage) the nominal figure follows the DOP. A receiver's own speed figure is never touched."""
     ns = 1_000_000_000
     model = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
     rng = np.random.default_rng(7)
@@ -222,36 +223,38 @@ def test_guessed_speeds_widen_while_the_innovations_show_a_reflection_and_never_
     def feed(t0_s: float, seconds: int, sigma: float, offset: float = 0.0) -> int:
         for k in range(seconds):
             t = int((t0_s + k) * ns)
-            fig = model.figures(None, None, None, None, 0.8, 1.2, t)
+            fig = model.figures(None, None, None, None, 0.75, 1.2, t)
             z = [offset + float(rng.normal(0.0, sigma)), float(rng.normal(0.0, sigma))]
             model.observe_speed(t, fig, z, [p_v, p_v], fig.s_acc**2)
         return t
 
     t = feed(0.0, 60, math.sqrt(0.01 + p_v))  # an open sky: the nominal figure's own scatter
-    quiet = model.figures(None, None, None, None, 0.8, 1.2, t + ns)
+    quiet = model.figures(None, None, None, None, 0.75, 1.2, t + ns)
     assert quiet.speed_guessed and quiet.s_acc == pytest.approx(0.1)
     t = feed(60.0, 30, 0.05, 0.6)
-    canyon = model.figures(None, None, None, None, 0.8, 1.2, t + ns)
+    canyon = model.figures(None, None, None, None, 0.75, 1.2, t + ns)
     assert canyon.s_acc > 0.4 and canyon.h_model == quiet.h_model  # the position's figure is the DOP's still
     t = feed(90.0, 40, 0.05)  # out of it: the speeds agree with the filter again
-    assert model.figures(None, None, None, None, 0.8, 1.2, t + ns).s_acc == pytest.approx(0.1)
+    assert model.figures(None, None, None, None, 0.75, 1.2, t + ns).s_acc == pytest.approx(0.1)
     t = feed(130.0, 30, 0.05, 0.6)
-    assert model.figures(None, None, None, None, 0.8, 1.2, t + 30 * ns).s_acc < 0.15  # 30 s without a fix
-    t = feed(200.0, 4, 0.05, 0.6)  # after a minute without fixes: four innovations are not yet a scatter
-    assert model.figures(None, None, None, None, 0.8, 1.2, t + ns).s_acc == pytest.approx(0.1)
+    assert model.figures(None, None, None, None, 0.75, 1.2, t + 30 * ns).s_acc < 0.15  # 30 s without a fix
+    # The first fix after a minute without any, from a receiver reacquiring (HDOP 4 against an open sky's 0.75).
+    assert model.figures(None, None, None, None, 4.0, 6.0, t + 60 * ns).s_acc == pytest.approx(0.1 * 4.0 / 0.75)
+    t = feed(200.0, 4, 0.05, 0.6)  # four innovations since are not yet a scatter: still the DOP's figure
+    assert model.figures(None, None, None, None, 0.75, 1.2, t + ns).s_acc == pytest.approx(0.1)
     t = feed(204.0, 3, 0.05, 0.6)
-    assert model.figures(None, None, None, None, 0.8, 1.2, t + ns).s_acc > 0.4
+    assert model.figures(None, None, None, None, 0.75, 1.2, t + ns).s_acc > 0.4
     unlearnt = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=False)
     for k in range(30):
         unlearnt.observe_speed(k * ns, quiet, [0.6, 0.0], [p_v, p_v], 0.01)
-    assert unlearnt.figures(None, None, None, None, 0.8, 1.2, 30 * ns).s_acc == 0.1
+    assert unlearnt.figures(None, None, None, None, 0.75, 1.2, 30 * ns).s_acc == 0.1
     # A receiver that gives its own speed figure keeps it, whatever guessed fixes taught the model before.
     given = model.figures(0.5, 0.9, 0.05, 1.5, 1.0, 1.5, t + ns)
     assert (given.s_acc, given.speed_guessed) == (0.05, False)
     own = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
     for k in range(30):
         own.observe_speed(k * ns, given, [0.6, 0.0], [p_v, p_v], 0.0025)
-    assert own.figures(None, None, None, None, 0.8, 1.2, 30 * ns).s_acc == pytest.approx(0.1)
+    assert own.figures(None, None, None, None, 0.75, 1.2, 30 * ns).s_acc == pytest.approx(0.1)
 
 
 def test_a_scatter_learnt_too_wide_is_learnt_again_from_fixes_too_weak_to_go_in():
