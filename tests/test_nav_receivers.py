@@ -228,7 +228,7 @@ def test_guessed_speeds_widen_while_the_innovations_show_a_reflection_and_never_
             model.observe_speed(t, fig, z, [p_v, p_v], fig.s_acc**2)
         return t
 
-    t = feed(0.0, 60, math.sqrt(0.01 + p_v))  # an open sky: the nominal figure's own scatter
+    t = feed(0.0, 60, math.sqrt(0.0025 + p_v))  # an open sky, speeds better than the nominal figure says
     quiet = model.figures(None, None, None, None, 0.75, 1.2, t + ns)
     assert quiet.speed_guessed and quiet.s_acc == pytest.approx(0.1)
     t = feed(60.0, 30, 0.05, 0.6)
@@ -255,6 +255,15 @@ def test_guessed_speeds_widen_while_the_innovations_show_a_reflection_and_never_
     for k in range(30):
         own.observe_speed(k * ns, given, [0.6, 0.0], [p_v, p_v], 0.0025)
     assert own.figures(None, None, None, None, 0.75, 1.2, 30 * ns).s_acc == pytest.approx(0.1)
+    # A receiver's position figures without a speed figure (NMEA GST, gpsd without eps): the speed is guessed as
+    # for any other, from its DOP before the scatter is known (GGA carries the HDOP).
+    gst = AccuracyModel(4.0, (3.0, 5.0, 0.1), learn=True)
+    fig = gst.figures(1.5, 2.5, None, None, 3.0, 4.0, ns)
+    assert fig.source == RECEIVER and fig.speed_guessed and fig.s_acc == pytest.approx(0.1 * 3.0 / 0.75)
+    for k in range(30):
+        t = (2 + k) * ns
+        gst.observe_speed(t, gst.figures(1.5, 2.5, None, None, 0.75, 1.2, t), [0.6, 0.0], [p_v, p_v], 0.01)
+    assert gst.figures(1.5, 2.5, None, None, 0.75, 1.2, t + ns).s_acc > 0.4
 
 
 def test_a_scatter_learnt_too_wide_is_learnt_again_from_fixes_too_weak_to_go_in():
@@ -297,6 +306,26 @@ def test_nothing_is_learnt_from_a_short_drive():
     for k in range(20):
         learner.add(T0 + k * NS, [30.0, 30.0, 30.0], [0.3, 0.3, 0.6], [4.5, 4.5, 25.0])
     assert learner.scale() == (1.0, 1.0)
+
+
+def test_fixes_too_weak_for_the_gate_may_lower_the_learnt_scale_never_raise_it():
+    """Nothing vetted a fix too weak to reach the gate: a filter that lost itself but holds a tight covariance would
+    read its innovations as a receiver scattering widely. So such fixes may teach the learner that the scale is
+    smaller than learnt, never that it is larger."""
+    r = [4.5, 4.5, 25.0]
+    lost = ScatterLearner()
+    for k in range(300):  # five minutes of fixes 20 m from a filter sure of itself to 1 m
+        lost.add(T0 + k * NS, [20.0, 20.0, 20.0], [1.0, 1.0, 1.0], r, gated=False)
+    assert lost.scale() == (1.0, 1.0)
+    wide = ScatterLearner()
+    for k in range(300):  # a scale learnt from vetted fixes far off
+        wide.add(T0 + k * NS, [8.0, 8.0, 15.0], [1.0, 1.0, 1.0], r)
+    before = wide.scale()
+    assert before[0] > 5.0
+    for k in range(300, 600):  # then weak fixes that agree with the filter
+        wide.add(T0 + k * NS, [0.5, 0.5, 1.0], [1.0, 1.0, 1.0], r, gated=False)
+    after = wide.scale()
+    assert after[0] < 0.5 * before[0] and after[1] <= before[1]
 
 
 def test_real_receivers_nmea_reaches_the_filter_as_a_horizontal_velocity_with_figures():

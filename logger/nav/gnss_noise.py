@@ -122,6 +122,7 @@ LEARN_SCALE = (1.0, 25.0)  # the learnt variance stays between the nominal sigma
 PDOP_SPLIT = (0.6, 0.8)  # HDOP and VDOP over PDOP for satellites spread over the sky
 BIAS_TAU_S = 10.0  # the guessed fixes' innovations are averaged over this much drive time to see a lasting offset
 BIAS_MIN_FIXES = 5  # ... and their mean used once this many went in since it (re)started
+SPEED_KNOWN_S = 4.0  # the guessed speeds' scatter is known once it spans this much drive (five fixes at 1 Hz)
 LEARN_CLIP = 16.0  # an innovation counts for at most 4 sigma of its prediction (one reflection is not scatter)
 
 
@@ -135,7 +136,7 @@ class FixFigures:
     s_acc: float
     source: str  # RECEIVER, DOP or NOMINAL
     scale: tuple[float, float]  # learnt variance scale (horizontal, vertical); 1.0 when not learnt
-    speed_guessed: bool = False  # s_acc is the nominal speed figure (widened by SpeedScatter), not the receiver's
+    speed_guessed: bool = False  # s_acc is guessed (nominal, by the DOP or SpeedScatter), not the receiver's
 
     @property
     def h_acc(self) -> float:
@@ -172,8 +173,10 @@ class ScatterLearner:
         self._t_last_ns: int | None = None
         self._n = 0
 
-    def add(self, t_ns: int, z: list[float], p: list[float], r_nominal: list[float]) -> None:
-        """One fix's innovation (N, E[, D], m), the filter's variances and the nominal variances it was given."""
+    def add(self, t_ns: int, z: list[float], p: list[float], r_nominal: list[float], gated: bool = True) -> None:
+        """One fix's innovation (N, E[, D], m), the filter's variances and the nominal variances it was given.
+        ``gated`` False: a fix too weak to reach the gate, which nothing vetted: it may teach that the scale is
+        smaller than learnt, never that it is larger (its innovation counts for at most what the scale predicts)."""
         dt = 0.0 if self._t_last_ns is None else (t_ns - self._t_last_ns) / 1e9
         self._t_last_ns = t_ns
         if not 0.0 <= dt < MAX_GAP_S:
@@ -186,7 +189,8 @@ class ScatterLearner:
         k = self._current()
         for g, axes in enumerate(groups):
             # Clipped at 4 sigma of what is expected with the scale learnt so far, so that the scale can grow.
-            z2 = sum(min(z[i] ** 2, LEARN_CLIP * (p[i] + k[g] * r_nominal[i])) for i in axes) / len(axes)
+            clip = LEARN_CLIP if gated else 1.0
+            z2 = sum(min(z[i] ** 2, clip * (p[i] + k[g] * r_nominal[i])) for i in axes) / len(axes)
             pm = sum(p[i] for i in axes) / len(axes)
             rm = sum(r_nominal[i] for i in axes) / len(axes)
             self._z2[g] += a * (z2 - self._z2[g])
@@ -237,13 +241,14 @@ class SpeedScatter:
         self._z2 = [0.0, 0.0]  # mean innovation squared, north and east
         self._p = [0.0, 0.0]  # mean filter variance they were taken against
         self._t_ns: int | None = None
+        self._start_ns = 0  # the first innovation since it (re)started
         self._n = 0
 
     def add(self, t_ns: int, z: list[float], p: list[float], r: float) -> None:
         """One fix's velocity innovation (north, east; m/s), the filter's variances and the speed variance used."""
         dt = 0.0 if self._t_ns is None else max(0.0, (t_ns - self._t_ns) / 1e9)
         if self._t_ns is None or dt > self.tau_s:
-            self._n = 0
+            self._n, self._start_ns = 0, t_ns
         self._n += 1
         self._t_ns = t_ns
         # A plain mean while short, then an exponential one over tau of drive time (whatever the fix rate).
@@ -254,8 +259,10 @@ class SpeedScatter:
             self._p[i] += a * (p[i] - self._p[i])
 
     def known(self, t_ns: int) -> bool:
-        """Whether enough innovations went in since it (re)started, the last within tau of ``t_ns``."""
-        return self._t_ns is not None and self._n >= BIAS_MIN_FIXES and t_ns - self._t_ns <= self.tau_s * 1e9
+        """Whether the innovations since it (re)started are enough (BIAS_MIN_FIXES of them over SPEED_KNOWN_S: at
+        10 Hz five are half a second of one error), the last within tau of ``t_ns``."""
+        return (self._t_ns is not None and self._n >= BIAS_MIN_FIXES
+                and self._t_ns - self._start_ns >= SPEED_KNOWN_S * 1e9 and t_ns - self._t_ns <= self.tau_s * 1e9)
 
     def variance(self, t_ns: int) -> float:
         """The speed variance the recent innovations show (m^2/s^2, the larger axis; 0 until enough were seen),
@@ -330,8 +337,10 @@ class AccuracyModel:
             s = math.sqrt(max(ns * ns, self.speeds.variance(t_ns)))
         else:
             # Nothing seen of the speeds' scatter yet (the drive's first fixes, the first after an outage): the
-            # geometry is all there is, and a Doppler's error grows with the DOP as a position's does.
-            s = ns * max(1.0, h / nh) if source == DOP else ns
+            # geometry is all there is, and a Doppler's error grows with the DOP as a position's does. The nominal
+            # figures describe an open sky's DOP (gnss_uere_m x HDOP = nominal hAcc: 0.75 with the defaults).
+            hd = dops(pdop, hdop, vdop)[0]
+            s = ns * max(1.0, self.uere_m * hd / nh) if hd is not None else ns
         return FixFigures(h, v, s, source, scale, speed_guessed=True)
 
     def offset_excess(self, t_ns: int) -> float:
@@ -357,13 +366,15 @@ class AccuracyModel:
         if self.learn and figures.speed_guessed:
             self.speeds.add(t_ns, innovation, p_diag, r)
 
-    def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float]) -> None:
-        """A running filter's innovation of a fix whose figures were guessed: what the learner learns from."""
+    def observe(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float],
+                gated: bool = True) -> None:
+        """A running filter's innovation of a fix whose figures were guessed: what the learner learns from.
+        ``gated`` False: the fix was too weak to reach the gate (:meth:`ScatterLearner.add`)."""
         if not self.learn or figures.source == RECEIVER:
             return
         rh = figures.h_model**2 / 2.0
         rv = figures.v_model**2
-        self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)])
+        self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)], gated)
         if len(innovation) < 3:
             return  # a 2D fix has no height of its own: the vertical mean waits for the next 3D one
         t0 = self._offset_t

@@ -148,14 +148,15 @@ class GnssPolicy:
         ok = True if obs is None else core.apply(obs)
         last = self.last_readings
         if ok:
-            # Learnt from fixes the gate let in, and from those too weak to reach it: a filter that lost itself must
+            # Learnt from fixes the gate let in, and from those too weak to reach it (which nothing vetted: they may
+            # only lower the scale, ScatterLearner.add): a filter that lost itself must
             # not teach the model that the receiver scatters by hundreds of metres (its fixes' figures would then be
             # too poor to restart it), but a scale learnt from accepted fixes only cannot come down once it makes
             # every fix too weak to go in. After the simulated 130 s tunnel at 10 Hz (NMEA, seed 1) its first fixes
             # (3-7 satellites, HDOP 4-15) taught a horizontal scale of 14; every open-sky fix after them was then
             # left out, the scale never relearnt, and the filter stayed 6 m off for the 200 s left of the drive
             # (north RMSE while moving 5.01 m; 2.23 m learning from both).
-            self.accuracy.observe(t_e, fix.figures, full_pos.z.tolist(), p_prior)
+            self.accuracy.observe(t_e, fix.figures, full_pos.z.tolist(), p_prior, obs is not None)
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
             if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:
@@ -186,7 +187,7 @@ class GnssPolicy:
         p_prior = [float(core.ekf.p[V_ID + i, V_ID + i]) for i in range(2)]
         obs = self._informative(core, full, V_ID)
         # Whatever the gate says of it: a refused speed is the receiver's too (SpeedScatter).
-        self.accuracy.observe_speed(fix.t_ns, fix.figures, full.z[:2].tolist(), p_prior, float(full.r[0]))
+        self.accuracy.observe_speed(fix.t_ns, fix.figures, full.z[:2].tolist(), p_prior, fix.figures.s_acc**2)
         if obs is not None:
             self.velocity.judge(core, obs, core.apply(obs), fix.t_ns,
                                 fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
