@@ -227,13 +227,13 @@ class SpeedScatter:
     one. Every innovation counts, refused ones included: the gate refuses exactly the worst speeds, and learning
     from the rest alone would call a receiver good that is half the time off (each is clipped at LEARN_CLIP of
     its prediction, so one reflection is not scatter; a filter off in velocity is pulled back by the OBD speed
-    within seconds, and what it taught fades as fast). Used once BIAS_MIN_FIXES went in since it (re)started, a
-    gap longer than BIAS_TAU_S restarting it; it never narrows the nominal figure. Until then (the drive's first
-    fixes, the first after an outage) the nominal figure follows the DOP, as a Doppler's error does: a receiver
-    reacquiring after the simulated 130 s tunnel at 10 Hz gave a second of speeds 0.6-1.3 m/s off from 6-9
-    satellites (HDOP 2-5), and one of them at the nominal 0.1 m/s moved the position 25 m through the outage's
-    position-velocity correlation. Not while it is known: a canyon's DOP of 2-4 came with speeds good to 0.3 m/s
-    on other simulated drives, and the DOP-scaled figure let them go (urban north RMSE 0.71 -> 1.17 m).
+    within seconds, and what it taught fades as fast). Used once BIAS_MIN_FIXES went in over SPEED_KNOWN_S since
+    it (re)started, a gap longer than BIAS_TAU_S restarting it; it never narrows the nominal figure. Until then
+    (the drive's first fixes, the first after an outage) the nominal figure follows the DOP, as a Doppler's error
+    does: a receiver reacquiring after the simulated 130 s tunnel at 10 Hz gave a second of speeds 0.6-1.3 m/s
+    off from 6-9 satellites (HDOP 2-5), and one of them at the nominal 0.1 m/s moved the position 25 m through the
+    outage's position-velocity correlation. Not while it is known: a canyon's DOP of 2-4 came with speeds good to
+    0.3 m/s on other simulated drives, and the DOP-scaled figure let them go (urban north RMSE 0.71 -> 1.17 m).
     """
 
     def __init__(self, tau_s: float = BIAS_TAU_S) -> None:

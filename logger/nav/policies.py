@@ -149,13 +149,13 @@ class GnssPolicy:
         last = self.last_readings
         if ok:
             # Learnt from fixes the gate let in, and from those too weak to reach it (which nothing vetted: they may
-            # only lower the scale, ScatterLearner.add): a filter that lost itself must
-            # not teach the model that the receiver scatters by hundreds of metres (its fixes' figures would then be
-            # too poor to restart it), but a scale learnt from accepted fixes only cannot come down once it makes
-            # every fix too weak to go in. After the simulated 130 s tunnel at 10 Hz (NMEA, seed 1) its first fixes
-            # (3-7 satellites, HDOP 4-15) taught a horizontal scale of 14; every open-sky fix after them was then
-            # left out, the scale never relearnt, and the filter stayed 6 m off for the 200 s left of the drive
-            # (north RMSE while moving 5.01 m; 2.23 m learning from both).
+            # only lower the scale, ScatterLearner.add). A filter that lost itself must not teach the model that the
+            # receiver scatters by hundreds of metres (its fixes' figures would then be too poor to restart it), but
+            # a scale learnt from accepted fixes only cannot come down once it makes every fix too weak to go in.
+            # After the simulated 130 s tunnel at 10 Hz (NMEA, seed 1) its first fixes (3-7 satellites, HDOP 4-15)
+            # taught a horizontal scale of 14; every open-sky fix after them was then left out, the scale never
+            # relearnt, and the filter stayed 6 m off for the 200 s left of the drive (north RMSE while moving
+            # 5.01 m; 1.35 m now, with SpeedScatter's DOP prior for the exit's speeds as well).
             self.accuracy.observe(t_e, fix.figures, full_pos.z.tolist(), p_prior, obs is not None)
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
