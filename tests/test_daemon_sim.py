@@ -116,7 +116,12 @@ def test_truth_topics_are_recorded(minute_drive: tuple[Path, dict]) -> None:
     clock = [m for _, _, m in msgs["/truth/clock"]]
     assert len(clock) > 590  # 10 Hz
     nav = [m for _, _, m in msgs["/truth/nav"]]
-    assert len(nav) > 1190 and {"lat_deg", "lon_deg", "height_m", "vel_ned_mps", "rpy_deg"} <= set(nav[0])
+    assert {"lat_deg", "lon_deg", "height_m", "vel_ned_mps", "rpy_deg"} <= set(nav[0])
+    # One record every 50 ms of drive time, none lost. Counted against the drive time the records span, not the
+    # minute of wall time: on a busy host the governor may slow the simulated drive (sensors/sim/governor.py), and
+    # a minute then holds less of it (1186 records once, with two test runs sharing the machine).
+    span_s = (nav[-1]["t_true_ns"] - nav[0]["t_true_ns"]) / 1e9
+    assert span_s > 45.0 and len(nav) >= 20.0 * span_s - 1.0, (len(nav), span_s)
     # The simulated receiver's fixes sit within metres of the truth at the same instant.
     truth = {m["t_true_ns"] // 10**9: m for m in nav}
     near = 0
