@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 FLOOR_WINDOW = 300  # fixes (5 min at 1 Hz) over which the receiver's floor is the lowest figure it gave
@@ -214,6 +215,38 @@ class ScatterLearner:
         return out[0], out[1]
 
 
+class DriveMean:
+    """Running means of a few quantities over ``tau_s`` of drive time (whatever the fix rate), started again after a
+    gap longer than tau, with the count and the span of the samples since then: what the guessed fixes' vertical
+    offset and speed scatter are read from. ``plain_start``: a plain mean while short (the first n samples
+    weigh 1/n each); otherwise the first sample after a start is the mean and the next ones move it by
+    1 - exp(-dt / tau)."""
+
+    def __init__(self, tau_s: float, size: int, plain_start: bool) -> None:
+        self.tau_s = tau_s
+        self.plain_start = plain_start
+        self.mean = [0.0] * size
+        self.t_ns: int | None = None  # the last sample's time
+        self.start_ns = 0  # the first sample's since the mean (re)started
+        self.n = 0  # samples since then
+
+    def add(self, t_ns: int, values: Sequence[float]) -> None:
+        dt = 0.0 if self.t_ns is None else max(0.0, (t_ns - self.t_ns) / 1e9)
+        if self.t_ns is None or dt > self.tau_s:
+            self.n, self.start_ns = 0, t_ns
+        self.n += 1
+        self.t_ns = t_ns
+        a = 1.0 - math.exp(-dt / self.tau_s)
+        a = max(1.0 / self.n, a) if self.plain_start else (1.0 if self.n == 1 else a)
+        for i, v in enumerate(values):
+            self.mean[i] += a * (v - self.mean[i])
+
+    def fade(self, t_ns: int) -> float:
+        """How much of the mean stands ``t_ns`` on, with no sample since the last: exp(-elapsed / tau)."""
+        assert self.t_ns is not None
+        return math.exp(-max(0.0, (t_ns - self.t_ns) / 1e9) / self.tau_s)
+
+
 class SpeedScatter:
     """The variance of a receiver's speeds about the truth when it gives no speed figure, learnt over seconds from
     the filter's velocity innovations (Mehra's rule, as :class:`ScatterLearner`, per axis north and east).
@@ -237,40 +270,29 @@ class SpeedScatter:
     """
 
     def __init__(self, tau_s: float = BIAS_TAU_S) -> None:
-        self.tau_s = tau_s
-        self._z2 = [0.0, 0.0]  # mean innovation squared, north and east
-        self._p = [0.0, 0.0]  # mean filter variance they were taken against
-        self._t_ns: int | None = None
-        self._start_ns = 0  # the first innovation since it (re)started
-        self._n = 0
+        # Mean innovation squared north and east, and the filter's variance they were taken against.
+        self._m = DriveMean(tau_s, 4, plain_start=True)
 
     def add(self, t_ns: int, z: list[float], p: list[float], r: float) -> None:
         """One fix's velocity innovation (north, east; m/s), the filter's variances and the speed variance used."""
-        dt = 0.0 if self._t_ns is None else max(0.0, (t_ns - self._t_ns) / 1e9)
-        if self._t_ns is None or dt > self.tau_s:
-            self._n, self._start_ns = 0, t_ns
-        self._n += 1
-        self._t_ns = t_ns
-        # A plain mean while short, then an exponential one over tau of drive time (whatever the fix rate).
-        a = max(1.0 / self._n, 1.0 - math.exp(-dt / self.tau_s))
-        for i in range(2):
-            z2 = min(z[i] * z[i], LEARN_CLIP * (p[i] + r))
-            self._z2[i] += a * (z2 - self._z2[i])
-            self._p[i] += a * (p[i] - self._p[i])
+        self._m.add(t_ns, (min(z[0] * z[0], LEARN_CLIP * (p[0] + r)), min(z[1] * z[1], LEARN_CLIP * (p[1] + r)),
+                           p[0], p[1]))
 
     def known(self, t_ns: int) -> bool:
         """Whether the innovations since it (re)started are enough (BIAS_MIN_FIXES of them over SPEED_KNOWN_S: at
         10 Hz five are half a second of one error), the last within tau of ``t_ns``."""
-        return (self._t_ns is not None and self._n >= BIAS_MIN_FIXES
-                and self._t_ns - self._start_ns >= SPEED_KNOWN_S * 1e9 and t_ns - self._t_ns <= self.tau_s * 1e9)
+        m = self._m
+        return (m.t_ns is not None and m.n >= BIAS_MIN_FIXES and m.t_ns - m.start_ns >= SPEED_KNOWN_S * 1e9
+                and t_ns - m.t_ns <= m.tau_s * 1e9)
 
     def variance(self, t_ns: int) -> float:
         """The speed variance the recent innovations show (m^2/s^2, the larger axis; 0 until enough were seen),
         fading over tau while no fix comes."""
-        if self._t_ns is None or self._n < BIAS_MIN_FIXES:
+        m = self._m
+        if m.t_ns is None or m.n < BIAS_MIN_FIXES:
             return 0.0
-        fade = math.exp(-max(0.0, (t_ns - self._t_ns) / 1e9) / self.tau_s)
-        return fade * max(0.0, self._z2[0] - self._p[0], self._z2[1] - self._p[1])
+        z2n, z2e, pn, pe = m.mean
+        return m.fade(t_ns) * max(0.0, z2n - pn, z2e - pe)
 
 
 def dops(pdop: float | None, hdop: float | None, vdop: float | None) -> tuple[float | None, float | None]:
@@ -305,10 +327,8 @@ class AccuracyModel:
         self.learn = learn
         self.learner = ScatterLearner()
         self.speeds = SpeedScatter()
-        self._offset = 0.0  # running mean of the guessed fixes' vertical innovations (m, down)
-        self._offset_p = 0.0  # ... and of the filter's vertical variance they were taken against
-        self._offset_t: int | None = None
-        self._offset_n = 0  # fixes in the running mean since it (re)started
+        # The guessed fixes' vertical innovations (m, down) and the filter's vertical variance they were taken against.
+        self._offset = DriveMean(BIAS_TAU_S, 2, plain_start=False)
 
     def figures(self, h_acc: float | None, v_acc: float | None, s_acc: float | None,
                 pdop: float | None, hdop: float | None = None, vdop: float | None = None,
@@ -354,10 +374,11 @@ class AccuracyModel:
         the fixes share, and it counts as variance on top of the DOP's. Noise alone leaves the mean small against
         the DOP figure (a fifth of it at 1 Hz), so an open sky's fixes keep their weight; the excess fades with
         the mean once the fixes agree with the filter again, and with time while none come."""
-        if self._offset_t is None or self._offset_n < BIAS_MIN_FIXES:
+        m = self._offset
+        if m.t_ns is None or m.n < BIAS_MIN_FIXES:
             return 0.0  # a mean of a few innovations is one innovation's noise, not an offset
-        fade = math.exp(-max(0.0, (t_ns - self._offset_t) / 1e9) / BIAS_TAU_S)
-        return max(0.0, (fade * self._offset) ** 2 - self._offset_p)
+        offset, p = m.mean
+        return max(0.0, (m.fade(t_ns) * offset) ** 2 - p)
 
     def observe_speed(self, t_ns: int, figures: FixFigures, innovation: list[float], p_diag: list[float],
                       r: float) -> None:
@@ -377,13 +398,4 @@ class AccuracyModel:
         self.learner.add(t_ns, innovation, p_diag, [rh, rh, rv][:len(innovation)], gated)
         if len(innovation) < 3:
             return  # a 2D fix has no height of its own: the vertical mean waits for the next 3D one
-        t0 = self._offset_t
-        dt = 0.0 if t0 is None else max(0.0, (t_ns - t0) / 1e9)
-        if t0 is None or dt > BIAS_TAU_S:
-            a, self._offset_n = 1.0, 0  # after a gap the mean starts again, used once BIAS_MIN_FIXES went in
-        else:
-            a = 1.0 - math.exp(-dt / BIAS_TAU_S)
-        self._offset_n += 1
-        self._offset_t = t_ns
-        self._offset += a * (innovation[2] - self._offset)
-        self._offset_p += a * (p_diag[2] - self._offset_p)
+        self._offset.add(t_ns, (innovation[2], p_diag[2]))  # after a gap it starts again (DriveMean)

@@ -183,11 +183,11 @@ class GnssPolicy:
         snap = core.state_at(fix.t_ns)
         full = GnssVelocity(fix.vel, fix.s_vel, core.lever, gyro_raw,
                             not (fix.fix_3d and fix.vel_3d)).observe(snap, snap.dcm(), core.n)
-        assert core.ekf is not None
-        p_prior = [float(core.ekf.p[V_ID + i, V_ID + i]) for i in range(2)]
+        if fix.figures.speed_guessed:  # whatever the gate says of it: a refused speed is the receiver's too
+            assert core.ekf is not None
+            p_prior = [float(core.ekf.p[V_ID + i, V_ID + i]) for i in range(2)]
+            self.accuracy.observe_speed(fix.t_ns, fix.figures, full.z[:2].tolist(), p_prior, fix.figures.s_acc**2)
         obs = self._informative(core, full, V_ID)
-        # Whatever the gate says of it: a refused speed is the receiver's too (SpeedScatter).
-        self.accuracy.observe_speed(fix.t_ns, fix.figures, full.z[:2].tolist(), p_prior, fix.figures.s_acc**2)
         if obs is not None:
             self.velocity.judge(core, obs, core.apply(obs), fix.t_ns,
                                 fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
