@@ -267,6 +267,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "align_min_s": Key(NUM, FIELD, _range(0.1, 600), "standstill needed to level the IMU"),
         "still_accel_mps2": Key(NUM, FIELD, _range(1e-4, 5), "stop detector's first threshold (then adapted)"),
         "cov_interval_s": Key(NUM, FIELD, _range(0.01, 2), "covariance propagation interval"),
+        "integration_hz": Key(NUM, FIELD, _range(0, 1000),
+                              "strapdown steps per second for a faster IMU's FIFO blocks (0: one per sample)"),
         "publish_hz": Key(NUM, FIELD, _range(0.1, 1000), "rate of /nav/fix while running live"),
         "queue_size": Key(int, FIELD, _range(10, 1_000_000), "records waiting for the filter before drops"),
     }),

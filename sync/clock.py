@@ -367,8 +367,9 @@ class PpsClock(StampClock):
                 part = np.minimum(1.0, left)
                 off = np.where(left > 0, off + self._slew_ns * part, off)
                 err = np.where(left > 0, err + abs(self._slew_ns) * part, err)
-            return Stamps((t + np.rint(off).astype(np.int64)).tolist(),
-                          [LOCKED if k else HOLDOVER for k in locked.tolist()],
+            states = ([LOCKED] * len(t) if locked.all() else
+                      [HOLDOVER] * len(t) if not locked.any() else [LOCKED if k else HOLDOVER for k in locked.tolist()])
+            return Stamps((t + np.rint(off).astype(np.int64)).tolist(), states,
                           np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(), timer_cnt.tolist())
 
     def _stamp(self, t_mono_ns: int) -> Stamp:

@@ -17,6 +17,8 @@ the count from the read time. Stamps are strictly increasing whatever the reads 
 
 from __future__ import annotations
 
+import numpy as np
+
 STEER_GAIN = 0.1  # share of the read-time difference taken per batch: read jitter averages over ~10 polls
 PERIOD_SPAN_S = 5.0  # frames counted over at least this long before the period estimate replaces the nominal
 PERIOD_WINDOW_S = 60.0  # ... and over at most about twice this
@@ -72,7 +74,8 @@ class FifoClock:
         step = p if self._last is None else min(p, (newest - self._last) / n)
         if self._last is not None and newest <= self._last:  # only with a clock going back: keep order anyway
             newest, step = self._last + n, 1.0
-        out = [round(newest - (n - 1 - i) * step) for i in range(n)]
+        # The same arithmetic as round(newest - (n - 1 - i) * step) per frame (rint rounds half to even as round does).
+        out = np.rint(newest - np.arange(n - 1, -1, -1) * step).astype(np.int64).tolist()
         self._last = newest
         self._learn_period(newest, n)
         return out

@@ -55,7 +55,9 @@ def reads() -> list[Item]:
 
 def _navigator(**params: Any) -> tuple[Navigator, list[Reading], list[tuple[int, int]]]:
     """A navigator (no thread) whose engine keeps its rows and epochs, what it publishes, and each engine call
-    for IMU samples as (first sample's time, samples)."""
+    for IMU samples as (first sample's time, samples). A strapdown step per sample unless ``integration_hz`` is
+    given: steps of several samples end where a block ends, so merging would move them (see the last test)."""
+    params.setdefault("integration_hz", 0.0)
     published: list[Reading] = []
     nav = Navigator(NavParams(**params), publish=published.append)
     nav.engine = engine = NavEngine(nav.params, record=True)
@@ -176,3 +178,24 @@ def test_take_without_merging_is_read_by_read(reads):
     assert calls_alone == calls_one and max(n for _, n in calls_alone) <= PER_READ
     _same_trajectory(one.engine, alone.engine)
     assert [r.payload for r in pub_alone] == [r.payload for r in pub_one]
+
+
+def test_merged_reads_in_steps_of_ten_samples_publish_what_reads_one_by_one_do(reads):
+    """With the default ``integration_hz`` (a strapdown step per ten samples at 1 kHz) a step ends where a block
+    does, so merged reads step at other samples than reads one by one: the fixes published are the same ones, at
+    the same times, to micrometres, and both against the filter stepping sample by sample."""
+    one, pub_one, _ = _navigator(integration_hz=100.0)
+    many, pub_many, _ = _navigator(integration_hz=100.0)
+    each, pub_each, _ = _navigator()
+    _read_by_read(one, reads)
+    _merged(many, reads)
+    _read_by_read(each, reads)
+    assert len(many.engine.rows) < 0.2 * len(each.engine.rows)
+    for pub in (pub_one, pub_many):
+        a = [r.payload for r in pub if r.topic == NAV_FIX]
+        b = [r.payload for r in pub_each if r.topic == NAV_FIX]
+        assert len(a) == len(b) > 100
+        assert [m["t_sync_ns"] for m in a] == [m["t_sync_ns"] for m in b]
+        pa = np.array([(m["latitude"], m["longitude"], m["altitude"]) for m in a])
+        pb = np.array([(m["latitude"], m["longitude"], m["altitude"]) for m in b])
+        assert np.abs(pa[:, :2] - pb[:, :2]).max() * 111_000 < 1e-4 and np.abs(pa[:, 2] - pb[:, 2]).max() < 1e-4

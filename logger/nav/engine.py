@@ -54,7 +54,7 @@ from logger.nav.solution import SolutionPolicy
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
-from logger.nav.strapdown import Strapdown
+from logger.nav.strapdown import Strapdown, preintegrate
 from logger.nav.thermal import TempcoLearner, TemperatureSpan, turned
 
 NS = 1_000_000_000
@@ -66,6 +66,7 @@ REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is com
 REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
 REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
 BATCH_MIN = 64  # shorter batches go sample by sample: the block forms cost numpy calls worth tens of samples
+DECIMATED_BATCH_MIN = 16  # ... unless integrated in steps of several samples: then a FIFO read of 40 gains
 NEVER = 2**63 - 1
 
 
@@ -280,7 +281,8 @@ class NavEngine:
         if temp_degc is not None and np.ndim(temp_degc):
             temp_degc = np.asarray(temp_degc, dtype=float).reshape(n)  # one per sample: the reads' own
         t_last = self._t_last
-        if (n < BATCH_MIN or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
+        least = BATCH_MIN if self._group_size() == 1 else DECIMATED_BATCH_MIN
+        if (n < least or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
                 or not bool((np.diff(t) > 0).all())):
             self._imu_each(t, mono, acc, gyro, temp_degc)
             return
@@ -305,32 +307,36 @@ class NavEngine:
             # A segment: the samples up to the next one that closes something besides its integration (the
             # covariance's interval, the idle check, a solution's epoch); nothing changes the offsets inside it.
             event_ns = self._event_ns()
-            ba, bg = s.ba, s.bg
-            f_rows = (acc[i:] - ba).tolist()
-            w_rows = (gyro[i:] - bg).tolist()
-            corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
-            cov_dt, dt_mean = self._cov_dt, self._dt_mean
-            j = i
-            due = False
-            for f_, w_ in zip(f_rows, w_rows, strict=False):
-                dt = dtl[j]
-                dt_mean += 0.02 * (dt - dt_mean)
-                mech.coning = dt_mean < CONING_MAX_DT_S
-                mech.step(s, (w_[0], w_[1], w_[2]), (f_[0], f_[1], f_[2]), dt)
-                cov_dt += dt
-                t_j = times[j]
-                if cov_dt >= interval or t_j >= event_ns:
-                    due = True
-                    break
-                hist.append((t_j, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, corr))
-                if record:
-                    rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q,
-                                                         sigma, epoch)))
-                j += 1
-            self._dt_mean = dt_mean
-            last = j if due else n - 1
-            f_, w_ = f_rows[last - i], w_rows[last - i]
-            self._f_last, self._w_last = (f_[0], f_[1], f_[2]), (w_[0], w_[1], w_[2])
+            group = self._group_size()
+            if group > 1 and mech.ready:
+                last, due, cov_dt = self._decimated_segment(i, group, event_ns, t, acc, gyro, dts, times, monos)
+            else:
+                ba, bg = s.ba, s.bg
+                f_rows = (acc[i:] - ba).tolist()
+                w_rows = (gyro[i:] - bg).tolist()
+                corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
+                cov_dt, dt_mean = self._cov_dt, self._dt_mean
+                j = i
+                due = False
+                for f_, w_ in zip(f_rows, w_rows, strict=False):
+                    dt = dtl[j]
+                    dt_mean += 0.02 * (dt - dt_mean)
+                    mech.coning = dt_mean < CONING_MAX_DT_S
+                    mech.step(s, (w_[0], w_[1], w_[2]), (f_[0], f_[1], f_[2]), dt)
+                    cov_dt += dt
+                    t_j = times[j]
+                    if cov_dt >= interval or t_j >= event_ns:
+                        due = True
+                        break
+                    hist.append((t_j, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, corr))
+                    if record:
+                        rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd,
+                                                             s.q, sigma, epoch)))
+                    j += 1
+                self._dt_mean = dt_mean
+                last = j if due else n - 1
+                f_, w_ = f_rows[last - i], w_rows[last - i]
+                self._f_last, self._w_last = (f_[0], f_[1], f_[2]), (w_[0], w_[1], w_[2])
             a_, g_ = acc[last].tolist(), gyro[last].tolist()
             self._gyro_raw = (g_[0], g_[1], g_[2])
             self._raw = ((a_[0], a_[1], a_[2]), self._gyro_raw)
@@ -339,10 +345,10 @@ class NavEngine:
             if not due:
                 self._cov_dt = cov_dt
                 break
-            # The bookkeeping came up to sample j: the rest of it runs as for a single sample.
-            self._cov_dt = cov_dt - dtl[j]
-            self._after_step(times[j], monos[j], s, self._gyro_raw, dtl[j], gyro_sum=False)
-            i = j + 1
+            # The bookkeeping came up to the closing sample: the rest of it runs as for a single sample.
+            self._cov_dt = cov_dt - dtl[last]
+            self._after_step(times[last], monos[last], s, self._gyro_raw, dtl[last], gyro_sum=False)
+            i = last + 1
             if self._mount_m is not mount:
                 # The covariance step took a new mounting: the rest of the block is turned the new way, as the
                 # samples one by one would be.
@@ -351,6 +357,56 @@ class NavEngine:
                 gyro = np.concatenate((gyro[:i], chip_gyro[i:] @ mount.T))
                 self._block = (t, acc, gyro, dts, temp_degc)
         self._block = None
+
+    def _group_size(self) -> int:
+        """Samples per strapdown step in a block: one up to ``integration_hz``; above it as many as make a step of
+        about 1 / ``integration_hz`` (a 1 kHz FIFO at the default 100 Hz: ten)."""
+        hz = self.params.integration_hz
+        if hz <= 0.0 or self._dt_mean <= 0.0:
+            return 1
+        return max(1, round(1.0 / (hz * self._dt_mean)))
+
+    def _decimated_segment(self, i: int, group: int, event_ns: int, t: np.ndarray, acc: np.ndarray,
+                           gyro: np.ndarray, dts: np.ndarray, times: list[int], monos: list[int]
+                           ) -> tuple[int, bool, float]:
+        """The block's samples from ``i`` up to the next one that closes something (as the per-sample segment),
+        integrated ``group`` at a time (:func:`~logger.nav.strapdown.preintegrate`, coning and sculling within each
+        step), with a history entry and a row per step; the closing sample ends a step of its own, whose history
+        and row :meth:`_after_step` adds. Returns the segment's last sample, whether it closes something, and the
+        covariance's interval so far including it."""
+        s, mech = self.state, self.mech
+        assert s is not None
+        n = len(times)
+        cov = np.cumsum(np.concatenate(((self._cov_dt,), dts[i:])))[1:]
+        hit = np.flatnonzero((cov >= self._cov_interval_s) | (t[i:] >= event_ns))
+        due = len(hit) > 0
+        end = i + int(hit[0]) if due else n - 1
+        m = end + 1 - i
+        w = np.concatenate(((mech.last_rate,), gyro[i:end + 1] - np.asarray(s.bg)))
+        f = np.concatenate(((mech.last_force,), acc[i:end + 1] - np.asarray(s.ba)))
+        starts = np.arange(0, m, group)
+        rot, dv, lengths = preintegrate(w, f, dts[i:end + 1], starts)
+        # The mean interval, as the per-sample loop keeps it (an exponential mean, weight 0.02 per sample).
+        k = 0.98 ** np.arange(m - 1, -1, -1)
+        self._dt_mean = 0.98**m * self._dt_mean + 0.02 * float(k @ dts[i:end + 1])
+        mech.coning = self._dt_mean < CONING_MAX_DT_S
+        hist, record, rows = self.history.entries, self.record, self.rows
+        corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
+        step = mech.step_increments
+        ends = (np.append(starts[1:], m) - 1 + i).tolist()  # each step's last sample, in the block
+        for r, d, dt, j in zip(rot.tolist(), dv.tolist(), lengths.tolist(), ends, strict=True):
+            step(s, r, d, dt)
+            if due and j == end:
+                break
+            t_j = times[j]
+            hist.append((t_j, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, corr))
+            if record:
+                rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q,
+                                                     sigma, epoch)))
+        wl, fl = w[-2:].tolist(), f[-2:].tolist()  # the last sample and the one before it (or before the segment)
+        mech.continue_from(wl[1], fl[1], wl[0], fl[0], float(dts[end]))
+        self._f_last, self._w_last = mech.last_force, mech.last_rate
+        return end, due, float(cov[-1])
 
     def _event_ns(self) -> int:
         """The first instant from which a sample closes something besides its integration and the covariance's

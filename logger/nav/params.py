@@ -82,6 +82,9 @@ class NavParams:
     align_min_s: float = 2.0
     still_accel_mps2: float = 0.05  # starting threshold of the stop detector (adapted at OBD-confirmed stops)
     cov_interval_s: float = 0.5
+    # A faster IMU's blocks (FIFO reads) are integrated a step per 1 / integration_hz s, coning and sculling within
+    # each step (strapdown.preintegrate): a 1 kHz IMU costs a tenth of the steps. 0: a step per sample.
+    integration_hz: float = 100.0
     publish_hz: float = 5.0
     queue_size: int = 2000
     enabled: bool = True

@@ -16,6 +16,9 @@ product costs more than the whole step here). Each step integrates the interval 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+
+import numpy as np
 
 from logger.nav import earth
 from logger.nav.state import NavState
@@ -49,6 +52,20 @@ class Strapdown:
 
     def reset(self) -> None:
         self._w = None
+
+    @property
+    def ready(self) -> bool:
+        """Whether a previous sample is there to integrate the next interval from."""
+        return self._w is not None
+
+    @property
+    def last_rate(self) -> tuple[float, float, float]:
+        """The previous sample's bias-corrected rate (rad/s); meaningful when :attr:`ready`."""
+        return self._w or (0.0, 0.0, 0.0)
+
+    @property
+    def last_force(self) -> tuple[float, float, float]:
+        return self._f
 
     def prime(self, w: tuple[float, float, float], f: tuple[float, float, float]) -> None:
         """Start from a sample without integrating (the first one, or after a gap)."""
@@ -85,7 +102,27 @@ class Strapdown:
         else:
             rx, ry, rz = tx, ty, tz
         self._w, self._f, self._th, self._dv = w, f, (tx, ty, tz), (ux, uy, uz)
+        self._advance(s, rx, ry, rz, dx, dy, dz, dt)
 
+    def step_increments(self, s: NavState, r: Sequence[float], d: Sequence[float], dt: float) -> None:
+        """Advance ``s`` by one step of several samples (:func:`preintegrate`): ``r`` the body's rotation vector over
+        it and ``d`` its velocity increment (rad, m/s; coning, sculling and rotation compensation included), ``dt``
+        its length. :meth:`continue_from` then says which sample the next single-sample step starts from."""
+        self._advance(s, r[0], r[1], r[2], d[0], d[1], d[2], dt)
+
+    def continue_from(self, w: Sequence[float], f: Sequence[float], w_prev: Sequence[float],
+                      f_prev: Sequence[float], dt: float) -> None:
+        """The last sample integrated by steps (its bias-corrected rate and force), and the one before it ``dt``
+        earlier: the next single-sample step integrates from them, its coning and sculling against their interval."""
+        h = 0.5 * dt
+        self._w, self._f = (w[0], w[1], w[2]), (f[0], f[1], f[2])
+        self._th = ((w_prev[0] + w[0]) * h, (w_prev[1] + w[1]) * h, (w_prev[2] + w[2]) * h)
+        self._dv = ((f_prev[0] + f[0]) * h, (f_prev[1] + f[1]) * h, (f_prev[2] + f[2]) * h)
+
+    def _advance(self, s: NavState, rx: float, ry: float, rz: float, dx: float, dy: float, dz: float,
+                 dt: float) -> None:
+        """The navigation frame's half of a step: the body increments (rotation vector r, velocity increment d) over
+        ``dt`` turned into attitude, velocity and position."""
         lat, h, vn, ve, vd = s.lat, s.h, s.vn, s.ve, s.vd
         glat, gh, tl, rn, rm, g, wie_n, wie_d, wie2_n, wie2_d = self._geo
         if abs(lat - glat) > 1e-6 or abs(h - gh) > 1.0:
@@ -155,3 +192,28 @@ def _geometry(lat: float, h: float) -> tuple[float, ...]:
 
 # No point yet: every latitude is further than the threshold from it.
 _NO_GEOMETRY = (math.inf, math.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def preintegrate(w: np.ndarray, f: np.ndarray, dts: np.ndarray, starts: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Body increments of consecutive groups of samples, for a strapdown step per group rather than per sample.
+
+    ``w``, ``f``: (m + 1) x 3 bias-corrected rates and forces, the sample before the first interval first; ``dts``:
+    the m intervals (s); ``starts``: the first interval of each group (0 first, increasing). Each interval's
+    increments are the trapezoid of its two samples, as :meth:`Strapdown.step` takes them. Over a group, with
+    alpha the angle summed since the group's start, the rotation vector is sum(theta) + 1/2 sum(alpha x theta)
+    (Bortz's equation to second order: the coning of the samples inside the group) and the velocity increment in
+    the group's starting body frame sum(u) + sum(alpha x u + 1/2 theta x u) (the body turning under the force:
+    rotation compensation and sculling; Savage, Strapdown Analytics 7.2). One sample per group gives exactly the
+    single step's rotation compensation. Returns (rotation vectors, velocity increments, group lengths in s)."""
+    m = len(dts)
+    h = 0.5 * dts[:, None]
+    th = (w[:-1] + w[1:]) * h
+    u = (f[:-1] + f[1:]) * h
+    a = np.cumsum(th, axis=0)
+    before = np.zeros((len(starts), 3))
+    before[1:] = a[starts[1:] - 1]
+    prev = a - th - np.repeat(before, np.diff(np.append(starts, m)), axis=0)  # alpha before each interval
+    rot = np.add.reduceat(th + 0.5 * np.cross(prev, th), starts, axis=0)
+    dv = np.add.reduceat(u + np.cross(prev, u) + 0.5 * np.cross(th, u), starts, axis=0)
+    return rot, dv, np.add.reduceat(dts, starts)
