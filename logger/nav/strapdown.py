@@ -190,6 +190,8 @@ def _geometry(lat: float, h: float) -> tuple[float, ...]:
         2.0 * wie_d
 
 
+_NEXT, _AFTER = [1, 2, 0], [2, 0, 1]  # axis orders of a cross product's two terms
+
 # No point yet: every latitude is further than the threshold from it.
 _NO_GEOMETRY = (math.inf, math.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -211,9 +213,12 @@ def preintegrate(w: np.ndarray, f: np.ndarray, dts: np.ndarray, starts: np.ndarr
     th = (w[:-1] + w[1:]) * h
     u = (f[:-1] + f[1:]) * h
     a = np.cumsum(th, axis=0)
-    before = np.zeros((len(starts), 3))
-    before[1:] = a[starts[1:] - 1]
-    prev = a - th - np.repeat(before, np.diff(np.append(starts, m)), axis=0)  # alpha before each interval
-    rot = np.add.reduceat(th + 0.5 * np.cross(prev, th), starts, axis=0)
-    dv = np.add.reduceat(u + np.cross(prev, u) + 0.5 * np.cross(th, u), starts, axis=0)
+    before = a[starts - 1]  # the angle summed up to each group's start
+    before[0] = 0.0
+    prev = a - th - np.repeat(before, np.diff(starts, append=m), axis=0)  # alpha before each interval
+    # The three cross products at once (prev x theta, prev x u, theta x u), by columns: numpy's cross costs twice.
+    x, y = np.concatenate((prev, prev, th)), np.concatenate((th, u, u))
+    c = x[:, _NEXT] * y[:, _AFTER] - x[:, _AFTER] * y[:, _NEXT]
+    rot = np.add.reduceat(th + 0.5 * c[:m], starts, axis=0)
+    dv = np.add.reduceat(u + c[m:2 * m] + 0.5 * c[2 * m:], starts, axis=0)
     return rot, dv, np.add.reduceat(dts, starts)
