@@ -223,6 +223,9 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
              f"| {info['cpu']} ({info['arch']}) | {info['cores']} | {info['kernel']} | {v['python']} | "
              + " | ".join(v.get(n, "?") for n in LIBRARIES) + f" | {info['commit']} |", ""]
     summary = summary_lines(results)
+    caveat = bench_board.machine_caveat(info["cpu"])
+    if summary and caveat:
+        summary.append(caveat)
     if summary:
         lines += ["## Summary", "", *summary, ""]
     for name in BENCHMARKS:

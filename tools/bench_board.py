@@ -28,6 +28,8 @@ FACTOR_LOW = 9.0
 FACTOR_HIGH = 28.0
 FACTOR_MID = 16.0  # geometric middle of the range
 BUDGET_PCT = 25.0  # of one board core, for the default setup
+# The core H (below) was judged for: CPU seconds measured on another core need H judged again.
+FACTOR_JUDGED_FOR = "Intel(R) Xeon(R) Processor"
 I2C_KERNEL_US = (20.0, 50.0)  # assumed kernel CPU per I2C transfer on the board (i2c-omap, interrupt driven)
 
 METHOD = f"""\
@@ -60,6 +62,15 @@ rate at an assumed {I2C_KERNEL_US[0]:g} to {I2C_KERNEL_US[1]:g} us of kernel CPU
 CPU, which the measurement already leaves out. Memory: the resident set is measured on x86-64; armhf has
 4-byte pointers, so the board's is expected lower, and the figure here is an upper bound against its 512 MB.
 """
+
+
+def machine_caveat(cpu: str) -> str | None:
+    """A line for the report when the figures were measured on a core other than the one F was judged for."""
+    if cpu == FACTOR_JUDGED_FOR:
+        return None
+    return (f"- The board's range uses F, judged for a {FACTOR_JUDGED_FOR} core (H in the BeagleBone section's "
+            f"method); these figures were measured on {cpu}, for which H was not judged again: where this core runs "
+            "Python slower than that one, the range overstates the board by as much.")
 
 
 def board_range(pct_here: float) -> tuple[float, float]:
