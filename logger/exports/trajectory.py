@@ -30,7 +30,7 @@ from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
 from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
-from logger.recording.topics import IMU, NAV_FIX, NAV_STATE, TOPICS
+from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
 
 if TYPE_CHECKING:
     from logger.nav.smoother import SmoothingReport
@@ -54,9 +54,11 @@ NAV_FIX_JSON = ('{"t_mono_ns": %d, "t_sync_ns": %d, "timestamp": {"sec": %d, "ns
 
 
 def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
-               progress: ProgressFn | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
-    """(topic, message) of the given topics over several files (a rotated drive), in log-time order."""
-    return read_messages(paths, topics, progress)
+               progress: ProgressFn | None = None, runs: bool = False) -> Iterator[tuple[str, dict[str, Any]]]:
+    """(topic, message) of the given topics over several files (a rotated drive), in log-time order; ``runs``: a
+    FIFO drive's samples as blocks (``/imu/batch`` records cut at the other messages), as the live navigator
+    takes them."""
+    return read_messages(paths, topics, progress, runs)
 
 
 def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
@@ -73,11 +75,16 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
         engine.use_solution(solution, solution_replaces)
     feed = nav_feeder(engine)
     next_state = 0
-    for topic, msg in read_drive(paths, progress=progress):
+    for topic, msg in read_drive(paths, progress=progress, runs=True):
         feed[topic](msg)
-        if states is not None and topic == IMU and msg["t_sync_ns"] >= next_state and engine.state is not None:
+        if states is None or engine.state is None:
+            continue
+        if topic == IMU and msg["t_sync_ns"] >= next_state:
             next_state = msg["t_sync_ns"] + 1_000_000_000
             states.append(nav_state_record(engine, msg["t_sync_ns"], msg["t_mono_ns"]))
+        elif topic == IMU_BATCH and msg["t_sync_ns"][-1] >= next_state:
+            next_state = msg["t_sync_ns"][-1] + 1_000_000_000
+            states.append(nav_state_record(engine, msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
     rows = engine.rows
     if smooth and engine.mode != "gnss" and engine.ekf is not None and engine.epochs:
         from logger.nav.smoother import smooth_rows  # only a smoothed replay needs the backward pass

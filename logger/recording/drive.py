@@ -14,6 +14,7 @@ the live ``/nav/fix`` and a replayed one are kept apart even though they share t
 
 from __future__ import annotations
 
+import bisect
 import json
 import re
 import struct
@@ -254,12 +255,27 @@ def _wanted(topics: Iterable[str]) -> tuple[set[str], bool]:
     return wanted, expand
 
 
+def imu_slice(batch: dict[str, Any], lo: int, hi: int) -> dict[str, Any]:
+    """Samples ``lo`` to ``hi - 1`` of an ``/imu/batch`` record as a record of its own (its lost count goes with
+    its first sample, its number is its first sample's)."""
+    out = {k: v[lo:hi] if isinstance(v, list) else v for k, v in batch.items()}
+    if lo:
+        out["lost"] = 0
+        out["seq"] = batch["seq"] + lo
+    return out
+
+
 def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
-                   expand: bool) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
+                   expand: bool, runs: bool = False) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
     """(log time, topic, file index, message) with each ``/imu/batch`` replaced by its samples at their own times.
 
     A batch is logged at its first sample's time, so its later samples wait here until the messages logged before
-    them have gone by: the samples and the other topics come out in time order, as per-sample records would."""
+    them have gone by: the samples and the other topics come out in time order, as per-sample records would.
+    ``runs``: a batch's samples come as ``/imu/batch`` records of their own instead, each the batch's samples up
+    to the next other message (one slice when nothing comes between), for a reader that takes blocks."""
+    if runs:
+        yield from _in_runs(items)
+        return
     if not expand:
         yield from items
         return
@@ -274,6 +290,31 @@ def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
         yield t, topic, index, msg
     for pt, pi, pm in pending:
         yield pt, IMU_TOPIC, pi, pm
+
+
+def _in_runs(items: Iterator[tuple[int, str, int, dict[str, Any]]]) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
+    """:func:`_in_time_order` with batches cut where another message comes between their samples."""
+    pending: deque[tuple[int, dict[str, Any], int]] = deque()  # (file index, batch, first sample not yet out)
+
+    def upto(t: int | None) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
+        while pending:
+            index, batch, lo = pending[0]
+            times = batch["t_sync_ns"]
+            hi = len(times) if t is None else bisect.bisect_right(times, t, lo)
+            if hi > lo:
+                yield times[lo], IMU_BATCH, index, batch if lo == 0 and hi == len(times) else imu_slice(batch, lo, hi)
+            if hi < len(times):
+                pending[0] = (index, batch, hi)
+                return
+            pending.popleft()
+
+    for t, topic, index, msg in items:
+        yield from upto(t)
+        if topic == IMU_BATCH and msg["t_sync_ns"]:
+            pending.append((index, msg, 0))
+            continue
+        yield t, topic, index, msg
+    yield from upto(None)
 
 
 def iter_messages(files: list[DriveFile], topics: Iterable[str],
@@ -298,12 +339,13 @@ def _decoded(files: list[DriveFile], wanted: set[str],
 
 
 def read_messages(paths: Iterable[Path], topics: Iterable[str],
-                  progress: ProgressFn | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+                  progress: ProgressFn | None = None, runs: bool = False) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message) of the given topics over one drive's files, in log-time order, for the filter: as
-    :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object."""
+    :func:`iter_messages`, with an IMU record's fields pulled out without decoding the whole JSON object.
+    ``runs``: a FIFO drive's samples as ``/imu/batch`` records cut at the other messages (:func:`_in_time_order`)."""
     files = open_drive(paths)
     wanted, expand = _wanted(topics)
-    for _, topic, _, msg in _in_time_order(_filter_inputs(files, wanted, progress), expand):
+    for _, topic, _, msg in _in_time_order(_filter_inputs(files, wanted, progress), expand, runs):
         yield topic, msg
 
 
