@@ -177,6 +177,22 @@ def test_a_1khz_imu_is_integrated_ten_samples_a_step_on_the_trajectory_of_its_sa
     drive = make_drive("outage-60s", seed=3, duration_s=40.0)
     recs = _with_temperature(records(drive, 40.0, seed=4, imu_hz=1000.0))
     one, many = _twins(_runs(recs, 40))
+    _same_steps(one, many)
+
+
+def test_1khz_steps_close_the_covariance_interval_inside_a_read():
+    """Without OBD speeds (whose updates bring the covariance up to date themselves) the covariance's interval
+    (0.3 s here) ends inside a FIFO read: the step ends on that sample, the interval counts up to it, the rest of
+    the read opens the next one."""
+    drive = make_drive("outage-60s", seed=3, duration_s=40.0)
+    recs = [r for r in _with_temperature(records(drive, 40.0, seed=4, imu_hz=1000.0)) if r[1] != "/obd/speed"]
+    one, many = _twins(_runs(recs, 40), cov_interval_s=0.3)
+    _same_steps(one, many)
+    assert len(many.epochs) == len(one.epochs) > 60  # 88: one per 0.3 s of the 25 s the filter ran, or an update
+
+
+def _same_steps(one: NavEngine, many: NavEngine) -> None:
+    """``many`` (1 kHz reads in steps of ten samples) where ``one`` (sample by sample) is at the steps' ends."""
     assert one.state is not None and many.state is not None and one.mech.coning
     assert one.counters.imu == many.counters.imu == 40001
     assert one.counters.initialised_ns == many.counters.initialised_ns

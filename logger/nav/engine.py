@@ -406,7 +406,7 @@ class NavEngine:
         wl, fl = w[-2:].tolist(), f[-2:].tolist()  # the last sample and the one before it (or before the segment)
         mech.continue_from(wl[1], fl[1], wl[0], fl[0], float(dts[end]))
         self._f_last, self._w_last = mech.last_force, mech.last_rate
-        return end, due, float(cov[-1])
+        return end, due, float(cov[end - i])
 
     def _event_ns(self) -> int:
         """The first instant from which a sample closes something besides its integration and the covariance's
