@@ -23,13 +23,29 @@ LEARN_RATE = 0.05
 RESUM_EVERY = 4096
 
 
+class _Block:
+    """A block of samples in the stop detector's window: their times, their forces and rates (n x 6), and the
+    first not yet gone out of the window. Indexed [0] it gives that sample's time, as a sample's tuple does."""
+
+    __slots__ = ("head", "lo", "t", "v")
+
+    def __init__(self, t: np.ndarray, v: np.ndarray) -> None:
+        self.t, self.v, self.lo, self.head = t, v, 0, int(t[0])
+
+    def __getitem__(self, i: int) -> int:
+        assert i == 0
+        return self.head
+
+
 class StopDetector(Deferred):
     def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
         self.thr_a = still_accel_mps2**2
         self.thr_w = still_gyro_rps**2
         self._ceil_a, self._ceil_w = 4.0 * self.thr_a, 4.0 * self.thr_w
         self._floor_a, self._floor_w = 1e-8, 1e-12
-        self._win: deque[tuple[int, float, float, float, float, float, float]] = deque()
+        # The window's samples, oldest first: (t, f x y z, w x y z) one by one, or a block's as a _Block.
+        self._win: deque[tuple[int, float, float, float, float, float, float] | _Block] = deque()
+        self._n = 0  # samples in the window
         self._sums = (0.0,) * 12  # sum per axis (force x, y, z, rate x, y, z), then sum of squares per axis
         self._var_a = math.inf
         self._var_w = math.inf
@@ -53,8 +69,10 @@ class StopDetector(Deferred):
         win = self._win
         a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
         adds = self._adds
+        n = self._n
         for t_ns, (fx, fy, fz), (wx, wy, wz) in pending:
             win.append((t_ns, fx, fy, fz, wx, wy, wz))
+            n += 1
             a0 += fx
             a1 += fy
             a2 += fz
@@ -69,7 +87,15 @@ class StopDetector(Deferred):
             b5 += wz * wz
             limit = t_ns - WINDOW_NS
             while win[0][0] < limit:
+                head = win[0]
+                if head.__class__ is _Block:
+                    self._sums, self._n = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5), n
+                    self._expire_block(head, limit)
+                    a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
+                    n = self._n
+                    continue
                 _, ox, oy, oz, ux, uy, uz = win.popleft()
+                n -= 1
                 a0 -= ox
                 a1 -= oy
                 a2 -= oz
@@ -84,48 +110,72 @@ class StopDetector(Deferred):
                 b5 -= uz * uz
             adds += 1
             if adds >= RESUM_EVERY:  # running sums lose a little to round-off: start them afresh now and then
+                self._n = n
                 self._resum()
                 a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5 = self._sums
                 adds = 0
         self._sums = (a0, a1, a2, a3, a4, a5, b0, b1, b2, b3, b4, b5)
         self._adds = adds
+        self._n = n
+
+    def _expire_block(self, block: _Block, limit: int) -> None:
+        """The samples of a block at the window's old end that are older than ``limit`` leave it (their sums at
+        once); the block leaves when none is left."""
+        cut = int(np.searchsorted(block.t, limit, side="left"))  # samples before limit: [lo, cut)
+        old = block.v[block.lo:cut]
+        self._sums = tuple((np.array(self._sums)
+                            - np.concatenate((old.sum(axis=0), (old * old).sum(axis=0)))).tolist())
+        self._n -= cut - block.lo
+        if cut >= len(block.t):
+            self._win.popleft()
+        else:
+            block.lo = cut
+            block.head = int(block.t[cut])
 
     def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         """Samples in time order at once (``f``, ``w``: n x 3): the window and sums :meth:`add` would leave, the
-        sums taken with numpy."""
+        sums taken with numpy and the block kept whole in the window."""
         self.flush_pending()
         if len(t_ns) == 0:
             return
         fw = np.concatenate((f, w), axis=1)
+        self._win.append(_Block(np.asarray(t_ns, dtype=np.int64), fw))
+        self._n += len(fw)
+        self._sums = tuple((np.array(self._sums)
+                            + np.concatenate((fw.sum(axis=0), (fw * fw).sum(axis=0)))).tolist())
+        limit = int(t_ns[-1]) - WINDOW_NS
         win = self._win
-        times = t_ns.tolist()
-        win.extend(zip(times, *fw.T.tolist(), strict=True))
-        sums = np.concatenate((fw.sum(axis=0), (fw * fw).sum(axis=0)))
-        limit = times[-1] - WINDOW_NS
-        old = []
         while win[0][0] < limit:
-            old.append(win.popleft())
-        if old:
-            o = np.array(old, dtype=float)[:, 1:]
-            sums -= np.concatenate((o.sum(axis=0), (o * o).sum(axis=0)))
-        self._sums = tuple((np.array(self._sums) + sums).tolist())
+            head = win[0]
+            if head.__class__ is _Block:
+                self._expire_block(head, limit)
+                continue
+            o = win.popleft()
+            self._n -= 1
+            sq = [v * v for v in o[1:]]
+            self._sums = tuple(a - b for a, b in zip(self._sums, (*o[1:], *sq), strict=True))
         self._dirty = True
-        self._adds += len(times)
+        self._adds += len(fw)
         if self._adds >= RESUM_EVERY:
             self._resum()
 
     def _resum(self) -> None:
         self._adds = 0
-        win = self._win
-        self._sums = (tuple(sum(r[i + 1] for r in win) for i in range(6))
-                      + tuple(sum(r[i + 1] * r[i + 1] for r in win) for i in range(6)))
+        rows = [r for r in self._win if r.__class__ is not _Block]
+        sums = (tuple(sum(r[i + 1] for r in rows) for i in range(6))
+                + tuple(sum(r[i + 1] * r[i + 1] for r in rows) for i in range(6)))
+        blocks = [b.v[b.lo:] for b in self._win if b.__class__ is _Block]
+        if blocks:
+            v = np.concatenate(blocks)
+            sums = tuple((np.array(sums) + np.concatenate((v.sum(axis=0), (v * v).sum(axis=0)))).tolist())
+        self._sums = sums
 
     def _variances(self) -> None:
         if not self._dirty:
             return
         self._dirty = False
         self.flush_pending()
-        n = len(self._win)
+        n = self._n
         if n < 4:
             self._var_a = self._var_w = math.inf
             return
