@@ -265,7 +265,10 @@ class NavEngine:
         them (one per read), or None; or one per sample (n, NaN where none was read) when the block is several
         reads, each with its own. The result is what :meth:`imu` gives fed the samples one by one with their
         temperatures (to round-off): every sample is integrated at its own time, gets its row and its place in
-        the late-fix history, and the covariance is propagated after the same samples. What is per-sample
+        the late-fix history, and the covariance is propagated after the same samples. A fast IMU's samples (from
+        ``integration_hz`` x 1.5) are integrated in steps of several instead (:meth:`_decimated_segment`): a row
+        and a history entry per step, the same state at the steps' ends to the second order the steps leave out
+        (micrometres on the simulated drives), the covariance still after the same samples. What is per-sample
         bookkeeping rather than integration (the mounting's rotation, the offsets, the stop detector's window, the
         noise monitor, the mount alignment's sums, the die temperature) is done for the whole block with numpy.
         Measurements between samples are not part of a batch: call this for the samples before a measurement,

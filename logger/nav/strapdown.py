@@ -1,7 +1,8 @@
 """Strapdown mechanization in a local-level NED frame on WGS-84 (Titterton & Weston ch. 3; KF-GINS insmech).
 
-The inner loop of the filter: it runs once per IMU sample, so it is written with plain floats (a 3x3 numpy
-product costs more than the whole step here). Each step integrates the interval between two samples:
+The inner loop of the filter: it runs once per IMU sample (or once per step of several samples of a fast IMU's
+FIFO block, :func:`preintegrate`), so it is written with plain floats (a 3x3 numpy product costs more than the
+whole step here). Each step integrates the interval between two samples:
 
 - increments by the trapezoid rule on the bias-corrected rates of both ends (the MPU-6050 delivers point
   samples of rate, not increments);
