@@ -77,14 +77,14 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
     next_state = 0
     for topic, msg in read_drive(paths, progress=progress, runs=True):
         feed[topic](msg)
-        if states is None or engine.state is None:
+        if states is None or engine.state is None or topic not in (IMU, IMU_BATCH):
             continue
-        if topic == IMU and msg["t_sync_ns"] >= next_state:
-            next_state = msg["t_sync_ns"] + 1_000_000_000
-            states.append(nav_state_record(engine, msg["t_sync_ns"], msg["t_mono_ns"]))
-        elif topic == IMU_BATCH and msg["t_sync_ns"][-1] >= next_state:
-            next_state = msg["t_sync_ns"][-1] + 1_000_000_000
-            states.append(nav_state_record(engine, msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
+        # The last sample fed: a sample's own record, or a block's last.
+        t, mono = ((msg["t_sync_ns"], msg["t_mono_ns"]) if topic == IMU
+                   else (msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
+        if t >= next_state:
+            next_state = t + 1_000_000_000
+            states.append(nav_state_record(engine, t, mono))
     rows = engine.rows
     if smooth and engine.mode != "gnss" and engine.ekf is not None and engine.epochs:
         from logger.nav.smoother import smooth_rows  # only a smoothed replay needs the backward pass

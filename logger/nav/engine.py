@@ -268,7 +268,8 @@ class NavEngine:
         the late-fix history, and the covariance is propagated after the same samples. A fast IMU's samples (from
         ``integration_hz`` x 1.5) are integrated in steps of several instead (:meth:`_decimated_segment`): a row
         and a history entry per step, the same state at the steps' ends to the second order the steps leave out
-        (micrometres on the simulated drives), the covariance still after the same samples. What is per-sample
+        (8 um on a synthetic 1 kHz drive, 0.9 mm at most on a 200 s recording of the simulated daemon), the
+        covariance still after the same samples. What is per-sample
         bookkeeping rather than integration (the mounting's rotation, the offsets, the stop detector's window, the
         noise monitor, the mount alignment's sums, the die temperature) is done for the whole block with numpy.
         Measurements between samples are not part of a batch: call this for the samples before a measurement,
