@@ -174,3 +174,18 @@ def test_a_settled_mounting_is_the_next_drives_first_guess_unless_the_configurat
     path.write_text("{not json")
     assert Navigator(NavParams(), mount_path=path).engine.mount_applied == (0.0, 0.0, 0.0)
     assert "ignoring the saved mount alignment" in caplog.text
+
+
+def test_the_running_sums_keep_the_longest_window_not_minutes_of_a_slow_imu() -> None:
+    """At 20 Hz the sample bound alone would keep seven minutes of sums; a window needs at most three seconds
+    before a fix's epoch, and windows keep forming as the sums are trimmed."""
+    al = MountAlignment((0.0, 0.0, 0.0))
+    g = (0.0, 0.0, -9.81)
+    for i in range(20 * 120):
+        t_ns = i * 50_000_000
+        al.sample(t_ns, (0.1, 0.0, g[2]), (0.0, 0.0, 0.0))
+        if i % 20 == 19:  # a fix a second, 10 m/s north and speeding up
+            al.fix(t_ns - 200_000_000, (10.0 + 0.1 * i / 20, 0.0, 0.0))
+    times = [row[0] for row in al._sums]
+    assert times[-1] - times[0] <= 4.5e9
+    assert al._long.n > 100  # every second's window still counted

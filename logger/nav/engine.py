@@ -554,6 +554,8 @@ class NavEngine:
         self._cov_dt = 0.0
         self.mech.dv_ned_sum = [0.0, 0.0, 0.0]
         self.refresh_sigma()
+        if self._t_last is not None:
+            self.history.trim(self._t_last)
         self._follow_temperature()
         if self.alignment is not None:
             self._follow_alignment()

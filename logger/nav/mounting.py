@@ -47,7 +47,8 @@ from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 # offset takes up (it is the pairs' mean force along the vertical).
 G0 = 9.80665
 WINDOW_S = 1.0  # at least this long between the two fixes of a window
-SUM_SAMPLES = 8192  # running sums kept: 8 s at 1 kHz, more than a fix's latency plus a window
+SUM_SAMPLES = 8192  # running sums kept at most: 8 s at 1 kHz, more than a fix's latency plus a window
+SUM_KEEP_NS = int((3 * WINDOW_S + 1.0) * 1e9)  # ... and no older than the longest window before a fix's epoch
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
 MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
 # A passenger car's body roll per m/s^2 of lateral acceleration (a roll gradient of 3-7 deg per g; 4.5 taken).
@@ -278,6 +279,10 @@ class MountAlignment:
         """A GNSS velocity at its epoch (the receiver's Doppler: it owes nothing to the IMU, whose mounting is
         being estimated; the down element may come from the filter when the receiver gives none). Once a window
         of WINDOW_S is complete, its pair goes into the fits if the car was moving."""
+        sums = self._sums
+        cutoff = t_epoch_ns - SUM_KEEP_NS  # at 20 Hz the sample bound alone would keep seven minutes (2.4 MB)
+        while len(sums) > 1 and sums[1][0] <= cutoff:
+            sums.popleft()
         if self._fix0 is None or t_epoch_ns <= self._fix0[0] or t_epoch_ns - self._fix0[0] > 3 * WINDOW_S * 1e9:
             self._fix0 = (t_epoch_ns, vel_ned)
             return
