@@ -29,7 +29,8 @@ estimate is ``forward`` once pitch and yaw are known to USABLE_SIGMA_DEG (the ro
 (``learning``) once every angle is, and ``settled`` once roll and pitch are known to SETTLED_TILT_DEG and the yaw
 to SETTLED_YAW_DEG over at least MIN_WINDOWS windows. A second, short-memory fit over the last minutes of windows
 watches for a mounting that moved (the board knocked): when it disagrees with the long one by more than both its
-uncertainty and MOVED_DEG, the long fit starts again from the recent windows (counted in ``moves``).
+uncertainty and MOVED_DEG (compared every MOVED_CHECK_WINDOWS windows), the long fit starts again from the recent
+windows (counted in ``moves``).
 """
 
 from __future__ import annotations
