@@ -505,12 +505,9 @@ def render(results: list[dict[str, Any]]) -> list[str]:
     growth = [r["rss_growth_mb"] for r in plain]
     if growth:
         lines += ["", f"RSS grew by {min(growth):+.1f} to {max(growth):+.1f} MB over each window, by about the same "
-                  "whatever the number of records. Measured once with tracemalloc (2026-12-03, 20 Hz, 150 s), "
-                  "Python's own objects grew by about 0.1 MB, most of it the MCAP writer's chunk index (kept until "
-                  "the file is finished); the rest is the allocator's. The filter's history and the mount alignment's "
-                  "running sums keep the last 10 s and 4 s (until 2026-12-03, 4096 and 8192 samples: three and "
-                  "seven minutes at 20 Hz, about 4 MB that filled during the window). `tools/soak.py` measures "
-                  "growth over hours."]
+                  "whatever the number of records; where it goes is not separated here (the MCAP writer's chunk "
+                  "index grows until the file is finished; the filter's history and the mount alignment's running "
+                  "sums are bounded to their last 10 s and 4 s). `tools/soak.py` measures growth over hours."]
     lines += ["", "Sustained IMU rate, in the measured window. Sustained means every sample recorded (no sequence "
               "gap, no FIFO overflow, no recorder drop) and no sampler period late or missed; the last three columns "
               "say how regular the samples' stamps are (every sample is there, but its time may be off):", "",

@@ -47,6 +47,11 @@ class SolutionHistory:
         self.entries.clear()
         self.corr = (0.0,) * 6
 
+    def _since(self, corr: tuple[float, ...]) -> list[float]:
+        """The position and velocity fed back since an entry that had seen ``corr``."""
+        c = self.corr
+        return [c[i] - corr[i] for i in range(6)]
+
     def state_at(self, t_ns: int, current: NavState) -> NavState:
         """The solution at ``t_ns``, corrected for every feedback since: between the two entries around it, the
         point on the straight line between their positions and velocities (the mechanisation's own path, 50 ms
@@ -67,12 +72,11 @@ class SolutionHistory:
         if entry is None:
             return out
         t_e, lat, lon, h, vn, ve, vd, q, corr = entry
-        c = self.corr
-        d = [c[i] - corr[i] for i in range(6)]
+        d = self._since(corr)
         vn, ve, vd = vn - d[3], ve - d[4], vd - d[5]
         if after is not None and after[0] > t_e:
             t_a, lat_a, lon_a, h_a, vn_a, ve_a, vd_a, _, corr_a = after
-            da = [c[i] - corr_a[i] for i in range(6)]
+            da = self._since(corr_a)
             lat, lon, h = earth.offset_llh(lat, lon, h, -d[0], -d[1], -d[2])
             lat_a, lon_a, h_a = earth.offset_llh(lat_a, lon_a, h_a, -da[0], -da[1], -da[2])
             k = (t_ns - t_e) / (t_a - t_e)

@@ -283,7 +283,7 @@ class MountAlignment:
         being estimated; the down element may come from the filter when the receiver gives none). Once a window
         of WINDOW_S is complete, its pair goes into the fits if the car was moving."""
         sums = self._sums
-        cutoff = t_epoch_ns - SUM_KEEP_NS  # at 20 Hz the sample bound alone would keep seven minutes (2.4 MB)
+        cutoff = t_epoch_ns - SUM_KEEP_NS  # at 20 Hz the sample bound alone would keep seven minutes (2 MB)
         while len(sums) > 1 and sums[1][0] <= cutoff:
             sums.popleft()
         if self._fix0 is None or t_epoch_ns <= self._fix0[0] or t_epoch_ns - self._fix0[0] > 3 * WINDOW_S * 1e9:

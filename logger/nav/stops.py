@@ -37,6 +37,12 @@ class _Block:
         return self.head
 
 
+def _moved_sums(sums: tuple[float, ...], v: np.ndarray, sign: float) -> tuple[float, ...]:
+    """The window's twelve sums (per axis, then of squares per axis) with the samples ``v`` (n x 6) added
+    (``sign`` 1) or taken out (-1)."""
+    return tuple((np.array(sums) + sign * np.concatenate((v.sum(axis=0), (v * v).sum(axis=0)))).tolist())
+
+
 class StopDetector(Deferred):
     def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
         self.thr_a = still_accel_mps2**2
@@ -122,9 +128,7 @@ class StopDetector(Deferred):
         """The samples of a block at the window's old end that are older than ``limit`` leave it (their sums at
         once); the block leaves when none is left."""
         cut = int(np.searchsorted(block.t, limit, side="left"))  # samples before limit: [lo, cut)
-        old = block.v[block.lo:cut]
-        self._sums = tuple((np.array(self._sums)
-                            - np.concatenate((old.sum(axis=0), (old * old).sum(axis=0)))).tolist())
+        self._sums = _moved_sums(self._sums, block.v[block.lo:cut], -1.0)
         self._n -= cut - block.lo
         if cut >= len(block.t):
             self._win.popleft()
@@ -141,8 +145,7 @@ class StopDetector(Deferred):
         fw = np.concatenate((f, w), axis=1)
         self._win.append(_Block(np.asarray(t_ns, dtype=np.int64), fw))
         self._n += len(fw)
-        self._sums = tuple((np.array(self._sums)
-                            + np.concatenate((fw.sum(axis=0), (fw * fw).sum(axis=0)))).tolist())
+        self._sums = _moved_sums(self._sums, fw, 1.0)
         limit = int(t_ns[-1]) - WINDOW_NS
         win = self._win
         while win[0][0] < limit:
@@ -166,8 +169,7 @@ class StopDetector(Deferred):
                 + tuple(sum(r[i + 1] * r[i + 1] for r in rows) for i in range(6)))
         blocks = [b.v[b.lo:] for b in self._win if b.__class__ is _Block]
         if blocks:
-            v = np.concatenate(blocks)
-            sums = tuple((np.array(sums) + np.concatenate((v.sum(axis=0), (v * v).sum(axis=0)))).tolist())
+            sums = _moved_sums(sums, np.concatenate(blocks), 1.0)
         self._sums = sums
 
     def _variances(self) -> None:
