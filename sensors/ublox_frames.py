@@ -5,7 +5,8 @@ and a line can be noisy or plugged in mid-message. The framer therefore works in
 the bytes of an unfinished frame until the rest arrives, and never trusts a length field further than
 the protocol allows, so a corrupt header costs a bounded number of bytes instead of a stalled reader.
 
-Checksums and message decoding are done by pyubx2 and pynmeagps. RTCM3 frames are checked (CRC-24Q)
+Checksums and message decoding are done by pyubx2 and pynmeagps, except the few UBX messages of every
+epoch, which ``ublox_epoch`` unpacks in one call each under pyubx2's names. RTCM3 frames are checked (CRC-24Q)
 and passed on undecoded: they are corrections meant for another receiver, and recognising them keeps
 the framer from hunting for sync bytes inside their binary payload.
 
@@ -21,6 +22,8 @@ import numpy as np
 from pynmeagps import NMEAReader
 from pynmeagps.nmeahelpers import calc_checksum as nmea_checksum
 from pyubx2 import UBXReader
+
+from sensors.ublox_epoch import decode_epoch_message
 
 UBX_SYNC = b"\xb5\x62"
 UBX_HEADER_LEN = 6
@@ -51,8 +54,9 @@ KIND_RTCM3 = "RTCM3"
 class Frame:
     """One complete frame whose checksum is good.
 
-    ``message`` is the pyubx2 ``UBXMessage`` or pynmeagps ``NMEAMessage`` decoded from ``raw``, or
-    None for RTCM3 and for well-formed frames the library has no definition for.
+    ``message`` is the pyubx2 ``UBXMessage`` (or for an epoch's NAV-PVT, NAV-TIMEGPS, NAV-DOP, NAV-EOE and TIM-TP
+    a :class:`~sensors.ublox_epoch.UbxEpochMessage` with the same attributes) or pynmeagps ``NMEAMessage``
+    decoded from ``raw``, or None for RTCM3 and for well-formed frames the library has no definition for.
     """
 
     kind: str
@@ -282,6 +286,9 @@ class UbxNmeaFramer:
         return Frame(KIND_NMEA, raw, message)
 
     def _decode_ubx(self, raw: bytes) -> object | None:
+        epoch = decode_epoch_message(raw)  # the messages of every epoch, in one struct call each
+        if epoch is not None:
+            return epoch
         try:
             return UBXReader.parse(raw)
         except Exception:

@@ -17,6 +17,7 @@ Innovations are *predicted minus measured*, so that ``z = H dx + noise``.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -178,9 +179,11 @@ class ZeroMotion:
         return Observation("zupt", z, h, r)
 
 
+@functools.lru_cache(maxsize=64)
 def chi2_gate(m: int, probability: float) -> float:
     """Chi-square quantile with ``m`` degrees of freedom, by bisection on the regularised incomplete gamma
-    function (computed once per dimension, so exactness costs nothing)."""
+    function (kept per dimension and probability: a filter started again, as at each restart, asks for the same
+    six, and the bisection costs a millisecond each)."""
     lo, hi = 0.0, 10.0 * m + 100.0
     for _ in range(100):
         mid = 0.5 * (lo + hi)
