@@ -131,3 +131,31 @@ def test_board_verdict_against_the_budget() -> None:
     assert "within" in bench_board.verdict(5.0, 20.0) and "over" not in bench_board.verdict(5.0, 20.0)
     assert "over it at the slow end" in bench_board.verdict(20.0, 40.0)
     assert "across the whole range" in bench_board.verdict(30.0, 60.0)
+
+
+def test_compiled_tree_starts_from_bytecode_without_writing_it(tmp_path: Path) -> None:
+    """tools/bytecode.py: after compile_tree, a child run with PYTHONDONTWRITEBYTECODE (as a timed replay may be)
+    imports the packages' modules from their bytecode, compiling none of them from source; before it, it does."""
+    import bytecode
+
+    for name in bytecode.PACKAGES:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text("VALUE = 1\n")
+        (tmp_path / name / "part.py").write_text("def f() -> int:\n    return 2\n")
+    probe = ("import builtins, sys\n"
+             "seen = []\n"
+             "real = builtins.compile\n"
+             "builtins.compile = lambda src, fn, *a, **k: (seen.append(fn), real(src, fn, *a, **k))[1]\n"
+             f"import {', '.join(f'{n}.part' for n in bytecode.PACKAGES)}\n"
+             "print(len([f for f in seen if f.endswith('.py')]))\n")
+    env = {"PYTHONDONTWRITEBYTECODE": "1", "PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}
+
+    def compiled_from_source() -> int:
+        return int(subprocess.run([sys.executable, "-c", probe], env=env, cwd=tmp_path, capture_output=True,
+                                  text=True, check=True).stdout)
+
+    assert compiled_from_source() == 2 * len(bytecode.PACKAGES)
+    assert bytecode.compile_tree(tmp_path)
+    assert compiled_from_source() == 0
+    (tmp_path / "logger" / "part.py").write_text("def f() -> int:\n    return 3\n\n\n")  # changed since
+    assert compiled_from_source() == 1

@@ -36,8 +36,9 @@ sample filtered:
 - This filter alone: ``logger.exports.trajectory.run_filter`` per mode, its input messages read and decoded
   first (timed apart) and handed over from memory (kept out of the garbage collector's passes, gc.freeze, as the
   file pipeline's raw bytes are); and ``run_filter`` on the files (read + decode + filter, as nav_bench times it).
-- This project's whole process: ``logger replay DRIVE --out DIR --mode M`` as a child: interpreter start, imports,
-  reading, filtering, trajectory.csv and trajectory.mcap.
+- This project's whole process: ``logger replay DRIVE --out DIR --mode M`` as a child: interpreter start, imports
+  (from bytecode compiled beforehand, as a pip install has it: tools/bytecode.py), reading, filtering,
+  trajectory.csv and trajectory.mcap.
 
 Accuracy, each against /truth/nav with :func:`logger.exports.nav_score.score` (KF-GINS's navresult and std turned
 into the same columns), over the rows from KF-GINS's start on while the car moves (``nav_eval.moving``), and the
@@ -73,6 +74,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from bench import cpu_model, loadavg, machine_busy, tree_state  # noqa: E402
+from bytecode import compile_tree  # noqa: E402
 from nav_eval import MOVING_MPS, moving  # noqa: E402
 from nav_eval import trajectory as engine_columns  # noqa: E402
 
@@ -404,6 +406,7 @@ def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep
                 runs[f"ours_{mode}_files"].append({"cpu_s": c, "wall_s": w, "samples": engine.counters.imu})
                 if r == 0:
                     rows[mode], counts[mode] = out_rows, engine.counters.imu
+            compile_tree()  # the replay's modules from bytecode, as an installed logger has them
             for mode in MODES:
                 runs[f"replay_{mode}"].append(child(
                     # As tools/bench_nav.py runs it: this tree's logger, whatever the venv's script points at.
@@ -487,8 +490,9 @@ def render(results: list[dict[str, Any]], repeat: int, stat: str) -> list[str]:
               "GIEngine over the samples in memory (a harness linking its own code), read + filter adds its text "
               "loaders, the whole process is the unmodified binary writing its outputs at every IMU sample. This "
               "project: run_filter fed decoded messages from memory, then run_filter on the MCAP files, then "
-              "`logger replay DRIVE --out DIR --mode M` (interpreter start, CSV and MCAP written). Accuracy against "
-              "/truth/nav from KF-GINS's start (the truth one second before the car moves) while the car moves."]
+              "`logger replay DRIVE --out DIR --mode M` (interpreter start, modules from bytecode as installed, "
+              "CSV and MCAP written). Accuracy against /truth/nav from KF-GINS's start (the truth one second before "
+              "the car moves) while the car moves."]
     return lines
 
 

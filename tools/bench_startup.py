@@ -9,7 +9,9 @@ writer thread (written into the open chunk; it is on disk at the next flush, wit
 when the daemon was ready (what systemd's READY=1 waits for), and its own CPU time at the first IMU record.
 Building the simulated vehicle (the drive, ptys, device models) is timed on its own: a board does not do it,
 so it is also taken out of the board figure. The GNSS fix and PPS times are the simulated receiver's own
-start-up (time to first fix), not the daemon's.
+start-up (time to first fix), not the daemon's. The worker imports the logger's modules from bytecode compiled
+beforehand, as a board's pip-installed logger does (tools/bytecode.py): a checkout run with PYTHONDONTWRITEBYTECODE
+would otherwise compile them at every start.
 """
 
 from __future__ import annotations
@@ -83,6 +85,9 @@ def worker(spawn_ns: int, out: Path) -> dict[str, Any]:
 
 
 def run(runs: int) -> dict[str, Any]:
+    from bytecode import compile_tree
+
+    compile_tree()  # the worker imports bytecode, as an installed logger does
     results = []
     for _ in range(runs):
         with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp:
