@@ -8,9 +8,9 @@ pyubx2 keeps every other message (set-up replies, RXM-RAWX, the messages of olde
 
 The result carries pyubx2's attribute names and values (scaled fields rounded as pyubx2 1.4 does, flags split
 into their bits), so :class:`sensors.ublox_decode.GnssDecoder` reads either alike; ``tests/test_ublox_epoch.py``
-holds them equal to pyubx2's on random payloads. A payload shorter than the layout is left to pyubx2 (which
-zero-fills it, and the decoder's own length check refuses it); a longer one (a newer protocol version) is
-unpacked up to the layout's end, as pyubx2 reads it.
+holds them equal to pyubx2's on random payloads, of the layout's length and longer. A payload shorter than the
+layout (an older protocol's 84-byte NAV-PVT) is left to pyubx2, as before, and the decoder's own minimum
+lengths judge it; a longer one (a newer protocol version) is unpacked up to the layout's end, as pyubx2 reads it.
 """
 
 from __future__ import annotations
@@ -40,9 +40,11 @@ class UbxEpochMessage:
 
 
 def _bits(value: int, names: tuple[tuple[str, int], ...], out: dict[str, Any]) -> None:
-    """Split a bitfield into named fields of the given widths, least significant first."""
+    """Split a bitfield into named fields of the given widths, least significant first (reserved bits skipped, as
+    pyubx2 skips them)."""
     for name, width in names:
-        out[name] = value & ((1 << width) - 1)
+        if not name.startswith("reserved"):
+            out[name] = value & ((1 << width) - 1)
         value >>= width
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -12,7 +13,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
+TOOLS = ROOT / "tools"
+sys.path.insert(0, str(TOOLS))
 
 import bench_board  # noqa: E402
 import bench_daemon  # noqa: E402
@@ -148,14 +150,31 @@ def test_compiled_tree_starts_from_bytecode_without_writing_it(tmp_path: Path) -
              "builtins.compile = lambda src, fn, *a, **k: (seen.append(fn), real(src, fn, *a, **k))[1]\n"
              f"import {', '.join(f'{n}.part' for n in bytecode.PACKAGES)}\n"
              "print(len([f for f in seen if f.endswith('.py')]))\n")
-    env = {"PYTHONDONTWRITEBYTECODE": "1", "PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    # The writer and the reader in the same environment (a bytecode prefix or -O there would move the files).
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "PYTHONPATH": os.pathsep.join((str(tmp_path), str(TOOLS)))}
+
+    def python(code: str) -> str:
+        return subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
+                              check=True).stdout
 
     def compiled_from_source() -> int:
-        return int(subprocess.run([sys.executable, "-c", probe], env=env, cwd=tmp_path, capture_output=True,
-                                  text=True, check=True).stdout)
+        return int(python(probe))
 
     assert compiled_from_source() == 2 * len(bytecode.PACKAGES)
-    assert bytecode.compile_tree(tmp_path)
+    python(f"import bytecode, pathlib; bytecode.compile_tree(pathlib.Path({str(tmp_path)!r}))")
     assert compiled_from_source() == 0
-    (tmp_path / "logger" / "part.py").write_text("def f() -> int:\n    return 3\n\n\n")  # changed since
+    # Changed since (its size too: within the second the bytecode was written, size is what tells it stale).
+    (tmp_path / "logger" / "part.py").write_text("def f() -> int:\n    return 3\n\n\n")
     assert compiled_from_source() == 1
+
+
+def test_compile_tree_stops_on_a_module_that_does_not_compile(tmp_path: Path) -> None:
+    import bytecode
+
+    for name in bytecode.PACKAGES:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text("VALUE = 1\n")
+    (tmp_path / "logger" / "broken.py").write_text("def f(:\n")
+    with pytest.raises(SystemExit, match="bytecode not written for logger"):
+        bytecode.compile_tree(tmp_path)
+    assert (tmp_path / "sync" / "__pycache__").is_dir()  # the other packages were compiled all the same

@@ -30,7 +30,8 @@ def test_every_field_is_pyubx2s_on_random_payloads(identity: str) -> None:
     cls_id, length = EPOCH_MESSAGES[identity]
     rng = random.Random(identity)
     for _ in range(300):
-        raw = frame(cls_id, bytes(rng.getrandbits(8) for _ in range(length)))
+        size = length + rng.choice((0, 0, 1, 2, 8))  # a newer protocol's longer payload is read up to the layout
+        raw = frame(cls_id, bytes(rng.getrandbits(8) for _ in range(size)))
         ours = decode_epoch_message(raw)
         theirs = UBXReader.parse(raw)
         assert isinstance(ours, UbxEpochMessage)
@@ -39,6 +40,7 @@ def test_every_field_is_pyubx2s_on_random_payloads(identity: str) -> None:
         expected = {k: v for k, v in public_fields(theirs).items()
                     if k not in ("identity", "msg_cls", "msg_id", "length", "payload")}
         got = public_fields(ours)
+        assert set(got) - {"identity", "msg_cls", "msg_id", "length"} == set(expected), identity
         for name, value in expected.items():
             assert name in got, f"{identity}: {name} missing"
             assert got[name] == value, f"{identity}.{name}: {got[name]!r} against pyubx2's {value!r}"
@@ -51,16 +53,6 @@ def test_other_and_short_messages_are_left_to_pyubx2() -> None:
     (short,) = framer.feed(frame(b"\x01\x07", bytes(84)))
     assert short.kind == KIND_UBX and not isinstance(short.message, UbxEpochMessage)
     assert short.message is not None and short.message.identity == "NAV-PVT"
-
-
-def test_a_longer_payload_is_read_up_to_the_layout() -> None:
-    rng = random.Random(5)
-    payload = bytes(rng.getrandbits(8) for _ in range(100))
-    ours = decode_epoch_message(frame(b"\x01\x07", payload))
-    short = decode_epoch_message(frame(b"\x01\x07", payload[:92]))
-    assert ours is not None and short is not None and ours.length == 100
-    assert {k: v for k, v in vars(ours).items() if k != "length"} == \
-        {k: v for k, v in vars(short).items() if k != "length"}
 
 
 def test_the_decoder_gives_the_same_fix_from_either() -> None:
