@@ -505,9 +505,13 @@ def render(results: list[dict[str, Any]]) -> list[str]:
     growth = [r["rss_growth_mb"] for r in plain]
     if growth:
         lines += ["", f"RSS grew by {min(growth):+.1f} to {max(growth):+.1f} MB over each window, by about the same "
-                  "whatever the number of records; where it goes is not separated here (the MCAP writer's chunk "
-                  "index grows until the file is finished; the filter's history and the mount alignment's running "
-                  "sums are bounded to their last 10 s and 4 s). `tools/soak.py` measures growth over hours."]
+                  "whatever the number of records; the figure is not split between the daemon and the simulator, "
+                  "and both keep things that grow: the daemon's MCAP writer an index entry per chunk (one a second, "
+                  "per-channel offsets) until the file rotates (`rotate_duration_s`, an hour by default); the "
+                  "simulated u-blox its last 3600 epochs and the simulated ELM327 every command line, for the tests; "
+                  "the "
+                  "filter's history and the mount alignment's running sums are bounded to their last 10 s and 4 s. "
+                  "`tools/soak.py` measures growth over hours."]
     lines += ["", "Sustained IMU rate, in the measured window. Sustained means every sample recorded (no sequence "
               "gap, no FIFO overflow, no recorder drop) and no sampler period late or missed; the last three columns "
               "say how regular the samples' stamps are (every sample is there, but its time may be off):", "",
