@@ -113,6 +113,20 @@ def test_model_answers_like_an_elm327_v15(port: PtyPort) -> None:
         assert ask(b"ATWS") == b"\r\rELM327 v1.5\r\r>"  # warm start: back to CR-only line ends
 
 
+def test_model_keeps_its_latest_command_lines_not_a_days_worth(port: PtyPort,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """An eight-hour drive asks for the speed 57 600 times: the model keeps the last lines for the tests, not all."""
+    monkeypatch.setattr(sim_elm, "COMMANDS_KEPT", 4)
+    traj = StraightTrajectory(speed_mps=13.9)
+    with adapter(port, [engine_ecu(traj)]) as model, serial.Serial(port.path, 38400, timeout=2.0) as ser:
+        sent = [b"ATI", b"ATRV", b"AT@1"] * 5 + [b"ATDP"]
+        for command in sent:
+            ser.write(command + b"\r")
+            assert ser.read_until(b">").endswith(b">")
+        assert 4 <= len(model.commands) <= 8
+        assert model.commands == [c.decode() for c in sent[-len(model.commands):]]
+
+
 def test_model_headers_on_the_other_buses(port: PtyPort) -> None:
     traj = StraightTrajectory(speed_mps=13.9)
     expected = {

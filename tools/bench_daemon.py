@@ -508,7 +508,8 @@ def render(results: list[dict[str, Any]]) -> list[str]:
                   "whatever the number of records; the figure is not split between the daemon and the simulator, "
                   "and both keep things that grow: the daemon's MCAP writer an index entry per chunk (one a second, "
                   "per-channel offsets) until the file rotates (`rotate_duration_s`, an hour by default); the "
-                  "simulated u-blox its last 3600 epochs and the simulated ELM327 every command line, for the tests; "
+                  "simulated u-blox its last 3600 epochs and the simulated ELM327 its last 2048-4096 command lines, "
+                  "for the tests; "
                   "the "
                   "filter's history and the mount alignment's running sums are bounded to their last 10 s and 4 s. "
                   "`tools/soak.py` measures growth over hours."]

@@ -46,6 +46,7 @@ CAN_29BIT = {"7", "9"}
 K_LINE_PROTOCOLS = {"3", "4", "5"}  # need a 'BUS INIT' (5-baud or fast init) before the first request
 DEVICE_DESCRIPTION = "OBDII to RS232 Interpreter"
 MAX_COMMAND_CHARS = 64
+COMMANDS_KEPT = 2048  # command lines the model keeps for the tests to read (see ``commands``)
 DEFAULT_TIMEOUT_HH = 0x32  # AT ST default: 0x32 x 4.096 ms = 205 ms
 
 
@@ -170,7 +171,9 @@ class Elm327Model(DeviceThread):
         self._settings = self._defaults()
         self._connected: str | None = None
         self._last_command = ""
-        self.commands: list[str] = []  # every command line received, spaces removed, upper case
+        # The command lines received, spaces removed, upper case: the last COMMANDS_KEPT to 2 x COMMANDS_KEPT of them
+        # (speed is asked twice a second: an unbounded list grew ~3 MB over an eight-hour simulated drive).
+        self.commands: list[str] = []
 
     # ----------------------------------------------------------------- control from the test side
 
@@ -230,6 +233,8 @@ class Elm327Model(DeviceThread):
                     self._send(">")
                     return
             self.commands.append(command)
+            if len(self.commands) > 2 * COMMANDS_KEPT:
+                del self.commands[:-COMMANDS_KEPT]
             self._last_command = command
             if len(command) > MAX_COMMAND_CHARS:
                 self._answer(["?"])
