@@ -6,7 +6,7 @@ generic definitions, about a third of the GNSS thread's CPU at 1 Hz (cProfile on
 these few layouts are fixed by the u-blox interface descriptions, so they are unpacked here in one call, and
 pyubx2 keeps every other message (set-up replies, RXM-RAWX, the messages of older receivers).
 
-The result carries pyubx2's attribute names and values (scaled fields rounded as pyubx2 1.4 does, flags split
+The result carries pyubx2's attribute names and values (scaled fields rounded to pyubx2's own SCALROUND, flags split
 into their bits), so :class:`sensors.ublox_decode.GnssDecoder` reads either alike; ``tests/test_ublox_epoch.py``
 holds them equal to pyubx2's on random payloads, of the layout's length and longer. A payload shorter than the
 layout (an older protocol's 84-byte NAV-PVT) is left to pyubx2, as before, and the decoder's own minimum
@@ -19,7 +19,7 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
-SCALE_DIGITS = 12  # pyubx2 rounds a scaled field to this many decimals (its SCALROUND)
+from pyubx2.ubxtypes_core import SCALROUND as SCALE_DIGITS  # the decimals pyubx2 rounds a scaled field to
 
 
 class UbxEpochMessage:

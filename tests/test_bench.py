@@ -140,7 +140,8 @@ def test_compiled_tree_starts_from_bytecode_without_writing_it(tmp_path: Path) -
     imports the packages' modules from their bytecode, compiling none of them from source; before it, it does."""
     import bytecode
 
-    for name in bytecode.PACKAGES:
+    names = bytecode.packages()
+    for name in names:
         (tmp_path / name).mkdir()
         (tmp_path / name / "__init__.py").write_text("VALUE = 1\n")
         (tmp_path / name / "part.py").write_text("def f() -> int:\n    return 2\n")
@@ -148,7 +149,7 @@ def test_compiled_tree_starts_from_bytecode_without_writing_it(tmp_path: Path) -
              "seen = []\n"
              "real = builtins.compile\n"
              "builtins.compile = lambda src, fn, *a, **k: (seen.append(fn), real(src, fn, *a, **k))[1]\n"
-             f"import {', '.join(f'{n}.part' for n in bytecode.PACKAGES)}\n"
+             f"import {', '.join(f'{n}.part' for n in names)}\n"
              "print(len([f for f in seen if f.endswith('.py')]))\n")
     # The writer and the reader in the same environment (a bytecode prefix or -O there would move the files).
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "PYTHONPATH": os.pathsep.join((str(tmp_path), str(TOOLS)))}
@@ -160,21 +161,28 @@ def test_compiled_tree_starts_from_bytecode_without_writing_it(tmp_path: Path) -
     def compiled_from_source() -> int:
         return int(python(probe))
 
-    assert compiled_from_source() == 2 * len(bytecode.PACKAGES)
-    python(f"import bytecode, pathlib; bytecode.compile_tree(pathlib.Path({str(tmp_path)!r}))")
+    assert compiled_from_source() == 2 * len(names)
+    python(f"import bytecode, pathlib; bytecode.compile_tree(pathlib.Path({str(tmp_path)!r}), {names!r})")
     assert compiled_from_source() == 0
     # Changed since (its size too: within the second the bytecode was written, size is what tells it stale).
     (tmp_path / "logger" / "part.py").write_text("def f() -> int:\n    return 3\n\n\n")
     assert compiled_from_source() == 1
 
 
+def test_the_packages_compiled_are_the_ones_pyproject_installs() -> None:
+    import bytecode
+
+    assert bytecode.packages() == ("logger", "sensors", "sync")
+
+
 def test_compile_tree_stops_on_a_module_that_does_not_compile(tmp_path: Path) -> None:
     import bytecode
 
-    for name in bytecode.PACKAGES:
+    names = bytecode.packages()
+    for name in names:
         (tmp_path / name).mkdir()
         (tmp_path / name / "__init__.py").write_text("VALUE = 1\n")
     (tmp_path / "logger" / "broken.py").write_text("def f(:\n")
     with pytest.raises(SystemExit, match="bytecode not written for logger"):
-        bytecode.compile_tree(tmp_path)
+        bytecode.compile_tree(tmp_path, names)
     assert (tmp_path / "sync" / "__pycache__").is_dir()  # the other packages were compiled all the same

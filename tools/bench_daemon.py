@@ -509,10 +509,8 @@ def render(results: list[dict[str, Any]]) -> list[str]:
                   "and both keep things that grow: the daemon's MCAP writer an index entry per chunk (one a second, "
                   "per-channel offsets) until the file rotates (`rotate_duration_s`, an hour by default); the "
                   "simulated u-blox its last 3600 epochs and the simulated ELM327 its last 2048-4096 command lines, "
-                  "for the tests; "
-                  "the "
-                  "filter's history and the mount alignment's running sums are bounded to their last 10 s and 4 s. "
-                  "`tools/soak.py` measures growth over hours."]
+                  "for the tests; the filter's history and the mount alignment's running sums are bounded to their "
+                  "last 10 s and 4 s. `tools/soak.py` measures growth over hours."]
     lines += ["", "Sustained IMU rate, in the measured window. Sustained means every sample recorded (no sequence "
               "gap, no FIFO overflow, no recorder drop) and no sampler period late or missed; the last three columns "
               "say how regular the samples' stamps are (every sample is there, but its time may be off):", "",

@@ -383,6 +383,7 @@ def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep
         rows: dict[str, list[Any]] = {}
         counts: dict[str, int] = {}
         replay_out = work / "replay"
+        compile_tree()  # the replays' modules from bytecode, as an installed logger has them
         for r in range(repeat):
             runs["kfgins_process"].append(child([str(kfgins), str(conv.config)], work))
             if harness is not None:
@@ -406,7 +407,6 @@ def bench_drive(arg: Path, kfgins: Path, harness: Path | None, repeat: int, keep
                 runs[f"ours_{mode}_files"].append({"cpu_s": c, "wall_s": w, "samples": engine.counters.imu})
                 if r == 0:
                     rows[mode], counts[mode] = out_rows, engine.counters.imu
-            compile_tree()  # the replay's modules from bytecode, as an installed logger has them
             for mode in MODES:
                 runs[f"replay_{mode}"].append(child(
                     # As tools/bench_nav.py runs it: this tree's logger, whatever the venv's script points at.
