@@ -156,7 +156,8 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
         return devices.i2c_path if section["source"] == "sim" else section["bus"]
 
     imu_addr = devices.imu_address if imu["source"] == "sim" else imu["address"]
-    src = ImuSource(bus_of(imu), imu_addr, imu["rate_hz"], imu["accel_range_g"], imu["gyro_range_dps"], tb)
+    src = ImuSource(bus_of(imu), imu_addr, imu["rate_hz"], imu["accel_range_g"], imu["gyro_range_dps"], tb,
+                    imu["read"])
     plans.append(Plan(src, src.poll_hz, imu["rate_hz"]))
     baro_addr = devices.baro_address if baro["source"] == "sim" else baro["address"]
     plans.append(Plan(BaroSource(bus_of(baro), baro_addr, baro["oversampling"], baro["sea_level_pa"],

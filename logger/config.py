@@ -50,6 +50,8 @@ class Key:
 # The mcap writer keeps every chunk's index (about 2 kB with this logger's topics) until the file is closed:
 # 14400 chunks, 4 h at the default 1 s flush, hold about 30 MB of a 512 MB board.
 MAX_CHUNKS_PER_FILE = 14400
+IMU_READS = ("fifo", "register")  # [imu] read: the chip's FIFO in batches, or one register burst per sample
+REGISTER_READ_MAX_HZ = 50.0  # a thread woken per sample costs most of the IMU's CPU; above this it is not offered
 
 
 def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
@@ -173,7 +175,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
         "bus": Key(int, 2, _range(0, 255), "I2C bus number: /dev/i2c-N"),
         "address": Key(int, 0x68, _i2c_address, "0x68, or 0x69 with AD0 high"),
-        "rate_hz": Key(NUM, 20, lambda v: _imu_rate(v), "sample rate; above 50 Hz the FIFO is used"),
+        "rate_hz": Key(NUM, 20, lambda v: _imu_rate(v), "sample rate"),
+        "read": Key(str, IMU_READS[0], _one_of(*IMU_READS),
+                    "'fifo' (batches, stamped by the chip's sample clock) or 'register' (a read per sample, to 50 Hz)"),
         "accel_range_g": Key(int, 4, _one_of(2, 4, 8, 16)),
         "gyro_range_dps": Key(int, 500, _one_of(250, 500, 1000, 2000)),
     },
@@ -454,6 +458,11 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
     chrony = chrony_problem(cfg)
     if chrony:
         problems.append(f"{at('sync.chrony_sock')}: {chrony}")
+    imu = cfg.values["imu"]
+    if imu["read"] == "register" and imu["rate_hz"] > REGISTER_READ_MAX_HZ:
+        problems.append(f"{at('imu.read')}: imu.read = 'register' reads a sample at a time, at most "
+                        f"{REGISTER_READ_MAX_HZ:g} Hz, and imu.rate_hz is {imu['rate_hz']:g}: use read = 'fifo' "
+                        "or a lower rate")
     rec = cfg.values["recorder"]
     chunks = rec["rotate_duration_s"] / rec["flush_interval_s"]
     if chunks > MAX_CHUNKS_PER_FILE:

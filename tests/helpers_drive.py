@@ -12,11 +12,16 @@ from pathlib import Path
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
+from logger.recording.drive import imu_samples as samples_of
 from sensors.sim.governor import FLOOR
 
 
-def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
-    """topic -> [(log_time, publish_time, message)] after a CRC-validated walk of the whole file."""
+def read_messages(path: Path, imu_samples: bool = False) -> dict[str, list[tuple[int, int, dict]]]:
+    """topic -> [(log_time, publish_time, message)] after a CRC-validated walk of the whole file.
+
+    ``imu_samples``: ``/imu`` holds the samples of the ``/imu/batch`` records too, one record each as the project's
+    readers hand them on (logged and published at their own stamps, as a record per sample is), for a test of
+    samples whatever way the IMU was read."""
     with open(path, "rb") as f:
         for _ in StreamReader(f, validate_crcs=True).records:
             pass
@@ -24,6 +29,9 @@ def read_messages(path: Path) -> dict[str, list[tuple[int, int, dict]]]:
     with open(path, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
             out[channel.topic].append((message.log_time, message.publish_time, json.loads(message.data)))
+    if imu_samples:
+        out["/imu"].extend((m["t_sync_ns"], m["t_mono_ns"], m) for _, _, batch in out.get("/imu/batch", [])
+                           for m in samples_of(batch))
     return out
 
 

@@ -148,6 +148,32 @@ def test_files_too_long_for_the_boards_memory_are_refused() -> None:
     assert cfg["recorder"]["rotate_duration_s"] == 86400
 
 
+def test_the_imu_is_read_through_its_fifo_unless_told_and_register_reads_stop_at_50_hz() -> None:
+    """The FIFO by default at every rate; a read per sample where asked, at the rates a thread per sample keeps."""
+    from logger.compose import plans_from_config
+    from logger.runtime.sources import fifo_poll_hz
+    from logger.runtime.timebase import TimeBase
+    from sensors.sim.vehicle import VehicleDevices
+
+    cfg = parse("", "logger.toml", sim=True)
+    assert cfg["imu"]["read"] == "fifo"
+    (imu, *_) = plans_from_config(cfg, TimeBase(), VehicleDevices())
+    assert imu.source.fifo and imu.rate_hz == 4.0  # 20 Hz in reads of five samples
+    # ... at most twenty reads a second, at least two per filling of the 85-frame FIFO
+    assert [fifo_poll_hz(hz) for hz in (50, 100, 200, 1000)] == [10.0, 20.0, 20.0, 25.0]
+    cfg = parse('[imu]\nread = "register"\nrate_hz = 50\n', "logger.toml", sim=True)
+    (imu, *_) = plans_from_config(cfg, TimeBase(), VehicleDevices())
+    assert not imu.source.fifo and imu.rate_hz == 50.0
+    with pytest.raises(ConfigError) as err:
+        parse('[imu]\nrate_hz = 200\nread = "register"\n', "logger.toml", sim=True)
+    (msg,) = err.value.problems
+    assert msg == ("logger.toml:3: imu.read = 'register' reads a sample at a time, at most 50 Hz, and imu.rate_hz is "
+                   "200: use read = 'fifo' or a lower rate")
+    with pytest.raises(ConfigError) as err:
+        parse('[imu]\nread = "burst"\n', "logger.toml", sim=True)
+    assert err.value.problems == ["logger.toml:2: imu.read = 'burst' must be one of 'fifo', 'register'"]
+
+
 def test_chrony_is_only_given_real_time(tmp_path: Path) -> None:
     """The PPS edges go to chrony only from a real receiver and PPS line at real time: config check and run agree."""
     from logger.cli.run import parse_args, resolve_config

@@ -148,7 +148,7 @@ def test_a_sensor_missing_at_start_is_reported_and_the_rest_records(tmp_path: Pa
     try:
         sock = tmp_path / "status.sock"
         wait_for("obd reported missing", lambda: sensor(fetch(sock), "obd")["state"] == "missing")
-        wait_for("imu recording", lambda: daemon.recorder.status().written.get("/imu", 0) > 20)
+        wait_for("imu recording", lambda: daemon.recorder.status().written.get("/imu/batch", 0) > 5)
         snap = fetch(sock)
         assert snap["verdict"] == "degraded"
         assert any(p.startswith("obd: missing") and "ttyUSB9" in p for p in snap["problems"]), snap["problems"]
@@ -219,7 +219,7 @@ def test_a_deleted_output_folder_is_critical_within_two_seconds_then_recording_r
     daemon.start()
     out, sock = tmp_path / "drives", tmp_path / "status.sock"
     try:
-        wait_for("recording", lambda: daemon.recorder.status().on_disk_mono_ns.get("/imu") is not None)
+        wait_for("recording", lambda: daemon.recorder.status().on_disk_mono_ns.get("/imu/batch") is not None)
         shutil.rmtree(out)
         deleted = time.monotonic()
         seen: list[dict] = []

@@ -36,7 +36,7 @@ def minute_drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     assert r.returncode == 0, r.stderr
     files = sorted(out.glob("*.mcap"))
     assert len(files) == 1
-    return files[0], read_messages(files[0])
+    return files[0], read_messages(files[0], imu_samples=True)
 
 
 @pytest.mark.slow_on_board
@@ -59,15 +59,24 @@ def test_a_minute_of_drive_is_complete(minute_drive: tuple[Path, dict]) -> None:
             assert len(when) >= len(t) - 2  # only the receiver's first second may come without a valid time
         else:
             when = t
-        # A period the host let pass unsampled is counted as missed, not shifted: it counts in the schedule.
-        missed = health[topic]["missed"] if topic in health else 0
+        # A period the host let pass unsampled is counted as missed, not shifted: it counts in the schedule. The
+        # IMU's FIFO keeps sampling while a read waits: only an overflow loses samples, and it counts them.
+        if topic == "/imu":
+            missed = sum(m["lost"] for _, _, m in msgs[topic])
+        else:
+            missed = health[topic]["missed"] if topic in health else 0
         rate = (len(when) - 1 + missed) / ((when[-1] - when[0]) / 1e9)
         assert abs(rate / hz - 1) < 0.01, (topic, rate, missed)
         assert span > 56, (topic, span)  # started within the first seconds, ran to the end
         seq = [m["seq"] for _, _, m in msgs[topic]]
         assert seq == list(range(len(seq))), topic  # nothing lost between sensor and file
         gaps = [b - a for a, b in itertools.pairwise(t)]
-        if topic in health:
+        if topic == "/imu":
+            # Stamped by the chip's sample clock, read a batch at a time: a sample's interval is the chip's period
+            # whenever the host reads, longer only after samples the FIFO lost (and counted).
+            assert all(abs(g * hz / 1e9 - 1) < 0.01 for g, (_, _, m) in zip(gaps, msgs[topic][1:], strict=True)
+                       if not m["lost"]), (topic, min(gaps), max(gaps))
+        elif topic in health:
             # The board's scheduling: an interval over 1.5 periods can only touch a sample the daemon counted as
             # delayed (finished more than half a period after its deadline) or late (after the next deadline: a
             # read stalled mid-way makes both its intervals long), and none may reach 2.5 periods (a gap)
@@ -103,6 +112,10 @@ def test_the_one_minute_drive_shows_a_live_position_for_most_of_it(minute_drive:
 
 def test_every_sensor_message_is_stamped(minute_drive: tuple[Path, dict]) -> None:
     _, msgs = minute_drive
+    # A FIFO read is logged at its first sample's stamps; each of its samples carries its own.
+    batches = msgs["/imu/batch"]
+    assert batches and all(log == m["t_sync_ns"][0] and pub == m["t_mono_ns"][0] for log, pub, m in batches)
+    assert all(len(m[k]) == len(m["t_mono_ns"]) for _, _, m in batches for k in STAMP_FIELDS[1:5])
     for topic in SENSOR_TOPICS:
         for log_time, publish_time, m in msgs[topic]:
             assert all(k in m for k in STAMP_FIELDS), topic
@@ -168,22 +181,25 @@ def test_kill_9_loses_only_what_was_not_yet_flushed_and_the_next_start_recovers(
     assert r.returncode == 0, r.stderr
     assert f"recovered {cut.name}" in r.stderr
     assert is_finished(cut)
-    msgs = read_messages(cut)
+    msgs = read_messages(cut, imu_samples=True)
     # Everything the daemon had said was on disk before the kill is there after the recovery; what came after
     # the last flush is the loss (one flush interval, a second of drive, plus the writer's lag).
     on_disk = snap["recorder"]["on_disk_mono_ns"]
     losses = {}
     for topic in SENSOR_TOPICS:
         last = max(m["t_mono_ns"] for _, _, m in msgs[topic])
-        assert last >= on_disk[topic], (topic, last, on_disk[topic])
+        # (the recorder counts a FIFO read by its first sample's time)
+        written = on_disk["/imu/batch"] if topic == "/imu" else on_disk[topic]
+        assert last >= written, (topic, last, written)
         losses[topic] = (killed_at - last) / 1e9
     # Flushes kept coming while it ran (a writer that had stopped flushing fails this): the newest record on
     # disk was under 10 s of drive (2 s real) old, against a flush every second of drive.
     assert killed_at - max(on_disk.values()) < 10e9, (killed_at, on_disk)
     print("kill -9 loss per topic (s of drive):", {k: round(v, 3) for k, v in losses.items()})
     # The loss bound: at most 2 s of each topic's data (a flush every second of drive, and the writer's lag),
-    # beyond the wait for its next sample (a 1 Hz topic's last sample may be a second old at any moment).
-    periods = {"/imu": 0.05, "/baro": 1.0, "/obd/speed": 0.5, "/gnss/fix": 1.0, "/pps": 1.0}
+    # beyond the wait for its next sample (a 1 Hz topic's last sample may be a second old at any moment; the IMU's
+    # newest samples wait in its FIFO for the next read, four a second).
+    periods = {"/imu": 0.25, "/baro": 1.0, "/obd/speed": 0.5, "/gnss/fix": 1.0, "/pps": 1.0}
     assert all(losses[t] <= 2.0 + periods[t] for t in SENSOR_TOPICS), losses
 
 
@@ -209,7 +225,7 @@ def test_sigterm_and_a_hang_up_finish_the_file_cleanly(tmp_path: Path, sig: sign
         proc.kill()
     (path,) = sorted(tmp_path.glob("*.mcap"))
     assert is_finished(path)
-    assert len(read_messages(path)["/imu"]) > 50
+    assert len(read_messages(path, imu_samples=True)["/imu"]) > 50
     assert not sock.exists()
 
 
@@ -248,7 +264,7 @@ def test_a_minute_without_gnss_holds_time_and_relocks_without_going_back(tmp_pat
     held = {k: s for k, s in out["stamp_error"].items() if k.endswith("holdover")}
     assert held and all(s["max_us"] <= 200 and s["bound_covers"] == 1.0 for s in held.values()), held
     assert out["table6"]["longest_without_pps_s"] > 55
-    msgs = read_messages(path)
+    msgs = read_messages(path, imu_samples=True)
     # What the status said meanwhile (its /health records): the receiver has no fix and its row says so, the PPS
     # line is silent and its row says so too, and the problems blame the sky, not the PPS wiring.
     health = [m for _, _, m in msgs["/health"]]

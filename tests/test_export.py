@@ -287,7 +287,7 @@ def test_the_guides_python_example_runs_as_written(drive: Drive) -> None:
 
 def test_the_guides_message_paths_exist_in_the_schemas() -> None:
     guide = (ROOT / "docs" / "foxglove.md").read_text()
-    paths = set(re.findall(r"`(/[a-z_/]+(?:\{[^}`]*\})?(?:\.[a-z_]+(?:\[\d+\])?)+)`", guide))
+    paths = set(re.findall(r"`(/[a-z_/]+(?:\{[^}`]*\})?(?:\.[a-z][a-z_0-9]*(?:\[(?:\d+|:)\])?)+)`", guide))
     assert len(paths) > 25
     for path in paths:
         topic = max((t for t in TOPICS if path.startswith(t) and path[len(t)] in ".{"), key=len)
@@ -295,10 +295,11 @@ def test_the_guides_message_paths_exist_in_the_schemas() -> None:
         rest = path[len(topic):]
         for field, _ in re.findall(r"\{([a-z_]+)==([^}]*)\}", rest):
             assert field in props, path
-        for field, index in re.findall(r"\.([a-z_]+)(?:\[(\d+)\])?", re.sub(r"\{[^}]*\}", "", rest)):
+        for field, index in re.findall(r"\.([a-z][a-z_0-9]*)(?:\[(\d+|:)\])?", re.sub(r"\{[^}]*\}", "", rest)):
             assert field in props, path
-            if index:
-                assert "array" in props[field]["type"] and int(index) < props[field]["maxItems"], path
+            if index:  # [:] (every element, as Foxglove plots a batch's columns) or an index within a fixed size
+                assert "array" in props[field]["type"], path
+                assert index == ":" or int(index) < props[field].get("maxItems", int(index) + 1), path
 
 
 def test_bad_epochs_split_the_track_and_never_become_points(drive: Drive) -> None:

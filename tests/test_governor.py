@@ -151,7 +151,7 @@ def test_a_drive_under_two_busy_loops_comes_out_as_at_real_time(tmp_path: Path, 
     pace = re.search(rf"^  simulated drive at ([\d.]+)x on average of {scale}x asked", r.stdout, re.M)
     assert pace and 0.99 <= float(pace.group(1)) <= scale * 1.01, r.stdout
     (path,) = sorted(tmp_path.glob("*.mcap"))
-    msgs = read_messages(path)
+    msgs = read_messages(path, imu_samples=True)
     counts = {k: len(v) for k, v in msgs.items()}
     # Whether two busy loops leave the daemon enough of the host depends on what else the host runs (a second
     # test run beside this one on two cores does not): what must hold is that it never claims a rate it did not

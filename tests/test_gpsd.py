@@ -33,6 +33,7 @@ from logger.cli.gnss_decode import decode_pieces, strip_capture_comments
 from logger.cli.run import resolve_config
 from logger.cli.status_view import render
 from logger.config import ConfigError, parse
+from logger.recording.drive import imu_samples
 from logger.recording.records import location_fix
 from logger.runtime import gpsd_sources
 from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
@@ -535,6 +536,7 @@ def read_file(path: Path) -> dict[str, list[dict[str, Any]]]:
     with open(path, "rb") as f:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
             out[channel.topic].append(json.loads(message.data))
+    out["/imu"].extend(m for batch in out["/imu/batch"] for m in imu_samples(batch))  # a FIFO read's samples
     return out
 
 

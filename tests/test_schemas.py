@@ -58,16 +58,16 @@ class Drive:
     name: str
     scenario: str = "urban"
     config: str = ""
-    absent: tuple[str, ...] = (IMU_BATCH,)  # the default 20 Hz IMU is read sample by sample: no batches
+    absent: tuple[str, ...] = (IMU,)  # the IMU is read through its FIFO: a /imu/batch record per read, no /imu
 
 
 DRIVES = [
     *(Drive(scenario, scenario) for scenario in SCENARIOS),
     # The receiver read through gpsd (a simulated gpsd fed by the simulated receiver): its TPV and SKY reports.
     Drive("gpsd", config='[gnss]\nsource = "gpsd"\n[pps]\nsource = "gpsd"\n[obd]\nsource = "sim"\n',
-          absent=(GNSS_RAW, TIMEPULSE, IMU_BATCH)),
-    # An IMU fast enough to be read through its FIFO: one /imu/batch record per read instead of /imu per sample.
-    Drive("imu-fifo", config="[imu]\nrate_hz = 200\n", absent=(IMU,)),
+          absent=(GNSS_RAW, TIMEPULSE, IMU)),
+    # The IMU read a register burst per sample: one /imu record per sample instead of /imu/batch per read.
+    Drive("imu-register", config='[imu]\nread = "register"\n', absent=(IMU_BATCH,)),
 ]
 
 

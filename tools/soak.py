@@ -449,6 +449,9 @@ def read_files(out: Path) -> dict[str, dict[str, Any]]:
                 if channel.topic in SENSOR_TOPICS:
                     m = json.loads(message.data)
                     info["topics"][channel.topic].append((m["t_mono_ns"], m["seq"]))
+                elif channel.topic == "/imu/batch":  # a FIFO read: its samples, each with its own time and number
+                    m = json.loads(message.data)
+                    info["topics"]["/imu"].extend(zip(m["t_mono_ns"], itertools.count(m["seq"])))
                 elif channel.topic == "/health":
                     m = json.loads(message.data)
                     info["health"].append((m["t_mono_ns"], {s["name"]: (s["late"] + s["missed"], s["gaps"])

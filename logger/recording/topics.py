@@ -149,8 +149,10 @@ _add(IMU, "vehicle_logger.Imu", {
     "temp_degc": ("number", "die temperature, degC"),
     "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
     "lost": ("integer", "samples lost to a FIFO overflow just before this one"),
-}, "MPU-6050 accelerometer and gyro, one message per sample: the low rates the daemon reads sample by sample "
-   "(faster ones come as /imu/batch; recordings made before /imu/batch existed hold FIFO samples here too)")
+}, "MPU-6050 accelerometer and gyro, one message per sample: an IMU read a register burst per sample "
+   "([imu] read = \"register\", up to 50 Hz). Read through its FIFO, the default at every rate, it records "
+   "/imu/batch instead; older recordings hold their 20 Hz samples here, and those made before /imu/batch existed "
+   "their FIFO samples too")
 _add(IMU_BATCH, "vehicle_logger.ImuBatch", {
     "t_mono_ns": ("integer[]", "board monotonic time of each sample, oldest first, ns (reconstructed from the chip's "
                                "sample period, as /imu's fifo samples)"),
@@ -170,7 +172,7 @@ _add(IMU_BATCH, "vehicle_logger.ImuBatch", {
     "temp_degc": ("number", "die temperature read with the batch, degC"),
     "period_s": ("number", "the chip's sample period, s"),
     "lost": ("integer", "samples lost to a FIFO overflow just before the first one"),
-}, "MPU-6050 FIFO read (the rates read through the chip's FIFO): every sample of one read as columns, one "
+}, "MPU-6050 FIFO read ([imu] read = \"fifo\", the default at every rate): every sample of one read as columns, one "
    "message per read, so that writing and filtering cost per read, not per sample. The logger's own readers "
    "(replay, export, plot, info, the sync report) hand its samples on as /imu records. In Foxglove's Plot panel, "
    "set the X axis to 'Message path' with /imu/batch.t_sync_ns[:] and plot /imu/batch.accel_x_mps2[:] (or any "
