@@ -186,3 +186,17 @@ def test_compile_tree_stops_on_a_module_that_does_not_compile(tmp_path: Path) ->
     with pytest.raises(SystemExit, match="bytecode not written for logger"):
         bytecode.compile_tree(tmp_path, names)
     assert (tmp_path / "sync" / "__pycache__").is_dir()  # the other packages were compiled all the same
+
+
+def test_startup_worker_sees_every_sensor_topic_whichever_way_the_imu_is_read(tmp_path: Path) -> None:
+    """The start-up benchmark's worker ends when every sensor's first record is written; the IMU's first record is
+    a FIFO read (/imu/batch) by default, counted as its first samples (a worker waiting for /imu would sit out its
+    90 s limit and report no IMU time)."""
+    out = tmp_path / "result.json"
+    r = subprocess.run([sys.executable, str(TOOLS / "bench_startup.py"), "--worker", str(time.monotonic_ns()),
+                        "--out", str(tmp_path / "drive"), "--json", str(out)],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert set(result["first_s"]) == {"/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps"}, result["first_s"]
+    assert result["cpu_at_first_imu_s"] is not None and result["ready_s"] is not None

@@ -364,12 +364,13 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = dict(saved.get("results", {}))  # the sections not run now keep their figures
     results.update(fresh)
     info = machine()
+    if raw is not None:  # the figures first: a report that fails to render loses no measurement (--render-only)
+        raw.write_text(json.dumps({"machine": info, "command": command, "results": results}, indent=1))
     text = report(results, info, command)
     if out is None or raw is None:
         print(text)
         return 0
     out.write_text(text)
-    raw.write_text(json.dumps({"machine": info, "command": command, "results": results}, indent=1))
     print(f"[bench] wrote {out} and {raw}")
     return 0
 

@@ -35,6 +35,7 @@ from bench_daemon import sim_config  # noqa: E402  (the tool's own: imported bef
 from bytecode import compile_tree  # noqa: E402
 
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
+AS_SAMPLES = {"/imu/batch": "/imu"}  # the IMU's first FIFO read is its first samples' record
 NS = 1_000_000_000
 
 
@@ -63,7 +64,7 @@ def worker(spawn_ns: int, out: Path) -> dict[str, Any]:
     first: dict[str, tuple[int, float]] = {}
     all_seen = threading.Event()
     def note_first(topic: str) -> None:  # the writer thread wrote this topic's first record
-        first[topic] = (time.monotonic_ns(), time.process_time())
+        first.setdefault(AS_SAMPLES.get(topic, topic), (time.monotonic_ns(), time.process_time()))
         if all(t in first for t in SENSOR_TOPICS):
             all_seen.set()
 
@@ -131,7 +132,8 @@ def render(result: dict[str, Any]) -> list[str]:
              f"| the logger's imports | +{sec(s['imports_s'])} |",
              f"| simulated vehicle built (not on a board) | +{sec(s['vehicle_s'])} |",
              f"| daemon built (configuration, clock, drivers' plans) | +{sec(s['build_s'])} |",
-             f"| **first IMU sample written by the recorder** | **{sec(f['/imu'])}** (slowest run "
+             "| **first IMU samples written by the recorder** (the first FIFO read) | "
+             f"**{sec(f['/imu'])}** (slowest run "
              f"{s['first_imu_max_s']:.2f} s); without the simulated vehicle's build "
              f"**{sec(s.get('first_imu_board_s'))}** |",
              f"| first barometer sample | {sec(f['/baro'])} |",
