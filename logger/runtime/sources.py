@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from logger.config import IMU_READS, REGISTER_READ_MAX_HZ
+from logger.config import IMU_READS
 from logger.recording.records import (
     baro_record,
     imu_batch_payload,
@@ -86,7 +86,7 @@ class ImuSource(Source):
         self.bus_id, self.address, self.rate_hz = bus, address, rate_hz
         self.ranges = (accel_range_g, gyro_range_dps)
         self.tb = tb
-        self.fifo = read == "fifo" or rate_hz > REGISTER_READ_MAX_HZ
+        self.fifo = read == "fifo"  # the configuration refuses register reads above REGISTER_READ_MAX_HZ
         self.poll_hz = fifo_poll_hz(rate_hz) if self.fifo else rate_hz
         self.driver: Any = None
         self._bus: Any = None
