@@ -66,6 +66,35 @@ def test_task_cpu_follows_a_busy_thread_by_name() -> None:
     assert cpu[tid[0]] >= 0.25  # clock ticks of 10 ms: 0.3 s of CPU reads as at least 0.29
 
 
+def test_task_wakes_count_a_threads_sleeps() -> None:
+    """Each sleep a thread ends is a voluntary context switch: twenty sleeps read as at least twenty wakes."""
+    started, go, done, read = (threading.Event() for _ in range(4))
+    tid: list[int] = []
+
+    def work() -> None:
+        tid.append(threading.get_native_id())
+        started.set()
+        go.wait(60)
+        for _ in range(20):
+            time.sleep(0.001)
+        done.set()
+        read.wait(60)  # stay alive (and listed in /proc) until the test has read it
+
+    t = threading.Thread(target=work, name="sampler-test")
+    t.start()
+    try:
+        assert started.wait(30)
+        before = bench_daemon.task_wakes()[tid[0]]
+        go.set()
+        assert done.wait(30)
+        after = bench_daemon.task_wakes()[tid[0]]
+    finally:
+        go.set()
+        read.set()
+        t.join()
+    assert after - before >= 20
+
+
 def test_sim_meter_counts_nested_calls_once_and_by_thread() -> None:
     class Chip:
         def inner(self) -> None:

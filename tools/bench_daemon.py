@@ -11,6 +11,8 @@ navigator, health, service, status, main) and the simulator's (``sim-*``, ``ublo
 thread spends inside the simulated kernel (I2C ioctl, GPIO edge FIFO) is measured with that thread's own CPU
 clock and moved to the simulator's side. The kernel work a board does for the same transfers (i2c-omap, the
 serial and GPIO drivers) is not in either figure; the I2C transfer count is reported so it can be estimated.
+Each thread's wake-ups a second (voluntary context switches, ``wakes_per_s`` in the JSON) come with it: a quiet
+thread's share is its work per wake-up times their number, and they tell which of the two to cut.
 
 The run is real time (time scale 1) with the default configuration except the IMU rate, as on a board: the
 navigation filter runs live, and the drive is not paced (a paced drive's threads wait in short steps to follow
@@ -89,6 +91,23 @@ def task_cpu_s() -> dict[int, float]:
             continue
         fields = text.rsplit(")", 1)[1].split()  # the name may hold spaces and parentheses
         out[int(tid)] = (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def task_wakes() -> dict[int, int]:
+    """Voluntary context switches of every thread of this process, by thread id: each is a wait that ended (a
+    sleep, a lock, a read), so their rate is how often a thread wakes, a cost the CPU share of a quiet thread is
+    mostly made of."""
+    out: dict[int, int] = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/status", encoding="ascii") as f:
+                for line in f:
+                    if line.startswith("voluntary_ctxt_switches:"):
+                        out[int(tid)] = int(line.split()[1])
+                        break
+        except OSError:  # the thread ended meanwhile
+            continue
     return out
 
 
@@ -251,6 +270,7 @@ class Snapshot:
     mono_ns: int
     process_cpu_s: float
     task_cpu_s: dict[int, float]
+    task_wakes: dict[int, int]
     names: dict[int, str]
     sim_inside_s: dict[str, float]
     rss_kb: int
@@ -270,7 +290,7 @@ def take_snapshot(daemon: Any, vehicle: Any, meter: SimMeter) -> Snapshot:
     cpu = task_cpu_s()
     return Snapshot(
         wall_s=time.monotonic(), mono_ns=int(daemon.tb.monotonic_ns()), process_cpu_s=times.user + times.system,
-        task_cpu_s=cpu, names=thread_names(cpu),
+        task_cpu_s=cpu, task_wakes=task_wakes(), names=thread_names(cpu),
         sim_inside_s=meter.snapshot(), rss_kb=mem["VmRSS"], hwm_kb=mem["VmHWM"],
         sensors={s["name"]: {k: s[k] for k in ("samples", "late", "missed", "gaps", "errors", "reconnects")}
                  for s in snap["sensors"]},
@@ -280,13 +300,22 @@ def take_snapshot(daemon: Any, vehicle: Any, meter: SimMeter) -> Snapshot:
         i2c_transfers=vehicle.i2c.transfer_count if vehicle is not None and vehicle.i2c is not None else 0)
 
 
-def cpu_by_thread(a: Snapshot, b: Snapshot) -> dict[str, float]:
-    """CPU seconds between two snapshots per thread name (threads of one name summed)."""
-    names = {**a.names, **b.names}
+def _by_name(a: dict[int, float], b: dict[int, float], names: dict[int, str]) -> dict[str, float]:
+    """A per-thread counter's growth from ``a`` to ``b`` per thread name (threads of one name summed)."""
     out: dict[str, float] = defaultdict(float)
-    for tid, cpu in b.task_cpu_s.items():
-        out[names.get(tid, f"tid-{tid}")] += cpu - a.task_cpu_s.get(tid, 0.0)
+    for tid, value in b.items():
+        out[names.get(tid, f"tid-{tid}")] += value - a.get(tid, 0)
     return dict(out)
+
+
+def cpu_by_thread(a: Snapshot, b: Snapshot) -> dict[str, float]:
+    """CPU seconds between two snapshots per thread name."""
+    return _by_name(a.task_cpu_s, b.task_cpu_s, {**a.names, **b.names})
+
+
+def wakes_by_thread(a: Snapshot, b: Snapshot) -> dict[str, float]:
+    """Voluntary context switches between two snapshots per thread name."""
+    return _by_name(dict(a.task_wakes), dict(b.task_wakes), {**a.names, **b.names})
 
 
 @dataclass
@@ -404,13 +433,15 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     a, b = snaps
     wall = b.wall_s - a.wall_s
     per_thread = cpu_by_thread(a, b)
+    wakes = wakes_by_thread(a, b)
     inside = {k: b.sim_inside_s.get(k, 0.0) - a.sim_inside_s.get(k, 0.0) for k in b.sim_inside_s}
     sums: dict[str, float] = defaultdict(float)
     for name, cpu in per_thread.items():
         kind = thread_class(name)
         sums[kind] += cpu
         result.threads[name] = {"cpu_s": round(cpu, 3), "pct": round(cpu / wall * 100, 3), "class": kind,
-                                "sim_inside_pct": round(inside.get(name, 0.0) / wall * 100, 3)}
+                                "sim_inside_pct": round(inside.get(name, 0.0) / wall * 100, 3),
+                                "wakes_per_s": round(wakes.get(name, 0) / wall, 1)}
     moved = sum(v for k, v in inside.items() if thread_class(k) == "daemon")
     result.daemon_pct = round((sums["daemon"] - moved) / wall * 100, 3)
     result.sim_inside_daemon_pct = round(moved / wall * 100, 3)
