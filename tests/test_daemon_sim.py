@@ -7,6 +7,7 @@ is in drive time (the board's monotonic clock as the simulation runs it).
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import re
 import signal
@@ -21,6 +22,7 @@ from helpers_drive import drive_timeout, read_messages, run_logger
 from mcap.reader import make_reader
 
 from logger.recording.files import is_finished
+from logger.recording.topics import IMU_BATCH
 from logger.runtime.status_socket import fetch
 
 SENSOR_TOPICS = ("/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps")
@@ -319,8 +321,13 @@ def test_the_end_of_a_run_says_what_it_recorded_and_what_never_came(tmp_path: Pa
         stats = make_reader(f).get_summary()
     assert stats is not None
     counts = {ch.topic: stats.statistics.channel_message_counts.get(cid, 0) for cid, ch in stats.channels.items()}
+    with open(path, "rb") as f:  # a FIFO read's record holds several samples: the summary counts them too
+        held = sum(len(json.loads(m.data)["t_sync_ns"])
+                   for _, _, m in make_reader(f).iter_messages(topics=[IMU_BATCH]))
+    assert counts[IMU_BATCH] > 0 and held > counts[IMU_BATCH]
     for topic, n in counts.items():
-        assert re.search(rf"^  {re.escape(topic)} +{n} +\d+\.\d\d$", out, re.M), (topic, n, out)
+        samples = rf"  \({held} samples, \d+\.\d\d Hz\)" if topic == IMU_BATCH else ""
+        assert re.search(rf"^  {re.escape(topic)} +{n} +\d+\.\d\d{samples}$", out, re.M), (topic, n, out)
     assert re.search(r"^  ! obd never delivered: .*no-adapter", out, re.M), out
     assert "never delivered" not in out.replace("! obd never delivered", "")  # the others did
     assert re.search(r"^  clock (locked|holdover) at the end, error bound [\d.]+ us", out, re.M), out

@@ -52,6 +52,9 @@ class RecorderStatus:
     files_done: int
     free_bytes: int | None
     written: dict[str, int] = field(default_factory=dict)
+    # Topics whose records each hold several samples (a FIFO read's /imu/batch, its stamps a list): the samples
+    # written, what an operator counts by, beside the records.
+    samples: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
     unrecorded: dict[str, int] = field(default_factory=dict)
     queue_depth: int = 0
@@ -132,6 +135,7 @@ class Recorder:
         self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
         self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
         self._written: Counter[str] = Counter()
+        self._samples: Counter[str] = Counter()
         self._newest_written: dict[str, int] = {}  # topic -> t_mono_ns of its newest record handed to the writer
         # Called from the writer thread with a topic the first time one of its records is written (start-up timing).
         self.on_first_record: Callable[[str], None] | None = None
@@ -196,7 +200,8 @@ class Recorder:
                 file=str(self._path) if self._path else None,
                 file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
                 files_done=self._files_done, free_bytes=self._free,
-                written=dict(self._written), dropped=dict(self._dropped), unrecorded=dict(self._unrecorded),
+                written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
+                unrecorded=dict(self._unrecorded),
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
                 on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since)
 
@@ -283,8 +288,11 @@ class Recorder:
         if self._first_log_ns is None:
             self._first_log_ns = log_ns
         self._newest_written[topic] = pub_ns
+        stamps = payload.get("t_sync_ns")
         with self._lock:
             self._written[topic] += 1
+            if stamps.__class__ is list:  # a batch record: its samples' stamps
+                self._samples[topic] += len(stamps)
         if topic not in self._topics_written:
             self._topics_written.add(topic)
             if self.on_first_record is not None:

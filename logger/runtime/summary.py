@@ -30,13 +30,18 @@ def run_summary(daemon: Daemon) -> str:
         else:
             note = "" if is_finished(p) else "  (not finished: `logger recover` it)"
             lines.append(f"  {p}  {size / 1e6:.1f} MB{note}")
-    written = daemon.recorder.status().written
+    rec = daemon.recorder.status()
+    written = rec.written
     if written:
         width = max(len(t) for t in written)
         lines.append(f"  {'topic':<{width}}  {'messages':>9}  {'rate Hz':>8}")
         for topic in sorted(written):
             rate = written[topic] / span_s if span_s > 0 else math.nan
-            lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}")
+            samples = rec.samples.get(topic)
+            # A batch topic's messages are reads: the samples they hold are what its rate is judged by.
+            held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
+                    else "")
+            lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
     end = daemon.ended_mono_ns  # the states as they were when the run was told to stop, not as the summary runs
     for snap in (s.health.snapshot(end) for s in daemon.samplers):
         if snap["samples"] == 0:
