@@ -8,6 +8,7 @@ GPS time in :mod:`sensors.geodesy`. Their public names are re-exported here, so 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
@@ -74,10 +75,13 @@ class GnssReceiver:
             raise BusError(f"GNSS receiver: cannot open {path}: {_one_line(err)}") from err
         return cls(port, path)
 
-    def read(self, timeout_s: float) -> GnssRead:
+    def read(self, timeout_s: float, settle: Callable[[], None] | None = None) -> GnssRead:
         """Wait up to ``timeout_s`` for bytes, take all that are waiting, decode them.
 
-        Returns an empty read when the receiver stayed silent; that is not an error here.
+        ``settle``, called once the first byte is in, waits for the rest of the burst (the caller's clock): an
+        epoch's messages come back to back, and a read that took each as it came would wake the reader once per
+        message here and once per tty flush on a board's UART. Returns an empty read when the receiver stayed
+        silent; that is not an error here.
         """
         timeout_s = max(0.0, timeout_s)  # a negative wait means 'do not wait', not an error
         try:
@@ -85,6 +89,8 @@ class GnssReceiver:
                 self._port.timeout = timeout_s
             data = self._port.read(1)
             if data:
+                if settle is not None:
+                    settle()
                 waiting = self._port.in_waiting
                 if waiting:
                     data += self._port.read(waiting)

@@ -23,7 +23,7 @@ from logger.exports.topic_timing import STAMPED_TOPICS, timings
 from logger.recording.drive import iter_messages, open_drive
 
 ROOT = Path(__file__).resolve().parents[1]
-REMOVED = 4  # consecutive IMU records taken out: FIFO reads of about five samples each
+REMOVED = 4  # consecutive IMU records taken out: FIFO reads of about ten samples each
 
 
 def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:

@@ -6,6 +6,7 @@ import calendar
 import math
 import os
 import threading
+import time
 
 import pytest
 from extras import given, settings, st
@@ -18,6 +19,7 @@ from sensors.sim.pty import PtyPort
 from sensors.ublox import (
     GnssDecoder,
     GnssFix,
+    GnssRead,
     GnssReceiver,
     GnssTime,
     TimePulse,
@@ -419,6 +421,53 @@ def test_receiver_stops_parsing_nmea_once_ubx_solutions_arrive() -> None:
     assert receiver.framer.undecoded == 0 and receiver.framer.frames_ok == 7
     assert [(type(i).__name__, i.source) for i in items] == [(type(i).__name__, i.source) for i in
                                                              decode(b"".join(chunks))]
+
+
+def test_a_read_that_settles_takes_the_epochs_burst_at_once() -> None:
+    """The port hands over an epoch's messages as the line delivers them. Without a settle a read returns the
+    first message alone (one wake-up per message); with one, the caller's wait runs after the first byte and the
+    read takes what came meanwhile: the whole epoch, decoded together, every byte in the raw log."""
+    gga = nmea("GPGGA,000000.25,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,")
+    first, rest = nav_pvt(), gga + nav_eoe(345_600_250)
+    with PtyPort() as device:
+        receiver = GnssReceiver.open(device.path, 115200)
+        try:
+            device.write(first)
+            alone = receiver.read(5.0)
+            while len(alone.raw) < len(first):  # the pty may hand the first message over in pieces
+                more = receiver.read(5.0)
+                alone = GnssRead(alone.raw + more.raw, alone.items + more.items)
+            assert alone.raw == first  # nothing else was on the line
+
+            calls = []
+
+            def settle() -> None:  # the line delivers the rest of the burst while the reader waits
+                calls.append(1)
+                device.write(rest)
+                deadline = time.monotonic() + 10.0
+                while receiver.port.in_waiting < len(first) - 1 + len(rest) and time.monotonic() < deadline:
+                    time.sleep(0.001)
+
+            device.write(first)
+            burst = receiver.read(5.0, settle)
+        finally:
+            receiver.close()
+    assert calls == [1] and burst.raw == first + rest
+    assert [type(i).__name__ for i in burst.items] == [type(i).__name__ for i in decode(first + rest)]
+
+
+def test_the_gnss_thread_waits_out_an_epochs_line_time_but_never_half_a_fix_period() -> None:
+    from logger.runtime.sources import BURST_SETTLE_MAX_S, EPOCH_BURST_BYTES, GnssSource
+    from logger.runtime.timebase import TimeBase
+
+    def settle(baud: int, meas_period_ms: int | None = None) -> float:
+        source = GnssSource("/dev/null", baud, configure=False, tb=TimeBase(), meas_period_ms=meas_period_ms)
+        return source.settle_s()
+
+    assert settle(9600) == pytest.approx(EPOCH_BURST_BYTES * 10 / 9600)  # 0.33 s: the factory rate's epoch
+    assert settle(115200) == pytest.approx(EPOCH_BURST_BYTES * 10 / 115200)  # 28 ms
+    assert settle(4800) == BURST_SETTLE_MAX_S  # a slower line: never past the late-read span
+    assert settle(115200, meas_period_ms=50) == pytest.approx(0.02)  # 20 Hz fixes: within the epoch
 
 
 def test_time_messages_come_out_at_once() -> None:

@@ -524,6 +524,15 @@ def render(results: list[dict[str, Any]]) -> list[str]:
             else:
                 cells.append(f"{t['pct']:.3f}" + (f" ({t['sim_inside_pct']:.3f})" if t["sim_inside_pct"] else ""))
         lines.append(f"| {n} | {thread_class(n)} | " + " | ".join(cells) + " |")
+    lines += ["", "Wake-ups a second per daemon thread (voluntary context switches: every wait that ended, a sleep, a "
+              "read, a lock or the interpreter's lock handed over): a quiet thread's share above is its work per "
+              "wake-up times these:", ""]
+    lines.append("| thread | " + " | ".join(f"{r['imu_rate_hz']:g} Hz" for r in plain) + " |")
+    lines.append("| --- | " + " | ".join("---" for _ in plain) + " |")
+    for n in (n for n in names if thread_class(n) == "daemon"):
+        cells = [f"{r['threads'][n]['wakes_per_s']:.1f}" if "wakes_per_s" in r["threads"].get(n, {}) else "-"
+                 for r in plain]
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "Live, the recorder and navigator threads cost more per record than the throughput benchmarks "
               "below show: each wakes a few times a second and takes what has arrived in one go, and a chunk is "
               "closed and fsynced every second whatever the rate, so at low rates those fixed costs dominate:",

@@ -5,7 +5,7 @@ Sensor threads hand over a record and return at once; a full queue is a counted 
 power cut loses about that much; it rotates files by duration and size, and stops recording with a clear state
 before the disk is full rather than leave a file it cannot finish.
 
-Handing over does not wake the writer: it wakes a few times a second (``BATCH_WAIT_S``), at each flush, or when a
+Handing over does not wake the writer: it wakes at each flush, at least every ``BATCH_WAIT_S``, or when a
 quarter of the queue has filled, and writes everything waiting in one go. On a one-core board a thread woken per
 record costs more than writing the record; batching costs nothing in safety, since a record is only durable at
 the next flush either way and every flush first writes all that is queued.
@@ -35,7 +35,7 @@ from sync.wallclock import boot_id
 
 log = logging.getLogger(__name__)
 
-BATCH_WAIT_S = 0.5  # longest real time a record waits in the queue between flushes
+BATCH_WAIT_S = 1.0  # longest real time a record waits in the queue between flushes
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
 CHANNEL_TABLE_S = 60.0  # the channel table (files.CHANNEL_TABLE) is written again this often, s of drive

@@ -39,7 +39,7 @@ from logger.runtime.sampler import GAP_PERIODS, Reading
 log = logging.getLogger(__name__)
 
 INPUT_TOPICS = frozenset((*NAV_INPUT_TOPICS, IMU_BATCH))  # live, a FIFO read comes as one batch
-WAKE_S = 0.5  # the filter runs in batches: a wake-up per sample would cost more than the filter
+WAKE_S = 1.0  # the filter runs in batches: each wake-up costs more than the records it takes (cold caches)
 
 
 def _follows(m: dict[str, Any], last: int | None) -> bool:
