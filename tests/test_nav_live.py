@@ -52,6 +52,19 @@ def test_offer_never_blocks_and_counts_what_it_drops():
     assert "navigator behind: 990 records skipped" in nav.section()["verdicts"]
 
 
+def test_a_quarter_filled_queue_wakes_the_filter_thread():
+    """The filter thread takes its queue once a second (WAKE_S), and at once when offers fill a quarter of it: a
+    fast simulated drive or a burst of reads is taken before the queue overflows."""
+    nav = Navigator(NavParams(queue_size=40))  # no thread started: the wake-up is looked at, not acted on
+    msg = {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0, -9.8], "gyro_rps": [0, 0, 0]}
+    for _ in range(9):
+        nav.offer("/imu", msg)
+        nav.offer("/truth/nav", msg)  # not queued, so not counted
+    assert not nav._wake.is_set()
+    nav.offer("/imu", msg)
+    assert nav._wake.is_set() and nav.queued == 10
+
+
 def test_navigator_thread_publishes_fixes_state_and_status():
     drive = make_drive("outage-60s", seed=1, duration_s=80.0)
     published: list[Reading] = []

@@ -84,6 +84,10 @@ class Navigator:
         self.processed = 0
         self.cpu_s = 0.0
         self._halt = threading.Event()
+        # Set by an offer that fills a quarter of the queue: a fast simulated drive (or a 1 kHz burst) is taken
+        # before the queue overflows, not only at the next WAKE_S.
+        self._wake = threading.Event()
+        self._wake_at = max(1, self.params.queue_size // 4)
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._next_fix_ns = 0
@@ -100,6 +104,8 @@ class Navigator:
         with self._q_lock:
             if len(self._q) < self.params.queue_size:
                 self._q.append((topic, payload))
+                if len(self._q) >= self._wake_at:
+                    self._wake.set()
                 return
             self.dropped += 1
 
@@ -126,6 +132,7 @@ class Navigator:
 
     def stop(self) -> None:
         self._halt.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(2.0)
         with self._lock:  # the filter thread may still be inside a batch if the join timed out
@@ -144,7 +151,11 @@ class Navigator:
     def _run(self) -> None:
         cpu0 = time.thread_time()
         q = self._q
-        while not self._halt.wait(WAKE_S):
+        while True:
+            self._wake.wait(WAKE_S)
+            self._wake.clear()  # before taking: a quarter filled meanwhile is taken at the next turn
+            if self._halt.is_set():
+                return
             if not q:
                 continue
             batch = [q.popleft() for _ in range(len(q))]  # only this thread takes: len(q) are there
