@@ -534,7 +534,7 @@ def render(results: list[dict[str, Any]]) -> list[str]:
                  for r in plain]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "Live, the recorder and navigator threads cost more per record than the throughput benchmarks "
-              "below show: each wakes a few times a second and takes what has arrived in one go, and a chunk is "
+              "below show: each wakes about once a second and takes what has arrived in one go, and a chunk is "
               "closed and fsynced every second whatever the rate, so at low rates those fixed costs dominate:",
               ""]
     for r in plain:
