@@ -229,3 +229,32 @@ def test_startup_worker_sees_every_sensor_topic_whichever_way_the_imu_is_read(tm
     result = json.loads(out.read_text())
     assert set(result["first_s"]) == {"/imu", "/baro", "/obd/speed", "/gnss/fix", "/pps"}, result["first_s"]
     assert result["cpu_at_first_imu_s"] is not None and result["ready_s"] is not None
+
+
+def test_the_daemon_benchmark_runs_with_the_units_environment(tmp_path: Path) -> None:
+    """The unit's Environment= lines are what the benchmark applies (glibc reads MALLOC_ARENA_MAX at start): a
+    child started by its main block has them, whatever the parent's environment said."""
+    env = bench_daemon.unit_environment()
+    assert env.get("MALLOC_ARENA_MAX") == "2"
+    unit = tmp_path / "x.service"
+    unit.write_text('[Service]\nEnvironment=A=1 "B=two"\n# Environment=C=3\nEnvironment=D=4\n', encoding="utf-8")
+    assert bench_daemon.unit_environment(unit) == {"A": "1", "B": "two", "D": "4"}
+    probe = ("import os, runpy, sys; sys.argv = ['bench_daemon.py', '--help']; "
+             "print(os.environ.get('MALLOC_ARENA_MAX'), flush=True); "
+             f"runpy.run_path({str(TOOLS / 'bench_daemon.py')!r}, run_name='__main__')")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         env={k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}).stdout
+    # The first line is the parent's (unset); the re-executed benchmark prints its help with the unit's value set.
+    assert out.splitlines()[0] == "None" and "usage: bench_daemon.py" in out
+
+
+def test_the_simulators_modules_are_measured_apart_from_the_daemons() -> None:
+    """What the simulator's modules add on top of every other module is positive, and nothing without them."""
+    import logger.compose  # noqa: F401
+    import sensors.sim.vehicle  # noqa: F401
+
+    loaded = list(sys.modules)
+    assert bench_daemon.sim_modules_rss_mb(loaded) > 0.5
+    assert bench_daemon.sim_modules_rss_mb([n for n in loaded if not n.startswith("sensors.sim")]) == 0.0
+    r = {"rss_end_mb": 50.0, "sim_build_rss_mb": 7.5, "sim_modules_rss_mb": 2.5}
+    assert bench_daemon.daemon_alone_mb(r) == 40.0

@@ -122,6 +122,58 @@ def proc_status_kb(*keys: str) -> dict[str, int]:
     return out
 
 
+UNIT = ROOT / "systemd" / "vehicle-logger.service"
+SIM_MODULES = "sensors.sim"
+_MODULES_RSS_CHILD = """
+import importlib, json, sys
+def rss():
+    with open("/proc/self/status", encoding="ascii") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:"))
+names = json.loads(sys.stdin.read())
+def load(group):
+    for name in group:
+        try:
+            importlib.import_module(name)
+        except BaseException:
+            pass
+load(names["rest"])
+before = rss()
+load(names["sim"])
+print(json.dumps({"before": before, "after": rss()}))
+"""
+
+
+def unit_environment(unit: Path = UNIT) -> dict[str, str]:
+    """The ``Environment=`` assignments of the service unit: the benchmark runs the daemon with them, as systemd
+    does on the board (glibc reads MALLOC_ARENA_MAX once, at the process's start)."""
+    env: dict[str, str] = {}
+    for line in unit.read_text(encoding="utf-8").splitlines():
+        key, _, value = line.strip().partition("=")
+        if key == "Environment":
+            for item in value.split():
+                name, eq, val = item.strip('"').partition("=")
+                if eq:
+                    env[name] = val
+    return env
+
+
+def sim_modules_rss_mb(loaded: list[str]) -> float:
+    """Resident memory the simulator's own modules (``sensors.sim``) add to an interpreter that holds every other
+    module the run loaded: measured in a child, which imports the others, then those. A module that only the
+    simulator imports from elsewhere (a library) counts for the daemon: the estimate errs on the daemon's side."""
+    import subprocess
+
+    sim = sorted(n for n in loaded if n == SIM_MODULES or n.startswith(SIM_MODULES + "."))
+    rest = sorted(n for n in loaded if n not in sim and n != "__main__" and not n.startswith("bench"))
+    try:
+        out = subprocess.run([sys.executable, "-c", _MODULES_RSS_CHILD], input=json.dumps({"rest": rest, "sim": sim}),
+                             capture_output=True, text=True, cwd=ROOT, timeout=120, check=True)
+        got = json.loads(out.stdout)
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return 0.0
+    return round((got["after"] - got["before"]) / 1024, 1)
+
+
 def set_niceness(nice: int) -> int:
     """Ask for a niceness; returns the one in force (unchanged when not permitted)."""
     if nice:
@@ -337,6 +389,8 @@ class DaemonResult:
     rss_growth_mb: float = 0.0
     hwm_mb: float = 0.0
     sim_build_rss_mb: float = 0.0
+    sim_modules_rss_mb: float = 0.0
+    environment: dict[str, str] = field(default_factory=dict)
     rss_series_mb: list[float] = field(default_factory=list)
     counters: dict[str, Any] = field(default_factory=dict)
     file: dict[str, Any] = field(default_factory=dict)
@@ -455,6 +509,8 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     result.rss_growth_mb = round((b.rss_kb - a.rss_kb) / 1024, 2)
     result.hwm_mb = round(b.hwm_kb / 1024, 1)
     result.sim_build_rss_mb = round((built.get("after", 0) - built.get("before", 0)) / 1024, 1)
+    result.sim_modules_rss_mb = sim_modules_rss_mb(list(sys.modules))
+    result.environment = {k: os.environ.get(k, "") for k in unit_environment()}
     result.rss_series_mb = [round(x, 1) for x in rss[:: max(1, len(rss) // 12)]]
     result.i2c_transfers_per_s = round((b.i2c_transfers - a.i2c_transfers) / wall, 1)
     result.counters = {
@@ -498,18 +554,25 @@ def live_costs(r: dict[str, Any]) -> dict[str, float]:
             "navigator_us_per_sample": cpu.get("navigator", 0.0) / max(samples, 1e-9) * 1e6}
 
 
+def daemon_alone_mb(r: dict[str, Any]) -> float:
+    """The process's RSS at the window's end less what the simulator holds: its drive and its modules."""
+    return r["rss_end_mb"] - r["sim_build_rss_mb"] - r.get("sim_modules_rss_mb", 0.0)
+
+
 def render(results: list[dict[str, Any]]) -> list[str]:
     """Markdown: CPU and memory per IMU rate, the per-thread split, and the sustained-rate verdicts."""
     plain = [r for r in results if not r["profile"]]
     lines = ["| IMU rate | window | niceness | daemon threads | simulator (threads + inside daemon threads) "
-             "| whole process | RSS at start -> end (growth) | peak RSS | of which the simulated drive |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| whole process | RSS at start -> end (growth) | peak RSS | of which the simulated drive "
+             "| and the simulator's modules | daemon alone at the end, estimated |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in plain:
         lines.append(f"| {r['imu_rate_hz']:g} Hz | {r['window_s']:.0f} s | {r.get('nice', 0)} "
                      f"| **{r['daemon_pct']:.2f} %** "
                      f"| {r['sim_pct']:.2f} % ({r['sim_inside_daemon_pct']:.2f} % inside) | {r['process_pct']:.2f} % "
                      f"| {r['rss_start_mb']:.1f} -> {r['rss_end_mb']:.1f} MB ({r['rss_growth_mb']:+.2f}) "
-                     f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB |")
+                     f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB "
+                     f"| {r.get('sim_modules_rss_mb', 0.0):.1f} MB | **{daemon_alone_mb(r):.1f} MB** |")
     lines += ["", "Per thread, % of one core of this machine (the simulator's share inside a daemon thread in "
               "brackets, already moved out of the daemon figure):", ""]
     names = sorted({n for r in plain for n in r["threads"]}, key=lambda n: (thread_class(n) != "daemon", n))
@@ -542,10 +605,16 @@ def render(results: list[dict[str, Any]]) -> list[str]:
         lines.append(f"- {r['imu_rate_hz']:g} Hz: recorder thread {c['recorder_us_per_record']:.0f} us per record "
                      f"({c['records_per_s']:.0f} records/s), navigator thread {c['navigator_us_per_sample']:.0f} us "
                      f"per IMU sample ({c['imu_per_s']:.0f}/s).")
+    lines += ["", "The run has the service unit's environment (`Environment=` in systemd/vehicle-logger.service: "
+              "glibc's malloc arenas at 2, its own limit on the board's one 32-bit core, where this 64-bit host "
+              "with two cores would allow 16). The daemon alone is the process's RSS at the window's end less the "
+              "simulated drive (measured as it was built) and the simulator's modules (`sensors.sim`, measured in a "
+              "child interpreter that first imports every other module the run loaded): an estimate, since the "
+              "simulator's objects and threads stay in it, and the board's 32-bit interpreter has smaller objects."]
     growth = [r["rss_growth_mb"] for r in plain]
     if growth:
         lines += ["", f"RSS grew by {min(growth):+.1f} to {max(growth):+.1f} MB over each window, by about the same "
-                  "whatever the number of records; the figure is not split between the daemon and the simulator, "
+                  "whatever the number of records; the growth is not split between the daemon and the simulator, "
                   "and both keep things that grow: the daemon's MCAP writer an index entry per chunk (one a second, "
                   "per-channel offsets) until the file rotates (`rotate_duration_s`, an hour by default); the "
                   "simulated u-blox its last 3600 epochs and the simulated ELM327 its last 2048-4096 command lines, "
@@ -622,4 +691,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    wanted = {k: v for k, v in unit_environment().items() if os.environ.get(k) != v}
+    if wanted:  # the unit's environment, read by glibc and Python at start: a fresh process with it
+        os.execve(sys.executable, [sys.executable, str(Path(__file__).resolve()), *sys.argv[1:]],
+                  {**os.environ, **wanted})
     sys.exit(main())
