@@ -11,7 +11,7 @@ import pytest
 
 from sensors import mpu6050 as drv
 from sensors.errors import BusError, DeviceNotFound, WrongDevice
-from sensors.mpu6050 import Mpu6050, choose_sample_timing
+from sensors.mpu6050 import TEMP_OUT_H, Mpu6050, choose_sample_timing
 from sensors.sim import i2c as sim_i2c
 from sensors.sim.clock import ManualClock
 from sensors.sim.earth import gravity_ned
@@ -522,3 +522,26 @@ def test_driver_constants_match_register_map() -> None:
         0x6A, 0x6B, 0x72, 0x74, 0x75)
     assert {g: s for g, (_, s) in drv.ACCEL_FULL_SCALE.items()} == ACCEL_LSB_PER_G
     assert {g: s for g, (_, s) in drv.GYRO_FULL_SCALE.items()} == GYRO_LSB_PER_DPS
+
+
+def test_fifo_reads_take_the_die_temperature_once_a_second(rig) -> None:
+    """TEMP_OUT is outside the FIFO: a 1 kHz read every 40 ms reads it once a second, not 25 times; each batch
+    carries the last reading, and a read that gives no time reads it every time."""
+    r = rig(MotionTrajectory(), errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    r.adapter.trace = []
+    temps = []
+    for _ in range(75):  # 3 s
+        r.clock.advance(0.04)
+        temps.append(d.read_fifo(r.clock.now_ns()).temp_degc)
+    temp_reads = sum(1 for _, kind, data in r.adapter.trace if kind == "W" and data == bytes((TEMP_OUT_H,)))
+    assert temp_reads == 3
+    assert all(math.isfinite(t) and 0.0 < t < 60.0 for t in temps)
+    r.adapter.trace = []
+    for _ in range(3):
+        r.clock.advance(0.04)
+        d.read_fifo()
+    assert sum(1 for _, kind, data in r.adapter.trace if kind == "W" and data == bytes((TEMP_OUT_H,))) == 3
