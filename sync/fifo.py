@@ -7,9 +7,10 @@ reading FIFO_COUNT then stamps its older frames before the previous batch's newe
 that are not there.
 
 Instead the frames are counted: each batch continues the previous one at the estimated period, and the read
-times only steer that count-based time, slowly (a fraction of the difference per batch), within what the read
-bounds allow: the newest frame cannot have arrived after the count was read (before ``t_after``), nor more than a
-period before the poll began (``t_before``). The period is learned from frames counted over at least
+times only steer that count-based time, slowly (a fraction of the difference per batch, spread over the batch's
+intervals so that no single one carries it), within what the read bounds allow: the newest frame cannot have
+arrived after the count was read (before ``t_after``), nor more than a period before the poll began
+(``t_before``). The period is learned from frames counted over at least
 ``PERIOD_SPAN_S``, so a chip running 1 % fast does not pull the stamps against the bounds at every poll. A
 prediction far outside the bounds (frames destroyed by an overflow the chip did not flag, a stalled bus) restarts
 the count from the read time. Stamps are strictly increasing whatever the reads do.
@@ -53,6 +54,7 @@ class FifoClock:
         hi = t_after_ns - backlog_frames * p  # the count was read before t_after
         lo = t_before_ns - (backlog_frames + 1) * p  # ... and after t_before: the newest frame is younger than p
         measured = min(hi, t_before_ns - backlog_frames * p - p / 2)  # middle of its period, as if read at once
+        steered = False
         if self._last is None:
             newest = measured
         else:
@@ -66,12 +68,22 @@ class FifoClock:
                 gain = STEER_GAIN * p / (p + max(0.0, window - self._window_ns))
                 innovation = min(p, max(-p, measured - predicted))
                 newest = min(hi, max(lo, predicted + gain * innovation))
+                steered = True
             else:
                 self.restarts += 1
                 self._anchor = None
                 newest = measured
-        # When the count ran ahead of the bounds, the batch is spread over the time there is since the last one.
-        step = p if self._last is None else min(p, (newest - self._last) / n)
+        # A steered batch is spread evenly over the time since the last one: what the steering moved (the period's
+        # residual error piled up over the polls since, or the bounds' clamp) goes into each of its intervals
+        # rather than into the one between two batches, which a read's timing alone would otherwise stretch by up
+        # to STEER_GAIN of a period. After a restart the frames keep the period behind the read time (at most the
+        # time since the last batch: frames were lost between them).
+        if self._last is None:
+            step = p
+        elif steered:
+            step = (newest - self._last) / n
+        else:
+            step = min(p, (newest - self._last) / n)
         if self._last is not None and newest <= self._last:  # only with a clock going back: keep order anyway
             newest, step = self._last + n, 1.0
         # The same arithmetic as round(newest - (n - 1 - i) * step) per frame (rint rounds half to even as round does).

@@ -12,20 +12,21 @@ MS = 1_000_000
 
 
 def simulate(rate_hz: float, chip_error: float, seconds: float, seed: int, preempt_ms: float = 40.0,
-             preempt_share: float = 0.1) -> tuple[np.ndarray, np.ndarray, FifoClock]:
+             preempt_share: float = 0.1, poll_ms: float = 50.0, jitter_ms: float = 2.0
+             ) -> tuple[np.ndarray, np.ndarray, FifoClock]:
     """Stamps and true arrival times of every frame; the chip's clock is off by ``chip_error``."""
     rng = np.random.default_rng(seed)
     nominal = 1e9 / rate_hz
     true_period = nominal * (1 - chip_error)
     t0 = 1_000_000_000.0 + rng.uniform(0, true_period)
-    poll = 50 * MS
+    poll = poll_ms * MS
     fc = FifoClock(nominal)
     delivered = 0
     stamps: list[int] = []
     truth: list[float] = []
     t = 2_000_000_000.0
     while t < 2e9 + seconds * 1e9:
-        t_before = t + rng.uniform(0, 2 * MS)  # the sampler's wake-up jitter
+        t_before = t + rng.uniform(0, jitter_ms * MS)  # the sampler's wake-up jitter
         count_at = t_before + 0.05 * MS
         if rng.random() < preempt_share:  # preempted after taking the time, before FIFO_COUNT
             count_at += rng.uniform(0, preempt_ms * MS)
@@ -86,3 +87,19 @@ def test_lost_frames_restart_the_count_from_the_read_time() -> None:
     got = fc.stamps(10, int(t), int(t + MS))
     assert fc.restarts == 1
     assert abs(got[-1] - (t - 2.5 * MS)) < 1 * MS
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_late_wake_up_moves_no_single_interval(seed: int) -> None:
+    """20 Hz read twice a second (ten frames a batch) by a thread that wakes up to 20 ms late, as on a loaded host:
+    what the read times steer is spread over a batch's intervals, so each strays from the chip's period by a tenth
+    of the steering (99 % of them within 2 %, none by 3 %; put into the interval between two batches, the steering
+    stretched it by 5-14 % and 3.5 % at the 99th percentile), while the stamps stay as close to the truth."""
+    stamps, truth, fc = simulate(20, 0.004, 300.0, seed, preempt_share=0.0, poll_ms=500.0, jitter_ms=20.0)
+    true_period = np.diff(truth)[0]
+    dev = np.abs(np.diff(stamps)[len(stamps) // 10:] / true_period - 1)  # after the period is learned
+    assert np.percentile(dev, 99) < 0.02
+    assert dev.max() < 0.03
+    err = stamps - truth
+    assert np.abs(err[len(err) // 10:] - np.median(err)).max() < 0.5 * true_period
+    assert fc.restarts == 0
