@@ -264,6 +264,12 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def alone(r: dict[str, Any]) -> str:
+    """", the daemon alone about N MB" where the run measured the simulator's share, else nothing."""
+    mb = bench_daemon.daemon_alone_mb(r)
+    return "" if mb is None else f", the daemon alone about {mb:.0f} MB"
+
+
 def summary_lines(results: dict[str, Any]) -> list[str]:
     out: list[str] = []
     daemon = [r for r in (results.get("daemon") or {}).get("runs", []) if not r["profile"]]
@@ -272,15 +278,13 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
         low, high = bench_board.board_range(default["daemon_pct"])
         out.append(f"- Daemon threads at the default rates: **{default['daemon_pct']:.2f} % of one core** here "
                    f"(the whole process with the simulator: {default['process_pct']:.2f} %); RSS "
-                   f"{default['rss_end_mb']:.0f} MB, the daemon alone about "
-                   f"{bench_daemon.daemon_alone_mb(default):.0f} MB; on a BeagleBone-class core {low:.0f} to "
+                   f"{default['rss_end_mb']:.0f} MB{alone(default)}; on a BeagleBone-class core {low:.0f} to "
                    f"{high:.0f} %: "
                    f"{bench_board.verdict(low, high)}.")
         for r in daemon:
             if r is not default:
                 out.append(f"  - IMU at {r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS "
-                           f"{r['rss_end_mb']:.0f} MB, the daemon alone about "
-                           f"{bench_daemon.daemon_alone_mb(r):.0f} MB.")
+                           f"{r['rss_end_mb']:.0f} MB{alone(r)}.")
         ok = [r["imu_rate_hz"] for r in daemon if r["sustained"]]
         failed = [f"{r['imu_rate_hz']:g} Hz ({bench_daemon.why_not(r)})" for r in daemon if not r["sustained"]]
         out.append(f"- Highest IMU rate sustained over {default['window_s']:.0f} s without a late, missed, lost or "

@@ -554,9 +554,18 @@ def live_costs(r: dict[str, Any]) -> dict[str, float]:
             "navigator_us_per_sample": cpu.get("navigator", 0.0) / max(samples, 1e-9) * 1e6}
 
 
-def daemon_alone_mb(r: dict[str, Any]) -> float:
-    """The process's RSS at the window's end less what the simulator holds: its drive and its modules."""
-    return r["rss_end_mb"] - r["sim_build_rss_mb"] - r.get("sim_modules_rss_mb", 0.0)
+def daemon_alone_mb(r: dict[str, Any]) -> float | None:
+    """The process's RSS at the window's end less what the simulator holds: its drive and its modules (None for
+    figures saved before the modules were measured)."""
+    if "sim_modules_rss_mb" not in r:
+        return None
+    return r["rss_end_mb"] - r["sim_build_rss_mb"] - r["sim_modules_rss_mb"]
+
+
+def _mb(value: float | None, bold: bool = False) -> str:
+    if value is None:
+        return "-"
+    return f"**{value:.1f} MB**" if bold else f"{value:.1f} MB"
 
 
 def render(results: list[dict[str, Any]]) -> list[str]:
@@ -572,7 +581,7 @@ def render(results: list[dict[str, Any]]) -> list[str]:
                      f"| {r['sim_pct']:.2f} % ({r['sim_inside_daemon_pct']:.2f} % inside) | {r['process_pct']:.2f} % "
                      f"| {r['rss_start_mb']:.1f} -> {r['rss_end_mb']:.1f} MB ({r['rss_growth_mb']:+.2f}) "
                      f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB "
-                     f"| {r.get('sim_modules_rss_mb', 0.0):.1f} MB | **{daemon_alone_mb(r):.1f} MB** |")
+                     f"| {_mb(r.get('sim_modules_rss_mb'))} | {_mb(daemon_alone_mb(r), bold=True)} |")
     lines += ["", "Per thread, % of one core of this machine (the simulator's share inside a daemon thread in "
               "brackets, already moved out of the daemon figure):", ""]
     names = sorted({n for r in plain for n in r["threads"]}, key=lambda n: (thread_class(n) != "daemon", n))
@@ -605,9 +614,14 @@ def render(results: list[dict[str, Any]]) -> list[str]:
         lines.append(f"- {r['imu_rate_hz']:g} Hz: recorder thread {c['recorder_us_per_record']:.0f} us per record "
                      f"({c['records_per_s']:.0f} records/s), navigator thread {c['navigator_us_per_sample']:.0f} us "
                      f"per IMU sample ({c['imu_per_s']:.0f}/s).")
-    lines += ["", "The run has the service unit's environment (`Environment=` in systemd/vehicle-logger.service: "
-              "glibc's malloc arenas at 2, its own limit on the board's one 32-bit core, where this 64-bit host "
-              "with two cores would allow 16). The daemon alone is the process's RSS at the window's end less the "
+    if all(r.get("environment") for r in plain):
+        lines += ["", "The runs have the service unit's environment (`Environment=` in systemd/vehicle-logger.service: "
+                  "glibc's malloc arenas at 2, its own limit on the board's one 32-bit core, where this 64-bit host "
+                  "with two cores would allow 16)."]
+    else:
+        lines += ["", "These runs predate the benchmark's taking the service unit's environment: they had glibc's "
+                  "default malloc arenas (16 on this 64-bit host with two cores, 2 on the board's one 32-bit core)."]
+    lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
               "simulated drive (measured as it was built) and the simulator's modules (`sensors.sim`, measured in a "
               "child interpreter that first imports every other module the run loaded): an estimate, since the "
               "simulator's objects and threads stay in it, and the board's 32-bit interpreter has smaller objects."]
