@@ -430,3 +430,29 @@ def test_reopening_on_refused_velocities_admits_more_uncertainty_and_never_gains
     baro = BaroHeight(60.0, 0.5).observe(s, s.dcm(), N_FULL)
     core.apply(baro)
     assert math.sqrt(core.ekf.p[DH_ID, DH_ID]) > 0.97 * before_dh  # a reading of their difference: no news of it
+
+
+def test_an_outages_covariance_is_the_sum_of_what_made_it(outage):
+    """tools/nav_budget.py: the forward covariance through the outage, split into its sources (the starting
+    covariance by state group, each group's process noise, each measurement row's noise) that each follow the
+    filter's recursion with its gains held, adds up to the filter's own covariance; the position's growth is made by
+    the dead reckoning's terms, not by the position it started from."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import nav_budget
+
+    _, span, recs = outage
+    b = nav_budget.budget([(topic, msg) for _, topic, msg in recs], NavParams())
+    assert abs(b.outage_s - (span.end_s - span.start_s)) < 2.0
+    scale = np.sqrt(np.outer(np.diag(b.p_end), np.diag(b.p_end)))
+    assert np.abs(b.total() - b.p_end).max() <= 1e-9 * scale.max()
+    assert np.all(np.abs(b.total() - b.p_end) <= 1e-6 * scale + 1e-15)
+    shares = {name: share for name, share, _, _ in b.horizontal_shares()}
+    assert sum(shares.values()) == pytest.approx(1.0)
+    assert b.counts["obd"] > 100 and b.counts["propagate"] > 100 and "gnss_pos" not in b.counts
+    grew = math.sqrt(b.p_end[0, 0] + b.p_end[1, 1]) / math.sqrt(b.p_start[0, 0] + b.p_start[1, 1])
+    assert grew > 3.0
+    assert shares["start: position"] < 1.0 / grew**2 + 0.01  # carried through, not grown
+    assert shares["noise: obd row 0"] > 0.05  # the speed readings' noise is one of the sources
