@@ -179,10 +179,48 @@ def test_replay_writes_the_trajectory_in_every_mode(recorded: Path, tmp_path: Pa
 def test_replay_refuses_what_it_cannot_read(tmp_path: Path):
     r = _replay(str(tmp_path / "none.mcap"), "--out", str(tmp_path))
     assert r.returncode == 2 and "no such file" in r.stderr
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording")
+    r = _replay(str(text), "--out", str(tmp_path))
+    assert r.returncode == 2 and "not an MCAP file" in r.stderr
+    # A file whose head is all a cut left: read up to the cut (nothing), said, and nothing written.
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(b"\x89MCAP0\r\n" + b"\x01" * 50)
-    r = _replay(str(cut), "--out", str(tmp_path))
-    assert r.returncode == 2 and "logger recover" in r.stderr
+    r = _replay(str(cut), "--out", str(tmp_path / "out"))
+    assert r.returncode == 1 and "was not closed cleanly" in r.stderr and "no solution from 0 IMU samples" in r.stderr
+    assert not (tmp_path / "out").exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = _replay(str(empty), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "a folder without recorded MCAP files" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_replay_takes_the_drive_folder_and_a_file_cut_short(recorded: Path, tmp_path: Path):
+    """The daemon's --out folder stands for its files (what a user has at hand after a drive); a drive cut short by
+    a power loss is replayed up to the cut without `logger recover` first, as export and plot read it."""
+    files = sorted(recorded.glob("*.mcap"))
+    by_files, by_folder = tmp_path / "files", tmp_path / "folder"
+    assert _replay(*map(str, files), "--out", str(by_files), "--no-mcap").returncode == 0
+    r = _replay(str(recorded), "--out", str(by_folder), "--no-mcap")
+    assert r.returncode == 0, r.stderr
+    whole = (by_files / "trajectory.csv").read_text()
+    assert (by_folder / "trajectory.csv").read_text() == whole
+    cut_dir = tmp_path / "cut"
+    cut_dir.mkdir()
+    for f in files:
+        (cut_dir / f.name).write_bytes(f.read_bytes())
+    last = cut_dir / files[-1].name
+    last.write_bytes(last.read_bytes()[: last.stat().st_size * 7 // 10])
+    r = _replay(str(cut_dir), "--out", str(tmp_path / "from-cut"), "--no-mcap")
+    assert r.returncode == 0, r.stderr
+    assert f"{last} was not closed cleanly: read up to where it was cut" in r.stderr
+    rows = (tmp_path / "from-cut" / "trajectory.csv").read_text().splitlines()
+    assert 300 < len(rows) < len(whole.splitlines())
+    assert whole.startswith("\n".join(rows[:300]))  # the same solution up to the cut
+    # Two drives in one folder (the daemon started twice) are not one trajectory.
+    (cut_dir / "drive_20990101T000000Z_0001.mcap").write_bytes(files[0].read_bytes())
+    r = _replay(str(cut_dir), "--out", str(tmp_path / "two"))
+    assert r.returncode == 2 and "a folder of 2 drives" in r.stderr and "name the files of one drive" in r.stderr
 
 
 def test_fast_reader_agrees_with_the_mcap_package(recorded: Path, tmp_path: Path):

@@ -174,6 +174,9 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     assert is_finished(cut)
     assert main(["info", "/nonexistent.mcap"]) == 1
     assert "No such file" in capsys.readouterr().err
+    assert main(["info", str(tmp_path)]) == 0  # a folder: every file in it, whichever drive
+    out = capsys.readouterr().out
+    assert out.count("File:") == len(list(tmp_path.glob("*.mcap"))) >= 2 and f"File:      {cut}" in out
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"hello world" * 10)
     assert main(["recover", str(junk)]) == 1

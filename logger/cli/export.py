@@ -53,7 +53,8 @@ def drive_name(paths: list[Path]) -> str:
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="logger export", description="export a drive's positions to GPX, KML and CSV")
     p.add_argument("files", nargs="+", type=Path, metavar="FILE",
-                   help="MCAP files of one drive (rotated files, a cut file) and/or logger replay's trajectory.mcap")
+                   help="MCAP files of one drive (rotated files, a cut file) or the folder holding them, and/or "
+                        "logger replay's trajectory.mcap")
     p.add_argument("--out", required=True, type=Path, help="folder for the exported files")
     p.add_argument("--format", default="gpx,kml,csv",
                    help="comma-separated: gpx, kml, csv (default: these three); ubx (the receiver's bytes from "

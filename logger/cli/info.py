@@ -20,6 +20,7 @@ from pathlib import Path
 from mcap.records import Channel, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
+from logger.recording.drive import DriveFileError, drive_paths
 from logger.recording.files import McapFileError, is_finished, walk
 from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS
@@ -138,11 +139,16 @@ def render(info: FileInfo) -> str:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="logger info", description="summarise a recorded MCAP file")
-    parser.add_argument("files", nargs="+", metavar="FILE")
+    parser.add_argument("files", nargs="+", metavar="FILE", help="MCAP files, or folders of them")
     parser.add_argument("--json", action="store_true", help="one JSON object per file")
     args = parser.parse_args(argv)
     status = 0
-    for f in args.files:
+    try:
+        paths = drive_paths(args.files, one_drive=False)
+    except DriveFileError as exc:
+        print(f"logger info: {exc}", file=sys.stderr)
+        return 1
+    for f in paths:
         try:
             info = inspect(f)
         except McapFileError as exc:

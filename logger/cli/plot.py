@@ -41,7 +41,8 @@ DPI = 110
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="logger plot", description="PNG plots of a drive: map, rates and gaps, sync")
     p.add_argument("files", nargs="+", type=Path, metavar="FILE",
-                   help="MCAP files of one drive (rotated files, a cut file) and/or logger replay's trajectory.mcap")
+                   help="MCAP files of one drive (rotated files, a cut file) or the folder holding them, and/or "
+                        "logger replay's trajectory.mcap")
     p.add_argument("--out", required=True, type=Path, help="folder for the PNG files")
     return p.parse_args(argv)
 

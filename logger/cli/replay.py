@@ -29,7 +29,7 @@ from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
-from logger.recording.files import is_finished
+from logger.recording.drive import DriveFileError, cut_notes, open_drive
 from logger.words import plural
 
 if TYPE_CHECKING:
@@ -44,7 +44,8 @@ SOLUTION_MODES = ("replace", "add")
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="logger replay", description="run the navigation filter over recorded drives")
-    p.add_argument("files", nargs="+", type=Path, help="MCAP files of one drive (several when it was rotated)")
+    p.add_argument("files", nargs="+", type=Path,
+                   help="MCAP files of one drive (several when it was rotated), or the folder holding them")
     p.add_argument("--out", required=True, type=Path, help="folder for trajectory.csv and trajectory.mcap")
     p.add_argument("--mode", choices=MODES, default=None, help="17 (default), 15 (GNSS + IMU) or gnss (fixes only)")
     p.add_argument("--smooth", action="store_true", help="add the Rauch-Tung-Striebel backward pass")
@@ -88,15 +89,13 @@ def no_cycle_collector() -> Iterator[None]:
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
-    missing = [str(f) for f in args.files if not f.exists()]
-    if missing:
-        print(f"logger replay: no such file: {', '.join(missing)}", file=sys.stderr)
+    try:
+        files = open_drive(args.files)
+    except DriveFileError as exc:
+        print(f"logger replay: {exc}", file=sys.stderr)
         return 2
-    unfinished = [str(f) for f in args.files if not is_finished(f)]
-    if unfinished:
-        print(f"logger replay: not a finished recording (still being written, or cut short: "
-              f"`logger recover FILE`): {', '.join(unfinished)}", file=sys.stderr)
-        return 2
+    for line in cut_notes(files):  # a file cut short is read up to its cut, as export and plot read it
+        print(f"logger replay: {line}", file=sys.stderr)
     if args.config is not None:
         from logger.config import ConfigError, load
 
@@ -129,7 +128,7 @@ def main(argv: list[str]) -> int:
 
         smoothing = SmoothingReport()
     with no_cycle_collector():
-        engine, rows = run_filter(args.files, params, args.smooth, states, progress, smoothing,
+        engine, rows = run_filter([f.path for f in files], params, args.smooth, states, progress, smoothing,
                                   solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
     t1 = time.perf_counter()
     c = engine.counters

@@ -13,21 +13,27 @@ from pathlib import Path
 
 from logger.exports.plotting import PlotsUnavailable
 from logger.exports.sync_report import Drive, plots, render, report
+from logger.recording.drive import DriveFileError, drive_paths
 
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="logger sync-report",
                                  description="the paper's Tables 6 and 7 and the stamp error of a recorded drive")
-    ap.add_argument("files", nargs="+", type=Path, help="MCAP files of one drive")
+    ap.add_argument("files", nargs="+", type=Path, help="MCAP files of one drive, or the folder holding them")
     ap.add_argument("--png-dir", type=Path, help="write Figures 18 and 19 as PNG here")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
-    missing = [str(f) for f in args.files if not f.is_file()]
+    try:
+        paths = drive_paths(args.files)
+    except DriveFileError as exc:
+        print(f"logger sync-report: {exc}", file=sys.stderr)
+        return 2
+    missing = [str(f) for f in paths if not f.is_file()]
     if missing:
         print(f"logger sync-report: no such file: {', '.join(missing)}", file=sys.stderr)
         return 2
     try:
-        drive = Drive.load(args.files)
+        drive = Drive.load(paths)
     except Exception as exc:  # the mcap package's reader raises its own kinds for a file it cannot read
         print(f"logger sync-report: cannot read the drive ({type(exc).__name__}: {exc}); "
               "`logger recover` may save a file cut short", file=sys.stderr)

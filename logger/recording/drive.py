@@ -160,10 +160,41 @@ def _header_library(path: Path) -> str:
         return ""
 
 
-def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
-    """Check every file and say who wrote it; raises DriveFileError for a missing or non-MCAP file."""
-    files = []
+_PART = re.compile(r"_(\d{4,})\.mcap$")  # the daemon's file names end in the part number, 0001 at each start
+FOLDER_DRIVES_SHOWN = 3
+
+
+def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Path]:
+    """The files a user named, a folder standing for the drive the daemon wrote into it (``logger run --out``).
+
+    A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). The
+    daemon numbers a drive's files from 0001 at every start, so a folder holding more than one
+    part 0001 holds several drives: mixing them would join unrelated trajectories, so that is an error naming
+    the drives' first files (unless ``one_drive`` is false: ``logger info`` takes any files), as is a folder
+    without MCAP files. Files are passed through as named.
+    """
+    out: list[Path] = []
     for p in map(Path, paths):
+        if not p.is_dir():
+            out.append(p)
+            continue
+        found = [f for f in sorted(p.glob("*.mcap")) if f.is_file()]
+        if not found:
+            raise DriveFileError(f"{p}: a folder without recorded MCAP files")
+        starts = [f.name for f in found if (m := _PART.search(f.name)) is not None and int(m.group(1)) == 1]
+        if one_drive and len(starts) > 1:
+            shown = ", ".join(starts[:FOLDER_DRIVES_SHOWN]) + (", ..." if len(starts) > FOLDER_DRIVES_SHOWN else "")
+            raise DriveFileError(f"{p}: a folder of {len(starts)} drives (files {shown} each start one): name "
+                                 "the files of one drive")
+        out += found
+    return out
+
+
+def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
+    """Check every file and say who wrote it (a folder: the drive in it, :func:`drive_paths`); raises
+    DriveFileError for a missing or non-MCAP file."""
+    files = []
+    for p in drive_paths(paths):
         if not p.is_file():
             raise DriveFileError(f"{p}: no such file")
         try:
