@@ -18,6 +18,7 @@ sys.path.insert(0, str(TOOLS))
 
 import bench_board  # noqa: E402
 import bench_daemon  # noqa: E402
+import bench_recorder  # noqa: E402
 
 
 def burn(cpu_s: float) -> None:
@@ -260,3 +261,29 @@ def test_the_simulators_modules_are_measured_apart_from_the_daemons() -> None:
     assert bench_daemon.daemon_alone_mb(r) == 40.0
     del r["sim_modules_rss_mb"]  # figures saved before the modules were measured: no estimate, not a wrong one
     assert bench_daemon.daemon_alone_mb(r) is None
+
+
+def test_the_recorder_benchmark_streams_the_imu_topic_the_drive_has() -> None:
+    """A FIFO drive (the default at every rate) records /imu/batch, a polled one /imu: the IMU-only stream is made of
+    whichever the drive holds, not of a topic it lacks (the benchmark stopped with "no records on /imu")."""
+    fifo = [("/imu/batch", {"t_sync_ns": [1, 2]}, 1, 1), ("/baro", {}, 2, 2)]
+    polled = [("/imu", {"t_sync_ns": 1}, 1, 1), ("/baro", {}, 2, 2)]
+    assert bench_recorder.imu_topic(fifo) == "/imu/batch" and bench_recorder.imu_topic(polled) == "/imu"
+    stream = bench_recorder.load_stream(fifo, 5, bench_recorder.imu_topic(fifo))
+    assert [t for t, *_ in stream] == ["/imu/batch"] * 5 and stream[1][2] > stream[0][2]
+
+
+def test_sections_from_different_hosts_are_flagged() -> None:
+    """A report whose sections ran on two hosts (a moved virtual machine keeps its CPU's name) says so in its
+    summary, from the kernels and the fixed work's time beside each step; one host says nothing."""
+    import bench
+
+    one = {"daemon": {"loads": [{"kernel": "k1", "reference_ms": 20.0}]},
+           "nav": {"loads": [{"kernel": "k1", "reference_ms": 21.0}]}}
+    assert bench.hosts_line(one) == ""
+    two = {"daemon": {"loads": [{"kernel": "k1", "reference_ms": 20.0}]},
+           "nav": {"loads": [{"kernel": "k2", "reference_ms": 31.0}]}}
+    line = bench.hosts_line(two)
+    assert "kernels k1, k2" in line and "20.0 to 31.0 ms" in line
+    assert bench.host_reference(two["nav"]["loads"][0]) == "31.0 ms (k2)" and bench.host_reference({}) == "-"
+    assert 0.0 < bench.reference_ms(repeat=1) < 10_000.0

@@ -107,6 +107,33 @@ def tree_state() -> str:
     return head + (" with uncommitted changes" if dirty else "")
 
 
+def reference_ms(repeat: int = 5) -> float:
+    """CPU time of a fixed piece of work, best of ``repeat``, in ms: how fast this host runs this Python now.
+
+    Figures measured on different hosts (a virtual machine moved to another one keeps its CPU's name) or on one
+    host on a busier day are not comparable by themselves; the same work timed beside them says by how much the
+    host changed. The work is the kind the daemon does: interpreted arithmetic, dict and list operations, and
+    small numpy matrices (the filter's)."""
+    import math
+
+    import numpy as np
+
+    best = math.inf
+    for _ in range(repeat):
+        c0 = time.process_time()
+        table: dict[int, float] = {}
+        x = 0.0
+        for i in range(100_000):
+            x += math.sin(i) * 1.0001
+            table[i & 1023] = x
+        rows = [[float(i + j) for j in range(8)] for i in range(8)]
+        a = np.array(rows)
+        for _ in range(2_000):
+            a = a @ a.T * 1e-3 + 1.0
+        best = min(best, time.process_time() - c0)
+    return round(best * 1e3, 1)
+
+
 def machine() -> dict[str, Any]:
     return {"cpu": cpu_model(), "cores": os.cpu_count(), "kernel": platform.release(), "arch": platform.machine(),
             "versions": versions(), "commit": tree_state()}
@@ -118,6 +145,7 @@ def run_step(name: str, args: list[str], work: Path) -> Any:
     out = work / f"{name}.json"
     log = work / f"{name}.log"
     started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    reference = reference_ms()
     busy0, total0 = machine_busy()
     child0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     load0, t0 = loadavg(), time.monotonic()
@@ -136,6 +164,7 @@ def run_step(name: str, args: list[str], work: Path) -> Any:
     busy_pct = (busy1 - busy0) / max(total1 - total0, 1) * 100
     return {"result": json.loads(out.read_text()),
             "load": {"started": started, "wall_s": round(wall), "loadavg_before": load0, "loadavg_after": loadavg(),
+                     "kernel": platform.release(), "reference_ms": reference,
                      "machine_busy_pct": round(busy_pct, 1),
                      "others_pct_of_machine": round(max(0.0, busy_pct - ours * 100 / (wall * cores)), 1),
                      "jiffy_hz": ticks}}
@@ -252,16 +281,29 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
     lines += ["## On a BeagleBone-class board", "", *bench_board.render(results), ""]
     lines += ["## Load on this machine while measuring", "",
               "Other jobs shared the machine. *Busy* is the share of all cores in use while the step ran, *others* "
-              "that share less this benchmark's own processes.", "",
-              "| step | started | wall | load average before -> after | machine busy | others |",
-              "| --- | --- | --- | --- | --- | --- |"]
+              "that share less this benchmark's own processes. *Host reference*: the CPU time of a fixed piece of "
+              "Python and numpy work (`tools/bench.py` reference_ms) just before the step, with the kernel it ran "
+              "on: figures of steps whose reference differs were measured on a faster or slower host (a virtual "
+              "machine keeps its CPU's name on another one), by about that ratio.", "",
+              "| step | started | wall | load average before -> after | machine busy | others | host reference |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
     for name in BENCHMARKS:
         for ld in (results.get(name) or {}).get("loads", []):
             when = ld.get("started") or f"in the section from {results[name]['measured']}"
             lines.append(f"| {ld['step']} | {when} | {ld['wall_s']} s "
                          f"| {ld['loadavg_before']} -> {ld['loadavg_after']} | {ld['machine_busy_pct']:.0f} % "
-                         f"| {ld['others_pct_of_machine']:.0f} % |")
+                         f"| {ld['others_pct_of_machine']:.0f} % | {host_reference(ld)} |")
     return "\n".join(lines) + "\n"
+
+
+HOST_SPREAD = 1.15  # steps whose references differ by more ran on hosts (or host loads) that differ
+
+
+def host_reference(load: dict[str, Any]) -> str:
+    """A step's host reference for the load table: "12.3 ms (kernel)", or "-" for steps measured before it was."""
+    if "reference_ms" not in load:
+        return "-"
+    return f"{load['reference_ms']:.1f} ms ({load.get('kernel', '?')})"
 
 
 def alone(r: dict[str, Any]) -> str:
@@ -314,7 +356,32 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
         s = bench_startup.summary(start)
         out.append(f"- Start-up: first IMU sample recorded {s['first_s']['/imu']:.2f} s after the process started "
                    f"(median of {len(start['runs'])}).")
+    hosts = hosts_line(results)
+    if hosts:
+        out.append(hosts)
     return out
+
+
+def hosts_line(results: dict[str, Any]) -> str:
+    """A warning when the sections were not all measured on one host (their steps' kernels, or a reference more
+    than HOST_SPREAD apart): their figures then differ by the host as well as by the code."""
+    steps = [ld for name in BENCHMARKS for ld in (results.get(name) or {}).get("loads", [])]
+    kernels = sorted({ld["kernel"] for ld in steps if "kernel" in ld})
+    refs = [ld["reference_ms"] for ld in steps if "reference_ms" in ld]
+    unknown = sorted({name for name in BENCHMARKS for ld in (results.get(name) or {}).get("loads", [])
+                      if "reference_ms" not in ld})
+    spread = max(refs) / min(refs) if refs else 1.0
+    if len(kernels) <= 1 and spread <= HOST_SPREAD and not (unknown and refs):
+        return ""
+    parts = []
+    if len(kernels) > 1:
+        parts.append(f"kernels {', '.join(kernels)}")
+    if refs:
+        parts.append(f"host reference {min(refs):.1f} to {max(refs):.1f} ms")
+    if unknown and refs:
+        parts.append(f"{', '.join(unknown)} measured before the reference was taken")
+    return ("- Not every section was measured on the same host (" + "; ".join(parts) + ": the load table at the "
+            "end): compare figures within a section, or scaled by the reference.")
 
 
 def main(argv: list[str] | None = None) -> int:

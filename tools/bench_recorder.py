@@ -4,7 +4,8 @@
 
 The stream is a recorded drive's own records (all but the simulation's ``/truth/*``), repeated with shifted
 times until it holds ``--messages`` records: the sizes and the mix of topics a board writes. A second stream
-holds only its ``/imu`` records, the load of a high IMU rate. Three writers take each stream:
+holds only its IMU records (``/imu/batch`` from a FIFO, ``/imu`` from a polled chip: whichever the drive has),
+the load of a high IMU rate. Three writers take each stream:
 
 - ``bare``: ``mcap.writer.Writer`` with the recorder's chunk size and compression, the recorder's JSON
   ``encode`` and ``add_message`` in one loop, the file finished at the end;
@@ -38,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from logger.recording.recorder import COMPRESSION, PROFILE, Recorder, encode  # noqa: E402
 from logger.recording.settings import RecorderSettings  # noqa: E402
-from logger.recording.topics import TOPICS, TopicSpec  # noqa: E402
+from logger.recording.topics import IMU, IMU_BATCH, TOPICS, TopicSpec  # noqa: E402
 
 Item = tuple[str, dict[str, Any], int, int]  # topic, payload, log time, publish time
 
@@ -55,6 +56,12 @@ def read_drive(files: list[Path]) -> list[Item]:
                     base.append((channel.topic, json.loads(message.data), message.log_time, message.publish_time))
     base.sort(key=lambda item: item[2])
     return base
+
+
+def imu_topic(drive: list[Item]) -> str:
+    """The drive's IMU topic: ``/imu/batch`` (a FIFO's reads, the default at every rate) or ``/imu`` (polled)."""
+    topics = {item[0] for item in drive}
+    return IMU_BATCH if IMU_BATCH in topics or IMU not in topics else IMU
 
 
 def load_stream(drive: list[Item], n: int, only: str | None = None) -> list[Item]:
@@ -181,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
                               "chunk_mb": RecorderSettings(Path()).chunk_size_bytes / 2**20,
                               "flush_interval_s": RecorderSettings(Path()).flush_interval_s}
     drive = read_drive(args.files)
-    for name, only in (("drive mix", None), ("/imu only", "/imu")):
+    imu = imu_topic(drive)
+    for name, only in (("drive mix", None), (f"{imu} only", imu)):
         stream = load_stream(drive, args.messages, only)
         result["streams"][name] = measure(stream, args.repeat, lambda: RecorderSettings(Path()))
         print(f"{name}: " + ", ".join(f"{w} {v['msgs_per_s']:,.0f} msg/s, {v['cpu_us_per_msg']:.1f} us CPU/msg"
