@@ -205,6 +205,13 @@ def test_replay_takes_the_drive_folder_and_a_file_cut_short(recorded: Path, tmp_
     assert r.returncode == 0, r.stderr
     whole = (by_files / "trajectory.csv").read_text()
     assert (by_folder / "trajectory.csv").read_text() == whole
+    # nav-score takes the same folders: replay's --out for its trajectory.csv, the drive's for its files.
+    score = subprocess.run([sys.executable, "-m", "logger.cli", "nav-score", str(by_folder), str(recorded), "--json"],
+                           cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert score.returncode == 0, score.stderr
+    import json
+
+    assert max(json.loads(score.stdout)["folder"]["rmse"]) < 3.0
     cut_dir = tmp_path / "cut"
     cut_dir.mkdir()
     for f in files:
