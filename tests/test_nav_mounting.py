@@ -189,3 +189,47 @@ def test_the_running_sums_keep_the_longest_window_not_minutes_of_a_slow_imu() ->
     times = [row[0] for row in al._sums]
     assert times[-1] - times[0] <= 4.5e9
     assert al._long.n > 100  # every second's window still counted
+
+
+def _write(folder, recs) -> list:
+    """Synthetic records written through the real recorder, as a drive's files."""
+    from logger.recording.recorder import Recorder
+    from logger.recording.settings import RecorderSettings
+    from logger.recording.topics import TOPICS
+
+    rec = Recorder(RecorderSettings(out_dir=folder), TOPICS)
+    rec.start()
+    for t, topic, msg in recs:
+        assert rec.submit(topic, msg, t, msg["t_mono_ns"])
+    rec.stop()
+    return sorted(folder.glob("*.mcap"))
+
+
+def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, tmp_path):
+    """At the office the whole drive is there: once it has shown a mounting other than the configured one, the
+    drive is filtered again from the start with it, and the first minutes (which the live filter drove with the
+    guess, then relearning its attitude and offsets) come out as with the mounting configured."""
+    from logger.exports.trajectory import run_filter
+    from logger.nav.params import NavParams
+
+    drive, turned = mounted_drive
+    files = _write(tmp_path / "mounted", turned)
+    notes: list[str] = []
+    twice, rows2 = run_filter(files, NavParams(), refilter=True, notes=notes)
+    _, rows1 = run_filter(files, NavParams())
+    _, rows_c = run_filter(files, NavParams(mounting_rpy_deg=MOUNT, mount_align=False))
+    assert len(notes) == 1 and "filtered again from the start with it" in notes[0], notes
+    assert forward_axis_deg(twice.params.mounting_rpy_deg, MOUNT) < 1.0  # the second pass started from it
+    assert forward_axis_deg(twice.mount_applied, MOUNT) < 1.0
+
+    def rmse(rows) -> float:
+        _, e, _ = errors(drive, rows)
+        return float(np.sqrt((e[:, :2] ** 2).mean()))
+
+    assert rmse(rows2) <= 1.1 * rmse(rows_c) + 0.02, (rmse(rows2), rmse(rows_c))
+    assert rmse(rows2) < rmse(rows1)
+    # A board mounted as configured: nothing to find, one pass.
+    plain = make_drive("outage-60s", seed=1, duration_s=120.0)
+    notes = []
+    run_filter(_write(tmp_path / "plain", records(plain, 120.0, seed=2)), NavParams(), refilter=True, notes=notes)
+    assert notes == []

@@ -51,6 +51,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--smooth", action="store_true", help="add the Rauch-Tung-Striebel backward pass")
     p.add_argument("--config", type=Path, help="take the [nav] tuning from this configuration file")
     p.add_argument("--no-mcap", action="store_true", help="write only the CSV")
+    p.add_argument("--one-pass", action="store_true",
+                   help="as the live filter saw the drive: no second pass with the IMU mounting the drive showed "
+                        "(by default a drive that showed one other than [nav] mounting_rpy_deg is filtered again "
+                        "from the start with it)")
     p.add_argument("--fix-hz", type=rate_hz, default=None, metavar="HZ",
                    help="rate of /nav/fix in trajectory.mcap (default: nav.publish_hz, the live rate, 5 Hz unless "
                         "--config says otherwise); 0: one per row, as trajectory.csv")
@@ -120,6 +124,7 @@ def main(argv: list[str]) -> int:
             print(f"logger replay: {exc}", file=sys.stderr)
             return 2
     t0 = time.perf_counter()
+    notes: list[str] = []
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
     smoothing: SmoothingReport | None = None
@@ -129,7 +134,8 @@ def main(argv: list[str]) -> int:
         smoothing = SmoothingReport()
     with no_cycle_collector():
         engine, rows = run_filter([f.path for f in files], params, args.smooth, states, progress, smoothing,
-                                  solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace")
+                                  solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace",
+                                  refilter=not args.one_pass, notes=notes)
     t1 = time.perf_counter()
     c = engine.counters
     progress.end()
@@ -153,10 +159,14 @@ def main(argv: list[str]) -> int:
     if engine.mode == "gnss":
         work = f"the receiver's fixes passed through in {t1 - t0:.2f} s"
     else:
+        passes = 2 if notes else 1  # the second with the mounting the first found (run_filter's refilter)
         work = (f"{plural(c.imu, 'IMU sample')} in {t1 - t0:.2f} s ({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per "
-                f"sample), initialised by {c.init_method}, {plural(c.resets, 'reset')}")
+                f"sample{', two passes' if passes == 2 else ''}), initialised by {c.init_method}, "
+                f"{plural(c.resets, 'reset')}")
     print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {plural(len(rows), 'solution')} over "
           f"{span:.0f} s, {work}")
+    for line in notes:
+        print(line)
     if engine.ekf is not None:
         stats = ", ".join(f"{k} {v.accepted}/{v.accepted + v.rejected}" for k, v in engine.ekf.stats.items())
         print(f"updates accepted: {stats}")
