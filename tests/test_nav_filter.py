@@ -456,3 +456,19 @@ def test_an_outages_covariance_is_the_sum_of_what_made_it(outage):
     assert grew > 3.0
     assert shares["start: position"] < 1.0 / grew**2 + 0.01  # carried through, not grown
     assert shares["noise: obd row 0"] > 0.05  # the speed readings' noise is one of the sources
+
+
+def test_the_start_ups_provisional_attitudes_are_let_go_once_the_filter_runs() -> None:
+    """Before the heading is known the start-up keeps its provisional attitudes (a late fix's course is matched to
+    the attitude at its epoch); the filter never goes back to the start-up, so they are not held for the drive
+    (4096 entries, about 1 MB, at 1 kHz)."""
+    drive = make_drive("outage-60s", seed=1, duration_s=60.0)
+    engine = NavEngine(NavParams(), record=False)
+    feed = nav_feeder(engine)
+    held = 0
+    for _, topic, msg in records(drive, 60.0, seed=1):
+        feed_record(feed, topic, msg)
+        if engine.state is None:
+            held = max(held, len(engine.startup._prov_hist))
+    assert engine.state is not None and held > 0
+    assert len(engine.startup._prov_hist) == 0

@@ -233,3 +233,39 @@ def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, 
     notes = []
     run_filter(_write(tmp_path / "plain", records(plain, 120.0, seed=2)), NavParams(), refilter=True, notes=notes)
     assert notes == []
+
+
+def test_the_running_sums_at_1_khz_are_kept_per_10_ms_and_give_the_same_windows() -> None:
+    """At 1 kHz a sum per sample held 4000 tuples for windows whose ends need only fall within a hundredth of a
+    window of the fixes' epochs: one sum is kept per SUM_STEP_NS, and the windows' means are those of every sample
+    to within that."""
+    from logger.nav.mounting import SUM_STEP_NS
+
+    def feed(al: MountAlignment, hz: float, blocks: bool) -> None:
+        n = int(hz * 30)
+        t = (np.arange(n) * (1e9 / hz)).astype(np.int64)
+        rng = np.random.default_rng(3)
+        acc = np.column_stack((0.3 * np.sin(t / 2e9), 0.1 * np.cos(t / 3e9), np.full(n, -9.81)))
+        acc += rng.normal(0.0, 0.05, acc.shape)
+        gyro = np.column_stack((np.zeros(n), np.zeros(n), 0.05 * np.sin(t / 5e9)))
+        step = int(hz / 25) if blocks else 1
+        for lo in range(0, n, step):
+            if blocks:
+                al.sample_block(t[lo:lo + step], acc[lo:lo + step], gyro[lo:lo + step])
+            else:
+                al.sample(int(t[lo]), tuple(acc[lo]), tuple(gyro[lo]))
+
+    fast, slow = MountAlignment((0.0, 0.0, 0.0)), MountAlignment((0.0, 0.0, 0.0))
+    feed(fast, 1000.0, blocks=True)
+    feed(slow, 1000.0, blocks=False)
+    times = [row[0] for row in fast._sums]
+    assert np.diff(times).min() >= SUM_STEP_NS - 1_000_000 and len(times) <= 100 * 30 + 1
+    assert [row[0] for row in slow._sums] == times  # a sample at a time keeps the same sums as blocks do
+    assert fast._last[7] == 30_000  # every sample counted
+    a, b = fast._sum_at(10_000_000_000), fast._sum_at(11_000_000_000)
+    assert a is not None and b is not None
+    k = b[7] - a[7]
+    assert 990 <= k <= 1010  # a one-second window, within a step of its epochs
+    mean = (b[1] - a[1]) / k  # the window's samples are those counted between its two sums
+    expected = float(np.mean(0.3 * np.sin(np.arange(a[7], b[7]) * 1e6 / 2e9)))
+    assert abs(mean - expected) < 0.01  # the noise averages to 0.05 / sqrt(1000)

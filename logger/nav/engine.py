@@ -510,6 +510,7 @@ class NavEngine:
         n = self.n
         s, p0 = self.startup.initial(t_ns, yaw_or_none, method, fix, heading_var, n, self.lever,
                                      self.last_readings.baro)
+        self.startup.started()
         self.state = s
         self.ekf = ErrorStateEkf(np.ones(n), self.params.gate_probability)
         self.ekf.p = p0

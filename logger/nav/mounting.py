@@ -49,6 +49,10 @@ from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 G0 = 9.80665
 WINDOW_S = 1.0  # at least this long between the two fixes of a window
 SUM_SAMPLES = 8192  # running sums kept at most: 8 s at 1 kHz, more than a fix's latency plus a window
+# One running sum kept per this much time (the first sample of each step): a window's ends then fall within 10 ms
+# of the fixes' epochs, a hundredth of a window, whatever the IMU's rate; a sum per sample at 1 kHz held 4000
+# tuples (1.4 MB) for the same windows. At 100 Hz and less every sample's sum is kept, as before.
+SUM_STEP_NS = 10_000_000
 SUM_KEEP_NS = int((3 * WINDOW_S + 1.0) * 1e9)  # ... and no older than the longest window before a fix's epoch
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
 MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
@@ -223,10 +227,12 @@ class MountAlignment:
         self.moves = 0
         self._unchecked = 0  # windows since the fits were last compared
         self._estimate: MountEstimate | None = None  # the last estimate, until the next window changes it
-        # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) per sample, so a
-        # window between two fix epochs is a difference of two entries whenever the later fix arrives.
+        # Running sums of the chip's samples: (time, sum of specific force, sum of rate, count) at the first sample
+        # of each SUM_STEP_NS, so a window between two fix epochs is a difference of two entries whenever the later
+        # fix arrives.
         self._sums: deque[tuple[int, float, float, float, float, float, float, int]] = deque(maxlen=SUM_SAMPLES)
         self._last: tuple[int, float, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
+        self._step = -1  # the SUM_STEP_NS step of the last sum kept
         self._fix0: tuple[int, tuple[float, float, float]] | None = None  # the window's first fix: epoch, velocity
         # The filter's gyro offset on the chip's axes (from the standstills: the mounting does not enter), removed
         # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
@@ -251,7 +257,9 @@ class MountAlignment:
         ax, ay, az = acc_chip
         wx, wy, wz = gyro_chip
         row = self._last = (t_ns, a0 + ax, a1 + ay, a2 + az, w0 + wx, w1 + wy, w2 + wz, n + 1)
-        self._sums.append(row)
+        if t_ns // SUM_STEP_NS != self._step:
+            self._step = t_ns // SUM_STEP_NS
+            self._sums.append(row)
 
     def sample_block(self, t_ns: np.ndarray, acc_chip: np.ndarray, gyro_chip: np.ndarray) -> None:
         """Samples at once (n x 3 each): the same running sums as :meth:`sample` one by one."""
@@ -260,9 +268,12 @@ class MountAlignment:
         last = self._last
         run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
                         axis=0)[1:]
-        self._sums.extend(zip(t_ns.tolist(), *run.T.tolist(), range(last[7] + 1, last[7] + 1 + len(t_ns)),
-                              strict=True))
-        self._last = self._sums[-1]
+        steps = t_ns // SUM_STEP_NS
+        first = np.flatnonzero(np.diff(steps, prepend=self._step) != 0)  # each step's first sample
+        counts = np.arange(last[7] + 1, last[7] + 1 + len(t_ns))
+        self._sums.extend(zip(t_ns[first].tolist(), *run[first].T.tolist(), counts[first].tolist(), strict=True))
+        self._step = int(steps[-1])
+        self._last = (int(t_ns[-1]), *run[-1].tolist(), int(counts[-1]))
 
     def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
         """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
