@@ -287,3 +287,14 @@ def test_sections_from_different_hosts_are_flagged() -> None:
     assert "kernels k1, k2" in line and "20.0 to 31.0 ms" in line
     assert bench.host_reference(two["nav"]["loads"][0]) == "31.0 ms (k2)" and bench.host_reference({}) == "-"
     assert 0.0 < bench.reference_ms(repeat=1) < 10_000.0
+
+
+def test_a_report_says_the_units_environment_only_where_every_run_had_it() -> None:
+    """A run records the unit's variables as it had them, empty when unset (bench_daemon.main called without the
+    re-executing main block): only runs with the unit's own values are reported as having its environment."""
+    unit = bench_daemon.unit_environment()
+    assert unit  # the unit sets some (MALLOC_ARENA_MAX)
+    unset = {k: "" for k in unit}
+    assert bench_daemon.had_unit_environment([{"environment": unit}, {"environment": dict(unit)}])
+    assert not bench_daemon.had_unit_environment([{"environment": unit}, {"environment": unset}])
+    assert not bench_daemon.had_unit_environment([{}])

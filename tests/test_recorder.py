@@ -6,6 +6,7 @@ import os
 import time
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from logger.recording.files import is_finished, recover, walk
@@ -321,3 +322,31 @@ def test_a_disk_full_while_opening_leaves_no_empty_file(tmp_path: Path, monkeypa
         assert list(tmp_path.glob("*.mcap")) == []
     finally:
         rec.stop()
+
+
+def test_a_folder_stands_for_one_drive_and_several_are_told_apart(tmp_path: Path) -> None:
+    """The daemon numbers a drive's files from 0001 at each start: in name order the numbers rise within a drive, and
+    one that does not rise begins another, whether it is another start's 0001 or a later drive after the last parts
+    of an earlier one whose first files are gone."""
+    from logger.recording.drive import DriveFileError, drive_paths, drive_stem, part_number
+
+    one = tmp_path / "one"
+    one.mkdir()
+    names = ["drive_20261204T100000Z_0001.mcap", "drive_20261204T110000Z_0002.mcap", "drive_20261204T120000Z_0003.mcap"]
+    for n in names:
+        (one / n).write_bytes(b"")
+    assert [p.name for p in drive_paths([one])] == names
+    assert part_number(one / names[1]) == 2 and drive_stem(one / names[1]) == "drive_20261204T110000Z"
+    for folder, files in (("restarted", ["drive_20261204T100000Z_0001.mcap", "drive_20261204T110000Z_0001.mcap"]),
+                          ("pruned", ["drive_20261203T100000Z_0005.mcap", "drive_20261203T110000Z_0006.mcap",
+                                      "drive_20261204T090000Z_0001.mcap", "drive_20261204T100000Z_0002.mcap"])):
+        d = tmp_path / folder
+        d.mkdir()
+        for n in files:
+            (d / n).write_bytes(b"")
+        with pytest.raises(DriveFileError, match="a folder of 2 drives"):
+            drive_paths([d])
+        assert len(drive_paths([d], one_drive=False)) == len(files)  # logger info takes them all
+    with pytest.raises(DriveFileError, match="without recorded MCAP files"):
+        (tmp_path / "empty").mkdir()
+        drive_paths([tmp_path / "empty"])

@@ -365,11 +365,10 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
 def hosts_line(results: dict[str, Any]) -> str:
     """A warning when the sections were not all measured on one host (their steps' kernels, or a reference more
     than HOST_SPREAD apart): their figures then differ by the host as well as by the code."""
-    steps = [ld for name in BENCHMARKS for ld in (results.get(name) or {}).get("loads", [])]
-    kernels = sorted({ld["kernel"] for ld in steps if "kernel" in ld})
-    refs = [ld["reference_ms"] for ld in steps if "reference_ms" in ld]
-    unknown = sorted({name for name in BENCHMARKS for ld in (results.get(name) or {}).get("loads", [])
-                      if "reference_ms" not in ld})
+    steps = [(name, ld) for name in BENCHMARKS for ld in (results.get(name) or {}).get("loads", [])]
+    kernels = sorted({ld["kernel"] for _, ld in steps if "kernel" in ld})
+    refs = [ld["reference_ms"] for _, ld in steps if "reference_ms" in ld]
+    unknown = sorted({name for name, ld in steps if "reference_ms" not in ld})
     spread = max(refs) / min(refs) if refs else 1.0
     if len(kernels) <= 1 and spread <= HOST_SPREAD and not (unknown and refs):
         return ""

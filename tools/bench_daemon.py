@@ -562,6 +562,13 @@ def daemon_alone_mb(r: dict[str, Any]) -> float | None:
     return r["rss_end_mb"] - r["sim_build_rss_mb"] - r["sim_modules_rss_mb"]
 
 
+def had_unit_environment(runs: list[dict[str, Any]]) -> bool:
+    """Whether every run had the service unit's environment values (a run records the variables' values it had,
+    empty for one that was not set)."""
+    unit = unit_environment()
+    return all(r.get("environment") == unit for r in runs)
+
+
 def _mb(value: float | None, bold: bool = False) -> str:
     if value is None:
         return "-"
@@ -614,13 +621,14 @@ def render(results: list[dict[str, Any]]) -> list[str]:
         lines.append(f"- {r['imu_rate_hz']:g} Hz: recorder thread {c['recorder_us_per_record']:.0f} us per record "
                      f"({c['records_per_s']:.0f} records/s), navigator thread {c['navigator_us_per_sample']:.0f} us "
                      f"per IMU sample ({c['imu_per_s']:.0f}/s).")
-    if all(r.get("environment") for r in plain):
+    if had_unit_environment(plain):
         lines += ["", "The runs have the service unit's environment (`Environment=` in systemd/vehicle-logger.service: "
                   "glibc's malloc arenas at 2, its own limit on the board's one 32-bit core, where this 64-bit host "
                   "with two cores would allow 16)."]
     else:
-        lines += ["", "These runs predate the benchmark's taking the service unit's environment: they had glibc's "
-                  "default malloc arenas (16 on this 64-bit host with two cores, 2 on the board's one 32-bit core)."]
+        lines += ["", "Not every run had the service unit's environment (run without it, or before the benchmark "
+                  "took it): those had glibc's default malloc arenas (16 on this 64-bit host with two cores, 2 on the "
+                  "board's one 32-bit core)."]
     lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
               "simulated drive (measured as it was built) and the simulator's modules (`sensors.sim`, measured in a "
               "child interpreter that first imports every other module the run loaded): an estimate, since the "

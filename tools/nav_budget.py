@@ -215,10 +215,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", default="17", choices=("17", "15"), help="the filter's mode (default 17)")
     args = ap.parse_args(argv)
     from logger.exports.trajectory import read_drive
+    from logger.recording.drive import DriveFileError, drive_paths
 
-    files = sorted(f for p in args.files for f in ([p] if p.is_file() else p.glob("*.mcap")))
-    if not files:
-        raise SystemExit("nav_budget: no MCAP file given")
+    try:
+        files = drive_paths(args.files)
+    except DriveFileError as exc:
+        raise SystemExit(f"nav_budget: {exc}") from None
     params = NavParams()
     params.mode = args.mode
     print("\n".join(render(budget(read_drive(files, runs=True), params))))

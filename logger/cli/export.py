@@ -12,7 +12,6 @@ into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RT
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from collections import Counter
 from pathlib import Path
@@ -30,7 +29,7 @@ from logger.exports.raw_stream import (
     write_ubx,
 )
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
-from logger.recording.drive import DriveFile, DriveFileError, cut_notes, iter_messages, open_drive
+from logger.recording.drive import DriveFile, DriveFileError, cut_notes, drive_stem, iter_messages, open_drive
 from logger.recording.topics import GNSS_RAW
 from logger.words import plural
 from sensors.ublox_config import RAW_MESSAGES
@@ -47,7 +46,7 @@ class UsageError(Exception):
 
 def drive_name(paths: list[Path]) -> str:
     """The name of the outputs: the first file's stem without the rotation number (``drive_..._0001``)."""
-    return re.sub(r"_\d{4}$", "", paths[0].stem) or "drive"
+    return drive_stem(paths[0]) or "drive"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:

@@ -159,9 +159,9 @@ def main(argv: list[str]) -> int:
     if engine.mode == "gnss":
         work = f"the receiver's fixes passed through in {t1 - t0:.2f} s"
     else:
-        passes = 2 if notes else 1  # the second with the mounting the first found (run_filter's refilter)
+        # A note is made when run_filter filtered the drive a second time (with the mounting the first pass found).
         work = (f"{plural(c.imu, 'IMU sample')} in {t1 - t0:.2f} s ({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per "
-                f"sample{', two passes' if passes == 2 else ''}), initialised by {c.init_method}, "
+                f"sample{', two passes' if notes else ''}), initialised by {c.init_method}, "
                 f"{plural(c.resets, 'reset')}")
     print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {plural(len(rows), 'solution')} over "
           f"{span:.0f} s, {work}")

@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from logger.nav.engine import NavEngine, TrajectoryRow
+from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow
 from logger.nav.inputs import SolutionEpoch
-from logger.nav.mounting import SETTLED, MountEstimate, forward_axis_deg
+from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate, forward_axis_deg
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
@@ -63,28 +63,27 @@ def read_drive(paths: list[Path], topics: tuple[str, ...] = NAV_INPUT_TOPICS,
     return read_messages(paths, topics, progress, runs)
 
 
-REFILTER_MIN_DEG = 2.0  # a mounting found this far from the one the drive started with is worth a second pass
-# ... once the car's forward axis on the chip is known to this (1 sigma, pitch and yaw): half of what the live filter
-# acts on (mounting.USABLE_SIGMA_DEG), so that the second pass starts on an axis it will not have to turn again. A
-# drive without turns never tells the roll (the alignment keeps the guess's): the forward axis is what the OBD
-# speed and the non-holonomic rows hold the body on, and the simulated outage and tunnel drives with the board at
-# (5, -4, 30) deg came out within 8 % of the configured mounting's with the roll left at the guess.
-REFILTER_SIGMA_DEG = 2.5
+# A second pass once the car's forward axis on the chip is known to this (1 sigma, pitch and yaw): half of what the
+# live filter acts on, so that the second pass starts on an axis it will not have to turn again. A drive without
+# turns never tells the roll (the alignment keeps the guess's): the forward axis is what the OBD speed and the
+# non-holonomic rows hold the body on, and the simulated outage and tunnel drives with the board at (5, -4, 30) deg
+# came out within 8 % of the configured mounting's with the roll left at the guess.
+REFILTER_SIGMA_DEG = USABLE_SIGMA_DEG / 2.0
 
 
 def mounting_found(engine: NavEngine, started_with: tuple[float, ...]) -> MountEstimate | None:
     """The mounting the drive showed, when it settled or its forward axis is known to REFILTER_SIGMA_DEG, and it
-    differs from the one the filter started with by REFILTER_MIN_DEG and three of its sigmas (the live filter's
-    rule for taking an estimate) on the forward axis or the roll; else None."""
+    differs from the one the filter started with by the live filter's rule for taking an estimate (REOPEN_DEG and
+    three of its sigmas) on the forward axis or the roll; else None."""
     if engine.alignment is None:
         return None
     est = engine.alignment.estimate()
     forward_sigma = max(est.sigma_deg[1], est.sigma_deg[2])
     if not (est.state == SETTLED or forward_sigma <= REFILTER_SIGMA_DEG):
         return None
-    turned = forward_axis_deg(started_with, est.rpy_deg) >= max(REFILTER_MIN_DEG, 3.0 * forward_sigma)
+    turned = forward_axis_deg(started_with, est.rpy_deg) >= max(REOPEN_DEG, 3.0 * forward_sigma)
     rolled = (est.sigma_deg[0] <= REFILTER_SIGMA_DEG
-              and abs(est.rpy_deg[0] - started_with[0]) >= max(REFILTER_MIN_DEG, 3.0 * est.sigma_deg[0]))
+              and abs(est.rpy_deg[0] - started_with[0]) >= max(REOPEN_DEG, 3.0 * est.sigma_deg[0]))
     return est if turned or rolled else None
 
 

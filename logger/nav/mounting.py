@@ -51,7 +51,7 @@ WINDOW_S = 1.0  # at least this long between the two fixes of a window
 SUM_SAMPLES = 8192  # running sums kept at most: 8 s at 1 kHz, more than a fix's latency plus a window
 # One running sum kept per this much time (the first sample of each step): a window's ends then fall within 10 ms
 # of the fixes' epochs, a hundredth of a window, whatever the IMU's rate; a sum per sample at 1 kHz held 4000
-# tuples (1.4 MB) for the same windows. At 100 Hz and less every sample's sum is kept, as before.
+# tuples (1.4 MB) for the same windows. Below 100 Hz two samples hardly ever share a step: every sum is kept.
 SUM_STEP_NS = 10_000_000
 SUM_KEEP_NS = int((3 * WINDOW_S + 1.0) * 1e9)  # ... and no older than the longest window before a fix's epoch
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
@@ -257,8 +257,9 @@ class MountAlignment:
         ax, ay, az = acc_chip
         wx, wy, wz = gyro_chip
         row = self._last = (t_ns, a0 + ax, a1 + ay, a2 + az, w0 + wx, w1 + wy, w2 + wz, n + 1)
-        if t_ns // SUM_STEP_NS != self._step:
-            self._step = t_ns // SUM_STEP_NS
+        step = t_ns // SUM_STEP_NS
+        if step != self._step:
+            self._step = step
             self._sums.append(row)
 
     def sample_block(self, t_ns: np.ndarray, acc_chip: np.ndarray, gyro_chip: np.ndarray) -> None:

@@ -160,18 +160,32 @@ def _header_library(path: Path) -> str:
         return ""
 
 
-_PART = re.compile(r"_(\d{4,})\.mcap$")  # the daemon's file names end in the part number, 0001 at each start
+# The daemon's file names end in the drive's part number (recorder.default_file_name, boot_safe_file_name: 0001
+# at each start, one more at each rotation).
+_PART = re.compile(r"_(\d{4,})$")
 FOLDER_DRIVES_SHOWN = 3
+
+
+def part_number(path: Path) -> int | None:
+    """The part number a daemon's file name ends in (``drive_20261204T142314Z_0002.mcap``: 2), or None."""
+    m = _PART.search(path.stem)
+    return int(m.group(1)) if m else None
+
+
+def drive_stem(path: Path) -> str:
+    """A file's name without its suffix and part number: the name of what is made of the drive."""
+    return _PART.sub("", path.stem)
 
 
 def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Path]:
     """The files a user named, a folder standing for the drive the daemon wrote into it (``logger run --out``).
 
-    A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). The
-    daemon numbers a drive's files from 0001 at every start, so a folder holding more than one
-    part 0001 holds several drives: mixing them would join unrelated trajectories, so that is an error naming
-    the drives' first files (unless ``one_drive`` is false: ``logger info`` takes any files), as is a folder
-    without MCAP files. Files are passed through as named.
+    A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). In that
+    order a drive's part numbers rise; a file whose part number does not rise over the one before it (another
+    start's 0001, or a later drive after an earlier one's last parts) begins another drive. Mixing drives would
+    join unrelated trajectories, so a folder of several is an error naming the files that begin them (unless
+    ``one_drive`` is false: ``logger info`` takes any files), as is a folder without MCAP files. Files are passed
+    through as named.
     """
     out: list[Path] = []
     for p in map(Path, paths):
@@ -181,10 +195,12 @@ def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Pat
         found = [f for f in sorted(p.glob("*.mcap")) if f.is_file()]
         if not found:
             raise DriveFileError(f"{p}: a folder without recorded MCAP files")
-        starts = [f.name for f in found if (m := _PART.search(f.name)) is not None and int(m.group(1)) == 1]
+        parts = [(f, part_number(f)) for f in found]
+        parts = [(f, n) for f, n in parts if n is not None]
+        starts = [f.name for i, (f, n) in enumerate(parts) if i == 0 or n <= parts[i - 1][1]]
         if one_drive and len(starts) > 1:
             shown = ", ".join(starts[:FOLDER_DRIVES_SHOWN]) + (", ..." if len(starts) > FOLDER_DRIVES_SHOWN else "")
-            raise DriveFileError(f"{p}: a folder of {len(starts)} drives (files {shown} each start one): name "
+            raise DriveFileError(f"{p}: a folder of {len(starts)} drives (files {shown} each begin one): name "
                                  "the files of one drive")
         out += found
     return out
