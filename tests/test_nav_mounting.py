@@ -218,7 +218,10 @@ def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, 
     twice, rows2 = run_filter(files, NavParams(), refilter=True, notes=notes)
     _, rows1 = run_filter(files, NavParams())
     _, rows_c = run_filter(files, NavParams(mounting_rpy_deg=MOUNT, mount_align=False))
-    assert len(notes) == 1 and "filtered again from the start with it" in notes[0], notes
+    # The first pass is the live filter's, which took its first minutes again at the first remount; the
+    # second starts from the mounting the whole drive showed.
+    assert len(notes) == 2 and "took its inputs again from the start" in notes[0], notes
+    assert "filtered again from the start with it" in notes[1], notes
     assert forward_axis_deg(twice.params.mounting_rpy_deg, MOUNT) < 1.0  # the second pass started from it
     assert forward_axis_deg(twice.mount_applied, MOUNT) < 1.0
 
@@ -269,3 +272,171 @@ def test_the_running_sums_at_1_khz_are_kept_per_10_ms_and_give_the_same_windows(
     mean = (b[1] - a[1]) / k  # the window's samples are those counted between its two sums
     expected = float(np.mean(0.3 * np.sin(np.arange(a[7], b[7]) * 1e6 / 2e9)))
     assert abs(mean - expected) < 0.01  # the noise averages to 0.05 / sqrt(1000)
+
+
+def _rerun_over(recs, params=None, **limits):
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.nav_rerun import NavRerun
+
+    rerun = NavRerun(params or NavParams(), lambda p: NavEngine(p, record=True), **limits)
+    spans = []
+    for _, topic, msg in recs:
+        rerun.feed(topic, msg)
+        spans.append((rerun.engine.state is not None and math.hypot(rerun.engine.state.vn, rerun.engine.state.ve),
+                      rerun.kept))
+    return rerun, spans
+
+
+def test_the_live_filter_takes_its_first_minutes_again_with_the_mounting_the_drive_showed(mounted_drive):
+    """Live, at the first remount that reopens attitude and offsets, a new engine starting with that mounting
+    takes the inputs kept since the start: the first minutes come out near the configured mounting's, not driven
+    on the guess and then relearnt."""
+    drive, turned = mounted_drive
+    rerun, _ = _rerun_over(turned)
+    alone = run(turned)  # the engine without a tape: the mounting taken, attitude and offsets relearnt
+    configured = run(turned, mounting_rpy_deg=MOUNT, mount_align=False)
+    assert rerun.rerun_mount is not None and "took its inputs again from the start" in rerun.note()
+    assert 20.0 < rerun.rerun_at_s < 120.0, rerun.rerun_at_s
+    assert forward_axis_deg(rerun.rerun_mount, MOUNT) < 5.0, rerun.rerun_mount
+    assert rerun.engine.params.mounting_rpy_deg == rerun.rerun_mount
+    assert rerun.engine.rows[0][0] == alone.rows[0][0]  # the new engine's rows begin where the first's did
+    assert rerun.kept is None  # used once: nothing more is kept
+
+    def rmse(rows, t1: float) -> float:
+        t, e, _ = errors(drive, rows)
+        return float(np.sqrt((e[t < t1, :2] ** 2).mean()))
+
+    # The first four minutes, which hold the re-run's inputs, near the configured mounting's. On this synthetic
+    # drive the engine alone comes as near (0.168 against the re-run's 0.181 and the configured 0.161 m): the
+    # gain is where a reopening meets degraded fixes, measured on the recorded drives (docs/nav.md).
+    assert rmse(rerun.engine.rows, 240.0) <= 1.2 * rmse(configured.rows, 240.0) + 0.02
+    assert rmse(rerun.engine.rows, 600.0) <= 1.2 * rmse(configured.rows, 600.0) + 0.02
+
+
+def test_the_tape_is_bounded_and_a_wait_before_driving_does_not_fill_it(mounted_drive):
+    """The kept inputs are bounded in samples and in time; before the car first moves only the last
+    STILL_KEEP_S are kept. A tape full before the first reopening is given up: the filter goes on as the engine
+    alone does."""
+    from logger.recording.nav_rerun import STILL_KEEP_S
+
+    _, turned = mounted_drive
+    _, spans = _rerun_over(turned[:6000])
+    standing = [kept for speed, kept in spans if kept is not None and not speed]
+    assert standing and max(s for s, _ in standing) <= STILL_KEEP_S + 1.0
+    full, _ = _rerun_over(turned, tape_samples=200)
+    alone = run(turned)
+    assert full.rerun_mount is None and full.note() == "" and full.kept is None
+    assert full.engine.rows[-1] == alone.rows[-1]
+    short, _ = _rerun_over(turned, tape_s=10.0)
+    assert short.rerun_mount is None
+
+
+def test_a_board_mounted_as_configured_keeps_its_engine():
+    from logger.nav.params import NavParams
+
+    plain = make_drive("outage-60s", seed=1, duration_s=120.0)
+    recs = records(plain, 120.0, seed=2)
+    rerun, _ = _rerun_over(recs)
+    assert rerun.rerun_mount is None
+    assert rerun.engine.rows[-1] == run(recs).rows[-1]
+    off, _ = _rerun_over(recs, NavParams(mount_align=False))
+    assert off.kept is None  # nothing to find: nothing kept
+
+
+def _as_reads(recs, per_read: int):
+    """The /imu records as FIFO reads (``/imu/batch`` records of ``per_read`` samples), the rest as they are."""
+    out, run = [], []
+
+    def close():
+        if run:
+            t = [m["t_sync_ns"] for m in run]
+            read = {"t_sync_ns": t, "t_mono_ns": [m["t_mono_ns"] for m in run], "temp_degc": 30.0,
+                    "period_s": 0.05, "lost": 0, "seq": 0, "sync_state": ["locked"] * len(run)}
+            for i, axis in enumerate("xyz"):
+                read[f"accel_{axis}_mps2"] = [m["accel_mps2"][i] for m in run]
+                read[f"gyro_{axis}_rps"] = [m["gyro_rps"][i] for m in run]
+            out.append((t[0], "/imu/batch", read))
+            run.clear()
+
+    for rec in recs:
+        if rec[1] == "/imu":
+            run.append(rec[2])
+            if len(run) == per_read:
+                close()
+            continue
+        close()
+        out.append(rec)
+    close()
+    return out
+
+
+def test_the_re_run_is_the_engine_started_with_that_mounting(mounted_drive):
+    """What the tape keeps (FIFO reads as arrays, runs of reads as they were fed) gives the new engine exactly the
+    inputs the first one had: its trajectory is the one of an engine started with the mounting, fed the same."""
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.nav_rerun import NavRerun
+    from logger.recording.records import feed_reads, nav_feeder
+
+    _, turned = mounted_drive
+    reads = _as_reads([r for r in turned if r[0] - turned[0][0] < 150_000_000_000], per_read=8)
+    rerun = NavRerun(NavParams(), lambda p: NavEngine(p, record=True))
+    items, run_ = [], []
+    for _, topic, msg in reads:  # reads two at a time go in as a run, as the live navigator merges them
+        if topic == "/imu/batch":
+            run_.append(msg)
+            if len(run_) == 2:
+                items.append(("", list(run_)))
+                run_.clear()
+            continue
+        if run_:
+            items.append(("", list(run_)))
+            run_.clear()
+        items.append((topic, msg))
+    for topic, what in items:
+        if topic == "":
+            rerun.feed_reads(what)
+        else:
+            rerun.feed(topic, what)
+    assert rerun.rerun_mount is not None
+    fresh = NavEngine(NavParams(mounting_rpy_deg=rerun.rerun_mount), record=True)
+    feed = nav_feeder(fresh)
+    for topic, what in items:
+        if topic == "":
+            feed_reads(fresh, what)
+        else:
+            feed[topic](what)
+    assert len(fresh.rows) == len(rerun.engine.rows) > 1000
+    assert fresh.rows[-1] == rerun.engine.rows[-1]
+    assert fresh.counters == rerun.engine.counters
+
+
+def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mounted_drive, caplog):
+    """In the daemon the re-run happens inside a wake-up: the engine in use is the new one from then on, its
+    log says so, and /nav/fix goes on at its rate without a gap or a step back in time."""
+    import logging
+
+    from logger.nav.params import NavParams
+    from logger.recording.topics import NAV_FIX
+    from logger.runtime.navigator import Navigator
+
+    _, turned = mounted_drive
+    published = []
+    nav = Navigator(NavParams(), publish=published.append)
+    first = nav.engine
+    caplog.set_level(logging.INFO, logger="logger.recording.nav_rerun")
+    chunk, end = [], turned[0][0] + 1_000_000_000
+    for t, topic, msg in turned:
+        if t - turned[0][0] > 150_000_000_000:
+            break
+        if t >= end:
+            nav.take(chunk)
+            chunk, end = [], end + 1_000_000_000
+        chunk.append((topic, msg))
+    nav.take(chunk)
+    assert nav.rerun.rerun_mount is not None and nav.engine is not first
+    assert "filtered its" in caplog.text and "again from the start" in caplog.text
+    t = np.array([r.payload["t_sync_ns"] for r in published if r.topic == NAV_FIX])
+    assert len(t) > 500 and np.diff(t).min() > 0 and np.diff(t).max() < 0.5e9
+    assert nav.section()["lat_deg"] is not None

@@ -13,7 +13,7 @@ from test_nav_synth import records
 
 from logger.nav.engine import BATCH_MIN, NavEngine
 from logger.nav.params import NavParams
-from logger.recording.records import nav_feeder
+from logger.recording.nav_rerun import NavRerun
 from logger.recording.topics import IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime.navigator import WAKE_S, Navigator
 from logger.runtime.sampler import Reading
@@ -60,23 +60,27 @@ def _navigator(**params: Any) -> tuple[Navigator, list[Reading], list[tuple[int,
     params.setdefault("integration_hz", 0.0)
     published: list[Reading] = []
     nav = Navigator(NavParams(**params), publish=published.append)
-    nav.engine = engine = NavEngine(nav.params, record=True)
     calls: list[tuple[int, int]] = []
-    block = engine.imu_batch
 
-    def imu_batch(t: Any, *rest: Any) -> None:
-        calls.append((int(t[0]), len(t)))
-        block(t, *rest)
+    def make_engine(p: NavParams) -> NavEngine:
+        engine = NavEngine(p, record=True)
+        block = engine.imu_batch
 
-    engine.imu_batch = imu_batch  # type: ignore[method-assign]
-    nav._feed = nav_feeder(engine)
+        def imu_batch(t: Any, *rest: Any) -> None:
+            calls.append((int(t[0]), len(t)))
+            block(t, *rest)
+
+        engine.imu_batch = imu_batch  # type: ignore[method-assign]
+        return engine
+
+    nav.rerun = NavRerun(nav.params, make_engine)
     return nav, published, calls
 
 
 def _read_by_read(nav: Navigator, items: list[Item]) -> None:
     """What the navigator did before runs were merged: each record fed alone, a publish check after each read."""
     for _, topic, m in items:
-        nav._feed[topic](m)
+        nav.rerun.feed(topic, m)
         if topic == IMU_BATCH:
             nav._maybe_publish()
 

@@ -31,7 +31,8 @@ from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate, forwar
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
-from logger.recording.records import NAV_INPUT_TOPICS, nav_feeder, nav_fix_record, nav_state_record
+from logger.recording.nav_rerun import NavRerun
+from logger.recording.records import NAV_INPUT_TOPICS, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
 
 if TYPE_CHECKING:
@@ -103,7 +104,7 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
     shown it, and then relearns its attitude and offsets (tens of seconds); whatever comes first (a street canyon
     a minute in) meets a filter still converging. At the office the whole drive is there: the second pass starts
     with the mounting, as the daemon's next start does with the one it saved. ``notes`` hears a line saying so."""
-    engine = _one_pass(paths, params, states, progress, solution, solution_replaces)
+    engine = _one_pass(paths, params, states, progress, solution, solution_replaces, notes)
     found = mounting_found(engine, params.mounting_rpy_deg) if refilter else None
     if found is not None:
         again = dataclasses.replace(params, mounting_rpy_deg=tuple(round(a, 3) for a in found.rpy_deg))
@@ -127,15 +128,20 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
 
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
               progress: ProgressFn | None, solution: Sequence[SolutionEpoch],
-              solution_replaces: bool) -> NavEngine:
-    """One forward pass of the engine over the files (``states`` filled as :func:`run_filter` says)."""
-    engine = NavEngine(params, record=True)
-    if solution:
-        engine.use_solution(solution, solution_replaces)
-    feed = nav_feeder(engine)
+              solution_replaces: bool, notes: list[str] | None = None) -> NavEngine:
+    """One forward pass of the engine over the files (``states`` filled as :func:`run_filter` says), with the live
+    filter's re-run of its first minutes (:mod:`logger.recording.nav_rerun`); ``notes`` hears of it."""
+    def make_engine(p: NavParams) -> NavEngine:
+        engine = NavEngine(p, record=True)
+        if solution:
+            engine.use_solution(solution, solution_replaces)
+        return engine
+
+    rerun = NavRerun(params, make_engine)  # as live: the first minutes again once the drive shows the mounting
     next_state = 0
     for topic, msg in read_drive(paths, progress=progress, runs=True):
-        feed[topic](msg)
+        rerun.feed(topic, msg)
+        engine = rerun.engine
         if states is None or engine.state is None or topic not in (IMU, IMU_BATCH):
             continue
         # The last sample fed: a sample's own record, or a block's last.
@@ -144,7 +150,9 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
         if t >= next_state:
             next_state = t + 1_000_000_000
             states.append(nav_state_record(engine, t, mono))
-    return engine
+    if notes is not None and rerun.note():
+        notes.append(rerun.note())
+    return rerun.engine
 
 
 @dataclass

@@ -139,6 +139,7 @@ class NavEngine:
         self._set_mount(dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg)))
         self.alignment = MountAlignment(p.mounting_rpy_deg) if p.mount_align and p.mode != "gnss" else None
         self.mount_applied: tuple[float, float, float] = tuple(float(a) for a in p.mounting_rpy_deg)
+        self.mount_reopened_ns: int | None = None  # the first remount that reopened attitude and offsets (rerun.py)
         self._next_remount_ns = 0
         self.lever = np.array(p.lever_arm_m, float)
         self.mech = Strapdown(coning=False)
@@ -717,6 +718,8 @@ class NavEngine:
             t[BG_ID:BG_ID + 3, BG_ID:BG_ID + 3] = d
             self.ekf.p = t @ self.ekf.p @ t.T
             return
+        if self.mount_reopened_ns is None:
+            self.mount_reopened_ns = self._t_last or 0
         self.reopen_attitude_and_offsets()
         self._restart_tempco()  # after the variance owed to the temperature so far went into the reopening
         if self.n > DH_ID:

@@ -24,10 +24,10 @@ from typing import Any
 from logger.nav.engine import NavEngine
 from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
+from logger.nav.thermal import TempcoLearner
+from logger.recording.nav_rerun import NavRerun
 from logger.recording.records import (
     NAV_INPUT_TOPICS,
-    feed_reads,
-    nav_feeder,
     nav_fix_record,
     nav_state_record,
 )
@@ -67,14 +67,14 @@ class Navigator:
         self.params = replace(params, mounting_rpy_deg=saved) if saved is not None else params
         params = self.params
         self._next_mount_save_ns = 0
-        self.engine = NavEngine(params)
         # The IMU offsets' temperature coefficients earlier drives learnt of this part (tempco_state.py).
         self.tempco_path, self.imu_installation = tempco_path, imu_installation
-        self._tempco_saved = (tempco_state.load(tempco_path, imu_installation, self.engine.tempco.bound)
-                              if tempco_path else None)
-        if self._tempco_saved is not None:
-            self.engine.start_tempco_from(*self._tempco_saved)
-        self._feed = nav_feeder(self.engine)
+        self._tempco_saved: tuple[list[float], list[float]] | None = None
+        if tempco_path:
+            bound = TempcoLearner((params.accel_bias_tempco,) * 3 + (params.gyro_bias_tempco,) * 3).bound
+            self._tempco_saved = tempco_state.load(tempco_path, imu_installation, bound)
+        # The engine, replaced once by one that filters the first minutes again if the drive shows another mounting.
+        self.rerun = NavRerun(params, self._make_engine)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
         self.judge = HealthJudge()
@@ -96,6 +96,17 @@ class Navigator:
         self._next_state_ns = 0
         self._verdicts: list[str] = []
         self.error: str = ""
+
+    def _make_engine(self, params: NavParams) -> NavEngine:
+        engine = NavEngine(params)
+        if self._tempco_saved is not None:
+            engine.start_tempco_from(*self._tempco_saved)
+        return engine
+
+    @property
+    def engine(self) -> NavEngine:
+        """The engine in use."""
+        return self.rerun.engine
 
     # ---- the tap: never blocks ------------------------------------------------------------------------
     def offer(self, topic: str, payload: dict[str, Any]) -> None:
@@ -166,10 +177,7 @@ class Navigator:
                 log.exception("navigation filter failed; restarting it")
                 self.error = f"{type(exc).__name__}: {exc}"
                 with self._lock:
-                    self.engine = NavEngine(self.params)
-                    if self._tempco_saved is not None:
-                        self.engine.start_tempco_from(*self._tempco_saved)
-                    self._feed = nav_feeder(self.engine)
+                    self.rerun = NavRerun(self.params, self._make_engine)
             self.cpu_s = time.thread_time() - cpu0
 
     def take(self, records: list[tuple[str, dict[str, Any]]], merge: bool = True) -> None:
@@ -181,28 +189,28 @@ class Navigator:
         with the read that reaches the next publishing time, so /nav/fix and /nav/state go out after the same
         reads, with the same solutions, as fed read by read. A read after a gap, lost samples or out of order
         goes alone, as before. ``merge=False``: every read alone (what the benchmark and the tests compare with)."""
-        feed, engine, run = self._feed, self.engine, []
+        rerun, run = self.rerun, []
         last: int | None = None  # the run's last sample
         for topic, payload in records:
             if topic == IMU_BATCH and merge:
                 t = payload["t_sync_ns"]
-                if _follows(payload, last if run else engine.t_last_ns):
+                if _follows(payload, last if run else rerun.engine.t_last_ns):
                     run.append(payload)
                     last = t[-1]
                     if self._publish_due(last):
-                        feed_reads(engine, run)
+                        rerun.feed_reads(run)
                         run = []
                         self._maybe_publish()
                     continue
             if run:
-                feed_reads(engine, run)
+                rerun.feed_reads(run)
                 run = []
                 self._maybe_publish()
-            feed[topic](payload)
-            if topic in (IMU, IMU_BATCH) or (topic == GNSS_FIX and engine.mode == "gnss"):
+            rerun.feed(topic, payload)
+            if topic in (IMU, IMU_BATCH) or (topic == GNSS_FIX and rerun.engine.mode == "gnss"):
                 self._maybe_publish()
         if run:
-            feed_reads(engine, run)
+            rerun.feed_reads(run)
             self._maybe_publish()
         self.processed += len(records)
 
