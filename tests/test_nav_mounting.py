@@ -100,15 +100,19 @@ def test_a_board_knocked_during_the_drive_is_noticed_and_followed():
     assert err.max() < 1.5, al.estimate()
 
 
-@pytest.fixture(scope="module")
-def mounted_drive():
-    drive = make_drive("urban", seed=1, duration_s=600.0)
-    recs = records(drive, 600.0, seed=6)
+def mounted_drive_records(duration_s: float = 600.0):
+    drive = make_drive("urban", seed=1, duration_s=duration_s)
+    recs = records(drive, duration_s, seed=6)
     r = dcm_from_euler(*np.radians(MOUNT))
     turned = [(ts, tp, {**m, "accel_mps2": (r.T @ np.array(m["accel_mps2"])).tolist(),
                         "gyro_rps": (r.T @ np.array(m["gyro_rps"])).tolist()}) if tp == "/imu" else (ts, tp, m)
               for ts, tp, m in recs]
     return drive, turned
+
+
+@pytest.fixture(scope="module")
+def mounted_drive():
+    return mounted_drive_records()
 
 
 def test_the_filter_takes_the_settled_mounting_and_drives_as_if_it_had_been_configured(mounted_drive):
@@ -314,44 +318,76 @@ def test_the_live_filter_takes_its_first_minutes_again_with_the_mounting_the_dri
     assert rmse(rerun.engine.rows, 600.0) <= 1.2 * rmse(configured.rows, 600.0) + 0.02
 
 
-def test_the_tape_is_bounded_and_a_wait_before_driving_does_not_fill_it(mounted_drive):
-    """The kept inputs are bounded in samples and in time; before the car first moves only the last
-    STILL_KEEP_S are kept. A tape full before the first reopening is given up: the filter goes on as the engine
-    alone does."""
+def _turned(recs):
+    r = dcm_from_euler(*np.radians(MOUNT))
+    return [(ts, tp, {**m, "accel_mps2": (r.T @ np.array(m["accel_mps2"])).tolist(),
+                      "gyro_rps": (r.T @ np.array(m["gyro_rps"])).tolist()}) if tp == "/imu" else (ts, tp, m)
+            for ts, tp, m in recs]
+
+
+def test_a_long_wait_before_driving_keeps_its_last_half_minute_and_the_re_run_still_levels():
+    """Two minutes standing with the engine running, then the drive: of the standstill only the last STILL_KEEP_S
+    stay on the tape, the re-run comes, and its engine levelled on what was kept."""
     from logger.recording.nav_rerun import STILL_KEEP_S
 
-    _, turned = mounted_drive
-    _, spans = _rerun_over(turned[:6000])
-    standing = [kept for speed, kept in spans if kept is not None and not speed]
-    assert standing and max(s for s, _ in standing) <= STILL_KEEP_S + 1.0
-    full, _ = _rerun_over(turned, tape_samples=200)
+    drive = make_drive("urban", seed=1, duration_s=240.0, intro_s=120.0)
+    recs = _turned(records(drive, 240.0, seed=6))
+    rerun, spans = _rerun_over(recs)
+    standing = [kept[0] for (_, kept), (t, _, _) in zip(spans, recs, strict=True)
+                if kept is not None and t - recs[0][0] < 115 * 1_000_000_000]
+    assert max(standing) <= STILL_KEEP_S + 1.0
+    assert max(standing) >= STILL_KEEP_S - 1.0  # cut to it, not below
+    assert rerun.rerun_mount is not None, "the drive's first reopening came within the tape"
+    assert rerun.engine.startup.level_span[1] > 2.0  # levelled on the kept standstill
+
+
+def test_driving_without_fixes_from_the_start_is_not_cut_as_a_standstill():
+    """No fix for the first 90 s while the car drives off at 8 s: the filter has no speed of its own, the OBD
+    speed says the car moved, and nothing of the tape is cut (a re-run from the middle of the drive would start
+    without levelling)."""
+    drive = make_drive("urban", seed=1, duration_s=100.0)
+    recs = _turned(records(drive, 100.0, seed=6, gnss_off=[(0.0, 90.0)]))
+    _, spans = _rerun_over(recs)
+    kept = [k for _, k in spans if k is not None]
+    assert kept[-1][0] >= 95.0  # the tape still goes back to the first input
+
+
+def test_the_tape_is_bounded_in_memory_and_time():
+    """A tape full before the first reopening is given up: the filter goes on as the engine alone does."""
+    _, turned = mounted_drive_records()
     alone = run(turned)
-    assert full.rerun_mount is None and full.note() == "" and full.kept is None
-    assert full.engine.rows[-1] == alone.rows[-1]
+    small, _ = _rerun_over(turned, tape_bytes=100_000)
+    assert small.rerun_mount is None and small.note() == "" and small.kept is None
+    assert small.engine.rows[-1] == alone.rows[-1]
     short, _ = _rerun_over(turned, tape_s=10.0)
-    assert short.rerun_mount is None
+    assert short.rerun_mount is None and short.kept is None
 
 
 def test_a_board_mounted_as_configured_keeps_its_engine():
+    """Nothing to find: no re-run, and the tape is let go once the alignment has shown the forward axis where the
+    mounting in use has it, long before its bounds."""
     from logger.nav.params import NavParams
 
     plain = make_drive("outage-60s", seed=1, duration_s=120.0)
     recs = records(plain, 120.0, seed=2)
-    rerun, _ = _rerun_over(recs)
+    rerun, spans = _rerun_over(recs)
     assert rerun.rerun_mount is None
     assert rerun.engine.rows[-1] == run(recs).rows[-1]
+    given_up = next(t for (_, kept), (t, _, _) in zip(spans, recs, strict=True) if kept is None)
+    assert (given_up - recs[0][0]) / 1e9 < 100.0
     off, _ = _rerun_over(recs, NavParams(mount_align=False))
     assert off.kept is None  # nothing to find: nothing kept
 
 
-def _as_reads(recs, per_read: int):
-    """The /imu records as FIFO reads (``/imu/batch`` records of ``per_read`` samples), the rest as they are."""
+def _as_reads(recs, per_read: int, temp=lambda k: 30.0):
+    """The /imu records as FIFO reads (``/imu/batch`` records of ``per_read`` samples, the k-th read's die
+    temperature ``temp(k)``), the rest as they are."""
     out, run = [], []
 
     def close():
         if run:
             t = [m["t_sync_ns"] for m in run]
-            read = {"t_sync_ns": t, "t_mono_ns": [m["t_mono_ns"] for m in run], "temp_degc": 30.0,
+            read = {"t_sync_ns": t, "t_mono_ns": [m["t_mono_ns"] for m in run], "temp_degc": temp(len(out)),
                     "period_s": 0.05, "lost": 0, "seq": 0, "sync_state": ["locked"] * len(run)}
             for i, axis in enumerate("xyz"):
                 read[f"accel_{axis}_mps2"] = [m["accel_mps2"][i] for m in run]
@@ -371,7 +407,9 @@ def _as_reads(recs, per_read: int):
     return out
 
 
-def test_the_re_run_is_the_engine_started_with_that_mounting(mounted_drive):
+@pytest.mark.parametrize("temp", [lambda k: 30.0, lambda k: None, lambda k: 30.0 + 0.001 * k],
+                         ids=["one temperature", "none read", "each read its own"])
+def test_the_re_run_is_the_engine_started_with_that_mounting(mounted_drive, temp):
     """What the tape keeps (FIFO reads as arrays, runs of reads as they were fed) gives the new engine exactly the
     inputs the first one had: its trajectory is the one of an engine started with the mounting, fed the same."""
     from logger.nav.engine import NavEngine
@@ -380,7 +418,7 @@ def test_the_re_run_is_the_engine_started_with_that_mounting(mounted_drive):
     from logger.recording.records import feed_reads, nav_feeder
 
     _, turned = mounted_drive
-    reads = _as_reads([r for r in turned if r[0] - turned[0][0] < 150_000_000_000], per_read=8)
+    reads = _as_reads([r for r in turned if r[0] - turned[0][0] < 150_000_000_000], per_read=8, temp=temp)
     rerun = NavRerun(NavParams(), lambda p: NavEngine(p, record=True))
     items, run_ = [], []
     for _, topic, msg in reads:  # reads two at a time go in as a run, as the live navigator merges them
@@ -410,6 +448,7 @@ def test_the_re_run_is_the_engine_started_with_that_mounting(mounted_drive):
     assert len(fresh.rows) == len(rerun.engine.rows) > 1000
     assert fresh.rows[-1] == rerun.engine.rows[-1]
     assert fresh.counters == rerun.engine.counters
+    assert fresh.thermal.range_degc == rerun.engine.thermal.range_degc
 
 
 def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mounted_drive, caplog):
@@ -426,17 +465,65 @@ def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mo
     nav = Navigator(NavParams(), publish=published.append)
     first = nav.engine
     caplog.set_level(logging.INFO, logger="logger.recording.nav_rerun")
+    build, built = nav.rerun.build, []
+
+    def build_unlocked():
+        # Minutes of inputs take seconds on the board: ``logger status`` (Navigator.section, under the lock) must
+        # answer meanwhile, from the engine still in use.
+        assert not nav._lock.locked()
+        assert nav.section()["lat_deg"] is not None
+        built.append(build())
+        return built[-1]
+
+    nav.rerun.build = build_unlocked
     chunk, end = [], turned[0][0] + 1_000_000_000
     for t, topic, msg in turned:
         if t - turned[0][0] > 150_000_000_000:
             break
         if t >= end:
             nav.take(chunk)
+            if nav.rerun.due:  # found in this wake-up: the engine in use stays until the new one is built
+                assert nav.engine is first and nav.section()["lat_deg"] is not None
+            nav.rerun_if_due()
             chunk, end = [], end + 1_000_000_000
         chunk.append((topic, msg))
     nav.take(chunk)
-    assert nav.rerun.rerun_mount is not None and nav.engine is not first
+    assert nav.rerun.rerun_mount is not None and nav.engine is not first and built == [nav.engine]
     assert "filtered its" in caplog.text and "again from the start" in caplog.text
     t = np.array([r.payload["t_sync_ns"] for r in published if r.topic == NAV_FIX])
     assert len(t) > 500 and np.diff(t).min() > 0 and np.diff(t).max() < 0.5e9
     assert nav.section()["lat_deg"] is not None
+
+
+@pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (100.0, True)])
+def test_an_imu_too_fast_for_the_tape_keeps_nothing(imu_hz, kept):
+    """FIFO reads at 1 kHz would fill the tape before the forward axis shows: the first RATE_SPAN_S tell, and the
+    tape is let go then, not kept to its budget. At a phone's 100 Hz a minute fits: it is kept."""
+    from logger.recording.nav_rerun import RATE_SPAN_S
+    from logger.runtime.sources import fifo_poll_hz
+
+    drive = make_drive("urban", seed=1, duration_s=20.0)
+    per_read = round(imu_hz / fifo_poll_hz(imu_hz))  # as the daemon reads the FIFO
+    reads = _as_reads(_turned(records(drive, 20.0, seed=6, imu_hz=imu_hz)), per_read=per_read)
+    _, spans = _rerun_over(reads)
+    t_kept = [(t - reads[0][0]) / 1e9 for (_, k), (t, _, _) in zip(spans, reads, strict=True) if k is not None]
+    if kept:
+        assert t_kept[-1] >= 19.0
+    else:
+        assert RATE_SPAN_S - 1.0 <= t_kept[-1] <= RATE_SPAN_S + 1.0
+
+
+@pytest.mark.parametrize("receiver", ["ubx", "nmea", "gsa"])
+def test_a_record_cut_to_what_the_filter_reads_gives_it_the_same_input(receiver):
+    """The tape keeps each record cut to NAV_INPUT_KEYS: fed those, an engine gives what the whole records give."""
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.records import NAV_INPUT_KEYS, nav_feeder
+
+    recs = records(make_drive("urban", seed=2, duration_s=90.0), 90.0, seed=3, receiver=receiver)
+    whole, cut = NavEngine(NavParams(), record=True), NavEngine(NavParams(), record=True)
+    feed_whole, feed_cut = nav_feeder(whole), nav_feeder(cut)
+    for _, topic, msg in recs:
+        feed_whole[topic](msg)
+        feed_cut[topic]({k: msg[k] for k in NAV_INPUT_KEYS[topic] if k in msg})
+    assert len(whole.rows) > 1000 and whole.rows[-1] == cut.rows[-1] and whole.counters == cut.counters

@@ -9,12 +9,21 @@ are still at hand, so at the first remount that reopens, a new engine starting w
 again, as if the daemon had been started with it, and goes on from there. On the recorded urban drive with the
 board at (5, -4, 30) deg this took seed 2's east RMSE while moving from 1.00 to about 0.4 m (configured: 0.37).
 
-What is kept is bounded (:data:`TAPE_S` of drive from the tape's start, :data:`TAPE_SAMPLES` IMU samples, stored
-as arrays, about 1.5 MB at the bound): the tape starts with the first input, and while the car has not moved yet
-only the last :data:`STILL_KEEP_S` of it are kept, so a long wait before driving does not use up the tape (a new
-engine started from there is one started then, at a standstill). When the tape is full before the first reopening
-(a 1 kHz IMU fills it in 24 s), or once it has been used, nothing more is kept and the filter goes on as before.
-One re-run per engine: the new engine's own remounts are refinements of a mounting it started near.
+What is kept is bounded: :data:`TAPE_S` of drive from the tape's start and :data:`TAPE_BYTES` as estimated per
+input (:func:`_cost`; FIFO reads as arrays, ``/imu`` samples as slim copies). The tape starts with the first input;
+while the car is known to stand (an OBD speed or a GNSS speed of nothing, or the stop detector) and has not moved
+yet (an OBD, GNSS or filter speed over :data:`MOVING_MPS`), only the last :data:`STILL_KEEP_S` of it are kept, so a
+long wait before driving does not use up the tape, and a new engine started from there is one started then, at a
+standstill; while nothing says so (no speed yet, an IMU that does not look still) nothing is cut. The tape is let
+go when it is full before the first reopening (at 20 Hz 180 s take about 2 MB), at once when its first
+:data:`RATE_SPAN_S` show that :data:`USEFUL_S` of drive would not fit (an IMU faster than about 150 Hz: no re-run,
+no memory spent on it), when the alignment has shown the car's forward axis within REOPEN_DEG of the
+mounting in use (a board mounted as configured, or as the last drive saved it: no reopening is coming), or once it
+has been used; the filter then goes on as before. One re-run per engine: the new engine's own remounts are
+refinements of a mounting it started near. In the daemon the new engine is built outside the navigator's lock
+(``deferred``), so ``logger status`` reads the engine in use while it runs (seconds on the board), and only the
+swap takes the lock; meanwhile the navigator's queue holds what arrives. What the first engine published before
+the swap (``/nav/fix``, ``/nav/state``, replay's states) stays as it was: it is what the daemon said then.
 """
 
 from __future__ import annotations
@@ -27,24 +36,38 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
-from logger.nav.engine import NavEngine
+from logger.nav.engine import REOPEN_DEG, NavEngine
+from logger.nav.mounting import USABLE_SIGMA_DEG, forward_axis_deg
 from logger.nav.params import NavParams
-from logger.recording.records import feed_reads, nav_feeder
-from logger.recording.topics import IMU, IMU_BATCH
+from logger.recording.records import NAV_INPUT_KEYS, feed_reads, nav_feeder
+from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED
 
 log = logging.getLogger(__name__)
 
 NS = 1_000_000_000
-TAPE_S = 240.0  # drive kept from the tape's start (a reopening comes about 30-40 s after the car first moves)
-TAPE_SAMPLES = 24_000  # IMU samples kept at most: 240 s at 100 Hz, 24 s at 1 kHz
+TAPE_S = 180.0  # drive kept from the tape's start (the simulated drives' reopening came 36 s after their start)
+TAPE_BYTES = 3_000_000  # memory the kept inputs may take, as estimated by _cost
 STILL_KEEP_S = 30.0  # of a standstill before the car first moves, the last this long is kept
-MOVING_MPS = 1.0  # the filter's horizontal speed above which the car has moved
+MOVING_MPS = 1.0  # a speed (OBD, GNSS or the filter's) above which the car has moved
+STANDING_MPS = 0.3  # an OBD or GNSS speed below which the car stands
+CONFIRM_EVERY = 50  # inputs between two looks at whether the alignment confirmed the mounting in use
+# The tape must hold this much drive to be of use (a standstill's last STILL_KEEP_S and the half minute of driving
+# the forward axis takes to show): once RATE_SPAN_S of it shows that it would not fit TAPE_BYTES, it is let go
+# at once rather than at the budget (about 87 KB a second at 1 kHz, 53 at 200 Hz, 46 at 100 Hz with fixes at
+# 10 Hz, 11 at 20 Hz).
+USEFUL_S = 60.0
+RATE_SPAN_S = 10.0
 
 _INT_COLUMNS = ("t_sync_ns", "t_mono_ns")
 _FLOAT_COLUMNS = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2", "gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
 _SCALARS = ("temp_degc", "period_s", "lost")
+# Bytes an input holds on the tape, measured on CPython 3.11 (64-bit; a 32-bit board's are smaller) over the
+# recorded urban drive's first 36 s: a FIFO read's dict of arrays and each sample's 64 bytes of columns; the slim
+# copies of an /imu sample, a GNSS fix and any other record (what the filter reads of them). At 20 Hz about 11 KB
+# a second; a phone's 100 Hz with fixes at 10 Hz about 46.
+READ_BYTES, SAMPLE_BYTES, IMU_BYTES, FIX_BYTES, RECORD_BYTES = 1800, 64, 600, 2000, 400
 
-Entry = tuple[str, Any, int, int]  # topic (or "" for a run of reads), record(s), first time, samples
+Entry = tuple[str, Any, int, int]  # topic (or "" for a run of reads), record(s), first time, estimated bytes
 
 
 def _compact(m: dict[str, Any]) -> dict[str, Any]:
@@ -55,6 +78,11 @@ def _compact(m: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _slim(topic: str, m: dict[str, Any]) -> dict[str, Any]:
+    """A record with only what the filter reads of it (:data:`NAV_INPUT_KEYS`)."""
+    return {k: m[k] for k in NAV_INPUT_KEYS[topic] if k in m}
+
+
 def _first_ns(topic: str, m: Any) -> int:
     if topic == "":
         return int(m[0]["t_sync_ns"][0])
@@ -62,27 +90,50 @@ def _first_ns(topic: str, m: Any) -> int:
     return int(t[0]) if topic == IMU_BATCH else int(t)
 
 
-def _samples(topic: str, m: Any) -> int:
+def _cost(topic: str, m: Any) -> int:
+    """Estimated bytes of a kept input."""
     if topic == "":
-        return sum(len(r["t_sync_ns"]) for r in m)
-    return len(m["t_sync_ns"]) if topic == IMU_BATCH else 1 if topic == IMU else 0
+        return sum(READ_BYTES + SAMPLE_BYTES * len(r["t_sync_ns"]) for r in m)
+    if topic == IMU_BATCH:
+        return READ_BYTES + SAMPLE_BYTES * len(m["t_sync_ns"])
+    return IMU_BYTES if topic == IMU else FIX_BYTES if topic == GNSS_FIX else RECORD_BYTES
+
+
+def _speed(topic: str, m: Any) -> float | None:
+    """The car's speed an OBD or GNSS record says (m/s), or None."""
+    if topic == OBD_SPEED:
+        v = m.get("speed_mps")
+        return float(v) if v is not None else None
+    if topic == GNSS_FIX and m.get("fix_ok"):
+        v = m.get("vel_ned_mps")
+        if v and v[0] is not None and v[1] is not None:
+            return math.hypot(v[0], v[1])
+    return None
 
 
 class NavRerun:
     """An engine fed record by record, which is replaced once by one filtering its inputs again with the mounting
-    of its first reopening remount (see the module's docstring). ``engine`` is the one in use."""
+    of its first reopening remount (see the module's docstring). ``engine`` is the one in use. The re-run happens
+    inside the feeding call that found the mounting, or, ``deferred``, when the caller asks (:attr:`due`)."""
 
     def __init__(self, params: NavParams, make_engine: Callable[[NavParams], NavEngine],
-                 tape_s: float = TAPE_S, tape_samples: int = TAPE_SAMPLES) -> None:
+                 tape_s: float = TAPE_S, tape_bytes: int = TAPE_BYTES, deferred: bool = False) -> None:
         self.params = params
+        # deferred: the re-run waits for the caller (:meth:`build` then :meth:`adopt`), which can run it without
+        # holding what guards the engine in use: the daemon's navigator, whose status reads that engine meanwhile.
+        self.deferred = deferred
+        self._due: tuple[tuple[float, float, float], int] | None = None  # mounting and time of the first reopening
         self.make_engine = make_engine
         self.engine = make_engine(params)
         self._feed = nav_feeder(self.engine)
-        self.tape_s, self.tape_samples = tape_s, tape_samples
+        self.tape_s, self.tape_bytes = tape_s, tape_bytes
         keep = params.mount_align and params.mode != "gnss"
         self._tape: deque[Entry] | None = deque() if keep else None
-        self._samples = 0
+        self._bytes = 0
         self._moved = False
+        self._standing = False  # the latest evidence says the car stands
+        self._heard_speed = False  # an OBD or GNSS speed came: it, not the IMU's stillness, says whether
+        self._since_look = 0
         self.rerun_mount: tuple[float, float, float] | None = None  # the mounting the inputs were filtered again with
         self.rerun_at_s: float | None = None  # how far into the tape that mounting was found, s
         self.rerun_inputs = 0  # records filtered again
@@ -92,7 +143,7 @@ class NavRerun:
         """One record, as :func:`nav_feeder` takes it."""
         self._feed[topic](msg)
         if self._tape is not None:
-            self._keep(topic, _compact(msg) if topic == IMU_BATCH else msg)
+            self._keep(topic, _compact(msg) if topic == IMU_BATCH else _slim(topic, msg))
 
     def feed_reads(self, msgs: Sequence[dict[str, Any]]) -> None:
         """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it."""
@@ -103,51 +154,99 @@ class NavRerun:
     # ---- the tape ---------------------------------------------------------------------------------------
     @property
     def kept(self) -> tuple[float, int] | None:
-        """The span (s, from the first input kept to the last) and the IMU samples on the tape; None once it is
-        given up or used."""
+        """The span (s, from the first input kept to the last) and the estimated bytes on the tape; None once it
+        is given up or used."""
         tape = self._tape
         if tape is None:
             return None
-        return ((tape[-1][2] - tape[0][2]) / NS if tape else 0.0), self._samples
+        return ((tape[-1][2] - tape[0][2]) / NS if tape else 0.0), self._bytes
 
     def _keep(self, topic: str, what: Any) -> None:
         tape = self._tape
         assert tape is not None
-        n = _samples(topic, what)
         t = _first_ns(topic, what)
-        tape.append((topic, what, t, n))
-        self._samples += n
+        cost = _cost(topic, what)
+        tape.append((topic, what, t, cost))
+        self._bytes += cost
+        if self._due is not None:
+            return  # found, waiting for run_due: what comes meanwhile is kept for it too
         eng = self.engine
         if eng.mount_reopened_ns is not None:
-            self._rerun()
+            m = eng.mount_applied
+            self._due = ((round(float(m[0]), 3), round(float(m[1]), 3), round(float(m[2]), 3)),
+                         eng.mount_reopened_ns)
+            if not self.deferred:
+                self.adopt(self.build())
             return
         if not self._moved:
-            s = eng.state
-            self._moved = s is not None and math.hypot(s.vn, s.ve) > MOVING_MPS
-            while not self._moved and len(tape) > 1 and t - tape[0][2] > STILL_KEEP_S * NS:
-                self._samples -= tape.popleft()[3]
-        if self._samples > self.tape_samples or t - tape[0][2] > self.tape_s * NS:
-            self._tape = None  # full before the drive showed another mounting: the filter goes on as it is
+            self._trim_standstill(topic, what, t)
+        self._since_look += 1
+        if self._since_look >= CONFIRM_EVERY:
+            self._since_look = 0
+            if self._confirmed():
+                self._tape = None  # the drive showed the mounting in use: no reopening is coming
+                return
+        span_s = (t - tape[0][2]) / NS
+        if (self._bytes > self.tape_bytes or span_s > self.tape_s
+                or (span_s >= RATE_SPAN_S and self._bytes / span_s * USEFUL_S > self.tape_bytes)):
+            self._tape = None  # full (or would be) before the drive showed another mounting: the filter goes on
 
-    def _rerun(self) -> None:
-        """A new engine, starting with the mounting the old one just took, fed everything kept."""
-        tape, old = self._tape, self.engine
+    def _trim_standstill(self, topic: str, what: Any, t: int) -> None:
+        """Before the car first moves, of a known standstill only the last STILL_KEEP_S are kept."""
+        speed = _speed(topic, what) if topic in (OBD_SPEED, GNSS_FIX) else None
+        s = self.engine.state
+        if (speed is not None and speed > MOVING_MPS) or (s is not None and math.hypot(s.vn, s.ve) > MOVING_MPS):
+            self._moved = True
+            return
+        if speed is not None:
+            self._standing = speed < STANDING_MPS
+            self._heard_speed = True
+        elif not self._heard_speed and topic in (IMU, IMU_BATCH, ""):
+            self._standing = self.engine.stops.still  # no speed has come: the IMU's stillness is all there is
+        tape = self._tape
         assert tape is not None
-        self._tape = None
-        mount = tuple(round(float(a), 3) for a in old.mount_applied)
-        engine = self.make_engine(replace(self.params, mounting_rpy_deg=mount))
+        while self._standing and len(tape) > 1 and t - tape[0][2] > STILL_KEEP_S * NS:
+            self._bytes -= tape.popleft()[3]
+
+    def _confirmed(self) -> bool:
+        """Whether the alignment has shown the car's forward axis (to USABLE_SIGMA_DEG, as the engine acts on it)
+        within REOPEN_DEG of the mounting in use: the engine's own rule then has no reopening to make."""
+        al = self.engine.alignment
+        if al is None:
+            return False
+        est = al.estimate()
+        return (max(est.sigma_deg[1], est.sigma_deg[2]) < USABLE_SIGMA_DEG
+                and forward_axis_deg(self.engine.mount_applied, est.rpy_deg) < REOPEN_DEG)
+
+    @property
+    def due(self) -> bool:
+        """Whether the first reopening came and the inputs wait to be filtered again (``deferred``)."""
+        return self._due is not None and self._tape is not None
+
+    def build(self) -> NavEngine:
+        """A new engine, starting with the mounting the first reopening took, fed everything kept. Changes nothing
+        here: the engine in use goes on being read (the daemon's status) while this runs."""
+        assert self._due is not None and self._tape is not None
+        engine = self.make_engine(replace(self.params, mounting_rpy_deg=self._due[0]))
         feed = nav_feeder(engine)
-        for topic, what, _t, _n in tape:
+        for topic, what, _t, _n in self._tape:
             if topic == "":
                 feed_reads(engine, what)
             else:
                 feed[topic](what)
-        self.rerun_mount = (mount[0], mount[1], mount[2])
-        self.rerun_at_s = ((old.mount_reopened_ns or 0) - tape[0][2]) / NS
+        return engine
+
+    def adopt(self, engine: NavEngine) -> None:
+        """Use the engine :meth:`build` gave from now on; the tape is let go."""
+        tape, due = self._tape, self._due
+        assert tape is not None and due is not None
+        self._tape = None
+        self.rerun_mount = due[0]
+        self.rerun_at_s = (due[1] - tape[0][2]) / NS
         self.rerun_inputs = len(tape)
-        self.engine, self._feed = engine, feed
+        self.engine, self._feed = engine, nav_feeder(engine)
         log.info("the drive showed the IMU mounted at %.1f / %.1f / %.1f deg %.0f s in: filtered its %d inputs "
-                 "again from the start with it", *mount, self.rerun_at_s, len(tape))
+                 "again from the start with it", *due[0], self.rerun_at_s, len(tape))
 
     def note(self) -> str:
         """A line saying what the re-run did, or ""."""

@@ -239,6 +239,19 @@ def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
         hdop=msg.get("hdop"), vdop=msg.get("vdop"))
 
 
+# What the filter reads of each input record (nav_feeder and gnss_observation): a record kept for the filter alone
+# (nav_rerun.py's tape) keeps these. A FIFO read's columns are feed_reads's; tests/test_nav_mounting.py checks
+# that a record cut to these gives the filter the same input.
+NAV_INPUT_KEYS: dict[str, tuple[str, ...]] = {
+    IMU: ("t_sync_ns", "t_mono_ns", "accel_mps2", "gyro_rps", "temp_degc"),
+    GNSS_FIX: ("t_sync_ns", "t_mono_ns", "gnss_time_ns", "sync_state", "fix_ok", "fix_mode", "latitude", "longitude",
+               "altitude", "vel_ned_mps", "h_acc_m", "v_acc_m", "s_acc_mps", "pdop", "num_sv", "hdop", "vdop"),
+    OBD_SPEED: ("t_sync_ns", "speed_mps"),
+    BARO: ("t_sync_ns", "altitude_m"),
+    PPS: ("t_sync_ns",),
+}
+
+
 def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
     """Per topic of :data:`NAV_INPUT_TOPICS`, the engine input a record becomes."""
 

@@ -74,7 +74,7 @@ class Navigator:
             bound = TempcoLearner((params.accel_bias_tempco,) * 3 + (params.gyro_bias_tempco,) * 3).bound
             self._tempco_saved = tempco_state.load(tempco_path, imu_installation, bound)
         # The engine, replaced once by one that filters the first minutes again if the drive shows another mounting.
-        self.rerun = NavRerun(params, self._make_engine)
+        self.rerun = NavRerun(params, self._make_engine, deferred=True)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
         self.judge = HealthJudge()
@@ -96,6 +96,15 @@ class Navigator:
         self._next_state_ns = 0
         self._verdicts: list[str] = []
         self.error: str = ""
+
+    def rerun_if_due(self) -> None:
+        """Filter the first minutes again once the drive showed the mounting (:mod:`logger.recording.nav_rerun`):
+        the new engine is built without the lock, so ``logger status`` reads the engine in use meanwhile (on the
+        board the re-run of a few minutes of inputs takes seconds), and taken under it."""
+        if self.rerun.due:
+            engine = self.rerun.build()
+            with self._lock:
+                self.rerun.adopt(engine)
 
     def _make_engine(self, params: NavParams) -> NavEngine:
         engine = NavEngine(params)
@@ -173,11 +182,12 @@ class Navigator:
             try:
                 with self._lock:
                     self.take(batch)
+                self.rerun_if_due()
             except Exception as exc:  # a bug in the filter must not take the logger down: report, restart it
                 log.exception("navigation filter failed; restarting it")
                 self.error = f"{type(exc).__name__}: {exc}"
                 with self._lock:
-                    self.rerun = NavRerun(self.params, self._make_engine)
+                    self.rerun = NavRerun(self.params, self._make_engine, deferred=True)
             self.cpu_s = time.thread_time() - cpu0
 
     def take(self, records: list[tuple[str, dict[str, Any]]], merge: bool = True) -> None:
