@@ -325,13 +325,19 @@ def _turned(recs):
             for ts, tp, m in recs]
 
 
-def test_a_long_wait_before_driving_keeps_its_last_half_minute_and_the_re_run_still_levels():
+@pytest.mark.parametrize("fifo", [False, True], ids=["imu records", "fifo reads"])
+def test_a_long_wait_before_driving_keeps_its_last_half_minute_and_the_re_run_still_levels(fifo):
     """Two minutes standing with the engine running, then the drive: of the standstill only the last STILL_KEEP_S
-    stay on the tape, the re-run comes, and its engine levelled on what was kept."""
+    stay on the tape (the FIFO reads' columns let their front go too), the re-run comes, and its engine levelled
+    on what was kept."""
     from logger.recording.nav_rerun import STILL_KEEP_S
 
     drive = make_drive("urban", seed=1, duration_s=240.0, intro_s=120.0)
     recs = _turned(records(drive, 240.0, seed=6))
+    if fifo:
+        recs = _as_reads(recs, per_read=10)
+        standing = _rerun_over([r for r in recs if r[0] - recs[0][0] < 115 * 1_000_000_000])[0]
+        assert len(standing._columns.cols[0]) <= 2 * (STILL_KEEP_S + 1.0) * 20  # not the 115 s of samples
     rerun, spans = _rerun_over(recs)
     standing = [kept[0] for (_, kept), (t, _, _) in zip(spans, recs, strict=True)
                 if kept is not None and t - recs[0][0] < 115 * 1_000_000_000]
@@ -495,10 +501,10 @@ def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mo
     assert nav.section()["lat_deg"] is not None
 
 
-@pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (100.0, True)])
+@pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (500.0, True), (100.0, True)])
 def test_an_imu_too_fast_for_the_tape_keeps_nothing(imu_hz, kept):
     """FIFO reads at 1 kHz would fill the tape before the forward axis shows: the first RATE_SPAN_S tell, and the
-    tape is let go then, not kept to its budget. At a phone's 100 Hz a minute fits: it is kept."""
+    tape is let go then, not kept to its budget. At 500 Hz and at a phone's 100 Hz a minute fits: it is kept."""
     from logger.recording.nav_rerun import RATE_SPAN_S
     from logger.runtime.sources import fifo_poll_hz
 

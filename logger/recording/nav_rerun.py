@@ -10,13 +10,14 @@ again, as if the daemon had been started with it, and goes on from there. On the
 board at (5, -4, 30) deg this took seed 2's east RMSE while moving from 1.00 to about 0.4 m (configured: 0.37).
 
 What is kept is bounded: :data:`TAPE_S` of drive from the tape's start and :data:`TAPE_BYTES` as estimated per
-input (:func:`_cost`; FIFO reads as arrays, ``/imu`` samples as slim copies). The tape starts with the first input;
+input (:func:`_cost`; the FIFO reads' samples end to end in eight arrays, every other record cut to what the filter
+reads of it). The tape starts with the first input;
 while the car is known to stand (an OBD speed or a GNSS speed of nothing, or the stop detector) and has not moved
 yet (an OBD, GNSS or filter speed over :data:`MOVING_MPS`), only the last :data:`STILL_KEEP_S` of it are kept, so a
 long wait before driving does not use up the tape, and a new engine started from there is one started then, at a
 standstill; while nothing says so (no speed yet, an IMU that does not look still) nothing is cut. The tape is let
-go when it is full before the first reopening (at 20 Hz 180 s take about 2 MB), at once when its first
-:data:`RATE_SPAN_S` show that :data:`USEFUL_S` of drive would not fit (an IMU faster than about 150 Hz: no re-run,
+go when it is full before the first reopening (at 20 Hz 180 s take about 0.9 MB), at once when its first
+:data:`RATE_SPAN_S` show that :data:`USEFUL_S` of drive would not fit (an IMU faster than about 700 Hz: no re-run,
 no memory spent on it), when the alignment has shown the car's forward axis within REOPEN_DEG of the
 mounting in use (a board mounted as configured, or as the last drive saved it: no reopening is coming), or once it
 has been used; the filter then goes on as before. One re-run per engine: the new engine's own remounts are
@@ -53,29 +54,53 @@ STANDING_MPS = 0.3  # an OBD or GNSS speed below which the car stands
 CONFIRM_EVERY = 50  # inputs between two looks at whether the alignment confirmed the mounting in use
 # The tape must hold this much drive to be of use (a standstill's last STILL_KEEP_S and the half minute of driving
 # the forward axis takes to show): once RATE_SPAN_S of it shows that it would not fit TAPE_BYTES, it is let go
-# at once rather than at the budget (about 87 KB a second at 1 kHz, 53 at 200 Hz, 46 at 100 Hz with fixes at
-# 10 Hz, 11 at 20 Hz).
+# at once rather than at the budget (about 70 KB a second at 1 kHz, 38 at 500 Hz, 28 at 100 Hz with fixes at
+# 10 Hz, 5 at 20 Hz).
 USEFUL_S = 60.0
-RATE_SPAN_S = 2.0  # at 1 kHz two seconds of tape are 0.17 MB, ten were 0.9 MB of high water
+RATE_SPAN_S = 2.0  # at 1 kHz two seconds of tape are 0.12 MB
 
-_INT_COLUMNS = ("t_sync_ns", "t_mono_ns")
-_FLOAT_COLUMNS = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2", "gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
-_SCALARS = ("temp_degc", "period_s", "lost")
-# Bytes an input holds on the tape, measured on CPython 3.11 (64-bit; a 32-bit board's are smaller) over the
-# recorded urban drive's first 36 s: a FIFO read's dict of arrays and each sample's 64 bytes of columns; the slim
-# copies of an /imu sample, a GNSS fix and any other record (what the filter reads of them). At 20 Hz about 11 KB
-# a second; a phone's 100 Hz with fixes at 10 Hz about 46.
-READ_BYTES, SAMPLE_BYTES, IMU_BYTES, FIX_BYTES, RECORD_BYTES = 1800, 64, 600, 2000, 400
+_COLUMNS = ("t_sync_ns", "t_mono_ns", "accel_x_mps2", "accel_y_mps2", "accel_z_mps2", "gyro_x_rps", "gyro_y_rps",
+            "gyro_z_rps")
+# Bytes an input holds on the tape, measured on CPython 3.11 (64-bit; a 32-bit board's are smaller): a FIFO
+# sample's eight columns; the slim copies of an /imu sample, a GNSS fix and any other record (what the filter
+# reads of them). A FIFO read's place in the columns (about 100 bytes) is not counted, so that the budget says
+# the same of a drive however its reads were cut: live (the daemon's reads, merged into runs) and in replay
+# (blocks cut at the other records). Deep size on the recorded urban drive's first 36 s at 20 Hz: 0.18 MB (the
+# estimate 0.17), about 5 KB a second.
+SAMPLE_BYTES, IMU_BYTES, FIX_BYTES, RECORD_BYTES = 64, 600, 2000, 400
 
-Entry = tuple[str, Any, int, int]  # topic (or "" for a run of reads), record(s), first time, estimated bytes
+Read = tuple[int, int, Any]  # a FIFO read's first and end index in the columns, its die temperature
+Entry = tuple[str, Any, int, int]  # topic (or "" for a run of reads), record(s) or Read(s), first time, bytes
 
 
-def _compact(m: dict[str, Any]) -> dict[str, Any]:
-    """A FIFO read as the filter takes it, its columns as arrays (8 bytes a value, not a float object's 24)."""
-    out: dict[str, Any] = {k: array("q", m[k]) for k in _INT_COLUMNS}
-    out.update({k: array("d", m[k]) for k in _FLOAT_COLUMNS})
-    out.update({k: m[k] for k in _SCALARS if k in m})
-    return out
+class _Columns:
+    """The kept FIFO reads' samples end to end, 8 bytes a value, and the reads as ranges of them: a read's
+    dict of eight short arrays took 1.8 KB besides its samples, most of the tape at a fast IMU."""
+
+    def __init__(self) -> None:
+        self.cols = [array("q"), array("q")] + [array("d") for _ in range(6)]
+        self.base = 0  # the index of the first sample still held
+
+    def add(self, m: dict[str, Any]) -> Read:
+        start = self.base + len(self.cols[0])
+        for col, key in zip(self.cols, _COLUMNS, strict=True):
+            col.extend(m[key])
+        return start, start + len(m["t_sync_ns"]), m.get("temp_degc")
+
+    def record(self, read: Read) -> dict[str, Any]:
+        """The read as the filter takes it (``feed_reads``)."""
+        lo, hi = read[0] - self.base, read[1] - self.base
+        out: dict[str, Any] = {key: col[lo:hi] for key, col in zip(_COLUMNS, self.cols, strict=True)}
+        out["temp_degc"] = read[2]
+        return out
+
+    def forget_before(self, index: int) -> None:
+        """Samples before ``index`` are no longer needed (the tape's front was cut)."""
+        dead = index - self.base
+        if dead > 0 and dead >= len(self.cols[0]) // 2:  # now and then: each cut moves what stays
+            for col in self.cols:
+                del col[:dead]
+            self.base = index
 
 
 def _slim(topic: str, m: dict[str, Any]) -> dict[str, Any]:
@@ -83,19 +108,12 @@ def _slim(topic: str, m: dict[str, Any]) -> dict[str, Any]:
     return {k: m[k] for k in NAV_INPUT_KEYS[topic] if k in m}
 
 
-def _first_ns(topic: str, m: Any) -> int:
+def _cost(topic: str, what: Any) -> int:
+    """Bytes of a kept input as the budget counts them."""
     if topic == "":
-        return int(m[0]["t_sync_ns"][0])
-    t = m["t_sync_ns"]
-    return int(t[0]) if topic == IMU_BATCH else int(t)
-
-
-def _cost(topic: str, m: Any) -> int:
-    """Estimated bytes of a kept input."""
-    if topic == "":
-        return sum(READ_BYTES + SAMPLE_BYTES * len(r["t_sync_ns"]) for r in m)
+        return sum(SAMPLE_BYTES * (r[1] - r[0]) for r in what)
     if topic == IMU_BATCH:
-        return READ_BYTES + SAMPLE_BYTES * len(m["t_sync_ns"])
+        return SAMPLE_BYTES * (what[1] - what[0])
     return IMU_BYTES if topic == IMU else FIX_BYTES if topic == GNSS_FIX else RECORD_BYTES
 
 
@@ -129,6 +147,7 @@ class NavRerun:
         self.tape_s, self.tape_bytes = tape_s, tape_bytes
         keep = params.mount_align and params.mode != "gnss"
         self._tape: deque[Entry] | None = deque() if keep else None
+        self._columns = _Columns()
         self._bytes = 0
         self._moved = False
         self._standing = False  # the latest evidence says the car stands
@@ -143,13 +162,16 @@ class NavRerun:
         """One record, as :func:`nav_feeder` takes it."""
         self._feed[topic](msg)
         if self._tape is not None:
-            self._keep(topic, _compact(msg) if topic == IMU_BATCH else _slim(topic, msg))
+            if topic == IMU_BATCH:
+                self._keep(topic, self._columns.add(msg), int(msg["t_sync_ns"][0]))
+            else:
+                self._keep(topic, _slim(topic, msg), int(msg["t_sync_ns"]))
 
     def feed_reads(self, msgs: Sequence[dict[str, Any]]) -> None:
         """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it."""
         feed_reads(self.engine, msgs)
-        if self._tape is not None:
-            self._keep("", [_compact(m) for m in msgs])
+        if self._tape is not None and msgs:
+            self._keep("", [self._columns.add(m) for m in msgs], int(msgs[0]["t_sync_ns"][0]))
 
     # ---- the tape ---------------------------------------------------------------------------------------
     @property
@@ -161,10 +183,9 @@ class NavRerun:
             return None
         return ((tape[-1][2] - tape[0][2]) / NS if tape else 0.0), self._bytes
 
-    def _keep(self, topic: str, what: Any) -> None:
+    def _keep(self, topic: str, what: Any, t: int) -> None:
         tape = self._tape
         assert tape is not None
-        t = _first_ns(topic, what)
         cost = _cost(topic, what)
         tape.append((topic, what, t, cost))
         self._bytes += cost
@@ -184,12 +205,12 @@ class NavRerun:
         if self._since_look >= CONFIRM_EVERY:
             self._since_look = 0
             if self._confirmed():
-                self._tape = None  # the drive showed the mounting in use: no reopening is coming
+                self._let_go()  # the drive showed the mounting in use: no reopening is coming
                 return
         span_s = (t - tape[0][2]) / NS
         if (self._bytes > self.tape_bytes or span_s > self.tape_s
                 or (span_s >= RATE_SPAN_S and self._bytes / span_s * USEFUL_S > self.tape_bytes)):
-            self._tape = None  # full (or would be) before the drive showed another mounting: the filter goes on
+            self._let_go()  # full (or would be) before the drive showed another mounting: the filter goes on
 
     def _trim_standstill(self, topic: str, what: Any, t: int) -> None:
         """Before the car first moves, of a known standstill only the last STILL_KEEP_S are kept."""
@@ -205,8 +226,26 @@ class NavRerun:
             self._standing = self.engine.stops.still  # no speed has come: the IMU's stillness is all there is
         tape = self._tape
         assert tape is not None
+        cut = False
         while self._standing and len(tape) > 1 and t - tape[0][2] > STILL_KEEP_S * NS:
             self._bytes -= tape.popleft()[3]
+            cut = True
+        if cut:
+            self._columns.forget_before(self._first_sample())
+
+    def _let_go(self) -> None:
+        self._tape = None
+        self._columns = _Columns()
+        self._bytes = 0
+
+    def _first_sample(self) -> int:
+        """The index of the first FIFO sample the tape still refers to (the columns' end if none)."""
+        for topic, what, _t, _c in self._tape or ():
+            if topic == IMU_BATCH:
+                return int(what[0])
+            if topic == "":
+                return int(what[0][0])
+        return self._columns.base + len(self._columns.cols[0])
 
     def _confirmed(self) -> bool:
         """Whether the alignment has shown the car's forward axis (to USABLE_SIGMA_DEG, as the engine acts on it)
@@ -229,9 +268,12 @@ class NavRerun:
         assert self._due is not None and self._tape is not None
         engine = self.make_engine(replace(self.params, mounting_rpy_deg=self._due[0]))
         feed = nav_feeder(engine)
+        record = self._columns.record
         for topic, what, _t, _n in self._tape:
             if topic == "":
-                feed_reads(engine, what)
+                feed_reads(engine, [record(r) for r in what])
+            elif topic == IMU_BATCH:
+                feed[topic](record(what))
             else:
                 feed[topic](what)
         return engine
@@ -240,7 +282,7 @@ class NavRerun:
         """Use the engine :meth:`build` gave from now on; the tape is let go."""
         tape, due = self._tape, self._due
         assert tape is not None and due is not None
-        self._tape = None
+        self._let_go()
         self.rerun_mount = due[0]
         self.rerun_at_s = (due[1] - tape[0][2]) / NS
         self.rerun_inputs = len(tape)
