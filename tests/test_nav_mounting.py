@@ -463,7 +463,7 @@ def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mo
     import logging
 
     from logger.nav.params import NavParams
-    from logger.recording.topics import NAV_FIX
+    from logger.recording.topics import NAV_FIX, NAV_STATE
     from logger.runtime.navigator import Navigator
 
     _, turned = mounted_drive
@@ -499,6 +499,9 @@ def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mo
     t = np.array([r.payload["t_sync_ns"] for r in published if r.topic == NAV_FIX])
     assert len(t) > 500 and np.diff(t).min() > 0 and np.diff(t).max() < 0.5e9
     assert nav.section()["lat_deg"] is not None
+    # /nav/state says when it happened: null before, how far into the kept inputs the remount came after.
+    states = [r.payload for r in published if r.topic == NAV_STATE]
+    assert states[0]["rerun_at_s"] is None and states[-1]["rerun_at_s"] == round(nav.rerun.rerun_at_s, 1)
 
 
 @pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (500.0, True), (100.0, True)])

@@ -140,6 +140,9 @@ class NavEngine:
         self.alignment = MountAlignment(p.mounting_rpy_deg) if p.mount_align and p.mode != "gnss" else None
         self.mount_applied: tuple[float, float, float] = tuple(float(a) for a in p.mounting_rpy_deg)
         self.mount_reopened_ns: int | None = None  # the first remount that reopened attitude and offsets (rerun.py)
+        # Set on the engine that took a drive's first minutes again with that remount's mounting: how far into
+        # them the remount came, s (recording/nav_rerun.py; /nav/state says it).
+        self.rerun_at_s: float | None = None
         self._next_remount_ns = 0
         self.lever = np.array(p.lever_arm_m, float)
         self.mech = Strapdown(coning=False)

@@ -285,6 +285,7 @@ class NavRerun:
         self._let_go()
         self.rerun_mount = due[0]
         self.rerun_at_s = (due[1] - tape[0][2]) / NS
+        engine.rerun_at_s = round(self.rerun_at_s, 1)
         self.rerun_inputs = len(tape)
         self.engine, self._feed = engine, nav_feeder(engine)
         log.info("the drive showed the IMU mounted at %.1f / %.1f / %.1f deg %.0f s in: filtered its %d inputs "

@@ -367,4 +367,4 @@ def _mount_fields(engine: NavEngine) -> dict[str, Any]:
             "mount_sigma_deg": list(est.sigma_deg) if known else None,
             "mount_state": est.state if est is not None else None,
             "mount_applied_rpy_deg": list(engine.mount_applied), "remounts": engine.counters.remounts,
-            "mount_moves": al.moves if al is not None else 0}
+            "mount_moves": al.moves if al is not None else 0, "rerun_at_s": engine.rerun_at_s}
