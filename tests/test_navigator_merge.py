@@ -26,13 +26,14 @@ PER_READ = 40  # 25 FIFO reads a second at 1 kHz
 Item = tuple[int, str, dict[str, Any]]  # (time queued, topic, record)
 
 
-def _read(msgs: list[dict[str, Any]], temp_degc: float, lost: int = 0) -> dict[str, Any]:
+def _read(msgs: list[dict[str, Any]], temp_degc: float | None, lost: int = 0,
+          period_s: float = 1.0 / IMU_HZ) -> dict[str, Any]:
     """An /imu/batch record (the fields the navigator uses) from /imu samples: one die temperature per read."""
     a, g = np.array([m["accel_mps2"] for m in msgs]).T, np.array([m["gyro_rps"] for m in msgs]).T
     return {"t_sync_ns": [m["t_sync_ns"] for m in msgs], "t_mono_ns": [m["t_mono_ns"] for m in msgs],
             "accel_x_mps2": a[0].tolist(), "accel_y_mps2": a[1].tolist(), "accel_z_mps2": a[2].tolist(),
             "gyro_x_rps": g[0].tolist(), "gyro_y_rps": g[1].tolist(), "gyro_z_rps": g[2].tolist(),
-            "temp_degc": round(temp_degc, 3), "period_s": 1.0 / IMU_HZ, "lost": lost}
+            "temp_degc": None if temp_degc is None else round(temp_degc, 3), "period_s": period_s, "lost": lost}
 
 
 @pytest.fixture(scope="module")

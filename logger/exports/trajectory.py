@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow
+from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow, forward_axis_turned
 from logger.nav.inputs import SolutionEpoch
-from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate, forward_axis_deg
+from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
@@ -82,7 +82,7 @@ def mounting_found(engine: NavEngine, started_with: tuple[float, ...]) -> MountE
     forward_sigma = max(est.sigma_deg[1], est.sigma_deg[2])
     if not (est.state == SETTLED or forward_sigma <= REFILTER_SIGMA_DEG):
         return None
-    turned = forward_axis_deg(started_with, est.rpy_deg) >= max(REOPEN_DEG, 3.0 * forward_sigma)
+    turned = forward_axis_turned(started_with, est)
     rolled = (est.sigma_deg[0] <= REFILTER_SIGMA_DEG
               and abs(est.rpy_deg[0] - started_with[0]) >= max(REOPEN_DEG, 3.0 * est.sigma_deg[0]))
     return est if turned or rolled else None

@@ -122,6 +122,19 @@ class Solution:
     source: str
 
 
+def configured_tempco(p: NavParams) -> tuple[float, ...]:
+    """The configured bounds of the offsets' temperature coefficients, accelerometer x y z then gyro x y z: the
+    learner's prior (and what a saved one is checked against)."""
+    return (p.accel_bias_tempco,) * 3 + (p.gyro_bias_tempco,) * 3
+
+
+def forward_axis_turned(applied_rpy_deg: tuple[float, ...], est: MountEstimate) -> bool:
+    """Whether an estimate puts the car's forward axis on the chip REOPEN_DEG and three of its sigmas (pitch, yaw)
+    from the mounting in use: the rule for taking it (live, and for replay's second pass)."""
+    return forward_axis_deg(applied_rpy_deg, est.rpy_deg) >= max(REOPEN_DEG, 3.0 * max(est.sigma_deg[1],
+                                                                                        est.sigma_deg[2]))
+
+
 @dataclass
 class NavEngine:
     """The filter's loop; implements :class:`logger.nav.core.FilterCore` for its rooms."""
@@ -156,7 +169,7 @@ class NavEngine:
         self.offset_wander = OffsetWander() if p.imu_noise_from_drive else None
         self.thermal = TemperatureSpan()  # die temperature since the offsets were calibrated
         # The offsets' temperature coefficients learnt from the drive, the configured bounds their prior.
-        self.tempco = TempcoLearner((p.accel_bias_tempco,) * 3 + (p.gyro_bias_tempco,) * 3)
+        self.tempco = TempcoLearner(configured_tempco(p))
         self._tempco_at = math.nan  # the smoothed die temperature the offsets were last moved to
         self._tempco_moved = (0.0, 0.0, 0.0)  # how far that moved the gyro's offsets since the learner started
         self._tempco_saved: tuple[list[float], list[float]] | None = None  # an earlier drive's, chip axes
@@ -674,9 +687,7 @@ class NavEngine:
             # guess until the estimate settles. On the synthetic outage drive with the board at (5, -4, 30) deg it
             # is taken 36 s in; waiting for 3 deg took it 30 s later, and the minute without GNSS after it ended
             # 3.0 m off instead of 1.1 m.
-            if (math.isfinite(est.sigma_deg[1])
-                    and forward_axis_deg(self.mount_applied, est.rpy_deg)
-                    >= max(REOPEN_DEG, 3.0 * max(est.sigma_deg[1], est.sigma_deg[2]))):
+            if math.isfinite(est.sigma_deg[1]) and forward_axis_turned(self.mount_applied, est):
                 self.remount(est, reopen=True)
             return
         d = mount_matrix(est.rpy_deg) @ self._mount_m.T  # new body from old body

@@ -153,9 +153,6 @@ class NavRerun:
         self._standing = False  # the latest evidence says the car stands
         self._heard_speed = False  # an OBD or GNSS speed came: it, not the IMU's stillness, says whether
         self._since_look = 0
-        self.rerun_mount: tuple[float, float, float] | None = None  # the mounting the inputs were filtered again with
-        self.rerun_at_s: float | None = None  # how far into the tape that mounting was found, s
-        self.rerun_inputs = 0  # records filtered again
 
     # ---- feeding ----------------------------------------------------------------------------------------
     def feed(self, topic: str, msg: dict[str, Any]) -> None:
@@ -190,7 +187,7 @@ class NavRerun:
         tape.append((topic, what, t, cost))
         self._bytes += cost
         if self._due is not None:
-            return  # found, waiting for run_due: what comes meanwhile is kept for it too
+            return  # found, waiting for build and adopt: what comes meanwhile is kept for them too
         eng = self.engine
         if eng.mount_reopened_ns is not None:
             m = eng.mount_applied
@@ -283,13 +280,20 @@ class NavRerun:
         tape, due = self._tape, self._due
         assert tape is not None and due is not None
         self._let_go()
-        self.rerun_mount = due[0]
-        self.rerun_at_s = (due[1] - tape[0][2]) / NS
-        engine.rerun_at_s = round(self.rerun_at_s, 1)
-        self.rerun_inputs = len(tape)
+        engine.rerun_at_s = round((due[1] - tape[0][2]) / NS, 1)
         self.engine, self._feed = engine, nav_feeder(engine)
         log.info("the drive showed the IMU mounted at %.1f / %.1f / %.1f deg %.0f s in: filtered its %d inputs "
-                 "again from the start with it", *due[0], self.rerun_at_s, len(tape))
+                 "again from the start with it", *due[0], engine.rerun_at_s, len(tape))
+
+    @property
+    def rerun_at_s(self) -> float | None:
+        """How far into the kept inputs the re-run's remount came, s; None before a re-run."""
+        return self.engine.rerun_at_s
+
+    @property
+    def rerun_mount(self) -> tuple[float, ...] | None:
+        """The mounting the inputs were filtered again with; None before a re-run."""
+        return tuple(self.engine.params.mounting_rpy_deg) if self.engine.rerun_at_s is not None else None
 
     def note(self) -> str:
         """A line saying what the re-run did, or ""."""

@@ -21,7 +21,7 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from logger.nav.engine import NavEngine
+from logger.nav.engine import NavEngine, configured_tempco
 from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.nav.thermal import TempcoLearner
@@ -71,7 +71,7 @@ class Navigator:
         self.tempco_path, self.imu_installation = tempco_path, imu_installation
         self._tempco_saved: tuple[list[float], list[float]] | None = None
         if tempco_path:
-            bound = TempcoLearner((params.accel_bias_tempco,) * 3 + (params.gyro_bias_tempco,) * 3).bound
+            bound = TempcoLearner(configured_tempco(params)).bound
             self._tempco_saved = tempco_state.load(tempco_path, imu_installation, bound)
         # The engine, replaced once by one that filters the first minutes again if the drive shows another mounting.
         self.rerun = NavRerun(params, self._make_engine, deferred=True)
