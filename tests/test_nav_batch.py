@@ -14,7 +14,8 @@ from logger.nav.engine import BATCH_MIN, NavEngine
 from logger.nav.imu_noise import ImuNoiseMonitor
 from logger.nav.mounting import MountAlignment
 from logger.nav.params import NavParams
-from logger.nav.rotations import dcm_from_quat, quat_from_rotvec, quat_mul, rotvec_from_dcm
+from logger.nav.rotations import dcm_from_quat, euler_from_dcm, quat_from_rotvec, quat_mul, rotvec_from_dcm
+from logger.nav.startup import Startup
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import preintegrate
 from logger.nav.thermal import TemperatureSpan
@@ -269,3 +270,82 @@ def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample()
         checks += 1
         i = sl.stop
     assert checks > 100 and len(one._win) == mixed._n > 900
+
+
+def test_stop_flags_of_a_block_are_what_each_sample_added_alone_would_leave():
+    """``still_flags`` before the samples go in (singles, FIFO reads, a block longer than the window): after each
+    sample the word :attr:`still` gives when the samples are added one by one, through stops and starts."""
+    rng = np.random.default_rng(2)
+    n = 6000
+    t = (np.cumsum(rng.uniform(0.0009, 0.0011, n)) * NS).astype(np.int64)
+    acc = rng.normal((0.1, -0.2, -9.8), 0.02, (n, 3))
+    gyro = rng.normal(0.0, 0.002, (n, 3))
+    for a, b in ((1500, 1700), (3000, 3050), (4000, 4600)):  # the vehicle moves
+        acc[a:b] += rng.normal(0.0, 0.3, (b - a, 3))
+    one = StopDetector()
+    expected = []
+    for i in range(n):
+        one.add(int(t[i]), tuple(acc[i]), tuple(gyro[i]))
+        expected.append(one.still)
+    blocks = StopDetector()
+    got: list[bool] = []
+    i, k = 0, 0
+    while i < n:
+        size = (1, 1, 3, 40, 40, 1, 2000, 40, 7)[k % 9]
+        k += 1
+        sl = slice(i, min(n, i + size))
+        got.extend(blocks.still_flags(t[sl], acc[sl], gyro[sl]).tolist())
+        if size < 3:
+            for j in range(sl.start, sl.stop):
+                blocks.add(int(t[j]), tuple(acc[j]), tuple(gyro[j]))
+        else:
+            blocks.add_block(t[sl], acc[sl], gyro[sl])
+        i = sl.stop
+    assert got == expected
+    assert 0.2 < np.mean(expected) < 0.8 and np.count_nonzero(np.diff(expected)) >= 4
+
+
+def test_start_up_steps_in_blocks_match_its_steps_one_by_one():
+    """``Startup.step_block`` against ``step`` per sample: standstills too short to level (reset), the levelling
+    ending at the first sample that moves, the provisional attitude carried on the gyro and kept per sample."""
+    rng = np.random.default_rng(4)
+    n = 4000
+    t = (np.arange(n) * 0.005 * NS).astype(np.int64) + 10 * NS
+    dts = np.full(n, 0.005)
+    acc = rng.normal((0.3, -0.2, -9.8), 0.02, (n, 3))
+    gyro = rng.normal((0.01, -0.02, 0.005), 0.003, (n, 3))
+    still = np.zeros(n, dtype=bool)
+    still[100:200] = True  # 0.5 s: too short (align_min_s 2 s), reset at the next moving sample
+    still[300:1200] = True  # 4.5 s: levels at 1200
+    still[1500:2500] = True  # after the levelling: ignored
+    gyro[1200:, 2] += 0.1  # turning once it moves
+    one, many = Startup(NavParams()), Startup(NavParams())
+    for i in range(n):
+        assert one.step(int(t[i]), tuple(acc[i]), tuple(gyro[i]), float(dts[i]), bool(still[i]), None) == ""
+    for lo in range(0, n, 70):
+        assert many.step_block(t[lo:lo + 70], acc[lo:lo + 70], gyro[lo:lo + 70], dts[lo:lo + 70],
+                               still[lo:lo + 70], None) is None
+    assert one.levelled is not None and many.levelled is not None
+    assert one.level_span == many.level_span == (int(t[1199]), pytest.approx(899 * 0.005))
+    assert np.allclose(np.array(many.levelled[:2] + many.levelled[2] + many.levelled[3]),
+                       np.array(one.levelled[:2] + one.levelled[2] + one.levelled[3]), rtol=1e-12, atol=1e-15)
+    assert np.abs(np.array(many.prov_q) - np.array(one.prov_q)).max() < 1e-12
+    assert [h[0] for h in many._prov_hist] == [h[0] for h in one._prov_hist] == t[1200:].tolist()
+    assert np.abs(np.array([h[1] for h in many._prov_hist]) - np.array([h[1] for h in one._prov_hist])).max() < 1e-12
+    assert abs(euler_from_dcm(dcm_from_quat(one.prov_q))[2]) > 0.01  # the gyro turned it
+
+
+@pytest.mark.parametrize("heading_source", ["gnss", "config"])
+def test_blocks_before_the_start_give_the_start_and_trajectory_of_its_samples(heading_source):
+    """FIFO reads of a second at 100 Hz (past ``PRE_INIT_BATCH_MIN``) from the drive's first sample: the standstill
+    levelled, the attitude carried until the course tells the heading (or the configured heading starting the filter
+    inside a read, the rest of the read integrated), and the same trajectory as sample by sample."""
+    drive = make_drive("outage-60s", seed=3, duration_s=60.0)
+    recs = _with_temperature(records(drive, 60.0, seed=4, imu_hz=100.0))
+    assert engine_module.PRE_INIT_BATCH_MIN <= 100
+    one, many = _twins(_runs(recs, 100), heading_source=heading_source)
+    assert one.startup.levelled is not None
+    assert one.counters.init_method == many.counters.init_method == (
+        "config heading" if heading_source == "config" else "gnss course")
+    assert one.counters.initialised_ns == many.counters.initialised_ns
+    _same_trajectory(one, many)

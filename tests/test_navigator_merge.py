@@ -11,7 +11,7 @@ import pytest
 from test_nav_batch import _runs, _same_trajectory, _with_temperature
 from test_nav_synth import records
 
-from logger.nav.engine import BATCH_MIN, NavEngine
+from logger.nav.engine import BATCH_MIN, PRE_INIT_BATCH_MIN, NavEngine
 from logger.nav.params import NavParams
 from logger.recording.nav_rerun import NavRerun
 from logger.recording.topics import IMU_BATCH, NAV_FIX, NAV_STATE
@@ -130,6 +130,11 @@ def test_merged_reads_give_the_trajectory_and_fixes_of_reads_one_by_one(reads, m
     # Runs end at every other record, at each publishing and at each wake-up: here about 11 times a second.
     assert sum(n for n in after if n >= BATCH_MIN) > 0.75 * sum(after)
     assert max(after) == 5 * PER_READ  # a fifth of a second between fixes
+    # Before the start nothing is published: runs end only at other records (here the OBD speed's and the
+    # barometer's, a few a second), none at a publishing time, and go through the engine's block form.
+    before = [n for t, n in calls_many if t < start]
+    assert sum(n for n in before if n >= PRE_INIT_BATCH_MIN) > 0.9 * sum(before) > 10 * IMU_HZ
+    assert max(before) >= 10 * PER_READ
 
 
 def test_fixes_go_out_at_publish_hz_after_merged_reads(reads):

@@ -39,6 +39,19 @@ class StaticAlignment:
             self._f[i] += f[i]
             self._w[i] += w[i]
 
+    def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
+        """Samples in time order at once (``f``, ``w``: n x 3): the sums :meth:`add` would leave."""
+        if len(t_ns) == 0:
+            return
+        if self.n == 0:
+            self.t0_ns = int(t_ns[0])
+        self.t1_ns = int(t_ns[-1])
+        self.n += len(t_ns)
+        fs, ws = f.sum(axis=0).tolist(), w.sum(axis=0).tolist()
+        for i in range(3):
+            self._f[i] += fs[i]
+            self._w[i] += ws[i]
+
     @property
     def duration_s(self) -> float:
         return (self.t1_ns - self.t0_ns) / 1e9

@@ -65,6 +65,7 @@ CONFIG_HEADING_VAR = math.radians(2.0) ** 2
 REMOUNT_INTERVAL_NS = 10 * NS  # how often a settled alignment's estimate is compared with the mounting in use
 REMOUNT_MIN_DEG = 0.5  # a settled estimate further from the mounting in use than this (and 2 sigma) replaces it
 REOPEN_DEG = 2.0  # a new mounting this far from the old one reopens attitude and offsets; less is a refinement
+PRE_INIT_BATCH_MIN = 50  # before the start, blocks from this size go through _pre_init_block (at 40 it is even)
 BATCH_MIN = 64  # shorter batches go sample by sample: the block forms cost numpy calls worth tens of samples
 DECIMATED_BATCH_MIN = 16  # ... unless integrated in steps of several samples: then a FIFO read of 40 gains
 NEVER = 2**63 - 1
@@ -302,6 +303,16 @@ class NavEngine:
         if temp_degc is not None and np.ndim(temp_degc):
             temp_degc = np.asarray(temp_degc, dtype=float).reshape(n)  # one per sample: the reads' own
         t_last = self._t_last
+        if self.state is None and not self._gnss_only:
+            dts = np.diff(t, prepend=t_last) / NS if n >= PRE_INIT_BATCH_MIN and t_last is not None else None
+            if dts is not None and dts[0] > 0.0 and bool((dts < IMU_GAP_S).all()) and bool((dts > 0.0).all()):
+                taken = self._pre_init_block(t, mono, acc, gyro, dts, temp_degc)
+                if taken < n:  # the filter started at a sample of the block: the rest goes to it
+                    self.imu_batch(t[taken:], mono[taken:], acc[taken:], gyro[taken:],
+                                   temp_degc[taken:] if isinstance(temp_degc, np.ndarray) else temp_degc)
+            else:
+                self._imu_each(t, mono, acc, gyro, temp_degc)
+            return
         least = BATCH_MIN if self._group_size() == 1 else DECIMATED_BATCH_MIN
         if (n < least or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
                 or not bool((np.diff(t) > 0).all())):
@@ -378,6 +389,55 @@ class NavEngine:
                 gyro = np.concatenate((gyro[:i], chip_gyro[i:] @ mount.T))
                 self._block = (t, acc, gyro, dts, temp_degc)
         self._block = None
+
+    def _pre_init_block(self, t: np.ndarray, mono: np.ndarray, acc: np.ndarray, gyro: np.ndarray, dts: np.ndarray,
+                        temp_degc: float | np.ndarray | None) -> int:
+        """A block of samples before the filter has started (increasing times after the last sample, ``dts``
+        their intervals, none a gap), as :meth:`imu` takes them one by one (to round-off): the stop detector's word
+        after each sample (:meth:`~logger.nav.stops.StopDetector.still_flags`) and the start-up's levelling and
+        provisional attitude (:meth:`~logger.nav.startup.Startup.step_block`) at once, the bookkeeping in blocks.
+        Sample by sample, a 1 kHz IMU waiting for its first fix cost 9 us a sample here, a second's reads at once
+        1 us (while waiting, the navigator feeds a wake-up's reads as one block). Returns how
+        many samples it took: all, or up to the one at which the configured heading started the filter."""
+        chip_acc, chip_gyro = acc, gyro
+        if self._mount is not None:
+            acc, gyro = acc @ self._mount_m.T, gyro @ self._mount_m.T
+        obd = self.last_readings.obd
+        still = self.stops.still_flags(t, acc, gyro)
+        if obd is not None and obd[1] != 0.0:
+            still[:] = False
+        fix = self.last_readings.fix
+        k = self.startup.step_block(t, acc, gyro, dts, still, fix)
+        end = len(t) if k is None else k + 1
+        self._thermal_block(t[:end], temp_degc[:end] if isinstance(temp_degc, np.ndarray) else temp_degc)
+        if self.alignment is not None:
+            self.alignment.sample_block(t[:end], chip_acc[:end], chip_gyro[:end])
+        self.counters.imu += end
+        a_, g_ = acc[end - 1].tolist(), gyro[end - 1].tolist()
+        self._raw = ((a_[0], a_[1], a_[2]), (g_[0], g_[1], g_[2]))
+        self.stops.add_block(t[:end], acc[:end], gyro[:end])
+        if self.imu_noise is not None:
+            self.imu_noise.add_block(acc[:end], gyro[:end], dts[:end])
+        k_ = 0.98 ** np.arange(end - 1, -1, -1)  # the mean interval, as imu() keeps it (weight 0.02 a sample)
+        self._dt_mean = 0.98**end * self._dt_mean + 0.02 * float(k_ @ dts[:end])
+        self.mech.coning = self._dt_mean < CONING_MAX_DT_S
+        self._t_last, self._t_mono_last = int(t[end - 1]), int(mono[end - 1])
+        if k is not None and fix is not None:
+            self._initialise(self._t_last, math.radians(self.params.initial_heading_deg), CONFIG_HEADING, fix,
+                             CONFIG_HEADING_VAR)
+        return end
+
+    def _thermal_block(self, t: np.ndarray, temp: float | np.ndarray | None) -> None:
+        """The die temperatures of a block's samples: one for the block, or one per sample (NaN where none was
+        read: unequal to its neighbours, and ignored as :meth:`imu` ignores it)."""
+        if isinstance(temp, np.ndarray):
+            # One temperature per read of a run of reads: a block for each read's samples.
+            lo = 0
+            for hi in (*(np.flatnonzero(temp[1:] != temp[:-1]) + 1).tolist(), len(temp)):
+                self.thermal.add_block(t[lo:hi], float(temp[lo]))
+                lo = hi
+        elif temp is not None:
+            self.thermal.add_block(t, float(temp))
 
     def _group_size(self) -> int:
         """Samples per strapdown step in a block: one up to ``integration_hz``; above it as many as make a step of
@@ -457,16 +517,7 @@ class NavEngine:
         self.stops.add_block(t[sl], acc[sl], gyro[sl])
         if self.imu_noise is not None:
             self.imu_noise.add_block(acc[sl], gyro[sl], dts[sl])
-        if isinstance(temp, np.ndarray):
-            # One temperature per read of a run of reads: a block for each read's samples (a missing reading,
-            # NaN, is unequal to its neighbours and ignored as imu() ignores it).
-            ts, tt = temp[sl], t[sl]
-            lo = 0
-            for hi in (*(np.flatnonzero(ts[1:] != ts[:-1]) + 1).tolist(), len(ts)):
-                self.thermal.add_block(tt[lo:hi], float(ts[lo]))
-                lo = hi
-        elif temp is not None:
-            self.thermal.add_block(t[sl], float(temp))
+        self._thermal_block(t[sl], temp[sl] if isinstance(temp, np.ndarray) else temp)
         if self._stop.stopped:
             ws = self._stop.w_sum
             g = gyro[sl].sum(axis=0).tolist()
@@ -918,6 +969,12 @@ class NavEngine:
     def mount_yaw_stat(self) -> list[float]:
         """Sum of lateral/forward OBD velocity ratios and their count: a mounting turned about the vertical."""
         return self._obd.mount_yaw_stat
+
+    @property
+    def waits_for_fix(self) -> bool:
+        """Not started, and only a fix can start it (its course gives the heading): until one comes, IMU samples
+        alone leave no solution to publish."""
+        return self.state is None and self.params.heading_source != "config"
 
     def waiting_for(self) -> str:
         """What the start waits for, in words an operator can act on; "" once there is a solution.

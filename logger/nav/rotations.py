@@ -103,6 +103,28 @@ def quat_from_rotvec(x: float, y: float, z: float) -> tuple[float, float, float,
     return c, s * x, s * y, s * z
 
 
+def quats_from_rotvecs(r: np.ndarray) -> np.ndarray:
+    """:func:`quat_from_rotvec` of each row of ``r`` (n x 3), with the same series near zero."""
+    a2 = np.einsum("ij,ij->i", r, r)
+    small = a2 < 1e-8
+    a = np.sqrt(np.where(small, 1.0, a2))  # the exact forms only where they are used: no 0 / 0
+    c = np.where(small, 1.0 - a2 / 8.0 + a2 * a2 / 384.0, np.cos(0.5 * a))
+    s = np.where(small, 0.5 - a2 / 48.0, np.sin(0.5 * a) / a)
+    return np.column_stack((c, s[:, None] * r))
+
+
+def quat_chain(q0: tuple[float, float, float, float], steps: list[list[float]]) -> list[tuple[float, ...]]:
+    """The running products q0 x steps[0] x ... x steps[k] for every k: :func:`quat_mul` in a loop, inlined (a
+    call per sample was most of its cost; numpy's passes over a FIFO read's forty cost more than the loop)."""
+    aw, ax, ay, az = q0
+    out = []
+    for bw, bx, by, bz in steps:
+        aw, ax, ay, az = (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                          aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+        out.append((aw, ax, ay, az))
+    return out
+
+
 def rotvec_from_dcm(c: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) of a rotation matrix."""
     w, x, y, z = quat_from_dcm(c)

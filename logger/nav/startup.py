@@ -29,9 +29,11 @@ from logger.nav.rotations import (
     dcm_from_euler,
     dcm_from_quat,
     euler_from_dcm,
+    quat_chain,
     quat_from_euler,
     quat_from_rotvec,
     quat_mul,
+    quats_from_rotvecs,
 )
 from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID, NavState
 
@@ -98,6 +100,46 @@ class Startup:
         self._prov_w = w
         self._prov_hist.append((t_ns, self.prov_q))
         return ""
+
+    def step_block(self, t_ns: np.ndarray, acc: np.ndarray, gyro: np.ndarray, dts: np.ndarray, still: np.ndarray,
+                   fix: PreparedFix | None) -> int | None:
+        """:meth:`step` for consecutive samples at once (``acc``, ``gyro``: n x 3; ``dts``: each one's interval,
+        none over :data:`MAX_IMU_GAP_S`; ``still``: the stop detector's word after each), to round-off: the
+        standstill's runs summed at once, the provisional attitude's steps computed at once. Returns the index
+        of the sample at which :meth:`step` returned :data:`CONFIG_HEADING` (the filter starts there: the samples
+        after it are not taken), or None when all were taken."""
+        n = len(t_ns)
+        if fix is not None and fix.vel is not None and math.hypot(fix.vel[0], fix.vel[1]) > 1.0:
+            still = np.zeros(n, dtype=bool)
+        i = 0
+        while i < n and self.prov_q is None:
+            changes = np.flatnonzero(still[i + 1:] != still[i])
+            j = i + 1 + int(changes[0]) if len(changes) else n  # the run of samples judged as sample i is
+            if still[i]:
+                self.align.add_block(t_ns[i:j], acc[i:j], gyro[i:j])
+                i = j
+                continue
+            if self.align.n == 0 or self.align.duration_s < self.params.align_min_s:
+                self.align.reset()  # what each sample of the run does
+                i = j
+                continue
+            if self.step(int(t_ns[i]), tuple(acc[i].tolist()), tuple(gyro[i].tolist()), float(dts[i]), False,
+                         fix) == CONFIG_HEADING:
+                return i
+            i += 1
+        if i >= n or self.prov_q is None:
+            return None
+        bg = self.levelled[2] if self.levelled else (0.0, 0.0, 0.0)
+        w = gyro[i:] - np.asarray(bg)
+        pw = np.concatenate(((self._prov_w or w[0].tolist(),), w[:-1]))
+        dt = dts[i:]
+        turn = np.where(((dt > 0.0) & (dt <= MAX_IMU_GAP_S))[:, None], 0.5 * (pw + w) * dt[:, None], 0.0)
+        qs = quat_chain(self.prov_q, quats_from_rotvecs(turn).tolist())
+        self.prov_q = qs[-1]
+        wl = w[-1].tolist()
+        self._prov_w = (wl[0], wl[1], wl[2])
+        self._prov_hist.extend(zip(t_ns[i:].tolist(), qs, strict=True))
+        return None
 
     def late_config_heading(self) -> bool:
         """With ``heading_source = "config"``, a levelling that ended before any fix: turn the provisional attitude

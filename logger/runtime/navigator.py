@@ -225,8 +225,11 @@ class Navigator:
         self.processed += len(records)
 
     def _publish_due(self, t_ns: int) -> bool:
-        """Whether a sample at ``t_ns`` reaches the next /nav/fix or /nav/state (:meth:`_maybe_publish`)."""
-        return self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
+        """Whether a sample at ``t_ns`` reaches the next /nav/fix or /nav/state (:meth:`_maybe_publish`). Never
+        while the filter waits for a fix to start it: a run of reads then goes in whole (at 1 kHz, blocks of a
+        wake-up's thousand samples rather than a read's forty, :meth:`NavEngine._pre_init_block`)."""
+        return (self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
+                and (self.engine.mode == "gnss" or not self.engine.waits_for_fix))
 
     def _maybe_publish(self) -> None:
         engine = self.engine
