@@ -29,6 +29,7 @@ import numpy as np
 
 from logger.nav import earth
 from logger.nav.alignment import gyro_calibration_variance, tilt_bias_covariance
+from logger.nav.arrays import diff_from
 from logger.nav.core import EngineCounters, PreparedFix
 from logger.nav.dynamics import ProcessNoise, error_dynamics, transition
 from logger.nav.ekf import ErrorStateEkf
@@ -303,24 +304,21 @@ class NavEngine:
         if temp_degc is not None and np.ndim(temp_degc):
             temp_degc = np.asarray(temp_degc, dtype=float).reshape(n)  # one per sample: the reads' own
         t_last = self._t_last
-        if self.state is None and not self._gnss_only:
-            dts = np.diff(t, prepend=t_last) / NS if n >= PRE_INIT_BATCH_MIN and t_last is not None else None
-            if dts is not None and dts[0] > 0.0 and bool((dts < IMU_GAP_S).all()) and bool((dts > 0.0).all()):
-                taken = self._pre_init_block(t, mono, acc, gyro, dts, temp_degc)
-                if taken < n:  # the filter started at a sample of the block: the rest goes to it
-                    self.imu_batch(t[taken:], mono[taken:], acc[taken:], gyro[taken:],
-                                   temp_degc[taken:] if isinstance(temp_degc, np.ndarray) else temp_degc)
-            else:
-                self._imu_each(t, mono, acc, gyro, temp_degc)
-            return
-        least = BATCH_MIN if self._group_size() == 1 else DECIMATED_BATCH_MIN
-        if (n < least or self.state is None or self.mode == "gnss" or t_last is None or t[0] <= t_last
-                or not bool((np.diff(t) > 0).all())):
+        starting = self.state is None and not self._gnss_only
+        least = PRE_INIT_BATCH_MIN if starting else BATCH_MIN if self._group_size() == 1 else DECIMATED_BATCH_MIN
+        if n < least or t_last is None or (self.state is None and not starting):
             self._imu_each(t, mono, acc, gyro, temp_degc)
             return
-        dts = np.diff(t, prepend=t_last) / NS
-        if not bool((dts < IMU_GAP_S).all()):
+        d = diff_from(t_last, t)
+        if not bool(((d > 0) & (d < int(IMU_GAP_S * NS))).all()):  # out of order, or a gap
             self._imu_each(t, mono, acc, gyro, temp_degc)
+            return
+        dts = d / NS
+        if starting:
+            taken = self._pre_init_block(t, mono, acc, gyro, dts, temp_degc)
+            if taken < n:  # the filter started at a sample of the block: the rest goes to it
+                self.imu_batch(t[taken:], mono[taken:], acc[taken:], gyro[taken:],
+                               temp_degc[taken:] if isinstance(temp_degc, np.ndarray) else temp_degc)
             return
         if self.alignment is not None:
             self.alignment.sample_block(t, acc, gyro)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from logger.nav.arrays import diff_from
 from logger.nav.ekf import inverse3
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 
@@ -270,7 +271,7 @@ class MountAlignment:
         run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
                         axis=0)[1:]
         steps = t_ns // SUM_STEP_NS
-        first = np.flatnonzero(np.diff(steps, prepend=self._step) != 0)  # each step's first sample
+        first = np.flatnonzero(diff_from(self._step, steps) != 0)  # each step's first sample
         counts = np.arange(last[7] + 1, last[7] + 1 + len(t_ns))
         self._sums.extend(zip(t_ns[first].tolist(), *run[first].T.tolist(), counts[first].tolist(), strict=True))
         self._step = int(steps[-1])

@@ -35,6 +35,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from logger.nav.arrays import diff_from
+
 SMOOTH_S = 20.0  # die temperature follows the board within minutes; its sensor's noise is white per sample
 STEP_DEGC = 0.05  # smallest change counted: above the averaged noise, below any tempco worth modelling
 
@@ -95,7 +97,7 @@ class TemperatureSpan:
         t = t_ns[t_ns > self._t_ns]
         if len(t) == 0:
             return
-        a = np.minimum(np.diff(t, prepend=self._t_ns) / 1e9 / SMOOTH_S, 1.0)
+        a = np.minimum(diff_from(self._t_ns, t) / 1e9 / SMOOTH_S, 1.0)
         smooth = temp_degc - np.cumprod(1.0 - a) * (temp_degc - self._smooth)
         self._t_ns, self._smooth = int(t[-1]), float(smooth[-1])
         i = 0
