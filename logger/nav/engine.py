@@ -21,7 +21,7 @@ and covariance. Inputs are typed (:mod:`logger.nav.inputs`): the engine knows no
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -210,6 +210,11 @@ class NavEngine:
         self._inflations_seen = 0
         self._block: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float | None] | None = None  # imu_batch
         self._block_done = 0  # samples of _block whose bookkeeping is done
+        # The live navigator's tap: the first step that ends at or after tap_ns hands its solution to tap, which
+        # publishes it and says when it wants the next one. A run of FIFO reads then goes in whole rather than
+        # cut at each publishing time (each cut a block's numpy calls again).
+        self.tap: Callable[[Solution], int] | None = None
+        self.tap_ns = NEVER
 
     # ---- IMU ---------------------------------------------------------------------------------------------
     def imu(self, t_ns: int, t_mono_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
@@ -345,7 +350,7 @@ class NavEngine:
                 f_rows = (acc[i:] - ba).tolist()
                 w_rows = (gyro[i:] - bg).tolist()
                 corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
-                cov_dt, dt_mean = self._cov_dt, self._dt_mean
+                cov_dt, dt_mean, tap_ns = self._cov_dt, self._dt_mean, self.tap_ns
                 j = i
                 due = False
                 for f_, w_ in zip(f_rows, w_rows, strict=False):
@@ -362,6 +367,8 @@ class NavEngine:
                     if record:
                         rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd,
                                                              s.q, sigma, epoch)))
+                    if t_j >= tap_ns:
+                        tap_ns = self._tapped(t_j, monos[j], s)
                     j += 1
                 self._dt_mean = dt_mean
                 last = j if due else n - 1
@@ -471,7 +478,7 @@ class NavEngine:
         mech.coning = self._dt_mean < CONING_MAX_DT_S
         hist, record, rows = self.history.entries, self.record, self.rows
         corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
-        step = mech.step_increments
+        step, tap_ns = mech.step_increments, self.tap_ns
         ends = (np.append(starts[1:], m) - 1 + i).tolist()  # each step's last sample, in the block
         for r, d, dt, j in zip(rot.tolist(), dv.tolist(), lengths.tolist(), ends, strict=True):
             step(s, r, d, dt)
@@ -482,6 +489,8 @@ class NavEngine:
             if record:
                 rows.append(_new_row(TrajectoryRow, (t_j, monos[j], s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q,
                                                      sigma, epoch)))
+            if t_j >= tap_ns:
+                tap_ns = self._tapped(t_j, monos[j], s)
         wl, fl = w[-2:].tolist(), f[-2:].tolist()  # the last sample and the one before it (or before the segment)
         mech.continue_from(wl[1], fl[1], wl[0], fl[0], float(dts[end]))
         self._f_last, self._w_last = mech.last_force, mech.last_rate
@@ -550,6 +559,13 @@ class NavEngine:
                                                       self.sigma, len(self.epochs) - 1)))
         if self._cov_dt >= self._cov_interval_s:
             self.propagate()
+        if t_ns >= self.tap_ns:
+            self._tapped(t_ns, t_mono_ns, s)
+
+    def _tapped(self, t_ns: int, t_mono_ns: int, s: NavState) -> int:
+        """The solution at the end of a step that reached ``tap_ns``, handed to ``tap``; the next such instant."""
+        self.tap_ns = NEVER if self.tap is None else self.tap(self._solution(t_ns, t_mono_ns, s))
+        return self.tap_ns
 
     def _pre_init(self, t_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
                   dt: float) -> None:
@@ -1029,6 +1045,9 @@ class NavEngine:
         s = self.state
         if self.mode == "gnss" or s is None:
             return self.solution
+        return self._solution(self._t_last or 0, self._t_mono_last, s)
+
+    def _solution(self, t_ns: int, t_mono_ns: int, s: NavState) -> Solution:
         roll, pitch, yaw = euler_from_dcm(s.dcm())
-        return Solution(self._t_last or 0, self._t_mono_last, s.lat, s.lon, s.h, (s.vn, s.ve, s.vd),
-                        (roll, pitch, yaw), self.sigma, f"ins {self.mode}-state")
+        return Solution(t_ns, t_mono_ns, s.lat, s.lon, s.h, (s.vn, s.ve, s.vd), (roll, pitch, yaw), self.sigma,
+                        f"ins {self.mode}-state")

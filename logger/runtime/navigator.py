@@ -21,7 +21,7 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from logger.nav.engine import NavEngine, configured_tempco
+from logger.nav.engine import NavEngine, Solution, configured_tempco
 from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.nav.thermal import TempcoLearner
@@ -196,10 +196,13 @@ class Navigator:
         At 1 kHz a FIFO read is 40 samples, too few for the engine's block forms (``BATCH_MIN``), and nothing
         else comes between most reads: so a run of reads that follow one another (:func:`_follows`) goes in as
         one block (:func:`feed_reads`). A run ends before any other record, at the end of the wake-up, and
-        with the read that reaches the next publishing time, so /nav/fix and /nav/state go out after the same
-        reads, with the same solutions, as fed read by read. A read after a gap, lost samples or out of order
-        goes alone, as before. ``merge=False``: every read alone (what the benchmark and the tests compare with)."""
+        with the read that reaches the next /nav/state, so /nav/state goes out after the same reads as fed read
+        by read; /nav/fix goes out from inside a run, the solution at the first integration step that reaches
+        its time (the engine's tap, :meth:`_tap`), as it does from reads fed one by one. A read after a gap,
+        lost samples or out of order goes alone, as before. ``merge=False``: every read alone (what the
+        benchmark and the tests compare with)."""
         rerun, run = self.rerun, []
+        self._arm_tap()
         last: int | None = None  # the run's last sample
         for topic, payload in records:
             if topic == IMU_BATCH and merge:
@@ -207,7 +210,7 @@ class Navigator:
                 if _follows(payload, last if run else rerun.engine.t_last_ns):
                     run.append(payload)
                     last = t[-1]
-                    if self._publish_due(last):
+                    if self._state_due(last):
                         rerun.feed_reads(run)
                         run = []
                         self._maybe_publish()
@@ -224,12 +227,28 @@ class Navigator:
             self._maybe_publish()
         self.processed += len(records)
 
+    def _state_due(self, t_ns: int) -> bool:
+        """Whether a run of reads ends with the read whose last sample is at ``t_ns``: it reaches the next
+        /nav/state. Never while the filter waits for a fix to start it (nothing is published then): a run then
+        goes in whole, at 1 kHz a wake-up's thousand samples (:meth:`NavEngine._pre_init_block`)."""
+        return self.publish is not None and t_ns >= self._next_state_ns and not self.engine.waits_for_fix
+
     def _publish_due(self, t_ns: int) -> bool:
-        """Whether a sample at ``t_ns`` reaches the next /nav/fix or /nav/state (:meth:`_maybe_publish`). Never
-        while the filter waits for a fix to start it: a run of reads then goes in whole (at 1 kHz, blocks of a
-        wake-up's thousand samples rather than a read's forty, :meth:`NavEngine._pre_init_block`)."""
-        return (self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
-                and (self.engine.mode == "gnss" or not self.engine.waits_for_fix))
+        """Whether a solution at ``t_ns`` reaches the next /nav/fix or /nav/state (:meth:`_maybe_publish`)."""
+        return self.publish is not None and (t_ns >= self._next_fix_ns or t_ns >= self._next_state_ns)
+
+    def _arm_tap(self) -> None:
+        """Have the engine in use hand over its solution at the next /nav/fix time as it integrates (the engine
+        that a re-run put in place is armed at the next wake-up)."""
+        if self.publish is not None:
+            engine = self.engine
+            engine.tap, engine.tap_ns = self._tap, self._next_fix_ns
+
+    def _tap(self, sol: Solution) -> int:
+        """A solution from inside a run at the /nav/fix time: published; the next time one is wanted."""
+        if sol.t_ns >= self._next_fix_ns:
+            self._publish_fix(sol)
+        return self._next_fix_ns
 
     def _maybe_publish(self) -> None:
         engine = self.engine
@@ -247,17 +266,7 @@ class Navigator:
                 return
         t = sol.t_ns
         if t >= self._next_fix_ns:
-            period_ns = int(1e9 / max(self.params.publish_hz, 0.1))
-            self._next_fix_ns = t + period_ns
-            # Live time: the board-clock intervals between publishes, a silence (an outage in GNSS-only mode, a
-            # restart) left out; the board clock, since the synchronised one may step when it first locks.
-            last = self._last_fix_mono
-            if last is not None and 0 < sol.t_mono_ns - last <= 3 * period_ns:
-                self._live_ns += sol.t_mono_ns - last
-            self._last_fix_mono = sol.t_mono_ns
-            msg = nav_fix_record(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
-                              sol.sigma_ned, sol.source, self.engine.mode)
-            self.publish(Reading(NAV_FIX, msg, sol.t_mono_ns, stamped=False))
+            self._publish_fix(sol)
         if t >= self._next_state_ns:
             self._next_state_ns = t + 1_000_000_000
             self._verdicts = self.judge.verdicts(self.engine, t / 1e9)
@@ -267,6 +276,22 @@ class Navigator:
             if t >= self._next_mount_save_ns:
                 self._next_mount_save_ns = t + int(mount_state.SAVE_INTERVAL_S * 1e9)
                 self._save_mount()
+
+    def _publish_fix(self, sol: Solution) -> None:
+        """/nav/fix of ``sol``, the next one due a publishing period after it."""
+        assert self.publish is not None
+        t = sol.t_ns
+        period_ns = int(1e9 / max(self.params.publish_hz, 0.1))
+        self._next_fix_ns = self.engine.tap_ns = t + period_ns
+        # Live time: the board-clock intervals between publishes, a silence (an outage in GNSS-only mode, a
+        # restart) left out; the board clock, since the synchronised one may step when it first locks.
+        last = self._last_fix_mono
+        if last is not None and 0 < sol.t_mono_ns - last <= 3 * period_ns:
+            self._live_ns += sol.t_mono_ns - last
+        self._last_fix_mono = sol.t_mono_ns
+        msg = nav_fix_record(t, sol.t_mono_ns, sol.lat_rad, sol.lon_rad, sol.h_m, sol.vel_ned, sol.rpy_rad,
+                             sol.sigma_ned, sol.source, self.engine.mode)
+        self.publish(Reading(NAV_FIX, msg, sol.t_mono_ns, stamped=False))
 
     # ---- status -------------------------------------------------------------------------------------------
     def section(self) -> dict[str, Any]:
