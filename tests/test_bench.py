@@ -298,3 +298,14 @@ def test_a_report_says_the_units_environment_only_where_every_run_had_it() -> No
     assert bench_daemon.had_unit_environment([{"environment": unit}, {"environment": dict(unit)}])
     assert not bench_daemon.had_unit_environment([{"environment": unit}, {"environment": unset}])
     assert not bench_daemon.had_unit_environment([{}])
+
+
+def test_the_navigator_benchmark_compares_two_checkouts_side_by_side() -> None:
+    """``tools/bench_navigator.py`` runs each checkout in its own process (here this one twice, a short drive at
+    100 Hz) and prints each one's share and their ratio; the filter starts and publishes in the drive."""
+    out = subprocess.run([sys.executable, str(TOOLS / "bench_navigator.py"), "--imu-rate", "100", "--seconds", "40",
+                          "--repeat", "1", "--against", str(ROOT)], capture_output=True, text=True, check=True).stdout
+    lines = out.strip().splitlines()
+    assert len(lines) == 3 and all("filter started: True" in line for line in lines[:2])
+    assert all(int(line.split("(")[1].split()[0]) > 50 for line in lines[:2])  # records published
+    assert lines[2].startswith("ratio this / other: ")
