@@ -349,6 +349,19 @@ class PpsClock(StampClock):
                 return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self.s.freerun_err_ns] * n,
                               imu_cnt.tolist(), timer_cnt.tolist())
             last = self._last_sample_ns
+            s = self.s
+            if (last is not None and self._locked_once and times_ns[0] > last
+                    and times_ns[-1] - last <= s.holdover_after_s * NS
+                    and (self._slew_from_ns is None or times_ns[0] - self._slew_from_ns >= self._slew_len_ns)):
+                # A read wholly after the last edge, fresh and out of any slew (at 1 kHz nearly every one): the
+                # forms below without their per-sample choices, in the same order of operations.
+                u = (t - self._fit_origin_ns) / NS - fit.x_ref
+                off = self._base_ns + (fit.offset_at_ref + fit.slope * u) + self._comp_ns
+                err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
+                err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
+                return Stamps((t + np.rint(off).astype(np.int64)).tolist(), [LOCKED] * len(t),
+                              np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(),
+                              timer_cnt.tolist())
             # _state_at, per sample
             fresh = (t - last) <= self.s.holdover_after_s * NS if last is not None else np.zeros(len(t), bool)
             locked = fresh if self._locked_once else np.zeros(len(t), bool)

@@ -360,24 +360,28 @@ def test_a_fifo_reads_stamps_at_once_are_the_stamps_of_each_sample(seed: int) ->
     stream = make_stream(1500, seed=seed, outages=((600, 700),))
     now = [0]
     clock = PpsClock(SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
-    states, compared, slewing = set(), 0, 0
+    states, compared, slewing, short = set(), 0, 0, 0
     for i, (board, topic, _) in enumerate(feed(clock, stream.events)):
         now[0] = board
         if topic != "/imu" or i % 7:
             continue
         times = [board - 40_000_000 + k * 1_000_000 for k in range(40)]  # a read's samples, some before the event
+        after = [board + k * 1_000_000 for k in range(40)]  # one wholly after it (stamp_many's short form)
         clock.on_imu_samples(times[-3:], None)
-        many = clock.stamp_many(times)
-        one = [clock.stamp(t) for t in times]
-        assert many.t_sync_ns == [s.t_sync_ns for s in one]
-        assert many.state == [s.state for s in one]
-        assert many.imu_cnt == [s.imu_cnt for s in one]
-        assert many.timer_cnt == [s.timer_cnt for s in one]
-        assert all(abs(a - b.err_ns) <= 1 for a, b in zip(many.err_ns, one, strict=True))
-        states.update(many.state)
-        slewing += clock._slew_from_ns is not None and times[0] - clock._slew_from_ns < clock._slew_len_ns
-        compared += 1
+        for read in (times, after):
+            many = clock.stamp_many(read)
+            one = [clock.stamp(t) for t in read]
+            assert many.t_sync_ns == [s.t_sync_ns for s in one]
+            assert many.state == [s.state for s in one]
+            assert many.imu_cnt == [s.imu_cnt for s in one]
+            assert many.timer_cnt == [s.timer_cnt for s in one]
+            assert all(abs(a - b.err_ns) <= 1 for a, b in zip(many.err_ns, one, strict=True))
+            states.update(many.state)
+            slewing += clock._slew_from_ns is not None and read[0] - clock._slew_from_ns < clock._slew_len_ns
+            short += (set(many.state) == {"locked"} and read[0] > clock._last_sample_ns
+                      and (clock._slew_from_ns is None or read[0] - clock._slew_from_ns >= clock._slew_len_ns))
+            compared += 1
     assert states == {"freerun", "locked", "holdover"}
     assert slewing > 0
-    assert compared > 100
+    assert compared > 200 and short > 50
     assert clock.report().relocks == 1
