@@ -350,7 +350,7 @@ class PpsClock(StampClock):
                               imu_cnt.tolist(), timer_cnt.tolist())
             last = self._last_sample_ns
             s = self.s
-            if (last is not None and self._locked_once and times_ns[0] > last
+            if (len(t) and last is not None and self._locked_once and times_ns[0] > last
                     and times_ns[-1] - last <= s.holdover_after_s * NS
                     and (self._slew_from_ns is None or times_ns[0] - self._slew_from_ns >= self._slew_len_ns)):
                 # A read wholly after the last edge, fresh and out of any slew (at 1 kHz nearly every one): the

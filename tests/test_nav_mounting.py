@@ -505,6 +505,45 @@ def test_an_imu_too_fast_for_the_tape_keeps_nothing(imu_hz, kept):
         assert RATE_SPAN_S - 0.5 <= t_kept[-1] <= RATE_SPAN_S + 0.5
 
 
+@pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (500.0, True)])
+def test_the_tape_counts_a_run_of_reads_over_the_time_it_spans(imu_hz, kept):
+    """Before the start the navigator hands a wake-up's reads over as one run (only the fixes cut it here: no OBD,
+    no barometer, fixes 50 ms after their epoch). The tape's rate is its bytes over the time they span, to the
+    run's last sample, not its first: at 500 Hz a minute still fits and the tape is kept; at 1 kHz it is let go
+    after RATE_SPAN_S as read by read."""
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.nav_rerun import RATE_SPAN_S, NavRerun
+    from logger.runtime.sources import fifo_poll_hz
+
+    drive = make_drive("urban", seed=1, duration_s=20.0)
+    recs = [r for r in records(drive, 20.0, seed=6, imu_hz=imu_hz, latency_s=0.05)
+            if r[1] not in ("/obd/speed", "/baro")]
+    reads = _as_reads(_turned(recs), per_read=round(imu_hz / fifo_poll_hz(imu_hz)))
+    rerun = NavRerun(NavParams(), lambda p: NavEngine(p, record=True))
+    run: list[dict] = []
+    kept_until, runs = 0.0, []
+    for t, topic, msg in reads:
+        if topic == "/imu/batch" and (not run or msg["t_sync_ns"][0] - run[0]["t_sync_ns"][0] < 1_000_000_000):
+            run.append(msg)
+            continue
+        if run:
+            rerun.feed_reads(run)
+            runs.append(len(run))
+            run = []
+        if topic == "/imu/batch":
+            run.append(msg)
+        else:
+            rerun.feed(topic, msg)
+        if rerun.kept is not None:
+            kept_until = (t - reads[0][0]) / 1e9
+    assert max(runs) >= 20  # whole wake-ups' reads in one go
+    if kept:
+        assert kept_until >= 19.0
+    else:
+        assert RATE_SPAN_S - 1.0 <= kept_until <= RATE_SPAN_S + 1.0
+
+
 @pytest.mark.parametrize("receiver", ["ubx", "nmea", "gsa"])
 def test_a_record_cut_to_what_the_filter_reads_gives_it_the_same_input(receiver):
     """The tape keeps each record cut to NAV_INPUT_KEYS: fed those, an engine gives what the whole records give."""

@@ -142,6 +142,19 @@ def test_merged_reads_give_the_trajectory_and_fixes_of_reads_one_by_one(reads, m
     assert max(before) >= 10 * PER_READ
 
 
+def test_before_a_configured_heading_starts_the_filter_runs_go_in_whole(reads):
+    """With ``heading_source = "config"`` the filter starts at the end of the levelling, inside a run: until then
+    nothing is published and runs are not cut for it either; the trajectory is the one of reads one by one."""
+    one, _, _ = _navigator(heading_source="config")
+    many, _, calls = _navigator(heading_source="config")
+    _read_by_read(one, reads)
+    _merged(many, reads)
+    _same_trajectory(one.engine, many.engine)
+    assert many.engine.counters.init_method == "config heading"
+    before = [n for t, n in calls if t < many.engine.counters.initialised_ns]
+    assert sum(n for n in before if n >= PRE_INIT_BATCH_MIN) > 0.9 * sum(before) > 5 * IMU_HZ
+
+
 def test_fixes_go_out_at_publish_hz_after_merged_reads(reads):
     nav, published, _ = _navigator(publish_hz=5.0)
     _merged(nav, reads)

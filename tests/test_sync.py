@@ -384,4 +384,6 @@ def test_a_fifo_reads_stamps_at_once_are_the_stamps_of_each_sample(seed: int) ->
     assert states == {"freerun", "locked", "holdover"}
     assert slewing > 0
     assert compared > 200 and short > 50
+    empty = clock.stamp_many([])  # a read that brought nothing: nothing stamped, in any state
+    assert empty.t_sync_ns == empty.state == empty.err_ns == empty.imu_cnt == empty.timer_cnt == []
     assert clock.report().relocks == 1

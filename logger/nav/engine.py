@@ -297,8 +297,9 @@ class NavEngine:
         bookkeeping rather than integration (the mounting's rotation, the offsets, the stop detector's window, the
         noise monitor, the mount alignment's sums, the die temperature) is done for the whole block with numpy.
         Measurements between samples are not part of a batch: call this for the samples before a measurement,
-        then the measurement, then the rest. Short blocks, blocks with a gap or a sample out of order, and blocks
-        before the filter has started go sample by sample."""
+        then the measurement, then the rest. Short blocks and blocks with a gap or a sample out of order go sample
+        by sample; before the filter has started, blocks from ``PRE_INIT_BATCH_MIN`` go through the start-up's
+        block form (:meth:`_pre_init_block`)."""
         t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         n = len(t)
         if n == 0:
@@ -983,12 +984,6 @@ class NavEngine:
     def mount_yaw_stat(self) -> list[float]:
         """Sum of lateral/forward OBD velocity ratios and their count: a mounting turned about the vertical."""
         return self._obd.mount_yaw_stat
-
-    @property
-    def waits_for_fix(self) -> bool:
-        """Not started, and only a fix can start it (its course gives the heading): until one comes, IMU samples
-        alone leave no solution to publish."""
-        return self.state is None and self.params.heading_source != "config"
 
     def waiting_for(self) -> str:
         """What the start waits for, in words an operator can act on; "" once there is a solution.

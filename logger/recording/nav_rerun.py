@@ -160,7 +160,8 @@ class NavRerun:
         self._feed[topic](msg)
         if self._tape is not None:
             if topic == IMU_BATCH:
-                self._keep(topic, self._columns.add(msg), int(msg["t_sync_ns"][0]))
+                t = msg["t_sync_ns"]
+                self._keep(topic, self._columns.add(msg), int(t[0]), int(t[-1]))
             else:
                 self._keep(topic, _slim(topic, msg), int(msg["t_sync_ns"]))
 
@@ -168,7 +169,8 @@ class NavRerun:
         """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it."""
         feed_reads(self.engine, msgs)
         if self._tape is not None and msgs:
-            self._keep("", [self._columns.add(m) for m in msgs], int(msgs[0]["t_sync_ns"][0]))
+            self._keep("", [self._columns.add(m) for m in msgs], int(msgs[0]["t_sync_ns"][0]),
+                       int(msgs[-1]["t_sync_ns"][-1]))
 
     # ---- the tape ---------------------------------------------------------------------------------------
     @property
@@ -180,7 +182,9 @@ class NavRerun:
             return None
         return ((tape[-1][2] - tape[0][2]) / NS if tape else 0.0), self._bytes
 
-    def _keep(self, topic: str, what: Any, t: int) -> None:
+    def _keep(self, topic: str, what: Any, t: int, t_end: int | None = None) -> None:
+        """An input onto the tape at ``t`` (a read's or a run's first sample); ``t_end``: its last sample, which
+        the span its bytes are counted over reaches (a run of a whole wake-up's reads is a second of them)."""
         tape = self._tape
         assert tape is not None
         cost = _cost(topic, what)
@@ -204,7 +208,7 @@ class NavRerun:
             if self._confirmed():
                 self._let_go()  # the drive showed the mounting in use: no reopening is coming
                 return
-        span_s = (t - tape[0][2]) / NS
+        span_s = ((t if t_end is None else t_end) - tape[0][2]) / NS
         if (self._bytes > self.tape_bytes or span_s > self.tape_s
                 or (span_s >= RATE_SPAN_S and self._bytes / span_s * USEFUL_S > self.tape_bytes)):
             self._let_go()  # full (or would be) before the drive showed another mounting: the filter goes on

@@ -229,9 +229,10 @@ class Navigator:
 
     def _state_due(self, t_ns: int) -> bool:
         """Whether a run of reads ends with the read whose last sample is at ``t_ns``: it reaches the next
-        /nav/state. Never while the filter waits for a fix to start it (nothing is published then): a run then
-        goes in whole, at 1 kHz a wake-up's thousand samples (:meth:`NavEngine._pre_init_block`)."""
-        return self.publish is not None and t_ns >= self._next_state_ns and not self.engine.waits_for_fix
+        /nav/state. Never before the filter has started (nothing is published then; a configured heading that
+        starts it inside a run has its first /nav/state after the run): a run then goes in whole, at 1 kHz a
+        wake-up's thousand samples (:meth:`NavEngine._pre_init_block`)."""
+        return self.publish is not None and t_ns >= self._next_state_ns and self.engine.state is not None
 
     def _publish_due(self, t_ns: int) -> bool:
         """Whether a solution at ``t_ns`` reaches the next /nav/fix or /nav/state (:meth:`_maybe_publish`)."""
