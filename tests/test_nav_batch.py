@@ -171,13 +171,17 @@ def test_block_bookkeeping_matches_sample_by_sample():
     assert math.isfinite(noise_a.densities()[0])
 
 
-def test_a_1khz_imu_is_integrated_ten_samples_a_step_on_the_trajectory_of_its_samples():
+@pytest.mark.parametrize(("per_run", "mounting"), [(40, (0.0, 0.0, 0.0)), (1500, (2.0, -3.0, 10.0))],
+                         ids=["reads", "runs longer than the stop window, mounted"])
+def test_a_1khz_imu_is_integrated_ten_samples_a_step_on_the_trajectory_of_its_samples(per_run, mounting):
     """FIFO reads of a 1 kHz IMU go in steps of ten samples (``integration_hz`` 100: coning and sculling inside each
     step): a row per step, each where the samples one by one put the vehicle at that sample, through a start,
-    turns and the covariance's intervals."""
+    turns and the covariance's intervals. Runs of 1.5 s (cut at the OBD speeds and fixes) take the start-up's
+    block form too, on a board mounted at an angle."""
     drive = make_drive("outage-60s", seed=3, duration_s=40.0)
     recs = _with_temperature(records(drive, 40.0, seed=4, imu_hz=1000.0))
-    one, many = _twins(_runs(recs, 40))
+    one, many = _twins(_runs(recs, per_run), mounting_rpy_deg=mounting)
+    assert one.startup.levelled is not None
     _same_steps(one, many)
 
 
