@@ -353,8 +353,9 @@ class PpsClock(StampClock):
             if (len(t) and last is not None and self._locked_once and times_ns[0] > last
                     and times_ns[-1] - last <= s.holdover_after_s * NS
                     and (self._slew_from_ns is None or times_ns[0] - self._slew_from_ns >= self._slew_len_ns)):
-                # A read wholly after the last edge, fresh and out of any slew (at 1 kHz nearly every one): the
-                # forms below without their per-sample choices, in the same order of operations.
+                # A read wholly after the last edge, fresh and out of any slew (89 % of a simulated 1 kHz run's
+                # reads, 47 % at 20 Hz, whose half-second reads straddle an edge as often as not): the forms
+                # below without their per-sample choices, in the same order of operations.
                 u = (t - self._fit_origin_ns) / NS - fit.x_ref
                 off = self._base_ns + (fit.offset_at_ref + fit.slope * u) + self._comp_ns
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns

@@ -408,30 +408,41 @@ class NavEngine:
         chip_acc, chip_gyro = acc, gyro
         if self._mount is not None:
             acc, gyro = acc @ self._mount_m.T, gyro @ self._mount_m.T
-        obd = self.last_readings.obd
         still = self.stops.still_flags(t, acc, gyro)
-        if obd is not None and obd[1] != 0.0:
+        if self._obd_moving():
             still[:] = False
         fix = self.last_readings.fix
         k = self.startup.step_block(t, acc, gyro, dts, still, fix)
         end = len(t) if k is None else k + 1
-        self._thermal_block(t[:end], temp_degc[:end] if isinstance(temp_degc, np.ndarray) else temp_degc)
         if self.alignment is not None:
             self.alignment.sample_block(t[:end], chip_acc[:end], chip_gyro[:end])
         self.counters.imu += end
         a_, g_ = acc[end - 1].tolist(), gyro[end - 1].tolist()
         self._raw = ((a_[0], a_[1], a_[2]), (g_[0], g_[1], g_[2]))
-        self.stops.add_block(t[:end], acc[:end], gyro[:end])
-        if self.imu_noise is not None:
-            self.imu_noise.add_block(acc[:end], gyro[:end], dts[:end])
-        k_ = 0.98 ** np.arange(end - 1, -1, -1)  # the mean interval, as imu() keeps it (weight 0.02 a sample)
-        self._dt_mean = 0.98**end * self._dt_mean + 0.02 * float(k_ @ dts[:end])
-        self.mech.coning = self._dt_mean < CONING_MAX_DT_S
+        self._bookkeeping(t[:end], acc[:end], gyro[:end], dts[:end],
+                          temp_degc[:end] if isinstance(temp_degc, np.ndarray) else temp_degc)
+        self._mean_interval_over(dts[:end])
         self._t_last, self._t_mono_last = int(t[end - 1]), int(mono[end - 1])
         if k is not None and fix is not None:
             self._initialise(self._t_last, math.radians(self.params.initial_heading_deg), CONFIG_HEADING, fix,
                              CONFIG_HEADING_VAR)
         return end
+
+    def _mean_interval_over(self, dts: np.ndarray) -> None:
+        """The mean sample interval after these intervals, as :meth:`imu` keeps it sample by sample (an
+        exponential mean, weight 0.02 a sample), and whether it is short enough for coning corrections."""
+        k = 0.98 ** np.arange(len(dts) - 1, -1, -1)
+        self._dt_mean = 0.98 ** len(dts) * self._dt_mean + 0.02 * float(k @ dts)
+        self.mech.coning = self._dt_mean < CONING_MAX_DT_S
+
+    def _bookkeeping(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, dts: np.ndarray,
+                     temp: float | np.ndarray | None) -> None:
+        """A block's per-sample bookkeeping on the body axes, what :meth:`imu` does sample by sample besides the
+        integration: the stop detector's window, the noise monitor, the die temperature."""
+        self.stops.add_block(t, acc, gyro)
+        if self.imu_noise is not None:
+            self.imu_noise.add_block(acc, gyro, dts)
+        self._thermal_block(t, temp)
 
     def _thermal_block(self, t: np.ndarray, temp: float | np.ndarray | None) -> None:
         """The die temperatures of a block's samples: one for the block, or one per sample (NaN where none was
@@ -473,10 +484,7 @@ class NavEngine:
         f = np.concatenate(((mech.last_force,), acc[i:end + 1] - np.asarray(s.ba)))
         starts = np.arange(0, m, group)
         rot, dv, lengths = preintegrate(w, f, dts[i:end + 1], starts)
-        # The mean interval, as the per-sample loop keeps it (an exponential mean, weight 0.02 per sample).
-        k = 0.98 ** np.arange(m - 1, -1, -1)
-        self._dt_mean = 0.98**m * self._dt_mean + 0.02 * float(k @ dts[i:end + 1])
-        mech.coning = self._dt_mean < CONING_MAX_DT_S
+        self._mean_interval_over(dts[i:end + 1])
         hist, record, rows = self.history.entries, self.record, self.rows
         corr, sigma, epoch = self.history.corr, self.sigma, len(self.epochs) - 1
         step, tap_ns = mech.step_increments, self.tap_ns
@@ -522,10 +530,7 @@ class NavEngine:
         t, acc, gyro, dts, temp = self._block
         sl = slice(self._block_done, upto)
         self._block_done = upto
-        self.stops.add_block(t[sl], acc[sl], gyro[sl])
-        if self.imu_noise is not None:
-            self.imu_noise.add_block(acc[sl], gyro[sl], dts[sl])
-        self._thermal_block(t[sl], temp[sl] if isinstance(temp, np.ndarray) else temp)
+        self._bookkeeping(t[sl], acc[sl], gyro[sl], dts[sl], temp[sl] if isinstance(temp, np.ndarray) else temp)
         if self._stop.stopped:
             ws = self._stop.w_sum
             g = gyro[sl].sum(axis=0).tolist()
@@ -571,12 +576,16 @@ class NavEngine:
     def _pre_init(self, t_ns: int, acc: tuple[float, float, float], gyro: tuple[float, float, float],
                   dt: float) -> None:
         """Before the heading is known: the start-up levels while still, then carries the attitude on the gyro."""
-        obd = self.last_readings.obd
-        still = self.stops.still and (obd is None or obd[1] == 0.0)
+        still = self.stops.still and not self._obd_moving()
         fix = self.last_readings.fix
         if self.startup.step(t_ns, acc, gyro, dt, still, fix) == CONFIG_HEADING and fix is not None:
             self._initialise(t_ns, math.radians(self.params.initial_heading_deg), CONFIG_HEADING, fix,
                              CONFIG_HEADING_VAR)
+
+    def _obd_moving(self) -> bool:
+        """Whether the last OBD speed says the car moves (the start-up levels only while it reads 0)."""
+        obd = self.last_readings.obd
+        return obd is not None and obd[1] != 0.0
 
     def _try_heading_init(self, fix: PreparedFix) -> None:
         if self.startup.late_config_heading():  # levelled before the first fix: the configured heading now
