@@ -199,7 +199,7 @@ def test_install_script_dry_run_covers_every_step() -> None:
     steps = [line[2:] for line in r.stdout.splitlines() if line.startswith("+ ")]
     text = "\n".join(steps)
     for package in ("python3-numpy", "python3-serial", "python3-smbus2", "python3-can", "python3-zstandard",
-                    "python3-lz4", "python3-venv", "python3-dev", "gcc"):
+                    "python3-lz4", "python3-ujson", "python3-venv", "python3-dev", "gcc"):
         assert f" {package}" in text, package
     assert "python3 -m venv --system-site-packages /opt/vehicle-logger/venv" in steps
     assert "systemd-sysusers /etc/sysusers.d/vehicle-logger.conf" in steps

@@ -46,7 +46,8 @@ import bench_startup  # noqa: E402
 import bench_sync  # noqa: E402
 
 BENCHMARKS = ("daemon", "recorder", "nav", "sync", "startup")
-LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "lz4", "pyubx2", "pynmeagps", "gpiod")
+LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "lz4", "ujson", "pyubx2", "pynmeagps",
+             "gpiod")
 
 # (full, quick) settings of each benchmark
 DAEMON_RATES = ((20.0, 300.0), (200.0, 300.0), (500.0, 300.0), (1000.0, 300.0))

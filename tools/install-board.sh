@@ -31,8 +31,8 @@ set -u
 
 PREFIX=/opt/vehicle-logger
 SRC=$(cd "$(dirname "$0")/.." && pwd)
-APT_PACKAGES="python3-numpy python3-serial python3-smbus2 python3-can python3-zstandard python3-lz4 python3-venv \
-python3-dev python3-setuptools python3-wheel gcc"
+APT_PACKAGES="python3-numpy python3-serial python3-smbus2 python3-can python3-zstandard python3-lz4 python3-ujson \
+python3-venv python3-dev python3-setuptools python3-wheel gcc"
 CONFIG=/etc/vehicle-logger/logger.toml
 
 DRY_RUN=0 APT=1 START=1 LINK=1 IMAGE=0 OPERATOR="" WHEELS="" FETCH=""
