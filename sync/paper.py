@@ -86,13 +86,22 @@ class PaperCounters:
     def counters_many(self, times_ns: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`counters` at each of several instants, as arrays (a FIFO read's samples)."""
         t = np.asarray(times_ns, dtype=np.int64)
-        if self.last_edge_ns is None:
-            n = np.full(len(t), self._beyond, dtype=np.int64)
+        k = len(t)
+        ts = self._times
+        if (k and self.last_edge_ns is not None and len(ts) >= k and ts[-1] == times_ns[-1]
+                and (len(ts) == k or ts[-k - 1] < times_ns[0]) and ts[-k:] == list(times_ns)
+                and (k == 1 or bool((t[1:] > t[:-1]).all()))):
+            # A read just registered (on_imu_many, as the daemon does before stamping it): the newest times after
+            # the edge, strictly increasing, so each one's count is its place among them, what the search finds.
+            n = np.arange(len(ts) - k + 1 + self._beyond, len(ts) + 1 + self._beyond)
+            if n[-1] <= self.rate + 1:  # no carry (with PPS, always)
+                return n, np.zeros(k, dtype=np.int64)
+        elif self.last_edge_ns is None:
+            n = np.full(k, self._beyond, dtype=np.int64)
         else:
             # Only the registered times between the first and the last instant can tell them apart: search those.
-            ts = self._times
-            lo = bisect.bisect_right(ts, times_ns[0]) if len(t) else 0
-            hi = bisect.bisect_right(ts, times_ns[-1]) if len(t) else 0
+            lo = bisect.bisect_right(ts, times_ns[0]) if k else 0
+            hi = bisect.bisect_right(ts, times_ns[-1]) if k else 0
             n = np.searchsorted(np.asarray(ts[lo:hi], dtype=np.int64), t, side="right") + (lo + self._beyond)
             n[t <= self.last_edge_ns] = 0
         limit = self.rate + 1

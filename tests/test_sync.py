@@ -110,6 +110,18 @@ def test_counters_fed_a_fifo_read_at_a_time_are_those_fed_sample_by_sample() -> 
     assert many.counters(t[-1]) == (1000, 9000)  # 10 s without PPS: whole seconds carried into the timer
 
 
+def test_counters_of_a_read_with_a_repeated_time_are_those_of_each_sample() -> None:
+    """The short form for a read just registered counts each sample by its place; a time given twice is counted
+    as the search counts it (both samples), not by place."""
+    c = PaperCounters(1000.0)
+    c.on_edge(1_000_000)
+    for read in ([2_000_000, 3_000_000, 4_000_000], [5_000_000, 6_000_000, 6_000_000, 7_000_000], [8_000_000]):
+        c.on_imu_many(read)
+        ic, tc = c.counters_many(read)
+        assert list(zip(ic.tolist(), tc.tolist(), strict=True)) == [c.counters(x) for x in read]
+    assert c.counters_many([6_000_000, 7_000_000])[0].tolist() == [6, 7]
+
+
 def test_an_edge_reported_late_recounts_the_samples_after_it() -> None:
     c = PaperCounters(20.0)
     for k in range(5):

@@ -64,8 +64,8 @@ def imu_batch_payload(times_ns: Sequence[int], accel_mps2: np.ndarray, gyro_rps:
                       period_s: float, lost: int) -> dict[str, Any]:
     """What a FIFO read hands the daemon: its samples as columns, their acquisition times; the daemon adds the
     stamps (:func:`stamped_batch`), so an ``/imu/batch`` record costs one message, not one per sample."""
-    a = np.round(accel_mps2, ACCEL_DECIMALS).T.tolist()
-    g = np.round(gyro_rps, GYRO_DECIMALS).T.tolist()
+    a = accel_mps2.round(ACCEL_DECIMALS).T.tolist()  # the method: np.round dispatches at a fifth of this cost
+    g = gyro_rps.round(GYRO_DECIMALS).T.tolist()
     return {"t_mono_ns": list(times_ns),
             "accel_x_mps2": a[0], "accel_y_mps2": a[1], "accel_z_mps2": a[2],
             "gyro_x_rps": g[0], "gyro_y_rps": g[1], "gyro_z_rps": g[2],
