@@ -249,16 +249,18 @@ def test_preintegrated_steps_hold_the_coning_and_sculling_of_their_samples():
         assert np.abs(dv[g] - v).max() < 5e-6  # the second order left out: alpha^2 ~ 1e-4 of a 0.1 m/s increment
 
 
-def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample():
+@pytest.mark.parametrize("ask_every", [1, 7], ids=["asked after each", "blocks kept between asks"])
+def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample(ask_every):
     """Blocks and single samples in turn (a FIFO drive's reads cut at measurements), the window's old end inside a
-    block, a block's samples leaving it from a single sample's add: the same variances as sample by sample."""
+    block, a block's samples leaving it from a single sample's add: the same variances as sample by sample, asked
+    after each block or single, or only now and then (the blocks kept meanwhile are taken as one)."""
     rng = np.random.default_rng(3)
     n = 6000
     t = (np.cumsum(rng.uniform(0.0009, 0.0011, n)) * NS).astype(np.int64)
     acc = rng.normal((0.1, -0.2, -9.8), 0.05, (n, 3))
     gyro = rng.normal(0.0, 0.01, (n, 3))
     one, mixed = StopDetector(), StopDetector()
-    i, checks = 0, 0
+    i, checks, steps = 0, 0, 0
     while i < n:
         k = int(rng.integers(1, 90))
         sl = slice(i, min(n, i + k))
@@ -269,11 +271,14 @@ def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample()
                 mixed.add(int(t[j]), tuple(acc[j]), tuple(gyro[j]))
         else:
             mixed.add_block(t[sl], acc[sl], gyro[sl])
+        steps += 1
+        i = sl.stop
+        if steps % ask_every and i < n:
+            continue
         assert mixed.var_a == pytest.approx(one.var_a, rel=1e-9)
         assert mixed.var_w == pytest.approx(one.var_w, rel=1e-9)
         checks += 1
-        i = sl.stop
-    assert checks > 100 and len(one._win) == mixed._n > 900
+    assert checks > 100 / ask_every and len(one._win) == mixed._n > 900
 
 
 def test_stop_flags_of_a_block_are_what_each_sample_added_alone_would_leave():

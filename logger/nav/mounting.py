@@ -55,6 +55,7 @@ SUM_SAMPLES = 8192  # running sums kept at most: 8 s at 1 kHz, more than a fix's
 # tuples (1.4 MB) for the same windows. Below 100 Hz two samples hardly ever share a step: every sum is kept.
 SUM_STEP_NS = 10_000_000
 SUM_KEEP_NS = int((3 * WINDOW_S + 1.0) * 1e9)  # ... and no older than the longest window before a fix's epoch
+BLOCKS_KEPT = 16  # sample blocks kept before they are summed anyway
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
 MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
 # A passenger car's body roll per m/s^2 of lateral acceleration (a roll gradient of 3-7 deg per g; 4.5 taken).
@@ -234,6 +235,7 @@ class MountAlignment:
         self._sums: deque[tuple[int, float, float, float, float, float, float, int]] = deque(maxlen=SUM_SAMPLES)
         self._last: tuple[int, float, float, float, float, float, float, int] = (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
         self._step = -1  # the SUM_STEP_NS step of the last sum kept
+        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # blocks not yet summed, oldest first
         self._fix0: tuple[int, tuple[float, float, float]] | None = None  # the window's first fix: epoch, velocity
         # The filter's gyro offset on the chip's axes (from the standstills: the mounting does not enter), removed
         # from each window's mean rate. The accelerometer's offset is estimated here: the filter's own took up
@@ -254,6 +256,8 @@ class MountAlignment:
     # ---- windows ---------------------------------------------------------------------------------------
     def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
         """One IMU sample on the chip's axes, as read."""
+        if self._blocks:
+            self._take_blocks()
         _, a0, a1, a2, w0, w1, w2, n = self._last
         ax, ay, az = acc_chip
         wx, wy, wz = gyro_chip
@@ -264,9 +268,21 @@ class MountAlignment:
             self._sums.append(row)
 
     def sample_block(self, t_ns: np.ndarray, acc_chip: np.ndarray, gyro_chip: np.ndarray) -> None:
-        """Samples at once (n x 3 each): the same running sums as :meth:`sample` one by one."""
-        if len(t_ns) == 0:
-            return
+        """Samples at once (n x 3 each): the same running sums as :meth:`sample` one by one. Kept until a fix asks
+        for the sums (or BLOCKS_KEPT wait), then summed as one block: the same sums (a cumulative sum goes on where
+        it stopped), at the cost of one block's numpy calls for the several a run of reads is cut into."""
+        if len(t_ns):
+            self._blocks.append((t_ns, acc_chip, gyro_chip))
+            if len(self._blocks) >= BLOCKS_KEPT:
+                self._take_blocks()
+
+    def _take_blocks(self) -> None:
+        blocks = self._blocks
+        if len(blocks) == 1:
+            t_ns, acc_chip, gyro_chip = blocks[0]
+        else:
+            t_ns, acc_chip, gyro_chip = (np.concatenate([b[i] for b in blocks]) for i in range(3))
+        blocks.clear()
         last = self._last
         run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
                         axis=0)[1:]
@@ -279,6 +295,8 @@ class MountAlignment:
 
     def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
         """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
+        if self._blocks:
+            self._take_blocks()
         sums = self._sums
         if not sums or sums[0][0] > t_ns:
             return None
@@ -295,6 +313,8 @@ class MountAlignment:
         """A GNSS velocity at its epoch (the receiver's Doppler: it owes nothing to the IMU, whose mounting is
         being estimated; the down element may come from the filter when the receiver gives none). Once a window
         of WINDOW_S is complete, its pair goes into the fits if the car was moving."""
+        if self._blocks:
+            self._take_blocks()
         sums = self._sums
         cutoff = t_epoch_ns - SUM_KEEP_NS  # at 20 Hz the sample bound alone would keep seven minutes (2 MB)
         while len(sums) > 1 and sums[1][0] <= cutoff:

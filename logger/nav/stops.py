@@ -21,6 +21,7 @@ WINDOW_NS = int(WINDOW_S * 1e9)
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
 RESUM_EVERY = 4096
+BLOCKS_KEPT = 16  # blocks kept before they are taken anyway
 
 
 class _Block:
@@ -58,6 +59,7 @@ class StopDetector(Deferred):
         self._dirty = False
         self._adds = 0
         self._pending: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]] = []
+        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # blocks not yet taken, oldest first
         self._log_a: float | None = None
         self._log_w: float | None = None
         self.learned = 0
@@ -65,6 +67,8 @@ class StopDetector(Deferred):
     def add(self, t_ns: int, f: tuple[float, float, float], w: tuple[float, float, float]) -> None:
         """One sample into the one-second window. Kept until the variances are asked for, then taken in order in one
         loop (running sums: a call per sample cost more than the arithmetic)."""
+        if self._blocks:
+            self._take_blocks()
         pending = self._pending
         pending.append((t_ns, f, w))
         self._dirty = True
@@ -138,10 +142,27 @@ class StopDetector(Deferred):
 
     def add_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         """Samples in time order at once (``f``, ``w``: n x 3): the window and sums :meth:`add` would leave, the
-        sums taken with numpy and the block kept whole in the window."""
+        sums taken with numpy and the block kept whole in the window. Kept until the variances are asked for (a
+        moving car with an OBD speed asks none) or BLOCKS_KEPT wait, then taken as one block: most of a block's
+        cost is the same whatever its length, and a 1 kHz IMU's run of reads is cut into several by the
+        measurements between them."""
         self.flush_pending()
-        if len(t_ns) == 0:
-            return
+        if len(t_ns):
+            self._blocks.append((t_ns, f, w))
+            self._dirty = True
+            if len(self._blocks) >= BLOCKS_KEPT:
+                self._take_blocks()
+
+    def _take_blocks(self) -> None:
+        blocks = self._blocks
+        if len(blocks) == 1:
+            t_ns, f, w = blocks[0]
+        else:
+            t_ns, f, w = (np.concatenate([b[i] for b in blocks]) for i in range(3))
+        blocks.clear()
+        self._take_block(t_ns, f, w)
+
+    def _take_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         fw = np.concatenate((f, w), axis=1)
         self._win.append(_Block(np.asarray(t_ns, dtype=np.int64), fw))
         self._n += len(fw)
@@ -169,6 +190,8 @@ class StopDetector(Deferred):
         Before the filter starts, the start-up asks after every sample (levelling ends with the first that moves):
         one call per sample cost a 1 kHz IMU 10 us each. Here the window's sums at each sample come from cumulative
         sums of the samples that leave the window during these (its oldest) and of these themselves."""
+        if self._blocks:
+            self._take_blocks()
         self.flush_pending()
         t = np.asarray(t_ns, dtype=np.int64)
         n = len(t)
@@ -217,6 +240,8 @@ class StopDetector(Deferred):
         if not self._dirty:
             return
         self._dirty = False
+        if self._blocks:  # before the single samples kept: add() takes the blocks first
+            self._take_blocks()
         self.flush_pending()
         n = self._n
         if n < 4:
