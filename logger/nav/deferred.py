@@ -2,7 +2,9 @@
 
 At the IMU rate a method call per sample costs more than the few sums it feeds (a stop detector's window, a
 noise monitor's average): the samples are kept in a list and taken all at once, in their order and with the same
-arithmetic, when the result is read (or when many are waiting).
+arithmetic, when the result is read (or when many are waiting). Blocks of samples likewise (:func:`joined`):
+a block's numpy calls cost the same whatever its length, and a run of FIFO reads reaches the bookkeeping in
+several segments, cut at the measurements between them.
 """
 
 from __future__ import annotations
@@ -10,7 +12,20 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import Any
 
+import numpy as np
+
 PENDING_MAX = 1024  # samples kept before they are taken anyway
+BLOCKS_KEPT = 16  # blocks kept before they are taken anyway
+
+
+def joined(blocks: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
+    """The kept blocks (each a tuple of arrays, oldest first) as one, each part concatenated; the list emptied."""
+    if len(blocks) == 1:
+        out = blocks[0]
+    else:
+        out = tuple(np.concatenate([b[i] for b in blocks]) for i in range(len(blocks[0])))
+    blocks.clear()
+    return out
 
 
 class Deferred(ABC):

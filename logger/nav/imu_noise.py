@@ -20,7 +20,7 @@ from collections import deque
 
 import numpy as np
 
-from logger.nav.deferred import PENDING_MAX, Deferred
+from logger.nav.deferred import BLOCKS_KEPT, PENDING_MAX, Deferred, joined
 
 TAU_S = 30.0  # the average's memory, drive time
 # A chip measured this many times noisier than its datasheet is not of the datasheet's grade: a car's vibration
@@ -28,7 +28,6 @@ TAU_S = 30.0  # the average's memory, drive time
 # off, then 1.0x; the simulated phone 6.6x).
 CONSUMER_NOISE_RATIO = 3.0
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
-BLOCKS_KEPT = 64  # blocks kept before they are taken anyway
 
 
 class ImuNoiseMonitor(Deferred):
@@ -105,13 +104,7 @@ class ImuNoiseMonitor(Deferred):
                 self._take_blocks()
 
     def _take_blocks(self) -> None:
-        blocks = self._blocks
-        if len(blocks) == 1:
-            acc, gyro, dt = blocks[0]
-        else:
-            acc, gyro, dt = (np.concatenate([b[i] for b in blocks]) for i in range(3))
-        blocks.clear()
-        self._take_block(acc, gyro, dt)
+        self._take_block(*joined(self._blocks))
 
     def _take_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
         n = len(dt)

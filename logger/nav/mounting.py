@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from logger.nav.arrays import diff_from
+from logger.nav.deferred import BLOCKS_KEPT, joined
 from logger.nav.ekf import inverse3
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 
@@ -55,7 +56,6 @@ SUM_SAMPLES = 8192  # running sums kept at most: 8 s at 1 kHz, more than a fix's
 # tuples (1.4 MB) for the same windows. Below 100 Hz two samples hardly ever share a step: every sum is kept.
 SUM_STEP_NS = 10_000_000
 SUM_KEEP_NS = int((3 * WINDOW_S + 1.0) * 1e9)  # ... and no older than the longest window before a fix's epoch
-BLOCKS_KEPT = 16  # sample blocks kept before they are summed anyway
 MIN_SPEED_MPS = 4.0  # slower, the grade from the velocity is noise
 MAX_TURN_DPS = 30.0  # sharper turns (a roundabout): the speed's and course's change over a window is not smooth
 # A passenger car's body roll per m/s^2 of lateral acceleration (a roll gradient of 3-7 deg per g; 4.5 taken).
@@ -277,12 +277,7 @@ class MountAlignment:
                 self._take_blocks()
 
     def _take_blocks(self) -> None:
-        blocks = self._blocks
-        if len(blocks) == 1:
-            t_ns, acc_chip, gyro_chip = blocks[0]
-        else:
-            t_ns, acc_chip, gyro_chip = (np.concatenate([b[i] for b in blocks]) for i in range(3))
-        blocks.clear()
+        t_ns, acc_chip, gyro_chip = joined(self._blocks)
         last = self._last
         run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
                         axis=0)[1:]

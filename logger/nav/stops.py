@@ -14,14 +14,13 @@ from collections import deque
 
 import numpy as np
 
-from logger.nav.deferred import PENDING_MAX, Deferred
+from logger.nav.deferred import BLOCKS_KEPT, PENDING_MAX, Deferred, joined
 
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
 RESUM_EVERY = 4096
-BLOCKS_KEPT = 16  # blocks kept before they are taken anyway
 
 
 class _Block:
@@ -154,13 +153,7 @@ class StopDetector(Deferred):
                 self._take_blocks()
 
     def _take_blocks(self) -> None:
-        blocks = self._blocks
-        if len(blocks) == 1:
-            t_ns, f, w = blocks[0]
-        else:
-            t_ns, f, w = (np.concatenate([b[i] for b in blocks]) for i in range(3))
-        blocks.clear()
-        self._take_block(t_ns, f, w)
+        self._take_block(*joined(self._blocks))
 
     def _take_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         fw = np.concatenate((f, w), axis=1)
