@@ -136,7 +136,8 @@ def test_short_batches_and_a_sample_out_of_order_go_sample_by_sample(fast_drive)
     assert many.counters.imu_out_of_order == 1 and many.t_last_ns == t + 10_000_000 * (k - 1)
 
 
-def test_block_bookkeeping_matches_sample_by_sample():
+@pytest.mark.parametrize("block", [50, 25], ids=["a reading a block", "a reading two blocks"])
+def test_block_bookkeeping_matches_sample_by_sample(block):
     rng = np.random.default_rng(1)
     n = 3000
     t = (np.cumsum(rng.uniform(0.004, 0.006, n)) * NS).astype(np.int64)
@@ -153,8 +154,8 @@ def test_block_bookkeeping_matches_sample_by_sample():
         noise_a.add(tuple(acc[i]), tuple(gyro[i]), float(dt[i]))
         temp_a.add(int(t[i]), 30.0 + i // 50 * 0.04)  # one reading per block of 50, warming by steps
         mount_a.sample(int(t[i]), tuple(acc[i]), tuple(gyro[i]))
-    for lo in range(0, n, 50):
-        sl = slice(lo, lo + 50)
+    for lo in range(0, n, block):
+        sl = slice(lo, lo + block)
         stops_b.add_block(t[sl], acc[sl], gyro[sl])
         noise_b.add_block(acc[sl], gyro[sl], dt[sl])
         temp_b.add_block(t[sl], 30.0 + lo // 50 * 0.04)
