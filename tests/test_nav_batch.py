@@ -276,8 +276,11 @@ def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample(a
         i = sl.stop
         if steps % ask_every and i < n:
             continue
-        assert mixed.var_a == pytest.approx(one.var_a, rel=1e-9)
-        assert mixed.var_w == pytest.approx(one.var_w, rel=1e-9)
+        # The variance is a difference of running sums 1e4 times larger than it (the mean squared): summed in
+        # another grouping (blocks joined) they differ by round-off, about 1e-13 of themselves, 1e-9 of it.
+        rel = 1e-9 if ask_every == 1 else 1e-8
+        assert mixed.var_a == pytest.approx(one.var_a, rel=rel)
+        assert mixed.var_w == pytest.approx(one.var_w, rel=rel)
         checks += 1
     assert checks > 100 / ask_every and len(one._win) == mixed._n > 900
 

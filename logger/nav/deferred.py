@@ -2,9 +2,10 @@
 
 At the IMU rate a method call per sample costs more than the few sums it feeds (a stop detector's window, a
 noise monitor's average): the samples are kept in a list and taken all at once, in their order and with the same
-arithmetic, when the result is read (or when many are waiting). Blocks of samples likewise (:func:`joined`):
-a block's numpy calls cost the same whatever its length, and a run of FIFO reads reaches the bookkeeping in
-several segments, cut at the measurements between them.
+arithmetic, when the result is read (or when many are waiting). Blocks of samples likewise (:func:`joined`;
+the stop detector, the noise monitor, the mount alignment's running sums, the die temperature): a block's numpy
+calls cost the same whatever its length, and a run of FIFO reads reaches the bookkeeping in several segments,
+cut at the measurements between them.
 """
 
 from __future__ import annotations
