@@ -29,6 +29,27 @@ def joined(blocks: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
     return out
 
 
+class BlockKeeper(ABC):
+    """Mixin: blocks of samples kept in ``self._blocks`` (:meth:`keep_block`) and taken as one by
+    :meth:`take_block` when a result is read (:meth:`take_kept`, which every reader calls first)."""
+
+    __slots__ = ()
+    _blocks: list[tuple[np.ndarray, ...]]
+
+    def keep_block(self, *arrays: np.ndarray) -> None:
+        self._blocks.append(arrays)
+        if len(self._blocks) >= BLOCKS_KEPT:
+            self.take_kept()
+
+    def take_kept(self) -> None:
+        if self._blocks:
+            self.take_block(*joined(self._blocks))  # the list is emptied first: a reader inside finds none
+
+    @abstractmethod
+    def take_block(self, *arrays: np.ndarray) -> None:
+        """Take one block (the kept ones joined), as the block form always did."""
+
+
 class Deferred(ABC):
     """Mixin: ``self._pending`` holds the samples not yet taken; :meth:`take_pending` takes them, in order."""
 

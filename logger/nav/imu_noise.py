@@ -20,7 +20,7 @@ from collections import deque
 
 import numpy as np
 
-from logger.nav.deferred import BLOCKS_KEPT, PENDING_MAX, Deferred, joined
+from logger.nav.deferred import PENDING_MAX, BlockKeeper, Deferred
 
 TAU_S = 30.0  # the average's memory, drive time
 # A chip measured this many times noisier than its datasheet is not of the datasheet's grade: a car's vibration
@@ -30,7 +30,7 @@ CONSUMER_NOISE_RATIO = 3.0
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
 
 
-class ImuNoiseMonitor(Deferred):
+class ImuNoiseMonitor(Deferred, BlockKeeper):
     """Running white-noise densities of the accelerometer (m/s^2/sqrt(Hz)) and gyro (rad/s/sqrt(Hz))."""
 
     __slots__ = ("_a1", "_a2", "_blocks", "_g1", "_g2", "_k", "_pending", "_seen_s", "_var_a", "_var_g")
@@ -55,15 +55,13 @@ class ImuNoiseMonitor(Deferred):
 
     def _take_all(self) -> None:
         """Everything kept, in order: blocks come before any single sample kept (:meth:`add` takes them first)."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         self.flush_pending()
 
     def add(self, acc: tuple[float, float, float], gyro: tuple[float, float, float], dt: float) -> None:
         """One sample and the interval since the previous one (a gap restarts the differences). Kept until a figure
         is asked for, then taken in order in one loop: a call per sample cost more than the arithmetic."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         pending = self._pending
         pending.append((acc, gyro, dt))
         if len(pending) >= PENDING_MAX:
@@ -99,14 +97,9 @@ class ImuNoiseMonitor(Deferred):
         cut into several by the measurements between them."""
         self.flush_pending()
         if len(dt):
-            self._blocks.append((acc, gyro, dt))
-            if len(self._blocks) >= BLOCKS_KEPT:
-                self._take_blocks()
+            self.keep_block(acc, gyro, dt)
 
-    def _take_blocks(self) -> None:
-        self._take_block(*joined(self._blocks))
-
-    def _take_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
+    def take_block(self, acc: np.ndarray, gyro: np.ndarray, dt: np.ndarray) -> None:
         n = len(dt)
         nan = (math.nan,) * 3
         a = np.concatenate((np.array((self._a2 or nan, self._a1 or nan)), acc))

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from logger.nav.arrays import diff_from
-from logger.nav.deferred import BLOCKS_KEPT, joined
+from logger.nav.deferred import BlockKeeper
 from logger.nav.ekf import inverse3
 from logger.nav.rotations import dcm_from_euler, euler_from_dcm, rotvec_from_dcm
 
@@ -218,7 +218,7 @@ def _det3(m: list[float]) -> float:
     return a * (e * i - f * h) + b * (f * g - d * i) + c * (d * h - e * g)
 
 
-class MountAlignment:
+class MountAlignment(BlockKeeper):
     """The mounting from windows of one second of the drive; ``configured`` is the starting guess (degrees)."""
 
     def __init__(self, configured_rpy_deg: tuple[float, float, float]) -> None:
@@ -256,8 +256,7 @@ class MountAlignment:
     # ---- windows ---------------------------------------------------------------------------------------
     def sample(self, t_ns: int, acc_chip: tuple[float, float, float], gyro_chip: tuple[float, float, float]) -> None:
         """One IMU sample on the chip's axes, as read."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         _, a0, a1, a2, w0, w1, w2, n = self._last
         ax, ay, az = acc_chip
         wx, wy, wz = gyro_chip
@@ -272,12 +271,9 @@ class MountAlignment:
         for the sums (or BLOCKS_KEPT wait), then summed as one block: the same sums (a cumulative sum goes on where
         it stopped), at the cost of one block's numpy calls for the several a run of reads is cut into."""
         if len(t_ns):
-            self._blocks.append((t_ns, acc_chip, gyro_chip))
-            if len(self._blocks) >= BLOCKS_KEPT:
-                self._take_blocks()
+            self.keep_block(t_ns, acc_chip, gyro_chip)
 
-    def _take_blocks(self) -> None:
-        t_ns, acc_chip, gyro_chip = joined(self._blocks)
+    def take_block(self, t_ns: np.ndarray, acc_chip: np.ndarray, gyro_chip: np.ndarray) -> None:
         last = self._last
         run = np.cumsum(np.concatenate((np.array((last[1:7],)), np.concatenate((acc_chip, gyro_chip), axis=1))),
                         axis=0)[1:]
@@ -290,8 +286,7 @@ class MountAlignment:
 
     def _sum_at(self, t_ns: int) -> tuple[float, ...] | None:
         """The running sums at the last sample not after ``t_ns`` (None when it is no longer kept)."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         sums = self._sums
         if not sums or sums[0][0] > t_ns:
             return None
@@ -308,8 +303,7 @@ class MountAlignment:
         """A GNSS velocity at its epoch (the receiver's Doppler: it owes nothing to the IMU, whose mounting is
         being estimated; the down element may come from the filter when the receiver gives none). Once a window
         of WINDOW_S is complete, its pair goes into the fits if the car was moving."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         sums = self._sums
         cutoff = t_epoch_ns - SUM_KEEP_NS  # at 20 Hz the sample bound alone would keep seven minutes (2 MB)
         while len(sums) > 1 and sums[1][0] <= cutoff:

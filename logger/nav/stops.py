@@ -14,7 +14,7 @@ from collections import deque
 
 import numpy as np
 
-from logger.nav.deferred import BLOCKS_KEPT, PENDING_MAX, Deferred, joined
+from logger.nav.deferred import PENDING_MAX, BlockKeeper, Deferred
 
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
@@ -43,7 +43,7 @@ def _moved_sums(sums: tuple[float, ...], v: np.ndarray, sign: float) -> tuple[fl
     return tuple((np.array(sums) + sign * np.concatenate((v.sum(axis=0), (v * v).sum(axis=0)))).tolist())
 
 
-class StopDetector(Deferred):
+class StopDetector(Deferred, BlockKeeper):
     def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
         self.thr_a = still_accel_mps2**2
         self.thr_w = still_gyro_rps**2
@@ -66,8 +66,7 @@ class StopDetector(Deferred):
     def add(self, t_ns: int, f: tuple[float, float, float], w: tuple[float, float, float]) -> None:
         """One sample into the one-second window. Kept until the variances are asked for, then taken in order in one
         loop (running sums: a call per sample cost more than the arithmetic)."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         pending = self._pending
         pending.append((t_ns, f, w))
         self._dirty = True
@@ -147,15 +146,10 @@ class StopDetector(Deferred):
         measurements between them."""
         self.flush_pending()
         if len(t_ns):
-            self._blocks.append((t_ns, f, w))
             self._dirty = True
-            if len(self._blocks) >= BLOCKS_KEPT:
-                self._take_blocks()
+            self.keep_block(t_ns, f, w)
 
-    def _take_blocks(self) -> None:
-        self._take_block(*joined(self._blocks))
-
-    def _take_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
+    def take_block(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> None:
         fw = np.concatenate((f, w), axis=1)
         self._win.append(_Block(np.asarray(t_ns, dtype=np.int64), fw))
         self._n += len(fw)
@@ -183,8 +177,7 @@ class StopDetector(Deferred):
         Before the filter starts, the start-up asks after every sample (levelling ends with the first that moves):
         one call per sample cost a 1 kHz IMU 10 us each. Here the window's sums at each sample come from cumulative
         sums of the samples that leave the window during these (its oldest) and of these themselves."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         self.flush_pending()
         t = np.asarray(t_ns, dtype=np.int64)
         n = len(t)
@@ -233,8 +226,7 @@ class StopDetector(Deferred):
         if not self._dirty:
             return
         self._dirty = False
-        if self._blocks:  # before the single samples kept: add() takes the blocks first
-            self._take_blocks()
+        self.take_kept()  # before the single samples kept: add() takes the blocks first
         self.flush_pending()
         n = self._n
         if n < 4:

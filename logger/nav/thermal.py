@@ -36,13 +36,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from logger.nav.arrays import diff_from
-from logger.nav.deferred import BLOCKS_KEPT
+from logger.nav.deferred import BlockKeeper
 
 SMOOTH_S = 20.0  # die temperature follows the board within minutes; its sensor's noise is white per sample
 STEP_DEGC = 0.05  # smallest change counted: above the averaged noise, below any tempco worth modelling
 
 
-class TemperatureSpan:
+class TemperatureSpan(BlockKeeper):
     """Smoothed die temperature, its range since :meth:`restart`, and the variance (degC^2) owed since last taken."""
 
     def __init__(self) -> None:
@@ -51,9 +51,8 @@ class TemperatureSpan:
     def restart(self) -> None:
         """The offsets were (re)calibrated: temperature changes count from here (blocks kept from before would
         only be forgotten)."""
-        # Blocks not yet taken, oldest first, those of one reading together: (their times, the reading).
-        self._blocks: list[tuple[list[np.ndarray], float]] = []
-        self._kept = 0
+        self._blocks: list[tuple[np.ndarray, ...]] = []  # times of blocks not yet taken, all of one reading ...
+        self._kept_degc = math.nan  # ... this one
         self._t_ns: int | None = None
         self._smooth = math.nan
         self._counted = math.nan
@@ -64,22 +63,19 @@ class TemperatureSpan:
     @property
     def smoothed(self) -> float:
         """The averaged die temperature, degC (NaN before the first reading)."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         return self._smooth
 
     @property
     def range_degc(self) -> float:
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         return max(self._hi - self._lo, 0.0)
 
     def add(self, t_ns: int, temp_degc: float) -> None:
         """One die-temperature reading (from the IMU record it came with)."""
         if temp_degc - temp_degc != 0.0:  # not finite (NaN or infinite): the cheapest test of the hot path
             return
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         t0 = self._t_ns
         if t0 is None:
             self._t_ns, self._smooth, self._counted = t_ns, temp_degc, temp_degc
@@ -100,25 +96,17 @@ class TemperatureSpan:
     def add_block(self, t_ns: np.ndarray, temp_degc: float) -> None:
         """One reading for samples at ``t_ns`` (in time order; a FIFO read has one temperature): what :meth:`add`
         at each leaves, the average in closed form. Kept until a figure is asked for (at each covariance step) or
-        BLOCKS_KEPT wait; consecutive blocks of one reading are then taken as one, the same average."""
+        BLOCKS_KEPT wait; consecutive blocks of one reading are taken as one, the same average (another reading
+        takes those kept first)."""
         if temp_degc - temp_degc != 0.0 or len(t_ns) == 0:
             return
-        blocks = self._blocks
-        if blocks and blocks[-1][1] == temp_degc:
-            blocks[-1][0].append(t_ns)
-        else:
-            blocks.append(([t_ns], temp_degc))
-        self._kept += 1
-        if self._kept >= BLOCKS_KEPT:
-            self._take_blocks()
+        if temp_degc != self._kept_degc:
+            self.take_kept()
+            self._kept_degc = temp_degc
+        self.keep_block(t_ns)
 
-    def _take_blocks(self) -> None:
-        blocks = self._blocks
-        self._blocks, self._kept = [], 0
-        for times, temp_degc in blocks:
-            self._take_block(times[0] if len(times) == 1 else np.concatenate(times), temp_degc)
-
-    def _take_block(self, t_ns: np.ndarray, temp_degc: float) -> None:
+    def take_block(self, t_ns: np.ndarray) -> None:
+        temp_degc = self._kept_degc
         if self._t_ns is None:
             self.add(int(t_ns[0]), temp_degc)
             t_ns = t_ns[1:]
@@ -147,8 +135,7 @@ class TemperatureSpan:
 
     def take(self) -> float:
         """Variance per unit k^2 (degC^2) owed since the last call; the caller adds k^2 times it to the offsets."""
-        if self._blocks:
-            self._take_blocks()
+        self.take_kept()
         owed, self._owed = self._owed, 0.0
         return owed
 
