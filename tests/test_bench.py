@@ -255,12 +255,65 @@ def test_the_simulators_modules_are_measured_apart_from_the_daemons() -> None:
     import sensors.sim.vehicle  # noqa: F401
 
     loaded = list(sys.modules)
-    assert bench_daemon.sim_modules_rss_mb(loaded) > 0.5
-    assert bench_daemon.sim_modules_rss_mb([n for n in loaded if not n.startswith("sensors.sim")]) == 0.0
+    assert bench_daemon.sim_modules_rss_mb(loaded)[1] > 0.5
+    assert bench_daemon.sim_modules_rss_mb([n for n in loaded if not n.startswith("sensors.sim")]) == (0.0, 0.0)
     r = {"rss_end_mb": 50.0, "sim_build_rss_mb": 7.5, "sim_modules_rss_mb": 2.5}
     assert bench_daemon.daemon_alone_mb(r) == 40.0
     del r["sim_modules_rss_mb"]  # figures saved before the modules were measured: no estimate, not a wrong one
     assert bench_daemon.daemon_alone_mb(r) is None
+
+
+def test_libraries_only_the_simulator_loads_while_building_are_the_simulators() -> None:
+    """numpy.random is loaded by the simulator's drive and never by the daemon's code: with numpy 2 it is the
+    simulator's memory; with Debian 12's numpy 1.24.2 ``import numpy`` loads it anyway (the daemon's, the board's).
+    A library the daemon's code imports (smbus2) stays the daemon's whoever loaded it first."""
+    import numpy as np
+    import numpy.random
+    import smbus2  # noqa: F401
+
+    import logger.compose  # noqa: F401
+    import sensors.sim.vehicle  # noqa: F401
+
+    named = bench_daemon.daemon_named_modules()
+    assert {"numpy", "smbus2", "mcap.writer"} <= named and "pty" not in named and "numpy.random" not in named
+    loaded = list(sys.modules)
+    drive_libraries = [n for n in loaded if n == "numpy.random" or n.startswith("numpy.random.")]
+    built_mb, sim_mb = bench_daemon.sim_modules_rss_mb(loaded, [*drive_libraries, "smbus2"])
+    if int(np.__version__.split(".")[0]) >= 2:
+        assert 1.0 < built_mb < sim_mb
+    else:
+        assert built_mb < 0.5
+    assert bench_daemon.sim_modules_rss_mb(loaded, ["smbus2"])[0] == 0.0
+
+
+def _chunked_file(path: Path, channels: int, chunks: int) -> Path:
+    """An MCAP file of ``chunks`` chunks a second apart, each with a message on every one of ``channels``."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start("bench", "test")
+        schema = w.register_schema("s", "jsonschema", b"{}")
+        ids = [w.register_channel(f"/t{i}", "json", schema) for i in range(channels)]
+        for k in range(chunks):
+            for c in ids:
+                w.add_message(c, log_time=k * 1_000_000_000 + c, data=b"{}", publish_time=k * 1_000_000_000)
+            w.flush()
+        w.finish()
+    return path
+
+
+def test_the_writers_index_at_rotation_follows_chunks_and_channels(tmp_path: Path) -> None:
+    """What the MCAP writer keeps per chunk until the file rotates: read from the file's chunks, measured per index,
+    and scaled to an hour's file; more channels a chunk, more memory a chunk."""
+    few = bench_daemon.writer_index([_chunked_file(tmp_path / "few.mcap", 3, 11)])
+    many = bench_daemon.writer_index([_chunked_file(tmp_path / "many.mcap", 12, 11)])
+    assert few["channels_per_chunk"] == 3.0 and many["channels_per_chunk"] == 12.0
+    assert few["chunks_per_s"] == pytest.approx(1.1, abs=0.01)  # 11 chunks over 10 s of messages
+    assert 0 < few["bytes_per_chunk"] < many["bytes_per_chunk"]
+    assert few["at_rotation_mb"] == pytest.approx(few["bytes_per_chunk"] * 1.1 * 3600 / (1 << 20), rel=0.05)
+    (tmp_path / "cut.mcap").write_bytes((tmp_path / "few.mcap").read_bytes()[:200])  # no summary: no figure
+    assert bench_daemon.writer_index([tmp_path / "cut.mcap"]) == {}
 
 
 def test_the_recorder_benchmark_streams_the_imu_topic_the_drive_has() -> None:

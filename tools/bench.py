@@ -3,6 +3,7 @@
     python tools/bench.py                      # everything, about 35 minutes; writes BENCHMARKS.md
     python tools/bench.py --quick              # a short smoke run of everything; prints, writes nothing
     python tools/bench.py --only recorder,nav  # a subset; the other sections keep their last figures
+    python tools/bench.py --only daemon --board-python .venv-floors/bin/python  # also with Debian 12's libraries
 
 Benchmarks (``--only`` names): ``daemon`` (CPU per thread and memory of the daemon on the simulated vehicle
 at the default rates and with the IMU at 200, 500 and 1000 Hz, each long enough to tell whether the rate is
@@ -53,6 +54,7 @@ LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "
 DAEMON_RATES = ((20.0, 300.0), (200.0, 300.0), (500.0, 300.0), (1000.0, 300.0))
 QUICK_DAEMON_RATES = ((20.0, 30.0), (200.0, 30.0), (500.0, 30.0), (1000.0, 30.0))
 PROFILE_S = (60.0, 20.0)
+BOARD_LIBRARY_RATES = (20.0, 1000.0)  # the daemon's rates run again with Debian 12's libraries (--board-python)
 DRIVE_S = (600.0, 180.0)
 DRIVE_TIME_SCALE = 4.0  # faster starves the simulated sensors on a loaded 2-core host (docs/nav.md)
 RECORDER = (("--messages", "200000", "--repeat", "3"), ("--messages", "20000", "--repeat", "1"))
@@ -141,8 +143,9 @@ def machine() -> dict[str, Any]:
 
 
 # ---- running one benchmark in its own process ----------------------------------------------------------------
-def run_step(name: str, args: list[str], work: Path) -> Any:
-    """Run ``tools/<script> args --json F`` as a child; returns its JSON and notes the load while it ran."""
+def run_step(name: str, args: list[str], work: Path, python: str = sys.executable) -> Any:
+    """Run ``tools/<script> args --json F`` as a child (by ``python``); returns its JSON and notes the load while it
+    ran."""
     out = work / f"{name}.json"
     log = work / f"{name}.log"
     started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -152,7 +155,7 @@ def run_step(name: str, args: list[str], work: Path) -> Any:
     load0, t0 = loadavg(), time.monotonic()
     print(f"[bench] {name}: {' '.join(args)}", flush=True)
     with open(log, "w", encoding="utf-8") as f:
-        code = subprocess.run([sys.executable, *args, "--json", str(out)], cwd=ROOT, stdout=f, stderr=f).returncode
+        code = subprocess.run([python, *args, "--json", str(out)], cwd=ROOT, stdout=f, stderr=f).returncode
     wall = time.monotonic() - t0
     busy1, total1 = machine_busy()
     child1 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -171,8 +174,8 @@ def run_step(name: str, args: list[str], work: Path) -> Any:
                      "jiffy_hz": ticks}}
 
 
-def run_daemon(quick: bool, work: Path, nice: int) -> dict[str, Any]:
-    runs, loads = [], []
+def run_daemon(quick: bool, work: Path, nice: int, board_python: str | None = None) -> dict[str, Any]:
+    runs, loads, board_runs = [], [], []
     for rate, seconds in QUICK_DAEMON_RATES if quick else DAEMON_RATES:
         step = run_step(f"daemon-{rate:g}", ["tools/bench_daemon.py", "--imu-rate", f"{rate:g}", "--seconds",
                                              f"{seconds:g}", "--nice", str(nice)], work)
@@ -182,7 +185,17 @@ def run_daemon(quick: bool, work: Path, nice: int) -> dict[str, Any]:
                                        f"{PROFILE_S[quick]:g}", "--profile", "--nice", str(nice)], work)
     runs.append(step["result"])
     loads.append({"step": "daemon 20 Hz, profiled", **step["load"]})
-    return {"runs": runs, "loads": loads}
+    # The board installs Debian 12's libraries (numpy 1.24.2, whose ``import numpy`` loads more): the memory the
+    # daemon takes with them, at the default rate and the highest.
+    for rate, seconds in (QUICK_DAEMON_RATES if quick else DAEMON_RATES) if board_python else ():
+        if rate not in BOARD_LIBRARY_RATES:
+            continue
+        step = run_step(f"daemon-{rate:g}-board-libraries", ["tools/bench_daemon.py", "--imu-rate", f"{rate:g}",
+                                                             "--seconds", f"{seconds:g}", "--nice", str(nice)],
+                        work, python=board_python)
+        board_runs.append(step["result"])
+        loads.append({"step": f"daemon {rate:g} Hz, Debian 12's libraries", **step["load"]})
+    return {"runs": runs, "loads": loads, "board_runs": board_runs}
 
 
 def record_drive(quick: bool, work: Path) -> list[Path]:
@@ -194,13 +207,14 @@ def record_drive(quick: bool, work: Path) -> list[Path]:
     return files
 
 
-def run_all(selected: list[str], quick: bool, work: Path, nice: int) -> dict[str, Any]:
+def run_all(selected: list[str], quick: bool, work: Path, nice: int, board_python: str | None = None
+            ) -> dict[str, Any]:
     done: dict[str, Any] = {}
     drive: list[Path] = []
     for name in selected:
         started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
         if name == "daemon":
-            section = run_daemon(quick, work, nice)
+            section = run_daemon(quick, work, nice, board_python)
         else:
             if name in ("recorder", "nav") and not drive:
                 drive = record_drive(quick, work)
@@ -266,7 +280,8 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
         lines += [f"## {title}", "", f"Measured {section['measured']}" + (" (quick run)" if section.get("quick")
                                                                            else "") + ".", ""]
         lines += _doc(module)
-        lines += [*module.render(section["runs"] if name == "daemon" else section), ""]
+        lines += [*(module.render(section["runs"], section.get("board_runs", [])) if name == "daemon"
+                    else module.render(section)), ""]
     kf = results.get("kfgins")
     if kf:
         import bench_kfgins  # here, not at the top: it takes its machine readings from this module
@@ -313,6 +328,12 @@ def alone(r: dict[str, Any]) -> str:
     return "" if mb is None else f", the daemon alone about {mb:.0f} MB"
 
 
+def mb_range(values: list[float]) -> str:
+    """"3.9 MB", or "3.8 to 4.1 MB"."""
+    low, high = f"{min(values):.1f}", f"{max(values):.1f}"
+    return f"{low} MB" if low == high else f"{low} to {high} MB"
+
+
 def summary_lines(results: dict[str, Any]) -> list[str]:
     out: list[str] = []
     daemon = [r for r in (results.get("daemon") or {}).get("runs", []) if not r["profile"]]
@@ -328,6 +349,14 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
             if r is not default:
                 out.append(f"  - IMU at {r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS "
                            f"{r['rss_end_mb']:.0f} MB{alone(r)}.")
+        index = [r["writer_index"]["at_rotation_mb"] for r in daemon if r.get("writer_index")]
+        if index:
+            out.append(f"  - By the end of each file ({daemon[0]['writer_index']['rotate_s'] / 3600:g} h) the MCAP "
+                       f"writer's index adds {mb_range(index)} to these (freed as the file rotates).")
+        for r in (results.get("daemon") or {}).get("board_runs", []):
+            out.append(f"  - With Debian 12's libraries (numpy {r.get('numpy_version', '?')}), IMU at "
+                       f"{r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS {r['rss_end_mb']:.0f} MB"
+                       f"{alone(r)}.")
         ok = [r["imu_rate_hz"] for r in daemon if r["sustained"]]
         failed = [f"{r['imu_rate_hz']:g} Hz ({bench_daemon.why_not(r)})" for r in daemon if not r["sustained"]]
         out.append(f"- Highest IMU rate sustained over {default['window_s']:.0f} s without a late, missed, lost or "
@@ -397,6 +426,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--daemon-nice", type=int, default=-10,
                     help="niceness of the daemon benchmark (default -10, as root): other jobs on a shared machine "
                     "then delay its sampler threads less, as nothing would on the board; CPU times are unaffected")
+    ap.add_argument("--board-python", metavar="PYTHON",
+                    help="an interpreter with Debian 12's library versions (.ci/floors.txt, as CI's .venv-floors "
+                    "has them): the daemon benchmark runs again with it at 20 Hz and 1 kHz, for the memory the board's "
+                    "libraries take")
     ap.add_argument("--record-kfgins", type=Path, metavar="FILE",
                     help="put tools/bench_kfgins.py's --json FILE into the saved figures and write the report again")
     args = ap.parse_args(argv)
@@ -434,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-") as tmp:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        fresh = run_all(selected, args.quick, work, args.daemon_nice)
+        fresh = run_all(selected, args.quick, work, args.daemon_nice, args.board_python)
     results: dict[str, Any] = dict(saved.get("results", {}))  # the sections not run now keep their figures
     results.update(fresh)
     info = machine()

@@ -138,8 +138,10 @@ def load(group):
             pass
 load(names["rest"])
 before = rss()
+load(names["built"])
+built = rss()
 load(names["sim"])
-print(json.dumps({"before": before, "after": rss()}))
+print(json.dumps({"before": before, "built": built, "after": rss()}))
 """
 
 
@@ -157,21 +159,53 @@ def unit_environment(unit: Path = UNIT) -> dict[str, str]:
     return env
 
 
-def sim_modules_rss_mb(loaded: list[str]) -> float:
-    """Resident memory the simulator's own modules (``sensors.sim``) add to an interpreter that holds every other
-    module the run loaded: measured in a child, which imports the others, then those. A module that only the
-    simulator imports from elsewhere (a library) counts for the daemon: the estimate errs on the daemon's side."""
+def daemon_named_modules(roots: tuple[str, ...] = ("logger", "sync", "sensors")) -> set[str]:
+    """Every module name the daemon's own code imports, at the top of a file or inside a function (the simulator's
+    ``sensors.sim`` left out): a library the simulator happened to load first is still the daemon's if these
+    name it."""
+    import ast
+
+    names: set[str] = set()
+    for root in roots:
+        for path in (ROOT / root).rglob("*.py"):
+            if path.is_relative_to(ROOT / SIM_MODULES.replace(".", "/")):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Import):
+                    names.update(a.name for a in node.names)
+                elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                    names.add(node.module)
+    return names
+
+
+def sim_modules_rss_mb(loaded: list[str], while_building: list[str] | None = None) -> tuple[float, float]:
+    """Resident memory the simulator's modules add to an interpreter that holds every other module the run loaded,
+    measured in a child, which imports the others, then those: (what the libraries first loaded while the drive was
+    built add, what they and ``sensors.sim`` add).
+
+    ``while_building``: the modules that appeared while the simulated drive was built. Those the daemon's code does
+    not name (:func:`daemon_named_modules`) are the simulator's: with numpy 2, ``numpy.random`` (and ``secrets``,
+    ``hashlib`` and OpenSSL's library behind it), which the daemon never imports; with numpy 1.24.2 (Debian 12's,
+    the board's) ``import numpy`` loads it, so it is there before the drive is built and counts for the daemon. The
+    part the build's libraries add is inside the RSS measured across the build: :func:`run` takes it out of the
+    drive's figure, so that the drive is its data only. A library only the simulator imports from elsewhere counts
+    for the daemon: the estimate errs on the daemon's side."""
     import subprocess
 
     sim = sorted(n for n in loaded if n == SIM_MODULES or n.startswith(SIM_MODULES + "."))
-    rest = sorted(n for n in loaded if n not in sim and n != "__main__" and not n.startswith("bench"))
+    named = daemon_named_modules()
+    present = set(loaded)
+    built = sorted(n for n in (while_building or []) if n not in sim and n not in named and n in present)
+    rest = sorted(n for n in loaded
+                  if n not in sim and n not in built and n != "__main__" and not n.startswith("bench"))
     try:
-        out = subprocess.run([sys.executable, "-c", _MODULES_RSS_CHILD], input=json.dumps({"rest": rest, "sim": sim}),
+        out = subprocess.run([sys.executable, "-c", _MODULES_RSS_CHILD],
+                             input=json.dumps({"rest": rest, "built": built, "sim": sim}),
                              capture_output=True, text=True, cwd=ROOT, timeout=120, check=True)
         got = json.loads(out.stdout)
     except (OSError, subprocess.SubprocessError, ValueError):
-        return 0.0
-    return round((got["after"] - got["before"]) / 1024, 1)
+        return 0.0, 0.0
+    return round((got["built"] - got["before"]) / 1024, 1), round((got["after"] - got["before"]) / 1024, 1)
 
 
 def set_niceness(nice: int) -> int:
@@ -390,6 +424,9 @@ class DaemonResult:
     hwm_mb: float = 0.0
     sim_build_rss_mb: float = 0.0
     sim_modules_rss_mb: float = 0.0
+    sim_build_modules_mb: float = 0.0  # of which libraries the simulator alone loaded as it built the drive
+    writer_index: dict[str, float] = field(default_factory=dict)  # what the MCAP writer keeps per chunk
+    numpy_version: str = ""  # Debian 12's 1.24.2 loads numpy.random and numpy.ma with ``import numpy``; numpy 2 not
     environment: dict[str, str] = field(default_factory=dict)
     rss_series_mb: list[float] = field(default_factory=list)
     counters: dict[str, Any] = field(default_factory=dict)
@@ -422,6 +459,52 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
             "imu_records_whole_run": len(imu)}
 
 
+def writer_index(files: list[Path]) -> dict[str, float]:
+    """What the MCAP writer keeps per chunk until its file rotates: a chunk index (the chunk's times, place and
+    sizes, and the offset of each channel's message index in it), one per chunk, one chunk per flush. From the
+    recorded file: chunks a second and channels a chunk; the memory of one such index measured by building them
+    as the writer does (mcap's own ChunkIndex, its offsets as large integers); hence the memory held at the end
+    of a file of ``rotate_duration_s`` (the configuration's default, an hour). Empty without a readable summary."""
+    import tracemalloc
+
+    from mcap.reader import make_reader
+    from mcap.records import ChunkIndex
+
+    from logger.recording.settings import RecorderSettings
+
+    chunks: list[Any] = []
+    for path in files:
+        try:
+            with open(path, "rb") as fh:
+                summary = make_reader(fh).get_summary()
+        except Exception:  # whatever the reader refuses (a file cut short): this file gives no figure
+            continue
+        if summary is not None:
+            chunks += summary.chunk_indexes
+    if len(chunks) < 2:
+        return {}
+    span_s = (max(c.message_end_time for c in chunks) - min(c.message_start_time for c in chunks)) / NS
+    channels = sum(len(c.message_index_offsets) for c in chunks) / len(chunks)
+    k, n = round(channels), 1000
+    tracing = tracemalloc.is_tracing()
+    if not tracing:
+        tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    big = 1 << 40  # offsets and times as the writer holds them: integers beyond the small ones Python shares
+    kept = [ChunkIndex(message_start_time=big + i, message_end_time=big + i + 1, chunk_start_offset=big + 2 * i,
+                       chunk_length=big + 3 * i, message_index_offsets={j: big + 4 * i + j for j in range(k)},
+                       message_index_length=big + 5 * i, compression="zstd", compressed_size=big + 6 * i,
+                       uncompressed_size=big + 7 * i) for i in range(n)]
+    per_chunk = (tracemalloc.get_traced_memory()[0] - base) / len(kept)
+    if not tracing:
+        tracemalloc.stop()
+    rotate_s = RecorderSettings.rotate_duration_s
+    per_s = len(chunks) / max(span_s, 1.0)
+    return {"chunks_per_s": round(per_s, 2), "channels_per_chunk": round(channels, 1),
+            "bytes_per_chunk": round(per_chunk), "rotate_s": rotate_s,
+            "at_rotation_mb": round(per_chunk * per_s * rotate_s / (1 << 20), 1)}
+
+
 def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool,
         profile_thread: str | None = None) -> DaemonResult:
     from logger.compose import build
@@ -440,6 +523,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     import sensors.sim.vehicle as sim_vehicle
 
     built: dict[str, int] = {}
+    while_building: list[str] = []
     original_build = sim_vehicle.build_vehicle
 
     def build_vehicle(*args: Any, **kwargs: Any) -> Any:
@@ -448,8 +532,10 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
         # daemon thread would pay here and none pays on a board. Lateness is still counted by the samplers.
         kwargs["paced"] = False
         built["before"] = proc_status_kb("VmRSS")["VmRSS"]
+        modules = set(sys.modules)
         vehicle = original_build(*args, **kwargs)
         built["after"] = proc_status_kb("VmRSS")["VmRSS"]
+        while_building.extend(sorted(set(sys.modules) - modules))
         return vehicle
 
     sim_vehicle.build_vehicle = build_vehicle  # type: ignore[assignment]
@@ -508,9 +594,11 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     result.rss_end_mb = round(b.rss_kb / 1024, 1)
     result.rss_growth_mb = round((b.rss_kb - a.rss_kb) / 1024, 2)
     result.hwm_mb = round(b.hwm_kb / 1024, 1)
-    result.sim_build_rss_mb = round((built.get("after", 0) - built.get("before", 0)) / 1024, 1)
-    result.sim_modules_rss_mb = sim_modules_rss_mb(list(sys.modules))
+    result.sim_build_modules_mb, result.sim_modules_rss_mb = sim_modules_rss_mb(list(sys.modules), while_building)
+    result.sim_build_rss_mb = round((built.get("after", 0) - built.get("before", 0)) / 1024
+                                    - result.sim_build_modules_mb, 1)
     result.environment = {k: os.environ.get(k, "") for k in unit_environment()}
+    result.numpy_version = sys.modules["numpy"].__version__ if "numpy" in sys.modules else ""
     result.rss_series_mb = [round(x, 1) for x in rss[:: max(1, len(rss) // 12)]]
     result.i2c_transfers_per_s = round((b.i2c_transfers - a.i2c_transfers) / wall, 1)
     result.counters = {
@@ -522,6 +610,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
         "whole_run_imu_late": b.sensors.get("imu", {}).get("late", 0),
         "whole_run_imu_missed": b.sensors.get("imu", {}).get("missed", 0)}
     result.file = analyse_file(sorted(out.glob("*.mcap")), imu_rate, a.mono_ns, b.mono_ns)
+    result.writer_index = writer_index(sorted(out.glob("*.mcap")))
     imu = result.counters["sensors"].get("imu", {})
     # Sustained: no sample lost anywhere and no sampler period late or missed. Irregular stamps are reported
     # beside it (stamp_gaps, stamp_backwards): every sample is there, but its time is off.
@@ -575,8 +664,15 @@ def _mb(value: float | None, bold: bool = False) -> str:
     return f"**{value:.1f} MB**" if bold else f"{value:.1f} MB"
 
 
-def render(results: list[dict[str, Any]]) -> list[str]:
-    """Markdown: CPU and memory per IMU rate, the per-thread split, and the sustained-rate verdicts."""
+def _memory_row(r: dict[str, Any]) -> str:
+    return (f"| {r['rss_start_mb']:.1f} -> {r['rss_end_mb']:.1f} MB ({r['rss_growth_mb']:+.2f}) "
+            f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB "
+            f"| {_mb(r.get('sim_modules_rss_mb'))} | {_mb(daemon_alone_mb(r), bold=True)} |")
+
+
+def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | None = None) -> list[str]:
+    """Markdown: CPU and memory per IMU rate, the per-thread split, and the sustained-rate verdicts; ``board_runs``,
+    the same benchmark run with Debian 12's library versions (``tools/bench.py --board-python``): their memory."""
     plain = [r for r in results if not r["profile"]]
     lines = ["| IMU rate | window | niceness | daemon threads | simulator (threads + inside daemon threads) "
              "| whole process | RSS at start -> end (growth) | peak RSS | of which the simulated drive "
@@ -586,9 +682,17 @@ def render(results: list[dict[str, Any]]) -> list[str]:
         lines.append(f"| {r['imu_rate_hz']:g} Hz | {r['window_s']:.0f} s | {r.get('nice', 0)} "
                      f"| **{r['daemon_pct']:.2f} %** "
                      f"| {r['sim_pct']:.2f} % ({r['sim_inside_daemon_pct']:.2f} % inside) | {r['process_pct']:.2f} % "
-                     f"| {r['rss_start_mb']:.1f} -> {r['rss_end_mb']:.1f} MB ({r['rss_growth_mb']:+.2f}) "
-                     f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB "
-                     f"| {_mb(r.get('sim_modules_rss_mb'))} | {_mb(daemon_alone_mb(r), bold=True)} |")
+                     + _memory_row(r))
+    if board_runs:
+        versions = sorted({r.get("numpy_version", "?") for r in board_runs})
+        lines += ["", f"The same with Debian 12's library versions, which the board installs (`.ci/floors.txt`: numpy "
+                  f"{', '.join(versions)}, whose `import numpy` also loads `numpy.random`, `numpy.ma` and OpenSSL's "
+                  "library behind `secrets`; `tools/bench.py --board-python`):", "",
+                  "| IMU rate | window | daemon threads | RSS at start -> end (growth) | peak RSS "
+                  "| of which the simulated drive | and the simulator's modules | daemon alone at the end, estimated |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [f"| {r['imu_rate_hz']:g} Hz | {r['window_s']:.0f} s | {r['daemon_pct']:.2f} % " + _memory_row(r)
+                  for r in board_runs]
     lines += ["", "Per thread, % of one core of this machine (the simulator's share inside a daemon thread in "
               "brackets, already moved out of the daemon figure):", ""]
     names = sorted({n for r in plain for n in r["threads"]}, key=lambda n: (thread_class(n) != "daemon", n))
@@ -629,10 +733,15 @@ def render(results: list[dict[str, Any]]) -> list[str]:
         lines += ["", "Not every run had the service unit's environment (run without it, or before the benchmark "
                   "took it): those had glibc's default malloc arenas (16 on this 64-bit host with two cores, 2 on the "
                   "board's one 32-bit core)."]
+    libs = sorted(r["sim_build_modules_mb"] for r in plain if "sim_build_modules_mb" in r)
     lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
-              "simulated drive (measured as it was built) and the simulator's modules (`sensors.sim`, measured in a "
-              "child interpreter that first imports every other module the run loaded): an estimate, since the "
-              "simulator's objects and threads stay in it, and the board's 32-bit interpreter has smaller objects."]
+              "simulated drive (measured across its building, less the libraries first loaded then that the daemon's "
+              "code never imports: with numpy 2, `numpy.random` and OpenSSL's library behind `secrets`"
+              + (f", {libs[0]:.1f} to {libs[-1]:.1f} MB in these runs" if libs else "")
+              + ") and the simulator's modules (those libraries and `sensors.sim`, measured in a child interpreter "
+              "that first imports every other module the run loaded): an estimate, since the simulator's objects and "
+              "threads stay in it, the drive's figure moves by a megabyte or two from run to run with what the heap "
+              "had free, and the board's 32-bit interpreter has smaller objects."]
     growth = [r["rss_growth_mb"] for r in plain]
     if growth:
         lines += ["", f"RSS grew by {min(growth):+.1f} to {max(growth):+.1f} MB over each window, by about the same "
@@ -642,6 +751,18 @@ def render(results: list[dict[str, Any]]) -> list[str]:
                   "simulated u-blox its last 3600 epochs and the simulated ELM327 its last 2048-4096 command lines, "
                   "for the tests; the filter's history and the mount alignment's running sums are bounded to their "
                   "last 10 s and 4 s. `tools/soak.py` measures growth over hours."]
+        idx = [r for r in plain if r.get("writer_index")]
+        if idx:
+            w = [r["writer_index"] for r in idx]
+            lines += ["", "The writer's index at the end of an hour's file, from each run's recorded chunks (chunks a "
+                      "second, channels a chunk) and the memory of one index built as the writer builds it: "
+                      + "; ".join(f"{r['imu_rate_hz']:g} Hz {x['chunks_per_s']:.2f} chunks/s x "
+                                  f"{x['channels_per_chunk']:.1f} channels, {x['bytes_per_chunk']:.0f} B a chunk, "
+                                  f"**{x['at_rotation_mb']:.1f} MB** at {x['rotate_s'] / 3600:g} h"
+                                  for r, x in zip(idx, w, strict=True))
+                      + ". The window's RSS holds only its first minutes of that: by the end of each file the "
+                      "daemon holds that much more than the table says; the index is freed as the file rotates and "
+                      "the next file's fills the same memory again."]
     lines += ["", "Sustained IMU rate, in the measured window. Sustained means every sample recorded (no sequence "
               "gap, no FIFO overflow, no recorder drop) and no sampler period late or missed; the last three columns "
               "say how regular the samples' stamps are (every sample is there, but its time may be off):", "",
