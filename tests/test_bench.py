@@ -309,11 +309,27 @@ def test_the_writers_index_at_rotation_follows_chunks_and_channels(tmp_path: Pat
     few = bench_daemon.writer_index([_chunked_file(tmp_path / "few.mcap", 3, 11)])
     many = bench_daemon.writer_index([_chunked_file(tmp_path / "many.mcap", 12, 11)])
     assert few["channels_per_chunk"] == 3.0 and many["channels_per_chunk"] == 12.0
-    assert few["chunks_per_s"] == pytest.approx(1.1, abs=0.01)  # 11 chunks over 10 s of messages
-    assert 0 < few["bytes_per_chunk"] < many["bytes_per_chunk"]
-    assert few["at_rotation_mb"] == pytest.approx(few["bytes_per_chunk"] * 1.1 * 3600 / (1 << 20), rel=0.05)
+    assert few["chunks_per_s"] == 1.0 and few["held_s"] == 10  # 11 chunks, a second apart
+    assert 0 < few["bytes_per_chunk"] < many["bytes_per_chunk"] < 3000
+    assert few["at_rotation_mb"] < many["at_rotation_mb"]
+    assert few["beyond_window_mb"] == pytest.approx(few["at_rotation_mb"] * (3600 - 10) / 3600, abs=0.1)
     (tmp_path / "cut.mcap").write_bytes((tmp_path / "few.mcap").read_bytes()[:200])  # no summary: no figure
     assert bench_daemon.writer_index([tmp_path / "cut.mcap"]) == {}
+
+
+def test_the_board_interpreter_is_checked_before_measuring(tmp_path: Path) -> None:
+    """--board-python runs the daemon benchmark again: refused without it, or with an interpreter that is not one
+    or cannot import the daemon's modules, before any measuring starts."""
+    import argparse
+
+    import bench
+
+    ap = argparse.ArgumentParser(prog="bench.py")
+    with pytest.raises(SystemExit):
+        bench.board_interpreter(sys.executable, ["recorder"], ap)
+    with pytest.raises(SystemExit):
+        bench.board_interpreter(str(tmp_path / "no-python"), ["daemon"], ap)
+    assert bench.board_interpreter(sys.executable, ["daemon"], ap) == os.path.abspath(sys.executable)
 
 
 def test_the_recorder_benchmark_streams_the_imu_topic_the_drive_has() -> None:

@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import importlib.metadata
 import json
 import os
 import platform
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -89,13 +89,7 @@ def machine_busy() -> tuple[int, int]:
 
 
 def versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for name in LIBRARIES:
-        try:
-            out[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
+    return {"python": platform.python_version(), **bench_daemon.library_versions(LIBRARIES)}
 
 
 def tree_state() -> str:
@@ -266,8 +260,8 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
              "| --- | --- | --- | --- | " + " | ".join("---" for _ in LIBRARIES) + " | --- |",
              f"| {info['cpu']} ({info['arch']}) | {info['cores']} | {info['kernel']} | {v['python']} | "
              + " | ".join(v.get(n, "?") for n in LIBRARIES) + f" | {info['commit']} |", ""]
-    summary = summary_lines(results)
     caveat = bench_board.machine_caveat(info["cpu"])
+    summary = summary_lines(results, f_judged_here=caveat is None)
     if summary and caveat:
         summary.append(caveat)
     if summary:
@@ -328,13 +322,9 @@ def alone(r: dict[str, Any]) -> str:
     return "" if mb is None else f", the daemon alone about {mb:.0f} MB"
 
 
-def mb_range(values: list[float]) -> str:
-    """"3.9 MB", or "3.8 to 4.1 MB"."""
-    low, high = f"{min(values):.1f}", f"{max(values):.1f}"
-    return f"{low} MB" if low == high else f"{low} to {high} MB"
-
-
-def summary_lines(results: dict[str, Any]) -> list[str]:
+def summary_lines(results: dict[str, Any], f_judged_here: bool = True) -> list[str]:
+    """The summary's lines; ``f_judged_here`` False: the board's factor F was judged for another core, and the
+    verdict says so (the caveat line that :func:`report` adds tells which way that can go)."""
     out: list[str] = []
     daemon = [r for r in (results.get("daemon") or {}).get("runs", []) if not r["profile"]]
     default = next((r for r in daemon if r["imu_rate_hz"] == 20.0), None)
@@ -344,15 +334,17 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
                    f"(the whole process with the simulator: {default['process_pct']:.2f} %); RSS "
                    f"{default['rss_end_mb']:.0f} MB{alone(default)}; on a BeagleBone-class core {low:.0f} to "
                    f"{high:.0f} %: "
-                   f"{bench_board.verdict(low, high)}.")
+                   f"{bench_board.verdict(low, high)}"
+                   + ("" if f_judged_here else " by F as judged for another core (see the last line here)") + ".")
         for r in daemon:
             if r is not default:
                 out.append(f"  - IMU at {r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS "
                            f"{r['rss_end_mb']:.0f} MB{alone(r)}.")
-        index = [r["writer_index"]["at_rotation_mb"] for r in daemon if r.get("writer_index")]
+        index = [r["writer_index"] for r in daemon if r.get("writer_index")]
         if index:
-            out.append(f"  - By the end of each file ({daemon[0]['writer_index']['rotate_s'] / 3600:g} h) the MCAP "
-                       f"writer's index adds {mb_range(index)} to these (freed as the file rotates).")
+            more = [x.get("beyond_window_mb", x["at_rotation_mb"]) for x in index]
+            out.append(f"  - By the end of each file ({index[0]['rotate_s'] / 3600:g} h) the MCAP writer's index "
+                       f"holds about {bench_daemon.mb_span(more)} more than these (freed as the file rotates).")
         for r in (results.get("daemon") or {}).get("board_runs", []):
             out.append(f"  - With Debian 12's libraries (numpy {r.get('numpy_version', '?')}), IMU at "
                        f"{r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS {r['rss_end_mb']:.0f} MB"
@@ -413,6 +405,22 @@ def hosts_line(results: dict[str, Any]) -> str:
             "end): compare figures within a section, or scaled by the reference.")
 
 
+def board_interpreter(python: str, selected: list[str], ap: argparse.ArgumentParser) -> str:
+    """--board-python resolved (the benchmark runs it from the repository's root) and checked before half an hour of
+    measuring: it must run the daemon's modules."""
+    if "daemon" not in selected:
+        ap.error("--board-python runs the daemon benchmark again: give it with the daemon benchmark")
+    path = shutil.which(python) if os.sep not in python else os.path.abspath(python)  # a venv's link kept
+    if path is None or not os.access(path, os.X_OK):
+        ap.error(f"--board-python: no interpreter {python!r}")
+    probe = subprocess.run([path, "-c", "import numpy, mcap, ujson, logger.compose"], cwd=ROOT, capture_output=True,
+                           text=True)
+    if probe.returncode != 0:
+        last = (probe.stderr.strip().splitlines() or ["(no message)"])[-1]
+        ap.error(f"--board-python {path}: cannot run the daemon's modules: {last}")
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -450,6 +458,8 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [s for s in selected if s not in BENCHMARKS]
         if unknown or not selected:
             ap.error(f"--only: unknown benchmark {', '.join(unknown) or '(none)'}; choose from {', '.join(BENCHMARKS)}")
+    if args.board_python is not None:
+        args.board_python = board_interpreter(args.board_python, selected, ap)
     out = args.out or (None if args.quick else ROOT / "BENCHMARKS.md")
     command = "python tools/bench.py" + ("" if argv is None and len(sys.argv) == 1 else " " + " ".join(
         sys.argv[1:] if argv is None else argv))

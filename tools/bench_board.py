@@ -70,7 +70,9 @@ def machine_caveat(cpu: str) -> str | None:
         return None
     return (f"- The board's range uses F, judged for a {FACTOR_JUDGED_FOR} core (H in the BeagleBone section's "
             f"method); these figures were measured on {cpu}, for which H was not judged again: where this core runs "
-            "Python slower than that one, the range overstates the board by as much.")
+            "Python faster than that one, the range understates the board by as much, and where slower, overstates "
+            "it (no host reference was taken on that core to tell which: the load table's reference compares only "
+            "the hosts measured since).")
 
 
 def board_range(pct_here: float) -> tuple[float, float]:

@@ -426,6 +426,7 @@ class DaemonResult:
     sim_modules_rss_mb: float = 0.0
     sim_build_modules_mb: float = 0.0  # of which libraries the simulator alone loaded as it built the drive
     writer_index: dict[str, float] = field(default_factory=dict)  # what the MCAP writer keeps per chunk
+    libraries: dict[str, str] = field(default_factory=dict)  # the run's library versions (LIBRARIES)
     numpy_version: str = ""  # Debian 12's 1.24.2 loads numpy.random and numpy.ma with ``import numpy``; numpy 2 not
     environment: dict[str, str] = field(default_factory=dict)
     rss_series_mb: list[float] = field(default_factory=list)
@@ -459,16 +460,66 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
             "imu_records_whole_run": len(imu)}
 
 
+LIBRARIES = ("numpy", "mcap", "ujson", "zstandard", "lz4", "pyserial", "smbus2", "python-can", "gpiod")
+
+
+def library_versions(names: tuple[str, ...] = LIBRARIES) -> dict[str, str]:
+    """The installed versions of these libraries ("not installed" for one that is not): by default those the daemon
+    runs on, what --board-python changes."""
+    import importlib.metadata
+
+    out = {}
+    for name in names:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _writer_bytes_per_chunk(counts: list[int], t0_ns: int, chunks: int = 1000) -> float:
+    """What mcap's Writer keeps per chunk, measured on the Writer itself: ``chunks`` chunks a second apart written
+    to a temporary file (a file's offsets are what the index keeps: /dev/null's are all 0, integers Python shares),
+    chunk i with a message on ``counts[i % len(counts)]`` channels (the recorded file's own mix), and Python's
+    allocations that stay (tracemalloc) divided by the chunks."""
+    import gc
+    import tracemalloc
+
+    from mcap.writer import Writer
+
+    most = max(counts)
+    with tempfile.TemporaryFile() as sink:
+        writer = Writer(sink)
+        writer.start("bench", "writer index")
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        ids = [writer.register_channel(f"/c{j}", "json", schema) for j in range(most)]
+        tracing = tracemalloc.is_tracing()
+        if not tracing:
+            tracemalloc.start()
+        gc.collect()
+        base = tracemalloc.get_traced_memory()[0]
+        for i in range(chunks):
+            t = t0_ns + i * NS
+            for c in ids[:counts[i % len(counts)]]:
+                writer.add_message(c, log_time=t + c, data=b"{}", publish_time=t)
+            writer.flush()
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - base
+        if not tracing:
+            tracemalloc.stop()
+        writer.finish()
+    return held / chunks
+
+
 def writer_index(files: list[Path]) -> dict[str, float]:
     """What the MCAP writer keeps per chunk until its file rotates: a chunk index (the chunk's times, place and
     sizes, and the offset of each channel's message index in it), one per chunk, one chunk per flush. From the
-    recorded file: chunks a second and channels a chunk; the memory of one such index measured by building them
-    as the writer does (mcap's own ChunkIndex, its offsets as large integers); hence the memory held at the end
-    of a file of ``rotate_duration_s`` (the configuration's default, an hour). Empty without a readable summary."""
-    import tracemalloc
-
+    recorded file: chunks a second (over the chunks' starts) and channels a chunk; the memory the Writer keeps per
+    chunk of that mix (:func:`_writer_bytes_per_chunk`; Python's allocations, not pages); hence the memory the index
+    holds at the end of a file of ``rotate_duration_s`` (the configuration's default, an hour), and how much of it
+    the file did not yet hold when it was read (the run's RSS already has the rest). Empty without a readable
+    summary of at least two chunks."""
     from mcap.reader import make_reader
-    from mcap.records import ChunkIndex
 
     from logger.recording.settings import RecorderSettings
 
@@ -481,28 +532,20 @@ def writer_index(files: list[Path]) -> dict[str, float]:
             continue
         if summary is not None:
             chunks += summary.chunk_indexes
-    if len(chunks) < 2:
+    starts = sorted(c.message_start_time for c in chunks)
+    if len(starts) < 2 or starts[-1] <= starts[0]:
         return {}
-    span_s = (max(c.message_end_time for c in chunks) - min(c.message_start_time for c in chunks)) / NS
-    channels = sum(len(c.message_index_offsets) for c in chunks) / len(chunks)
-    k, n = round(channels), 1000
-    tracing = tracemalloc.is_tracing()
-    if not tracing:
-        tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    big = 1 << 40  # offsets and times as the writer holds them: integers beyond the small ones Python shares
-    kept = [ChunkIndex(message_start_time=big + i, message_end_time=big + i + 1, chunk_start_offset=big + 2 * i,
-                       chunk_length=big + 3 * i, message_index_offsets={j: big + 4 * i + j for j in range(k)},
-                       message_index_length=big + 5 * i, compression="zstd", compressed_size=big + 6 * i,
-                       uncompressed_size=big + 7 * i) for i in range(n)]
-    per_chunk = (tracemalloc.get_traced_memory()[0] - base) / len(kept)
-    if not tracing:
-        tracemalloc.stop()
+    per_s = (len(starts) - 1) / ((starts[-1] - starts[0]) / NS)
+    held_s = (max(c.message_end_time for c in chunks) - starts[0]) / NS  # the file's age when it was read
+    counts = [len(c.message_index_offsets) for c in chunks]  # each chunk's channels, as the file has them
+    channels = sum(counts) / len(counts)
+    per_chunk = _writer_bytes_per_chunk(counts, starts[0])
     rotate_s = RecorderSettings.rotate_duration_s
-    per_s = len(chunks) / max(span_s, 1.0)
+    mib = 1 << 20
     return {"chunks_per_s": round(per_s, 2), "channels_per_chunk": round(channels, 1),
-            "bytes_per_chunk": round(per_chunk), "rotate_s": rotate_s,
-            "at_rotation_mb": round(per_chunk * per_s * rotate_s / (1 << 20), 1)}
+            "bytes_per_chunk": round(per_chunk), "rotate_s": rotate_s, "held_s": round(held_s),
+            "at_rotation_mb": round(per_chunk * per_s * rotate_s / mib, 1),
+            "beyond_window_mb": round(per_chunk * per_s * max(0.0, rotate_s - held_s) / mib, 1)}
 
 
 def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool,
@@ -599,6 +642,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
                                     - result.sim_build_modules_mb, 1)
     result.environment = {k: os.environ.get(k, "") for k in unit_environment()}
     result.numpy_version = sys.modules["numpy"].__version__ if "numpy" in sys.modules else ""
+    result.libraries = library_versions()
     result.rss_series_mb = [round(x, 1) for x in rss[:: max(1, len(rss) // 12)]]
     result.i2c_transfers_per_s = round((b.i2c_transfers - a.i2c_transfers) / wall, 1)
     result.counters = {
@@ -664,6 +708,12 @@ def _mb(value: float | None, bold: bool = False) -> str:
     return f"**{value:.1f} MB**" if bold else f"{value:.1f} MB"
 
 
+def mb_span(values: list[float]) -> str:
+    """"3.9 MB", or "1.1 to 3.4 MB"."""
+    low, high = f"{min(values):.1f}", f"{max(values):.1f}"
+    return f"{low} MB" if low == high else f"{low} to {high} MB"
+
+
 def _memory_row(r: dict[str, Any]) -> str:
     return (f"| {r['rss_start_mb']:.1f} -> {r['rss_end_mb']:.1f} MB ({r['rss_growth_mb']:+.2f}) "
             f"| {r['hwm_mb']:.1f} MB | {r['sim_build_rss_mb']:.1f} MB "
@@ -684,10 +734,13 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
                      f"| {r['sim_pct']:.2f} % ({r['sim_inside_daemon_pct']:.2f} % inside) | {r['process_pct']:.2f} % "
                      + _memory_row(r))
     if board_runs:
-        versions = sorted({r.get("numpy_version", "?") for r in board_runs})
-        lines += ["", f"The same with Debian 12's library versions, which the board installs (`.ci/floors.txt`: numpy "
-                  f"{', '.join(versions)}, whose `import numpy` also loads `numpy.random`, `numpy.ma` and OpenSSL's "
-                  "library behind `secrets`; `tools/bench.py --board-python`):", "",
+        libs = board_runs[0].get("libraries") or {"numpy": board_runs[0].get("numpy_version", "?")}
+        numpy1 = all(r.get("numpy_version", "").startswith("1.") for r in board_runs)
+        lines += ["", "The same with Debian 12's library versions, which the board installs (`.ci/floors.txt`; "
+                  "`tools/bench.py --board-python`; this run's: "
+                  + ", ".join(f"{k} {v}" for k, v in libs.items()) + ")"
+                  + (": numpy 1's `import numpy` loads `numpy.random` and `numpy.ma` too, and OpenSSL's library "
+                     "behind `secrets` with them, which numpy 2 leaves until asked for" if numpy1 else "") + ":", "",
                   "| IMU rate | window | daemon threads | RSS at start -> end (growth) | peak RSS "
                   "| of which the simulated drive | and the simulator's modules | daemon alone at the end, estimated |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -733,15 +786,25 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
         lines += ["", "Not every run had the service unit's environment (run without it, or before the benchmark "
                   "took it): those had glibc's default malloc arenas (16 on this 64-bit host with two cores, 2 on the "
                   "board's one 32-bit core)."]
-    libs = sorted(r["sim_build_modules_mb"] for r in plain if "sim_build_modules_mb" in r)
-    lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
-              "simulated drive (measured across its building, less the libraries first loaded then that the daemon's "
-              "code never imports: with numpy 2, `numpy.random` and OpenSSL's library behind `secrets`"
-              + (f", {libs[0]:.1f} to {libs[-1]:.1f} MB in these runs" if libs else "")
-              + ") and the simulator's modules (those libraries and `sensors.sim`, measured in a child interpreter "
-              "that first imports every other module the run loaded): an estimate, since the simulator's objects and "
-              "threads stay in it, the drive's figure moves by a megabyte or two from run to run with what the heap "
-              "had free, and the board's 32-bit interpreter has smaller objects."]
+    if plain and all("sim_build_modules_mb" in r for r in plain):
+        libs = [r["sim_build_modules_mb"] for r in plain]
+        drive = [r["sim_build_rss_mb"] for r in plain]
+        lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
+                  "simulated drive (the growth measured across its building, less the libraries first loaded then "
+                  f"that the daemon's code never imports: {mb_span(libs)} in these runs, with numpy 2 `numpy.random` "
+                  "and OpenSSL's library behind `secrets`) and the simulator's modules (those libraries and "
+                  "`sensors.sim`, measured in a child interpreter that first imports every other module the run "
+                  "loaded): an estimate, since the simulator's objects and threads stay in it, the drive's growth "
+                  f"depends on what the heap had free ({mb_span(drive)} in these runs), and the board's 32-bit "
+                  "interpreter has smaller objects. A library that the daemon's code does not import by name (one "
+                  "that numpy or another library loads by itself when first used) counts for the simulator if it "
+                  "first appeared while the drive was built."]
+    else:
+        lines += ["The daemon alone (where the run measured it) is the process's RSS at the window's end less the "
+                  "simulated drive (measured as it was built, with any library first loaded then: with numpy 2, "
+                  "`numpy.random`) and the simulator's modules (`sensors.sim`, measured in a child interpreter that "
+                  "first imports every other module the run loaded): an estimate, since the simulator's objects and "
+                  "threads stay in it, and the board's 32-bit interpreter has smaller objects."]
     growth = [r["rss_growth_mb"] for r in plain]
     if growth:
         lines += ["", f"RSS grew by {min(growth):+.1f} to {max(growth):+.1f} MB over each window, by about the same "
@@ -754,15 +817,18 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
         idx = [r for r in plain if r.get("writer_index")]
         if idx:
             w = [r["writer_index"] for r in idx]
-            lines += ["", "The writer's index at the end of an hour's file, from each run's recorded chunks (chunks a "
-                      "second, channels a chunk) and the memory of one index built as the writer builds it: "
+            lines += ["", "The writer's index by the end of an hour's file, from each run's recorded chunks (chunks a "
+                      "second, channels a chunk) and what mcap's Writer keeps per chunk of that mix, measured on the "
+                      "Writer itself (Python's allocations, not pages): "
                       + "; ".join(f"{r['imu_rate_hz']:g} Hz {x['chunks_per_s']:.2f} chunks/s x "
                                   f"{x['channels_per_chunk']:.1f} channels, {x['bytes_per_chunk']:.0f} B a chunk, "
-                                  f"**{x['at_rotation_mb']:.1f} MB** at {x['rotate_s'] / 3600:g} h"
+                                  f"{x['at_rotation_mb']:.1f} MB at {x['rotate_s'] / 3600:g} h"
+                                  + (f" (**{x['beyond_window_mb']:.1f} MB** of it after the window, which ended "
+                                     f"{x['held_s']:.0f} s into the file)" if "beyond_window_mb" in x else "")
                                   for r, x in zip(idx, w, strict=True))
-                      + ". The window's RSS holds only its first minutes of that: by the end of each file the "
-                      "daemon holds that much more than the table says; the index is freed as the file rotates and "
-                      "the next file's fills the same memory again."]
+                      + ". By the end of each file the daemon holds about that much more than the table says; the "
+                      "index is freed as the file rotates (whether its memory is then reused or the RSS keeps "
+                      "growing from file to file is what `tools/soak.py`'s RSS growth over hours tells)."]
     lines += ["", "Sustained IMU rate, in the measured window. Sustained means every sample recorded (no sequence "
               "gap, no FIFO overflow, no recorder drop) and no sampler period late or missed; the last three columns "
               "say how regular the samples' stamps are (every sample is there, but its time may be off):", "",
