@@ -47,8 +47,7 @@ import bench_startup  # noqa: E402
 import bench_sync  # noqa: E402
 
 BENCHMARKS = ("daemon", "recorder", "nav", "sync", "startup")
-LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "lz4", "ujson", "pyubx2", "pynmeagps",
-             "gpiod")
+LIBRARIES = bench_daemon.LIBRARIES
 
 # (full, quick) settings of each benchmark
 DAEMON_RATES = ((20.0, 300.0), (200.0, 300.0), (500.0, 300.0), (1000.0, 300.0))
@@ -89,7 +88,7 @@ def machine_busy() -> tuple[int, int]:
 
 
 def versions() -> dict[str, str]:
-    return {"python": platform.python_version(), **bench_daemon.library_versions(LIBRARIES)}
+    return {"python": platform.python_version(), **bench_daemon.library_versions()}
 
 
 def tree_state() -> str:
@@ -181,9 +180,9 @@ def run_daemon(quick: bool, work: Path, nice: int, board_python: str | None = No
     loads.append({"step": "daemon 20 Hz, profiled", **step["load"]})
     # The board installs Debian 12's libraries (numpy 1.24.2, whose ``import numpy`` loads more): the memory the
     # daemon takes with them, at the default rate and the highest.
-    for rate, seconds in (QUICK_DAEMON_RATES if quick else DAEMON_RATES) if board_python else ():
-        if rate not in BOARD_LIBRARY_RATES:
-            continue
+    board_rates = [(rate, s) for rate, s in (QUICK_DAEMON_RATES if quick else DAEMON_RATES)
+                   if board_python and rate in BOARD_LIBRARY_RATES]
+    for rate, seconds in board_rates:
         step = run_step(f"daemon-{rate:g}-board-libraries", ["tools/bench_daemon.py", "--imu-rate", f"{rate:g}",
                                                              "--seconds", f"{seconds:g}", "--nice", str(nice)],
                         work, python=board_python)
@@ -346,7 +345,7 @@ def summary_lines(results: dict[str, Any], f_judged_here: bool = True) -> list[s
             out.append(f"  - By the end of each file ({index[0]['rotate_s'] / 3600:g} h) the MCAP writer's index "
                        f"holds about {bench_daemon.mb_span(more)} more than these (freed as the file rotates).")
         for r in (results.get("daemon") or {}).get("board_runs", []):
-            out.append(f"  - With Debian 12's libraries (numpy {r.get('numpy_version', '?')}), IMU at "
+            out.append(f"  - With Debian 12's libraries (numpy {bench_daemon.numpy_version(r)}), IMU at "
                        f"{r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS {r['rss_end_mb']:.0f} MB"
                        f"{alone(r)}.")
         ok = [r["imu_rate_hz"] for r in daemon if r["sustained"]]

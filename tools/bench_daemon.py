@@ -426,8 +426,9 @@ class DaemonResult:
     sim_modules_rss_mb: float = 0.0
     sim_build_modules_mb: float = 0.0  # of which libraries the simulator alone loaded as it built the drive
     writer_index: dict[str, float] = field(default_factory=dict)  # what the MCAP writer keeps per chunk
-    libraries: dict[str, str] = field(default_factory=dict)  # the run's library versions (LIBRARIES)
-    numpy_version: str = ""  # Debian 12's 1.24.2 loads numpy.random and numpy.ma with ``import numpy``; numpy 2 not
+    # The run's library versions (LIBRARIES): numpy 1 (Debian 12's 1.24.2) loads numpy.random and numpy.ma with
+    # ``import numpy``, numpy 2 does not.
+    libraries: dict[str, str] = field(default_factory=dict)
     environment: dict[str, str] = field(default_factory=dict)
     rss_series_mb: list[float] = field(default_factory=list)
     counters: dict[str, Any] = field(default_factory=dict)
@@ -460,16 +461,17 @@ def analyse_file(files: list[Path], rate_hz: float, t0_ns: int, t1_ns: int) -> d
             "imu_records_whole_run": len(imu)}
 
 
-LIBRARIES = ("numpy", "mcap", "ujson", "zstandard", "lz4", "pyserial", "smbus2", "python-can", "gpiod")
+# The libraries the daemon runs on: the report's machine table and each run's versions (what --board-python changes).
+LIBRARIES = ("numpy", "mcap", "pyserial", "smbus2", "python-can", "zstandard", "lz4", "ujson", "pyubx2", "pynmeagps",
+             "gpiod")
 
 
-def library_versions(names: tuple[str, ...] = LIBRARIES) -> dict[str, str]:
-    """The installed versions of these libraries ("not installed" for one that is not): by default those the daemon
-    runs on, what --board-python changes."""
+def library_versions() -> dict[str, str]:
+    """The installed versions of :data:`LIBRARIES` ("not installed" for one that is not)."""
     import importlib.metadata
 
     out = {}
-    for name in names:
+    for name in LIBRARIES:
         try:
             out[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
@@ -578,7 +580,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
         modules = set(sys.modules)
         vehicle = original_build(*args, **kwargs)
         built["after"] = proc_status_kb("VmRSS")["VmRSS"]
-        while_building.extend(sorted(set(sys.modules) - modules))
+        while_building.extend(set(sys.modules) - modules)
         return vehicle
 
     sim_vehicle.build_vehicle = build_vehicle  # type: ignore[assignment]
@@ -641,7 +643,6 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     result.sim_build_rss_mb = round((built.get("after", 0) - built.get("before", 0)) / 1024
                                     - result.sim_build_modules_mb, 1)
     result.environment = {k: os.environ.get(k, "") for k in unit_environment()}
-    result.numpy_version = sys.modules["numpy"].__version__ if "numpy" in sys.modules else ""
     result.libraries = library_versions()
     result.rss_series_mb = [round(x, 1) for x in rss[:: max(1, len(rss) // 12)]]
     result.i2c_transfers_per_s = round((b.i2c_transfers - a.i2c_transfers) / wall, 1)
@@ -708,6 +709,11 @@ def _mb(value: float | None, bold: bool = False) -> str:
     return f"**{value:.1f} MB**" if bold else f"{value:.1f} MB"
 
 
+def numpy_version(r: dict[str, Any]) -> str:
+    """The numpy a run had ("?" for figures saved before the runs listed their libraries)."""
+    return r.get("libraries", {}).get("numpy", "?")
+
+
 def mb_span(values: list[float]) -> str:
     """"3.9 MB", or "1.1 to 3.4 MB"."""
     low, high = f"{min(values):.1f}", f"{max(values):.1f}"
@@ -734,8 +740,8 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
                      f"| {r['sim_pct']:.2f} % ({r['sim_inside_daemon_pct']:.2f} % inside) | {r['process_pct']:.2f} % "
                      + _memory_row(r))
     if board_runs:
-        libs = board_runs[0].get("libraries") or {"numpy": board_runs[0].get("numpy_version", "?")}
-        numpy1 = all(r.get("numpy_version", "").startswith("1.") for r in board_runs)
+        libs = board_runs[0]["libraries"]
+        numpy1 = all(numpy_version(r).startswith("1.") for r in board_runs)
         lines += ["", "The same with Debian 12's library versions, which the board installs (`.ci/floors.txt`; "
                   "`tools/bench.py --board-python`; this run's: "
                   + ", ".join(f"{k} {v}" for k, v in libs.items()) + ")"
