@@ -275,7 +275,7 @@ def test_libraries_only_the_simulator_loads_while_building_are_the_simulators() 
     import sensors.sim.vehicle  # noqa: F401
 
     named = bench_daemon.daemon_named_modules()
-    assert {"numpy", "smbus2", "mcap.writer"} <= named and "pty" not in named and "numpy.random" not in named
+    assert {"numpy", "smbus2", "mcap.stream_reader"} <= named and "pty" not in named and "numpy.random" not in named
     loaded = list(sys.modules)
     drive_libraries = [n for n in loaded if n == "numpy.random" or n.startswith("numpy.random.")]
     built_mb, sim_mb = bench_daemon.sim_modules_rss_mb(loaded, [*drive_libraries, "smbus2"])

@@ -480,18 +480,19 @@ def library_versions() -> dict[str, str]:
 
 
 def _writer_bytes_per_chunk(counts: list[int], t0_ns: int, chunks: int = 1000) -> float:
-    """What mcap's Writer keeps per chunk, measured on the Writer itself: ``chunks`` chunks a second apart written
-    to a temporary file (a file's offsets are what the index keeps: /dev/null's are all 0, integers Python shares),
-    chunk i with a message on ``counts[i % len(counts)]`` channels (the recorded file's own mix), and Python's
-    allocations that stay (tracemalloc) divided by the chunks."""
+    """What the recorder's MCAP writer keeps per chunk, measured on the writer itself: ``chunks`` chunks a second
+    apart written to a temporary file (real offsets: mcap's Writer, the recorder's until 2026-12-05, kept them as
+    Python integers, which /dev/null's zeros would have hidden), chunk i with a message on ``counts[i %
+    len(counts)]`` channels (the recorded file's own mix), and Python's allocations that stay (tracemalloc) divided
+    by the chunks."""
     import gc
     import tracemalloc
 
-    from mcap.writer import Writer
+    from logger.recording.mcap_writer import McapWriter
 
     most = max(counts)
     with tempfile.TemporaryFile() as sink:
-        writer = Writer(sink)
+        writer = McapWriter(sink)
         writer.start("bench", "writer index")
         schema = writer.register_schema("s", "jsonschema", b"{}")
         ids = [writer.register_channel(f"/c{j}", "json", schema) for j in range(most)]
@@ -514,9 +515,9 @@ def _writer_bytes_per_chunk(counts: list[int], t0_ns: int, chunks: int = 1000) -
 
 
 def writer_index(files: list[Path]) -> dict[str, float]:
-    """What the MCAP writer keeps per chunk until its file rotates: a chunk index (the chunk's times, place and
-    sizes, and the offset of each channel's message index in it), one per chunk, one chunk per flush. From the
-    recorded file: chunks a second (over the chunks' starts) and channels a chunk; the memory the Writer keeps per
+    """What the recorder's MCAP writer keeps per chunk until its file rotates: a chunk index (the chunk's times,
+    place and sizes, and the offset of each channel's message index in it), one per chunk, one chunk per flush. From the
+    recorded file: chunks a second (over the chunks' starts) and channels a chunk; the memory the writer keeps per
     chunk of that mix (:func:`_writer_bytes_per_chunk`; Python's allocations, not pages); hence the memory the index
     holds at the end of a file of ``rotate_duration_s`` (the configuration's default, an hour), and how much of it
     the file did not yet hold when it was read (the run's RSS already has the rest). Empty without a readable
@@ -544,7 +545,7 @@ def writer_index(files: list[Path]) -> dict[str, float]:
     per_chunk = _writer_bytes_per_chunk(counts, starts[0])
     rotate_s = RecorderSettings.rotate_duration_s
     mib = 1 << 20
-    return {"chunks_per_s": round(per_s, 2), "channels_per_chunk": round(channels, 1),
+    return {"writer": "McapWriter", "chunks_per_s": round(per_s, 2), "channels_per_chunk": round(channels, 1),
             "bytes_per_chunk": round(per_chunk), "rotate_s": rotate_s, "held_s": round(held_s),
             "at_rotation_mb": round(per_chunk * per_s * rotate_s / mib, 1),
             "beyond_window_mb": round(per_chunk * per_s * max(0.0, rotate_s - held_s) / mib, 1)}
@@ -823,9 +824,12 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
         idx = [r for r in plain if r.get("writer_index")]
         if idx:
             w = [r["writer_index"] for r in idx]
+            who = ("the recorder's writer (`logger/recording/mcap_writer.py`) keeps per chunk of that mix, measured on "
+                   "the writer itself" if all(x.get("writer") == "McapWriter" for x in w) else
+                   "mcap's Writer (the recorder's until 2026-12-05) keeps per chunk of that mix, measured on the "
+                   "Writer itself")
             lines += ["", "The writer's index by the end of an hour's file, from each run's recorded chunks (chunks a "
-                      "second, channels a chunk) and what mcap's Writer keeps per chunk of that mix, measured on the "
-                      "Writer itself (Python's allocations, not pages): "
+                      f"second, channels a chunk) and what {who} (Python's allocations, not pages): "
                       + "; ".join(f"{r['imu_rate_hz']:g} Hz {x['chunks_per_s']:.2f} chunks/s x "
                                   f"{x['channels_per_chunk']:.1f} channels, {x['bytes_per_chunk']:.0f} B a chunk, "
                                   f"{x['at_rotation_mb']:.1f} MB at {x['rotate_s'] / 3600:g} h"

@@ -5,10 +5,12 @@
 The stream is a recorded drive's own records (all but the simulation's ``/truth/*``), repeated with shifted
 times until it holds ``--messages`` records: the sizes and the mix of topics a board writes. A second stream
 holds only its IMU records (``/imu/batch`` from a FIFO, ``/imu`` from a polled chip: whichever the drive has),
-the load of a high IMU rate. Three writers take each stream:
+the load of a high IMU rate. Four writers take each stream:
 
-- ``bare``: ``mcap.writer.Writer`` with the recorder's chunk size and compression, the recorder's JSON
-  ``encode`` and ``add_message`` in one loop, the file finished at the end;
+- ``bare``: the recorder's MCAP writer (``logger.recording.mcap_writer.McapWriter``) with the recorder's chunk size
+  and compression, the recorder's JSON ``encode`` and ``add_message`` in one loop, the file finished at the end;
+- ``mcap Writer``: the same loop with ``mcap.writer.Writer``, the library's writer (the recorder's until
+  2026-12-05; what each keeps in memory for its index: ``tools/bench_daemon.py``'s ``writer_index``);
 - ``bare + flush``: the same, closing the chunk and fsyncing once a second as the recorder does (the price of
   losing at most a second at a power cut);
 - ``recorder``: ``logger.recording.recorder.Recorder``, records handed over with ``submit`` from this thread (as the
@@ -37,7 +39,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from logger.recording.recorder import COMPRESSION, PROFILE, Recorder, encode  # noqa: E402
+from logger.recording.mcap_writer import McapWriter  # noqa: E402
+from logger.recording.recorder import PROFILE, Recorder, encode  # noqa: E402
 from logger.recording.settings import RecorderSettings  # noqa: E402
 from logger.recording.topics import IMU, IMU_BATCH, TOPICS, TopicSpec  # noqa: E402
 
@@ -79,12 +82,22 @@ def load_stream(drive: list[Item], n: int, only: str | None = None) -> list[Item
     return out
 
 
-def run_bare(stream: list[Item], path: Path, settings: RecorderSettings, flush_s: float | None) -> dict[str, float]:
-    from mcap.writer import Writer
+def mcap_library_writer(f: Any, settings: RecorderSettings) -> Any:
+    """mcap's own Writer with the recorder's settings."""
+    from mcap.writer import CompressionType, Writer
 
+    return Writer(f, chunk_size=settings.chunk_size_bytes, compression=CompressionType[settings.compression.upper()])
+
+
+def project_writer(f: Any, settings: RecorderSettings) -> McapWriter:
+    return McapWriter(f, chunk_size=settings.chunk_size_bytes, compression=settings.compression)
+
+
+def run_bare(stream: list[Item], path: Path, settings: RecorderSettings, flush_s: float | None,
+             make_writer: Callable[[Any, RecorderSettings], Any] = project_writer) -> dict[str, float]:
     c0, w0 = time.process_time(), time.perf_counter()
     with open(path, "wb") as f:
-        writer = Writer(f, chunk_size=settings.chunk_size_bytes, compression=COMPRESSION[settings.compression])
+        writer = make_writer(f, settings)
         writer.start(profile=PROFILE, library="bench")
         ids: dict[str, int] = {}
         next_flush = time.monotonic() + (flush_s or 0.0)
@@ -126,10 +139,12 @@ def run_recorder(stream: list[Item], out: Path, settings: RecorderSettings) -> d
 def measure(stream: list[Item], repeat: int, settings: Callable[[], RecorderSettings]) -> dict[str, Any]:
     """Each writer's best figures over ``repeat`` rounds, the writers taking turns."""
     payload_bytes = sum(len(encode(p)) for _, p, _, _ in stream)
-    runs: dict[str, list[dict[str, float]]] = {"bare": [], "bare + flush": [], "recorder": []}
+    runs: dict[str, list[dict[str, float]]] = {"bare": [], "mcap Writer": [], "bare + flush": [], "recorder": []}
     with tempfile.TemporaryDirectory(prefix="bench-recorder-") as tmp:
         for i in range(repeat):
             runs["bare"].append(run_bare(stream, Path(tmp) / f"bare{i}.mcap", settings(), None))
+            runs["mcap Writer"].append(run_bare(stream, Path(tmp) / f"lib{i}.mcap", settings(), None,
+                                                mcap_library_writer))
             flush_s = settings().flush_interval_s
             runs["bare + flush"].append(run_bare(stream, Path(tmp) / f"flush{i}.mcap", settings(), flush_s))
             folder = Path(tmp) / f"rec{i}"

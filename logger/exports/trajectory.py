@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow, forward_axis_turned
 from logger.nav.inputs import SolutionEpoch
@@ -31,6 +30,7 @@ from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
+from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
 from logger.recording.records import NAV_INPUT_TOPICS, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
@@ -269,7 +269,7 @@ def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, sta
     keep = fix_rows([row[0] for row in rows], hz)
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
     with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
+        w = McapWriter(f)
         w.start(profile="", library=REPLAY_LIBRARY)
         ids = {}
         for topic in (NAV_FIX, NAV_STATE):

@@ -29,6 +29,7 @@ import zstandard
 from mcap.reader import make_reader
 
 from logger.recording.files import MAGIC, McapFileError, is_finished, walk
+from logger.recording.mcap_writer import OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_MESSAGE
 from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 
@@ -40,7 +41,6 @@ _CHUNK = struct.Struct("<QQQI")
 _H = struct.Struct("<H")
 _I = struct.Struct("<I")
 _Q = struct.Struct("<Q")
-OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x04, 0x05, 0x06, 0x0F
 # An IMU record as the daemon writes it: the four fields the filter needs, pulled out without decoding the
 # whole JSON object (json.loads of an IMU record costs more than the strapdown step it feeds). Anything that
 # does not match, written by another tool or another version, is decoded in full.

@@ -1,6 +1,6 @@
 """Reading, checking and recovering the logger's MCAP files.
 
-A file is *finished* when it ends with the footer and the closing magic that ``Writer.finish()`` writes. An
+A file is *finished* when it ends with the footer and the closing magic that ``McapWriter.finish()`` writes. An
 unfinished file (power cut, ``kill -9``, full disk) still holds every chunk that was flushed before the cut; the
 index-based readers see nothing in it, so recovery walks the records from the start, keeps every chunk whose CRC
 checks out, and writes them again into a finished, indexed file. Recovery writes beside the original and
@@ -18,15 +18,14 @@ from pathlib import Path
 
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.writer import CompressionType, Writer
 
+from logger.recording.mcap_writer import MAGIC, OP_CHUNK, OP_DATA_END, OP_FOOTER, McapWriter
 from logger.recording.topics import TOPICS
 
 # Metadata the recorder writes outside the chunks: channel id -> topic, so recovery can name the messages of a
 # channel whose record was in a damaged chunk.
 CHANNEL_TABLE = "vehicle-logger.channels"
 
-MAGIC = b"\x89MCAP0\r\n"
 FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary offset start, summary crc
 
 
@@ -46,7 +45,7 @@ def is_finished(path: str | os.PathLike[str]) -> bool:
             tail = f.read()
     except OSError:
         return False
-    return tail[-len(MAGIC):] == MAGIC and tail[0] == 0x02  # 0x02: footer opcode
+    return tail[-len(MAGIC):] == MAGIC and tail[0] == OP_FOOTER
 
 
 @dataclass
@@ -64,7 +63,7 @@ class Salvage:
     magic: bool = True
 
 
-OP_HEADER, OP_FOOTER, OP_CHUNK, OP_DATA_END, OP_MAX = 0x01, 0x02, 0x06, 0x0F, 0x11
+OP_MAX = 0x11  # the walk's bound on an opcode byte that can start a record
 _REC = struct.Struct("<BQ")
 _CHUNK_HEAD = struct.Struct("<QQQI")  # message start, message end, uncompressed size, uncompressed CRC
 RESYNC_LIMIT = 1 << 16  # candidate records tried after a damage before the walk gives up on the rest
@@ -225,7 +224,7 @@ class RecoveryReport:
 
 
 def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
-            compression: CompressionType = CompressionType.ZSTD) -> RecoveryReport:
+            compression: str = "zstd") -> RecoveryReport:
     """Rewrite what survives of ``path`` into a finished file (``out``, or in place)."""
     src = Path(path)
     found = walk(src)
@@ -242,11 +241,11 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
                           found.stopped_at)
 
 
-def _rewrite(found: Salvage, src: Path, tmp: Path, compression: CompressionType) -> int:
+def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str) -> int:
     """Write what the walk found into ``tmp`` as a finished file; returns the messages without a channel."""
     orphans = 0
     with open(tmp, "wb") as f:
-        writer = Writer(f, compression=compression, chunk_size=4 * 1024 * 1024)
+        writer = McapWriter(f, compression=compression, chunk_size=4 * 1024 * 1024)
         writer.start(profile=found.profile)
         schema_ids: dict[int, int] = {}
         for sid, schema in sorted(found.schemas.items()):

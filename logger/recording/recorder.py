@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 import ujson
-from mcap.writer import CompressionType, Writer
 
 from logger.recording.files import CHANNEL_TABLE
+from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import TopicSpec
 from sync.wallclock import boot_id
@@ -36,7 +36,6 @@ from sync.wallclock import boot_id
 log = logging.getLogger(__name__)
 
 BATCH_WAIT_S = 1.0  # longest real time a record waits in the queue between flushes
-COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
 CHANNEL_TABLE_S = 60.0  # the channel table (files.CHANNEL_TABLE) is written again this often, s of drive
 
@@ -156,7 +155,7 @@ class Recorder:
         self._state_since = self._mono_ns()
         self._dir_id: tuple[int, int] | None = None  # (device, inode) of the output folder the open file is in
         self._thread: threading.Thread | None = None
-        self._writer: Writer | None = None
+        self._writer: McapWriter | None = None
         self._stream: Any = None
         self._path: Path | None = None
         self._channels: dict[str, int] = {}
@@ -168,7 +167,6 @@ class Recorder:
         self._files_done = 0
         self._files: list[Path] = []  # every file this recorder started, by its current name
         self._free: int | None = None
-        self._compression = COMPRESSION[settings.compression]
         self._last_flush = 0.0
         self._table_written = 0.0
         self._next_retry = 0.0
@@ -421,7 +419,8 @@ class Recorder:
                 self._sequence += 1
                 path = out / self._name_at_open(start_unix)
             stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
-            writer = Writer(stream, chunk_size=self.settings.chunk_size_bytes, compression=self._compression)
+            writer = McapWriter(stream, chunk_size=self.settings.chunk_size_bytes,
+                                compression=self.settings.compression)
             writer.start(profile=PROFILE, library="vehicle-logger")
             for name_, data in self.metadata.items():
                 writer.add_metadata(name_, data)
