@@ -378,3 +378,40 @@ def test_the_navigator_benchmark_compares_two_checkouts_side_by_side() -> None:
     assert len(lines) == 3 and all("filter started: True" in line for line in lines[:2])
     assert all(int(line.split("(")[1].split()[0]) > 50 for line in lines[:2])  # records published
     assert lines[2].startswith("ratio this / other: ")
+
+
+def test_resident_set_natively_is_vmrss() -> None:
+    import resident
+
+    assert not resident.emulated()
+    status = Path("/proc/self/status").read_text()
+    vm = int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmRSS:")))
+    assert abs(resident.rss_kb() - vm) < 4096 and resident.peak_kb() >= resident.rss_kb() // 2
+    assert resident.source() == "VmRSS"
+
+
+def test_resident_set_under_qemu_is_the_guests_window(tmp_path: Path) -> None:
+    """qemu-user's /proc/self/maps (the guest's view, guest addresses) and /proc/self/smaps (qemu's process), as
+    Debian 12's qemu-arm 7.2 gives them for an armhf python (shapes from the emulated board root): the guest's
+    first file mapping in both gives the window's base, 0x1000 here, and only the mappings inside the 4 GB window
+    count; qemu's own heap and code cache above it do not."""
+    import resident
+
+    (tmp_path / "maps").write_text(
+        "00010000-003d4000 r-xp 00000000 fe:00 1541649    /usr/bin/python3.11\n"
+        "003d5000-0049c000 rw-p 003c4000 fe:00 1541649    /usr/bin/python3.11\n"
+        "3fc70000-3fdb4000 rw-p 00000000 00:00 0\n")
+    smaps = []
+    for span, perms, offset, path, rss in (
+            ("00001000-00011000", "---p", "00000000", "", 0),
+            ("00011000-003d5000", "r--p", "00000000", "/usr/bin/python3.11", 2400),
+            ("003d6000-0049d000", "rw-p", "003c4000", "/usr/bin/python3.11", 300),
+            ("3fc71000-3fdb5000", "rw-p", "00000000", "", 1200),
+            ("100001000-100100000", "rw-p", "00000000", "", 50),  # base + 4 GB: past the window
+            ("5555a0000000-5555a0400000", "r-xp", "00000000", "/usr/libexec/qemu-binfmt/arm-binfmt-P", 3000),
+            ("7f0000000000-7f0040000000", "rwxp", "00000000", "", 20000)):
+        smaps.append(f"{span} {perms} {offset} fe:00 1    {path}\nSize:  4 kB\nRss:   {rss} kB\nPss:   {rss} kB\n")
+    (tmp_path / "smaps").write_text("".join(smaps))
+    host = resident.host_mappings(str(tmp_path / "smaps"))
+    assert resident.guest_base(host, str(tmp_path / "maps")) == 0x1000
+    assert resident.guest_rss_kb(str(tmp_path / "smaps"), str(tmp_path / "maps")) == 2400 + 300 + 1200
