@@ -47,8 +47,9 @@ class Key:
     help: str = ""
 
 
-# The mcap writer keeps every chunk's index (about 2 kB with this logger's topics) until the file is closed:
-# 14400 chunks, 4 h at the default 1 s flush, hold about 30 MB of a 512 MB board.
+# The MCAP writer keeps every chunk's index until the file is closed (about 0.2 kB with this logger's topics,
+# recording/mcap_writer.py; mcap's own Writer kept 1.3-2 kB): 14400 chunks, 4 h at the default 1 s flush, hold
+# about 3 MB.
 MAX_CHUNKS_PER_FILE = 14400
 IMU_READS = ("fifo", "register")  # [imu] read: the chip's FIFO in batches, or one register burst per sample
 REGISTER_READ_MAX_HZ = 50.0  # a thread woken per sample costs most of the IMU's CPU; above this it is not offered

@@ -77,6 +77,25 @@ def test_a_cut_file_keeps_what_was_flushed_and_is_recovered(tmp_path: Path) -> N
     assert [t for t, _ in _read_all(cut)] == ["/a"] * 200
 
 
+def test_a_recovered_file_keeps_its_writers_name(tmp_path: Path) -> None:
+    """Recovery writes the header's profile and library again: a cut replay output (`logger replay`'s
+    trajectory.mcap) is still told from a live recording after it is recovered."""
+    from logger.recording.drive import REPLAY_LIBRARY, open_drive
+    from logger.recording.mcap_writer import McapWriter
+
+    path = tmp_path / "trajectory.mcap"
+    with open(path, "wb") as f:
+        w = McapWriter(f)
+        w.start("", REPLAY_LIBRARY)
+        cid = w.register_channel("/nav/fix", "json", 0)
+        for i in range(10):
+            w.add_message(cid, 1_700_000_000_000_000_000 + i, b"{}", i)
+        w.flush()
+    assert not is_finished(path)
+    recover(path)
+    assert is_finished(path) and [d.origin for d in open_drive([path])] == ["replay"]
+
+
 def test_truncation_in_the_middle_of_a_chunk_loses_only_that_chunk(tmp_path: Path) -> None:
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=3600), TOPICS)
     path = rec.start()

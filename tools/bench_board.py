@@ -63,8 +63,8 @@ likeliest. Not included: the board's kernel work for the same
 I/O (I2C transfers through i2c-omap, UART and GPIO interrupts), estimated below from the measured transfer
 rate at an assumed {I2C_KERNEL_US[0]:g} to {I2C_KERNEL_US[1]:g} us of kernel CPU per I2C transfer; the simulator's own
 CPU, which the measurement already leaves out. Memory: the tables above measure it on x86-64, whose pointers
-and objects are twice armhf's; the board's own, with Debian's armhf libraries, is measured in the emulated root
-below (the guest's pages, not qemu's), where the instructions' speed does not matter.
+are twice armhf's; the board's own, with Debian's armhf libraries, is measured in the emulated root below (the
+guest's pages, not qemu's), where the instructions' speed does not matter.
 """
 
 

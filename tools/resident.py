@@ -8,6 +8,10 @@ its own address space, at guest_base + guest address. So the guest's first file 
 file at the same offset), gives guest_base, and the Rss of the host's mappings inside the 4 GB window is the
 guest's resident set: the 32-bit board's own pages, with its binaries and libraries (Debian's armhf numpy) and
 4-byte pointers. The kernel keeps no peak for it: callers take the largest of their samples.
+
+This rests on qemu passing /proc/self/smaps through, as Debian 12's qemu 7.2 does. qemu 8.1 and later emulate it
+too (guest addresses, no Rss): :func:`emulated` then sees no mapping above 4 GB, and the figure falls back to
+VmRSS, qemu's whole process, which the reports label as qemu's (``source``).
 """
 
 from __future__ import annotations
@@ -48,7 +52,10 @@ def emulated() -> bool:
     """Whether this is a 32-bit program whose smaps lists mappings above 4 GB: a 64-bit host's qemu-user."""
     global _emulated
     if _emulated is None:
-        _emulated = sys.maxsize < GUEST_SPAN and any(start >= GUEST_SPAN for start, *_ in host_mappings())
+        try:
+            _emulated = sys.maxsize < GUEST_SPAN and any(start >= GUEST_SPAN for start, *_ in host_mappings())
+        except OSError:  # a kernel without smaps: no qemu window to find, VmRSS it is
+            _emulated = False
     return _emulated
 
 

@@ -29,7 +29,7 @@ import zstandard
 from mcap.reader import make_reader
 
 from logger.recording.files import MAGIC, McapFileError, is_finished, walk
-from logger.recording.mcap_writer import OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_MESSAGE
+from logger.recording.mcap_writer import OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_HEADER, OP_MESSAGE
 from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 
@@ -149,7 +149,7 @@ def _header_library(path: Path) -> str:
         head = f.read(4096)
     try:
         op, _length = struct.unpack_from("<BQ", head, len(MAGIC))
-        if op != 0x01:
+        if op != OP_HEADER:
             return ""
         pos = len(MAGIC) + 9
         n = struct.unpack_from("<I", head, pos)[0]

@@ -60,6 +60,7 @@ class Salvage:
     chunks_bad: int = 0
     stopped_at: str = ""  # the first cut or damage the walk met, empty if it reached the footer
     profile: str = ""
+    library: str = ""  # the header's writer: a recovered file keeps it (a replay's output stays a replay's)
     magic: bool = True
 
 
@@ -186,6 +187,7 @@ def _keep(found: Salvage, record: object) -> None:
         found.metadata.append(record)
     elif type(record).__name__ == "Header":
         found.profile = getattr(record, "profile", "")
+        found.library = getattr(record, "library", "")
 
 
 def _name_orphans(found: Salvage) -> None:
@@ -246,7 +248,7 @@ def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str) -> int:
     orphans = 0
     with open(tmp, "wb") as f:
         writer = McapWriter(f, compression=compression, chunk_size=4 * 1024 * 1024)
-        writer.start(profile=found.profile)
+        writer.start(profile=found.profile, library=found.library)
         schema_ids: dict[int, int] = {}
         for sid, schema in sorted(found.schemas.items()):
             schema_ids[sid] = writer.register_schema(schema.name, schema.encoding, schema.data)

@@ -1,18 +1,20 @@
 """The recorder's MCAP writer: the records of the MCAP specification, an index that stays small for hours.
 
 mcap's own ``Writer`` keeps, until its file is finished, a ``ChunkIndex`` object for every chunk with a dict of
-per-channel offsets: about 1.3 KB a chunk, 4.3 MB by the end of an hour's file at the recorder's chunk a second
+per-channel offsets: about 1.3 KB a chunk, 4.5 MB by the end of an hour's file at the recorder's chunk a second
 (``flush_interval_s``) on a board with 512 MB and a daemon budget of 50 MB; and ``mcap.writer`` imports
-``importlib.metadata`` (with email, zipfile, csv, tempfile: 2.1 MB resident) to name its own version. This writer
-writes the same records (https://mcap.dev/spec, version 0: header, schema and channel records in the chunk where
-they are first used, chunks with their CRC, a message index per channel after each chunk, metadata outside the
-chunks, and a summary with schemas, channels, statistics, chunk and metadata indexes, summary offsets and the
-footer's CRC) and keeps each chunk's index as the bytes of its ChunkIndex record, about 0.2 KB. For the same calls
-its file is byte for byte the one mcap's Writer writes (tests/test_mcap_writer.py), read by mcap's reader,
-``@mcap/core`` and Foxglove like any other.
+``importlib.metadata`` (with email, zipfile, csv: 1.4 MB more in the daemon's imports, unless python-can's CAN
+interfaces load it anyway) to name its own version. This writer writes the same records (https://mcap.dev/spec,
+version 0: header, schema and channel records in the chunk open when they are registered, chunks with their
+CRC, a message index per channel after each chunk, metadata outside the chunks, and a summary with schemas,
+channels, statistics, chunk and metadata indexes, summary offsets and the footer's CRC) and keeps each chunk's
+index as the bytes of its ChunkIndex record, about 0.2 KB. For the same calls its file is byte for byte the one
+mcap's Writer writes (tests/test_mcap_writer.py), read by mcap's reader, ``@mcap/core`` and Foxglove like any
+other.
 
 Compression is imported only for the codec asked for. The offsets are counted, not asked of the stream, so the
-writer starts wherever the stream stands and costs no ``lseek`` a record.
+writer starts wherever the stream stands and costs no ``lseek`` a record; the stream must take every write whole
+(a file opened in buffered mode, as the recorder's is; a raw stream's short writes are not retried).
 """
 
 from __future__ import annotations
@@ -99,7 +101,7 @@ class McapWriter:
         self._metadata_count = 0
 
     # ---- the data section ---------------------------------------------------------------------------------
-    def start(self, profile: str = "", library: str = "vehicle-logger") -> None:
+    def start(self, profile: str, library: str) -> None:
         self._pos = self._stream.tell()
         self._write(MAGIC + _record(OP_HEADER, _string(profile) + _string(library)))
 
@@ -127,12 +129,13 @@ class McapWriter:
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
         chunk = self._chunk
+        head = _MESSAGE_HEAD.pack(OP_MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
+                                  publish_time)  # first: a value out of range leaves nothing half added
         entries = self._message_index.get(channel_id)
         if entries is None:
             entries = self._message_index[channel_id] = bytearray()
         entries += _INDEX_ENTRY.pack(log_time, len(chunk))
-        chunk += _MESSAGE_HEAD.pack(OP_MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
-                                    publish_time)
+        chunk += head
         chunk += data
         if self._chunk_messages:
             if log_time < self._chunk_start_ns:
@@ -197,31 +200,31 @@ class McapWriter:
 
     # ---- the summary --------------------------------------------------------------------------------------
     def finish(self) -> None:
-        """Close the open chunk, end the data section and write the summary and footer (the stream stays open)."""
+        """Close the open chunk, end the data section and write the summary and footer (the stream stays open).
+        The summary is written group by group, so finishing needs little more memory than the index holds."""
         self._close_chunk()
         self._write(_record(OP_DATA_END, _U32.pack(0)))  # no data section CRC, as mcap's Writer by default
         summary_start = self._pos
         # mcap's Writer's groups in its order, an empty one (attachments: the logger writes none) included, so
-        # that the two writers' files are the same bytes (tests/test_mcap_writer.py).
-        groups: list[tuple[int, bytes]] = [
+        # that the two writers' files are the same bytes (tests/test_mcap_writer.py). Each group goes to the
+        # stream as it is (the chunk index, the one that grows, without a copy) and the CRC runs along.
+        groups: list[tuple[int, bytes | bytearray]] = [
             (OP_SCHEMA, b"".join(self._schemas)),
             (OP_CHANNEL, b"".join(self._channels)),
             (OP_STATISTICS, self._statistics()),
-            (OP_CHUNK_INDEX, bytes(self._chunk_indexes)),
+            (OP_CHUNK_INDEX, self._chunk_indexes),
             (OP_ATTACHMENT_INDEX, b""),
-            (OP_METADATA_INDEX, bytes(self._metadata_indexes)),
+            (OP_METADATA_INDEX, self._metadata_indexes),
         ]
-        summary = bytearray()
+        crc = 0
         offsets = bytearray()
         for opcode, group in groups:
-            offsets += _record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", opcode, summary_start + len(summary),
-                                                              len(group)))
-            summary += group
-        summary_offset_start = summary_start + len(summary)
-        summary += offsets
-        footer_head = struct.pack("<BQQQ", OP_FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
-        crc = zlib.crc32(footer_head, zlib.crc32(summary))
-        self._write(bytes(summary) + footer_head + _U32.pack(crc) + MAGIC)
+            offsets += _record(OP_SUMMARY_OFFSET, struct.pack("<BQQ", opcode, self._pos, len(group)))
+            crc = zlib.crc32(group, crc)
+            self._write(group)
+        footer_head = struct.pack("<BQQQ", OP_FOOTER, 8 + 8 + 4, summary_start, self._pos)
+        crc = zlib.crc32(footer_head, zlib.crc32(offsets, crc))
+        self._write(bytes(offsets) + footer_head + _U32.pack(crc) + MAGIC)
         self._stream.flush()
 
     def _statistics(self) -> bytes:
