@@ -348,6 +348,14 @@ def summary_lines(results: dict[str, Any], f_judged_here: bool = True) -> list[s
             out.append(f"  - With Debian 12's libraries (numpy {bench_daemon.numpy_version(r)}), IMU at "
                        f"{r['imu_rate_hz']:g} Hz: {r['daemon_pct']:.2f} % here, RSS {r['rss_end_mb']:.0f} MB"
                        f"{alone(r)}.")
+        emulated = [run["emulated"] for run in (results.get("emulated") or {}).get("runs", [])
+                    if bench_board.guest_pages(run["emulated"])]
+        if emulated:
+            out.append("  - On the board's own architecture (Debian 12 armhf with its numpy, in the emulated root, "
+                       f"{results['emulated'].get('measured', '?')}; the BeagleBone section): the daemon alone "
+                       "about " + ", ".join(f"{bench_daemon.daemon_alone_mb(r):.0f} MB at {r['imu_rate_hz']:g} Hz"
+                                            + ("" if r["sustained"] else ", a rate not sustained there")
+                                            for r in emulated) + ".")
         ok = [r["imu_rate_hz"] for r in daemon if r["sustained"]]
         failed = [f"{r['imu_rate_hz']:g} Hz ({bench_daemon.why_not(r)})" for r in daemon if not r["sustained"]]
         out.append(f"- Highest IMU rate sustained over {default['window_s']:.0f} s without a late, missed, lost or "
