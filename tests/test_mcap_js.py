@@ -29,7 +29,7 @@ from mcap.reader import make_reader
 from test_schemas import DRIVES
 
 from logger.recording.drive import iter_messages, open_drive
-from logger.recording.files import walk
+from logger.recording.files import recover, walk
 from logger.recording.topics import IMU, IMU_BATCH, TOPICS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,3 +162,11 @@ def test_mcap_core_stream_walk_recovers_a_cut_file(recorded: tuple[str, Path], t
     assert stream["time_range"] == py.time_range
     assert stream["all_json"]
     assert stream["imu_batch_samples"] == py.imu_batch_samples > 0
+
+    # Recovery writes what the walk kept into a finished file (logger/recording/mcap_writer.py): @mcap/core's
+    # indexed reader finds every message of it through the new summary and indexes.
+    recover(cut)
+    again = read_js(node, cut)["indexed"]
+    assert "error" not in again, again
+    assert again["counts"] == py.counts and again["messages"] == len(salvage.messages)
+    assert again["time_range"] == py.time_range and again["imu_batch_samples"] == py.imu_batch_samples

@@ -47,7 +47,6 @@ import bench_startup  # noqa: E402
 import bench_sync  # noqa: E402
 
 BENCHMARKS = ("daemon", "recorder", "nav", "sync", "startup")
-LIBRARIES = bench_daemon.LIBRARIES
 
 # (full, quick) settings of each benchmark
 DAEMON_RATES = ((20.0, 300.0), (200.0, 300.0), (500.0, 300.0), (1000.0, 300.0))
@@ -255,10 +254,10 @@ def report(results: dict[str, Any], info: dict[str, Any], command: str) -> str:
              "the BeagleBone section translates them with the stated factors. Tools: `tools/bench*.py`; raw "
              "figures in `BENCHMARKS.json`.", "",
              "## Machine", "",
-             "| CPU | cores | kernel | Python | " + " | ".join(LIBRARIES) + " | commit |",
-             "| --- | --- | --- | --- | " + " | ".join("---" for _ in LIBRARIES) + " | --- |",
+             "| CPU | cores | kernel | Python | " + " | ".join(bench_daemon.LIBRARIES) + " | commit |",
+             "| --- | --- | --- | --- | " + " | ".join("---" for _ in bench_daemon.LIBRARIES) + " | --- |",
              f"| {info['cpu']} ({info['arch']}) | {info['cores']} | {info['kernel']} | {v['python']} | "
-             + " | ".join(v.get(n, "?") for n in LIBRARIES) + f" | {info['commit']} |", ""]
+             + " | ".join(v.get(n, "?") for n in bench_daemon.LIBRARIES) + f" | {info['commit']} |", ""]
     caveat = bench_board.machine_caveat(info["cpu"])
     summary = summary_lines(results, f_judged_here=caveat is None)
     if summary and caveat:

@@ -25,6 +25,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 
+import resident  # noqa: E402
 from bench_daemon import daemon_alone_mb  # noqa: E402
 
 FACTOR_LOW = 9.0
@@ -212,7 +213,7 @@ def render_emulated(section: dict[str, Any]) -> list[str]:
 
 def guest_pages(run: dict[str, Any]) -> bool:
     """Whether an emulated run's resident set is the guest's own (tools/resident.py), not qemu's whole process."""
-    return run.get("rss_source", "VmRSS") != "VmRSS"
+    return run.get("rss_source", resident.NATIVE) != resident.NATIVE
 
 
 def record_emulated(path: Path, report: Path) -> None:

@@ -412,7 +412,7 @@ class DaemonResult:
     rss_end_mb: float = 0.0
     rss_growth_mb: float = 0.0
     hwm_mb: float = 0.0
-    rss_source: str = "VmRSS"  # or the guest's pages, inside the emulated board root (tools/resident.py)
+    rss_source: str = resident.NATIVE  # or the guest's pages, inside the emulated board root (tools/resident.py)
     sim_build_rss_mb: float = 0.0
     sim_modules_rss_mb: float = 0.0
     sim_build_modules_mb: float = 0.0  # of which libraries the simulator alone loaded as it built the drive

@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 
 GUEST_SPAN = 1 << 32  # a 32-bit guest's address space
+NATIVE = "VmRSS"  # :func:`source` for a program that is not emulated
 _emulated: bool | None = None
 
 
@@ -96,4 +97,4 @@ def peak_kb() -> int | None:
 
 def source() -> str:
     """Where :func:`rss_kb` reads from, for a report."""
-    return "the guest's pages under qemu-user" if emulated() else "VmRSS"
+    return "the guest's pages under qemu-user" if emulated() else NATIVE

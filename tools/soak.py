@@ -38,6 +38,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import resident  # tools/, beside this file
+
 from sensors.sim.governor import FLOOR
 
 NS = 1_000_000_000
@@ -53,8 +55,8 @@ COUNTER_LAG_S = 30.0  # drive seconds after a silence within which the daemon's 
 # later one) may not show in it yet, since the read that ends it counts it only when it returns (83 ms at 60x).
 LAST_READING_MARGIN_S = 5.0
 # The MCAP writer keeps the index of every chunk (one per flush, each drive second) until the file is finished,
-# about 14 MB for the hour a file lasts; after the first rotation that memory is reused. Growth is measured from
-# then on, in the workers that run long enough.
+# about 0.7 MB for the hour a file lasts (14 MB with mcap's own Writer, the recorder's until 2026-12-05); after the
+# first rotation that memory is reused. Growth is measured from then on, in the workers that run long enough.
 RSS_WARM_UP_S = 4500.0
 POLL_REAL_S = 0.1  # how often the injector reads the status socket while a fault lasts (it costs CPU too)
 SENSOR_OF_TOPIC = {"/imu": "imu", "/baro": "baro", "/obd/speed": "obd", "/gnss/fix": "gnss", "/pps": "pps"}
@@ -89,14 +91,6 @@ class Journal:
     def write(self, **event: Any) -> None:
         with self._lock:
             self._f.write(json.dumps(event, default=str) + "\n")
-
-
-def rss_kb() -> int:
-    with open("/proc/self/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    return 0
 
 
 class Injector:
@@ -315,7 +309,7 @@ def sample_loop(daemon: Any, journal: Journal, every_real_s: float) -> None:
     while not daemon.stop_event.is_set():
         snap = daemon.snapshot()
         journal.write(ev="sample", host_ns=time.monotonic_ns(), drive_ns=int(daemon.tb.monotonic_ns()),
-                      rss_kb=rss_kb(), threads=sorted(t.name for t in threading.enumerate() if t.is_alive()),
+                      rss_kb=resident.rss_kb(), threads=sorted(t.name for t in threading.enumerate() if t.is_alive()),
                       stale=daemon.stale_threads(), verdict=snap["verdict"], problems=snap["problems"],
                       recorder=snap["recorder"]["state"], queue=snap["recorder"]["queue_depth"],
                       sensors={s["name"]: {k: s[k] for k in ("state", "samples", "errors", "late", "missed", "gaps")}

@@ -29,15 +29,21 @@ import zstandard
 from mcap.reader import make_reader
 
 from logger.recording.files import MAGIC, McapFileError, is_finished, walk
-from logger.recording.mcap_writer import OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_HEADER, OP_MESSAGE
+from logger.recording.mcap_writer import (
+    CHUNK_HEAD,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_HEADER,
+    OP_MESSAGE,
+    RECORD_HEAD,
+)
 from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 
 REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
 
-_REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")
-_CHUNK = struct.Struct("<QQQI")
 _H = struct.Struct("<H")
 _I = struct.Struct("<I")
 _Q = struct.Struct("<Q")
@@ -57,7 +63,7 @@ def _walk(buf: bytes | memoryview, start: int, end: int, wanted: set[str], chann
     """Collect wanted messages from records in buf[start:end]; True when the data section ended."""
     pos = start
     while pos + 9 <= end:
-        op, length = _REC.unpack_from(buf, pos)
+        op, length = RECORD_HEAD.unpack_from(buf, pos)
         body = pos + 9
         nxt = body + length
         if nxt > end:
@@ -74,7 +80,7 @@ def _walk(buf: bytes | memoryview, start: int, end: int, wanted: set[str], chann
             if topic in wanted:
                 channels[cid] = topic
         elif op == OP_CHUNK and top:
-            _start, _end, size, _crc = _CHUNK.unpack_from(buf, body)
+            _start, _end, size, _crc = CHUNK_HEAD.unpack_from(buf, body)
             n = _I.unpack_from(buf, body + 28)[0]
             compression = bytes(buf[body + 32:body + 32 + n]).decode()
             rec_len = _Q.unpack_from(buf, body + 32 + n)[0]
@@ -148,7 +154,7 @@ def _header_library(path: Path) -> str:
     with open(path, "rb") as f:
         head = f.read(4096)
     try:
-        op, _length = struct.unpack_from("<BQ", head, len(MAGIC))
+        op, _length = RECORD_HEAD.unpack_from(head, len(MAGIC))
         if op != OP_HEADER:
             return ""
         pos = len(MAGIC) + 9

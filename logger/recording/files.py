@@ -19,7 +19,15 @@ from pathlib import Path
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from logger.recording.mcap_writer import MAGIC, OP_CHUNK, OP_DATA_END, OP_FOOTER, McapWriter
+from logger.recording.mcap_writer import (
+    CHUNK_HEAD,
+    MAGIC,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_FOOTER,
+    RECORD_HEAD,
+    McapWriter,
+)
 from logger.recording.topics import TOPICS
 
 # Metadata the recorder writes outside the chunks: channel id -> topic, so recovery can name the messages of a
@@ -65,8 +73,6 @@ class Salvage:
 
 
 OP_MAX = 0x11  # the walk's bound on an opcode byte that can start a record
-_REC = struct.Struct("<BQ")
-_CHUNK_HEAD = struct.Struct("<QQQI")  # message start, message end, uncompressed size, uncompressed CRC
 RESYNC_LIMIT = 1 << 16  # candidate records tried after a damage before the walk gives up on the rest
 
 
@@ -101,7 +107,7 @@ def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
     while pos + 9 <= size:
         record = _record_at(buf, pos, found) if pos > 0 else None
         if record is None:
-            _, length = _REC.unpack_from(buf, pos)
+            _, length = RECORD_HEAD.unpack_from(buf, pos)
             if pos + 9 + length > size and 0 < buf[pos] <= OP_MAX:
                 found.stopped_at = found.stopped_at or f"cut at byte {size} in a record from byte {pos}"
             else:
@@ -123,7 +129,7 @@ def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
 def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | None:
     """Parse the record at ``pos`` into ``found``; (opcode, end) or None when it does not parse (or a chunk's CRC
     is wrong: counted as a bad chunk)."""
-    op, length = _REC.unpack_from(buf, pos)
+    op, length = RECORD_HEAD.unpack_from(buf, pos)
     end = pos + 9 + length
     if not 0 < op <= OP_MAX or end > len(buf):
         return None
@@ -154,9 +160,9 @@ def _next_chunk(buf: mmap.mmap, start: int) -> int | None:
     """The offset of the next chunk record that parses with its CRC right, from ``start`` on."""
     tries = 0
     pos = buf.find(bytes([OP_CHUNK]), start)
-    while pos >= 0 and pos + 9 + _CHUNK_HEAD.size <= len(buf) and tries < RESYNC_LIMIT:
-        _, length = _REC.unpack_from(buf, pos)
-        if pos + 9 + length <= len(buf) and length >= _CHUNK_HEAD.size + 12 and \
+    while pos >= 0 and pos + 9 + CHUNK_HEAD.size <= len(buf) and tries < RESYNC_LIMIT:
+        _, length = RECORD_HEAD.unpack_from(buf, pos)
+        if pos + 9 + length <= len(buf) and length >= CHUNK_HEAD.size + 12 and \
                 _chunk_lengths_agree(buf, pos, length):
             tries += 1
             probe = Salvage()
@@ -168,12 +174,12 @@ def _next_chunk(buf: mmap.mmap, start: int) -> int | None:
 
 def _chunk_lengths_agree(buf: mmap.mmap, pos: int, length: int) -> bool:
     """A cheap test before parsing: a chunk's compression name and records length add up to its record length."""
-    at = pos + 9 + _CHUNK_HEAD.size
+    at = pos + 9 + CHUNK_HEAD.size
     (n,) = struct.unpack_from("<I", buf, at)
     if n > 16 or at + 4 + n + 8 > len(buf):
         return False
     (records_len,) = struct.unpack_from("<Q", buf, at + 4 + n)
-    return _CHUNK_HEAD.size + 4 + n + 8 + records_len == length
+    return CHUNK_HEAD.size + 4 + n + 8 + records_len == length
 
 
 def _keep(found: Salvage, record: object) -> None:

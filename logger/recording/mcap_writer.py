@@ -32,11 +32,14 @@ OP_STATISTICS, OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 
 COMPRESSIONS = ("zstd", "lz4", "none")  # the recorder's configuration words; "none" is "" in a chunk record
 DEFAULT_CHUNK_SIZE = 1024 * 1024  # uncompressed bytes that close a chunk (mcap's Writer's default)
 
-_RECORD_HEAD = struct.Struct("<BQ")
+# Layouts the readers share (files.py's walk, drive.py's reader).
+RECORD_HEAD = struct.Struct("<BQ")  # opcode, length of the record's body
+CHUNK_HEAD = struct.Struct("<QQQI")  # a chunk's message start, message end, uncompressed size, uncompressed CRC
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
+_MESSAGE_INDEX_HEAD = struct.Struct("<BQHI")  # opcode, length, channel id, length of the entries
 _INDEX_ENTRY = struct.Struct("<QQ")  # log time, offset of the message in the chunk's records
-_CHANNEL_OFFSET = struct.Struct("<HQ")
+_CHANNEL_U64 = struct.Struct("<HQ")  # channel id and an offset (chunk index) or a count (statistics)
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 
@@ -67,7 +70,7 @@ def _string_map(values: Mapping[str, str]) -> bytes:
 
 
 def _record(opcode: int, body: bytes) -> bytes:
-    return _RECORD_HEAD.pack(opcode, len(body)) + body
+    return RECORD_HEAD.pack(opcode, len(body)) + body
 
 
 class McapWriter:
@@ -167,18 +170,17 @@ class McapWriter:
         raw = bytes(self._chunk)
         packed = self._compress(raw)
         start_ns, end_ns = self._chunk_start_ns, self._chunk_end_ns
-        head = (struct.pack("<QQQI", start_ns, end_ns, len(raw), zlib.crc32(raw)) + _string(self._compression)
+        head = (CHUNK_HEAD.pack(start_ns, end_ns, len(raw), zlib.crc32(raw)) + _string(self._compression)
                 + _U64.pack(len(packed)))
-        chunk_record = _RECORD_HEAD.pack(OP_CHUNK, len(head) + len(packed)) + head
+        chunk_record = RECORD_HEAD.pack(OP_CHUNK, len(head) + len(packed)) + head
         chunk_offset = self._pos
         chunk_length = len(chunk_record) + len(packed)
         index_offset = pos = chunk_offset + chunk_length
         offsets = bytearray()
         indexes = []
         for channel_id, entries in self._message_index.items():
-            record = _RECORD_HEAD.pack(OP_MESSAGE_INDEX, 6 + len(entries)) + struct.pack("<H", channel_id) \
-                + _U32.pack(len(entries)) + entries
-            offsets += _CHANNEL_OFFSET.pack(channel_id, pos)
+            record = _MESSAGE_INDEX_HEAD.pack(OP_MESSAGE_INDEX, 6 + len(entries), channel_id, len(entries)) + entries
+            offsets += _CHANNEL_U64.pack(channel_id, pos)
             indexes.append(record)
             pos += len(record)
         self._write(b"".join((chunk_record, packed, *indexes)))
@@ -200,8 +202,9 @@ class McapWriter:
 
     # ---- the summary --------------------------------------------------------------------------------------
     def finish(self) -> None:
-        """Close the open chunk, end the data section and write the summary and footer (the stream stays open).
-        The summary is written group by group, so finishing needs little more memory than the index holds."""
+        """Close the open chunk, end the data section and write the summary and footer (the stream stays open and
+        unflushed: its owner flushes and fsyncs, or closes it). The summary is written group by group, so finishing
+        needs little more memory than the index holds."""
         self._close_chunk()
         self._write(_record(OP_DATA_END, _U32.pack(0)))  # no data section CRC, as mcap's Writer by default
         summary_start = self._pos
@@ -225,10 +228,9 @@ class McapWriter:
         footer_head = struct.pack("<BQQQ", OP_FOOTER, 8 + 8 + 4, summary_start, self._pos)
         crc = zlib.crc32(footer_head, zlib.crc32(offsets, crc))
         self._write(bytes(offsets) + footer_head + _U32.pack(crc) + MAGIC)
-        self._stream.flush()
 
     def _statistics(self) -> bytes:
-        counts = b"".join(_CHANNEL_OFFSET.pack(cid, n) for cid, n in self._channel_counts.items())
+        counts = b"".join(_CHANNEL_U64.pack(cid, n) for cid, n in self._channel_counts.items())
         return _record(OP_STATISTICS, struct.pack(
             "<QHIIIIQQ", sum(self._channel_counts.values()), len(self._schemas), len(self._channels), 0,
             self._metadata_count, self._chunk_count, self._start_ns or 0, self._end_ns)
