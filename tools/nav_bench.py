@@ -125,7 +125,9 @@ def bench_filter_alone(msgs: list[tuple[str, dict[str, Any]]], mode: str, repeat
 
 
 def bench_live(files: list[Path], seconds: float, start_s: float) -> None:
-    msgs = [(m["t_sync_ns"], t, m) for t, m in read_messages(files, tuple(INPUT_TOPICS))]
+    # A FIFO read (/imu/batch) reaches the navigator when its last sample has been read.
+    msgs = sorted(((m["t_sync_ns"][-1] if t == IMU_BATCH else m["t_sync_ns"], t, m)
+                   for t, m in read_messages(files, tuple(INPUT_TOPICS))), key=lambda x: x[0])
     nav = Navigator(NavParams(), publish=lambda r: None)
     # Everything before start_s goes in at once (levelling, heading), then the paced part is measured.
     skip = msgs[0][0] + int(start_s * 1e9)
