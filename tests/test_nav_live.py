@@ -306,3 +306,28 @@ def test_a_gnss_only_navigator_publishes_its_fixes_live():
     assert times == sorted(set(times))  # one per fix at most, in order
     truth = drive.state(40.0)
     assert abs(fixes[-1]["latitude"] - math.degrees(truth.lat_rad)) * 111_000 < 10.0
+
+
+def test_the_benchmarks_filter_from_memory_what_replay_filters_from_the_files(recorded: Path, capsys):
+    """tools/bench_kfgins.py times the filter fed from memory and tools/nav_bench.py's live run offers the drive to
+    a navigator: both must do the work replay does on the same drive (a FIFO drive's /imu/batch blocks included),
+    or their figures measure something else (or, as happened, nothing: they stopped with a TypeError)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import bench_kfgins
+    import nav_bench
+
+    from logger.exports.trajectory import read_drive, run_filter
+
+    files = sorted(recorded.glob("*.mcap"))
+    params = NavParams(mode="17")
+    _, rows = run_filter(files, params)
+    msgs = list(read_drive(files, runs=True))
+    assert any(t == "/imu/batch" for t, _ in msgs)
+    with bench_kfgins.from_memory(msgs):
+        _, again = run_filter(files, NavParams(mode="17"))
+    assert len(rows) > 100 and again == rows
+
+    nav_bench.bench_live(files, seconds=1.0, start_s=40.0)
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("live navigator, from 40 s:") and " 0 dropped" in line
+    assert int(line.split("(")[1].split(" records")[0]) > 0
