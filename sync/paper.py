@@ -13,7 +13,6 @@ report does not matter.
 from __future__ import annotations
 
 import bisect
-from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -34,84 +33,93 @@ def split_count(n: int, rate_hz: int) -> tuple[int, int]:
 
 
 class PaperCounters:
-    """IMU sample times since the last PPS edge, and the counters they give at any instant."""
+    """IMU sample times around the last PPS edges, and the counters they give at any instant.
 
-    KEEP_NS = 3_000_000_000  # sample times kept after an edge; later samples only add to a count
+    A sample's count is the number of samples taken since the last edge before it, counted from the start of the
+    run until the first edge: a function of its time alone, whatever was reported first. The PPS thread reports
+    an edge within milliseconds, while a FIFO read brings samples taken up to half a second earlier (20 Hz, two
+    reads a second): the samples of a read that straddles an edge, taken before it, count from the edge before
+    (up to Fs + 1 with PPS), as the paper's counter, ticking at each sample, had them. So the counters keep, for
+    each recent edge, how many samples were taken up to it (``_at_edge``; a sample reported after an edge it
+    preceded is added to it then), and the recent samples' times: a count is then a difference of two
+    positions."""
+
+    KEEP_S = 4  # seconds of sample times kept at least: a read's latency and a late-reported edge, with margin
+    EDGES_KEPT = 16  # recent edges kept (with PPS, the last 16 s)
 
     def __init__(self, imu_rate_hz: float) -> None:
         self.rate = max(1, round(imu_rate_hz))
         self.last_edge_ns: int | None = None
-        self._times: list[int] = []  # IMU sample times after the last edge, while they are few
-        self._beyond = 0  # samples after the last edge (or ever, before the first) no longer in _times
-        self._recent: deque[int] = deque(maxlen=4 * self.rate)  # last samples, to re-count a late-reported edge
+        self._total = 0  # samples registered since the start
+        self._times: list[int] = []  # the latest registered sample times, oldest first (KEEP_S of them at least)
+        self._keep = self.KEEP_S * self.rate
+        self._edges: list[int] = []  # recent edges, oldest first ...
+        self._at_edge: list[int] = []  # ... and the samples taken at or before each of them
 
     def on_imu(self, t_ns: int) -> None:
-        self._recent.append(t_ns)
-        if self.last_edge_ns is None:
-            self._beyond += 1  # no edge yet: the counter has never been reset
-            return
-        if t_ns <= self.last_edge_ns:
-            return
-        self._times.append(t_ns)
-        if len(self._times) > 4 * self.rate and self._times[0] - self.last_edge_ns > self.KEEP_NS:
-            cut = len(self._times) - 2 * self.rate
-            self._beyond += cut
-            del self._times[:cut]
+        self.on_imu_many((t_ns,))
 
     def on_imu_many(self, times_ns: Sequence[int]) -> None:
-        """:meth:`on_imu` for a FIFO read's samples (oldest first) at once; the counts are the same, only the
-        trimming of old times is looked at once per read."""
-        self._recent.extend(times_ns)
-        edge = self.last_edge_ns
-        if edge is None:
-            self._beyond += len(times_ns)
+        """Samples just read (oldest first): a FIFO read's, or one."""
+        k = len(times_ns)
+        if not k:
             return
-        if times_ns and times_ns[0] > edge:
-            self._times.extend(times_ns)
-        else:
-            self._times.extend(t for t in times_ns if t > edge)
-        if len(self._times) > 4 * self.rate and self._times[0] - edge > self.KEEP_NS:
-            cut = len(self._times) - 2 * self.rate
-            self._beyond += cut
-            del self._times[:cut]
+        self._total += k
+        ts = self._times
+        late = bool(ts) and times_ns[0] < ts[-1]
+        ts.extend(times_ns)
+        if late:  # reported after later ones (never by the daemon's one IMU thread): the positions need order
+            ts.sort()
+        edges = self._edges
+        if edges and times_ns[0] <= edges[-1]:
+            # Taken before an edge already reported: they count before it (and before any later one).
+            for j in range(len(edges) - 1, -1, -1):
+                if edges[j] < times_ns[0]:
+                    break
+                self._at_edge[j] += bisect.bisect_right(times_ns, edges[j]) if k > 1 else 1
+        if len(self._times) > 2 * self._keep:
+            del self._times[:len(self._times) - self._keep]
 
     def on_edge(self, t_ns: int) -> None:
-        """A PPS edge resets both counters; samples already seen after it (threads report late) are re-counted."""
+        """A PPS edge resets both counters (for the samples after it; those reported already are counted from it)."""
         if self.last_edge_ns is not None and t_ns <= self.last_edge_ns:
             return
         self.last_edge_ns = t_ns
-        self._times = sorted(t for t in self._recent if t > t_ns)
-        self._beyond = 0
+        self._edges.append(t_ns)
+        self._at_edge.append(self._upto(t_ns))
+        if len(self._edges) > self.EDGES_KEPT:
+            del self._edges[0], self._at_edge[0]
+
+    def _upto(self, t_ns: int) -> int:
+        """Samples taken at or before ``t_ns`` since the start (exact for a time inside the kept span)."""
+        ts = self._times
+        return self._total - (len(ts) - bisect.bisect_right(ts, t_ns))
 
     def counters_many(self, times_ns: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`counters` at each of several instants, as arrays (a FIFO read's samples)."""
         t = np.asarray(times_ns, dtype=np.int64)
         k = len(t)
         ts = self._times
-        if (k and self.last_edge_ns is not None and len(ts) >= k and ts[-1] == times_ns[-1]
-                and (len(ts) == k or ts[-k - 1] < times_ns[0]) and ts[-k:] == list(times_ns)
-                and (k == 1 or bool((t[1:] > t[:-1]).all()))):
-            # A read just registered (on_imu_many, as the daemon does before stamping it): the newest times after
-            # the edge, strictly increasing, so each one's count is its place among them, what the search finds.
-            n = np.arange(len(ts) - k + 1 + self._beyond, len(ts) + 1 + self._beyond)
-            if n[-1] <= self.rate + 1:  # no carry (with PPS, always)
-                return n, np.zeros(k, dtype=np.int64)
-        elif self.last_edge_ns is None:
-            n = np.full(k, self._beyond, dtype=np.int64)
+        if (k and len(ts) >= k and ts[-1] == times_ns[-1] and (len(ts) == k or ts[-k - 1] < times_ns[0])
+                and ts[-k:] == list(times_ns) and (k == 1 or bool((t[1:] > t[:-1]).all()))):
+            # A read just registered (on_imu_many, as the daemon does before stamping it): the newest times,
+            # strictly increasing, so each one's position is its place among them, what the search finds.
+            n = np.arange(self._total - k + 1, self._total + 1)
         else:
-            # Only the registered times between the first and the last instant can tell them apart: search those.
-            lo = bisect.bisect_right(ts, times_ns[0]) if k else 0
-            hi = bisect.bisect_right(ts, times_ns[-1]) if k else 0
-            n = np.searchsorted(np.asarray(ts[lo:hi], dtype=np.int64), t, side="right") + (lo + self._beyond)
-            n[t <= self.last_edge_ns] = 0
+            n = self._total - len(ts) + np.searchsorted(np.asarray(ts, dtype=np.int64), t, side="right")
+        edges = self._edges
+        if edges and k and times_ns[0] > edges[-1]:  # all after the last edge (most reads)
+            n = n - self._at_edge[-1]
+        elif edges:
+            j = np.searchsorted(np.asarray(edges, dtype=np.int64), t, side="left") - 1  # the last edge before each
+            n = n - np.where(j >= 0, np.asarray(self._at_edge, dtype=np.int64)[np.maximum(j, 0)], 0)
         limit = self.rate + 1
         carries = np.where(n > limit, -(-(n - limit) // self.rate), 0) * self.rate
         return n - carries, carries
 
     def counters(self, t_ns: int) -> tuple[int, int]:
-        if self.last_edge_ns is None:
-            return split_count(self._beyond, self.rate)
-        if t_ns <= self.last_edge_ns:
-            return 0, 0
-        n = self._beyond + bisect.bisect_right(self._times, t_ns)
+        n = self._upto(t_ns)
+        j = bisect.bisect_left(self._edges, t_ns) - 1  # the last edge before this instant
+        if j >= 0:
+            n -= self._at_edge[j]
         return split_count(n, self.rate)

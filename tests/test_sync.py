@@ -122,6 +122,32 @@ def test_counters_of_a_read_with_a_repeated_time_are_those_of_each_sample() -> N
     assert c.counters_many([6_000_000, 7_000_000])[0].tolist() == [6, 7]
 
 
+def test_samples_read_after_an_edge_they_preceded_count_from_the_edge_before() -> None:
+    """20 Hz through the FIFO, read twice a second: the PPS thread reports each edge within milliseconds, the read
+    holding the samples taken before it comes up to half a second later. Each sample's counters are still those
+    of its own time: the samples since the last edge before it (since the start before the first edge; carried
+    into the timer after 10 s without PPS), whatever was reported first."""
+    c = PaperCounters(20.0)
+    t = [int(k * 50e6) + 13_000_000 for k in range(20 * 25)]
+    edges = [k * NS + 7_000 for k in range(1, 11)]  # then 15 s without PPS
+    events = sorted([(t[i + 9] + 2_000_000, "read", t[i:i + 10]) for i in range(0, len(t), 10)]
+                    + [(e + 300_000, "pps", e) for e in edges], key=lambda x: x[0])
+
+    def truth(x: int) -> tuple[int, int]:
+        before = [e for e in edges if e < x]
+        return split_count(sum(1 for s in t if (before[-1] if before else -1) < s <= x), 20)
+
+    for _, kind, what in events:
+        if kind == "pps":
+            c.on_edge(what)
+            continue
+        c.on_imu_many(what)
+        ic, tc = c.counters_many(what)
+        assert list(zip(ic.tolist(), tc.tolist(), strict=True)) == [truth(x) for x in what]
+        assert [c.counters(x) for x in what] == [truth(x) for x in what]
+    assert c.counters(t[-1]) == truth(t[-1]) and truth(t[-1])[1] > 0
+
+
 def test_an_edge_reported_late_recounts_the_samples_after_it() -> None:
     c = PaperCounters(20.0)
     for k in range(5):
