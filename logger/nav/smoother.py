@@ -31,6 +31,18 @@ it). Two rules keep it from doing so:
   the forward solution (it never used the model the disagreement puts in doubt past that epoch) is kept there
   and the pass starts again from it. All three are counted in a :class:`SmoothingReport`, which ``logger
   replay`` prints.
+
+The smoothed covariance assumes the two passes' information independent: Ps^-1 = P+^-1 + Pb^-1, with Pb the
+backward pass's covariance (every measurement after the epoch). A receiver's slow error (a minute of the same
+few decimetres, more in a canyon) is in both: the fixes before an epoch and those after it share it, and Ps
+halves a variance that the shared error does not let shrink (on simulated drives the smoothed position was
+within 3 sigma only 83-95 % of the time on one axis, the forward one 99-100 %). So the sigmas the rows carry are
+no smaller than the error of a fusion of two passes fully correlated on that axis: w sigma_f + (1 - w) sigma_b,
+w = sigma_b^2 / (sigma_f^2 + sigma_b^2), the weights the fusion gives them (:func:`_fused_sigma`). Where the
+backward pass knows nothing (the last epoch, a kept forward solution) that is the forward sigma; in an outage
+(the passes' fixes a minute apart, nearly independent) it is pessimistic, the forward and backward sigmas being
+about equal there. Never more than the forward sigma, though: the smoothed solution is never less sure than the
+forward one it corrects, whose sigma holds by itself. The smoothed solution itself is unchanged.
 """
 
 from __future__ import annotations
@@ -85,7 +97,7 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
     kept = np.zeros(m, bool)
     ps = p_last.copy()
     e_minus[-1] = _dx(epochs[-1], zero)
-    sig[-1] = np.sqrt(np.maximum(np.diag(ps), 0.0))
+    sig[-1] = _fused_sigma(ps, p_last)
     j = m - 2
     while j >= 0:
         step = _back(epochs, j, e_minus[j + 1], ps)
@@ -97,7 +109,7 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
                 report.refused += 1
                 for i, ei, psi in explained:
                     e[i], ps = ei, psi
-                    sig[i] = np.sqrt(np.maximum(np.diag(ps), 0.0))
+                    sig[i] = _fused_sigma(ps, _p_plus(epochs, i))
                     e_minus[i] = ei + _dx(epochs[i], zero)
                 j = explained[-1][0] - 1
                 continue
@@ -109,10 +121,38 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
             ps = _p_plus(epochs, j).copy()
         else:
             e[j], ps = step[0], step[1]
-        sig[j] = np.sqrt(np.maximum(np.diag(ps), 0.0))
+        sig[j] = _fused_sigma(ps, _p_plus(epochs, j))
         e_minus[j] = e[j] + _dx(epochs[j], zero)
         j -= 1
     return e, e_minus, sig, kept
+
+
+def _fused_sigma(ps: np.ndarray, p_plus: np.ndarray) -> np.ndarray:
+    """Per state, the larger of the smoothed sigma and that of the two passes' fusion were they fully correlated
+    on that state: w sigma_f + (1 - w) sigma_b with w = sigma_b^2 / (sigma_f^2 + sigma_b^2), the backward pass's
+    covariance from its information Ps^-1 - P+^-1 (computed on the forward covariance's scale; a direction it
+    does not inform has no backward variance: the forward sigma then)."""
+    d = np.maximum(np.diag(p_plus), 1e-30)
+    sig_s = np.sqrt(np.maximum(np.diag(ps), 0.0))
+    sig_f = np.sqrt(d)
+    s = 1.0 / sig_f
+    sc = s[:, None] * s[None, :]
+    try:
+        info = np.linalg.inv(ps * sc) - np.linalg.inv(p_plus * sc)
+        lam, v = np.linalg.eigh(0.5 * (info + info.T))
+    except np.linalg.LinAlgError:
+        return sig_s
+    # Backward variance per state (scaled): sum over the information's directions of v^2 / lambda; a direction
+    # without information (lambda not above round-off) makes it infinite.
+    floor = 1e-9 * max(float(lam.max()), 1.0)
+    informed = lam > floor
+    var_b = (v[:, informed] ** 2 / lam[informed]).sum(axis=1)
+    var_b = np.where((v[:, ~informed] ** 2).sum(axis=1) > 1e-6, np.inf, var_b) / (s * s)
+    with np.errstate(invalid="ignore", over="ignore"):
+        sig_b = np.sqrt(var_b)
+        w = np.where(np.isinf(var_b), 1.0, var_b / (d + var_b))
+        fused = w * sig_f + np.where(w < 1.0, (1.0 - w) * sig_b, 0.0)
+    return np.maximum(sig_s, np.minimum(np.nan_to_num(fused, nan=0.0), sig_f))
 
 
 def _dx(ep: Epoch, zero: np.ndarray) -> np.ndarray:
@@ -268,12 +308,15 @@ def smooth_rows(rows: list[TrajectoryRow], epochs: list[Epoch], p_last: np.ndarr
         if not valid[k]:
             out.append(row)
             continue
-        _, t_mono, lat, lon, h, vn, ve, vd, q, _sig, jr = row
+        _, t_mono, lat, lon, h, vn, ve, vd, q, sig_f, jr = row
         ek = err[k]
         rm, rn = earth.radii(lat)
         q2 = quat_mul(quat_from_rotvec(float(ek[PHI_ID]), float(ek[PHI_ID + 1]), float(ek[PHI_ID + 2])), q)
         out.append(TrajectoryRow(row[0], t_mono, lat - float(ek[P_ID]) / (rm + h),
                                  lon - float(ek[P_ID + 1]) / ((rn + h) * math.cos(lat)), h + float(ek[P_ID + 2]),
                                  vn - float(ek[V_ID]), ve - float(ek[V_ID + 1]), vd - float(ek[V_ID + 2]), q2,
-                                 (float(sg[k, P_ID]), float(sg[k, P_ID + 1]), float(sg[k, P_ID + 2])), jr))
+                                 # never less sure than the forward row (its sigma as of its epoch: between
+                                 # two epochs the smoothed one is interpolated towards the next)
+                                 (min(float(sg[k, P_ID]), sig_f[0]), min(float(sg[k, P_ID + 1]), sig_f[1]),
+                                  min(float(sg[k, P_ID + 2]), sig_f[2])), jr))
     return out
