@@ -331,3 +331,20 @@ def test_the_benchmarks_filter_from_memory_what_replay_filters_from_the_files(re
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("live navigator, from 40 s:") and " 0 dropped" in line
     assert int(line.split("(")[1].split(" records")[0]) > 0
+
+
+def test_live_check_scores_the_recorded_and_the_offered_live_solution(recorded: Path, capsys):
+    sys.path.insert(0, str(ROOT / "tools"))
+    import live_check
+
+    assert live_check.main([str(recorded)]) == 0
+    out = capsys.readouterr().out
+    for name in ("recorded live /nav/fix", "navigator, as offered", "replay, forward"):
+        assert name in out
+
+    def rmse(name: str) -> list[float]:
+        text = next(x for x in out.splitlines() if name in x).split("V ")[1].split(" m,")[0]
+        return [float(v) for v in text.split(" / ")]
+
+    # The daemon's order gives replay's solution (scored at the five fixes a second against every row).
+    assert max(abs(a - b) for a, b in zip(rmse("navigator, as offered"), rmse("replay, forward"), strict=True)) < 0.05

@@ -327,7 +327,7 @@ def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
     ``runs``: a batch's samples come as ``/imu/batch`` records of their own instead, each the batch's samples up
     to the next other message (one slice when nothing comes between), for a reader that takes blocks."""
     if runs:
-        yield from _in_runs(items)
+        yield from in_runs(items)
         return
     if not expand:
         yield from items
@@ -345,8 +345,10 @@ def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
         yield pt, IMU_TOPIC, pi, pm
 
 
-def _in_runs(items: Iterator[tuple[int, str, int, dict[str, Any]]]) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
-    """:func:`_in_time_order` with batches cut where another message comes between their samples."""
+def in_runs(items: Iterator[tuple[int, str, int, dict[str, Any]]]) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
+    """(log time, topic, file index, message) in log-time order, a batch logged at its first sample's time, with
+    each batch cut where another message comes between its samples: replay's order, and the live navigator's
+    (logger.runtime.navigator)."""
     pending: deque[tuple[int, dict[str, Any], int]] = deque()  # (file index, batch, first sample not yet out)
 
     def upto(t: int | None) -> Iterator[tuple[int, str, int, dict[str, Any]]]:
