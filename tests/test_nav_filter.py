@@ -155,6 +155,25 @@ def test_mounting_rotation_from_the_configuration():
     assert wrong.state is None or mounting_verdict(wrong).startswith("IMU mounting implausible")
 
 
+def test_the_offsets_verdict_says_beyond_or_within_only_as_far_as_the_filter_knows():
+    """A chip whose accelerometer y offset (65 mg) is beyond the datasheet's 50: said once the filter knows it to a
+    few mg; while its sigma is tens of mg, neither "within" nor "beyond" (it said "within" on nothing before)."""
+    from logger.nav.health import offsets_verdict
+    from logger.nav.state import BA_ID
+
+    drive = make_drive("urban", seed=2, duration_s=200.0)
+    engine = run(records(drive, 200.0, seed=4, errors=SynthErrors(accel_bias=(0.0, -0.065 * 9.80665, 0.0))))
+    sigma_y = engine.ekf.sigma(BA_ID + 1) / 9.80665 * 1e3
+    assert sigma_y < 7.0 and abs(abs(engine.state.ba[1]) / 9.80665 * 1e3 - 65.0) < 3 * sigma_y
+    assert offsets_verdict(engine).startswith("IMU offsets beyond the datasheet: accelerometer y offset")
+    engine.ekf.p[BA_ID + 1, BA_ID + 1] = (0.05 * 9.80665) ** 2  # as unsure as a minute after the start
+    assert offsets_verdict(engine).startswith("IMU offsets not yet known against the datasheet (accelerometer y)")
+    engine.state.ba = (engine.state.ba[0], 0.0, engine.state.ba[2])
+    assert offsets_verdict(engine).startswith("IMU offsets not yet known")  # 0 +- 50 mg: no verdict either
+    engine.ekf.p[BA_ID + 1, BA_ID + 1] = (0.005 * 9.80665) ** 2
+    assert offsets_verdict(engine).startswith("IMU offsets within the datasheet")
+
+
 def test_antenna_lever_arm_from_the_configuration():
     drive = make_drive("outage-60s", seed=5, duration_s=150.0)
     arm = np.array([1.5, 0.4, -1.3])  # antenna forward, right and above the IMU

@@ -13,11 +13,12 @@ from collections import deque
 from logger.nav.earth import G0
 from logger.nav.engine import NavEngine
 from logger.nav.mounting import FORWARD
-from logger.nav.state import DH_ID, SF_ID
+from logger.nav.state import BA_ID, BG_ID, DH_ID, SF_ID
 
 ACCEL_LIMIT_MG = (50.0, 50.0, 80.0)  # MPU-6050 zero-g output tolerance, x y z
 GYRO_LIMIT_DPS = 20.0  # MPU-6050 zero-rate output tolerance
 BARO_DRIFT_M_PER_MIN = 0.5  # a front passing moves pressure ~1 hPa/h (0.14 m/min); more is the sensor or its vent
+OFFSET_SIGMAS = 2.0  # an offset is beyond (or within) the datasheet's tolerance when this many sigmas past it
 MOUNT_TILT_LIMIT_DEG = 10.0
 MOUNT_SLIP_LIMIT_DEG = 2.0
 
@@ -84,21 +85,37 @@ class HealthJudge:
                            f"{rate:+.2f} m/min")
             else:
                 out.append(f"barometer offset {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), trend after a minute")
-        ba_mg = [abs(b) / G0 * 1e3 for b in s.ba]
-        bg_dps = [abs(math.degrees(b)) for b in s.bg]
-        bad = [f"accelerometer {'xyz'[i]} offset {ba_mg[i]:.0f} mg beyond the datasheet's {ACCEL_LIMIT_MG[i]:.0f}"
-               for i in range(3) if ba_mg[i] > ACCEL_LIMIT_MG[i]]
-        bad += [f"gyro {'xyz'[i]} offset {bg_dps[i]:.1f} deg/s beyond the datasheet's {GYRO_LIMIT_DPS:.0f}"
-                for i in range(3) if bg_dps[i] > GYRO_LIMIT_DPS]
-        if bad:
-            out.append("IMU offsets beyond the datasheet: " + "; ".join(bad))
-        else:
-            out.append(f"IMU offsets within the datasheet: accel <= {max(ba_mg):.0f} mg, "
-                       f"gyro <= {max(bg_dps):.2f} deg/s")
+        out.append(offsets_verdict(engine))
         out.append(mounting_verdict(engine))
         if engine.counters.resets:
             out.append(f"filter restarted from GNSS {engine.counters.resets} times (lost itself)")
         return out
+
+
+def offsets_verdict(engine: NavEngine) -> str:
+    """The IMU offsets against the datasheet's tolerances, as far as the filter knows them: beyond only when the
+    estimate is OFFSET_SIGMAS of its sigmas past the limit, within only when as far inside it; otherwise not yet
+    known (a minute after the start the accelerometer's offsets are known to tens of mg: the estimate alone said
+    "within" or "beyond" then on nothing)."""
+    s, ekf = engine.state, engine.ekf
+    assert s is not None and ekf is not None
+    ba_mg = [abs(b) / G0 * 1e3 for b in s.ba]
+    ba_sig = [ekf.sigma(BA_ID + i) / G0 * 1e3 for i in range(3)]
+    bg_dps = [abs(math.degrees(b)) for b in s.bg]
+    bg_sig = [math.degrees(ekf.sigma(BG_ID + i)) for i in range(3)]
+    bad = [f"accelerometer {'xyz'[i]} offset {ba_mg[i]:.0f} mg (+-{ba_sig[i]:.0f}) beyond the datasheet's "
+           f"{ACCEL_LIMIT_MG[i]:.0f}" for i in range(3) if ba_mg[i] - OFFSET_SIGMAS * ba_sig[i] > ACCEL_LIMIT_MG[i]]
+    bad += [f"gyro {'xyz'[i]} offset {bg_dps[i]:.1f} deg/s (+-{bg_sig[i]:.1f}) beyond the datasheet's "
+            f"{GYRO_LIMIT_DPS:.0f}" for i in range(3) if bg_dps[i] - OFFSET_SIGMAS * bg_sig[i] > GYRO_LIMIT_DPS]
+    if bad:
+        return "IMU offsets beyond the datasheet: " + "; ".join(bad)
+    unsure = ([f"accelerometer {'xyz'[i]}" for i in range(3)
+               if ba_mg[i] + OFFSET_SIGMAS * ba_sig[i] > ACCEL_LIMIT_MG[i]]
+              + [f"gyro {'xyz'[i]}" for i in range(3) if bg_dps[i] + OFFSET_SIGMAS * bg_sig[i] > GYRO_LIMIT_DPS])
+    if unsure:
+        return (f"IMU offsets not yet known against the datasheet ({', '.join(unsure)}): accel <= {max(ba_mg):.0f} mg "
+                f"+-{max(ba_sig):.0f}, gyro <= {max(bg_dps):.2f} deg/s +-{max(bg_sig):.2f}")
+    return f"IMU offsets within the datasheet: accel <= {max(ba_mg):.0f} mg, gyro <= {max(bg_dps):.2f} deg/s"
 
 
 def mounting_verdict(engine: NavEngine) -> str:
