@@ -332,6 +332,11 @@ def test_the_benchmarks_filter_from_memory_what_replay_filters_from_the_files(re
     assert line.startswith("live navigator, from 40 s:") and " 0 dropped" in line
     assert int(line.split("(")[1].split(" records")[0]) > 0
 
+    # Its 1 kHz stream of FIFO reads (no seq numbers: the navigator cuts reads at the measurements between them).
+    nav_bench.bench_fifo(1.0, 16.0, "merged")
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("FIFO reads, merged: 1000 IMU samples in 1 s") and "us per sample" in line
+
 
 def test_live_check_scores_the_recorded_and_the_offered_live_solution(recorded: Path, capsys):
     sys.path.insert(0, str(ROOT / "tools"))

@@ -314,7 +314,8 @@ def imu_slice(batch: dict[str, Any], lo: int, hi: int) -> dict[str, Any]:
     out = {k: v[lo:hi] if isinstance(v, list) else v for k, v in batch.items()}
     if lo:
         out["lost"] = 0
-        out["seq"] = batch["seq"] + lo
+        if "seq" in batch:  # a recorded read has it; a benchmark's or a test's stream may not
+            out["seq"] = batch["seq"] + lo
     return out
 
 
