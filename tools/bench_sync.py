@@ -6,7 +6,7 @@
 for a stretch so that the clock holds over for longer than the tunnel), then ``logger sync-report``'s report
 of that file gives the error per topic and clock state: RMSE, largest error, and how often the error bound the
 record carries covered the true error. (The paper's Eq. 1 re-timing, which ``sync_report`` also scores, counts
-IMU samples and is only meaningful at time scale 1 with none missed: ``logger sync-report`` shows it.)
+IMU samples and is only meaningful with none missed: ``logger sync-report`` shows it.)
 """
 
 from __future__ import annotations
