@@ -28,6 +28,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
 from itertools import pairwise
+from numbers import Integral
 from pathlib import Path
 from typing import Any
 
@@ -214,7 +215,7 @@ class Navigator:
         for topic, payload in records:
             t = payload["t_sync_ns"]
             last = t[-1] if topic == IMU_BATCH else t
-            if isinstance(last, int):
+            if isinstance(last, Integral):
                 newest = last if newest is None else max(newest, last)
                 if topic in (IMU, IMU_BATCH):
                     imu_end = last if imu_end is None else max(imu_end, last)
@@ -228,9 +229,9 @@ class Navigator:
             if topic in (IMU, IMU_BATCH):
                 if topic == IMU or t:
                     imu.append((t[0] if topic == IMU_BATCH else t, topic, 0, payload))
-            elif (gnss_only or not isinstance(t, int) or (imu_end is not None and t <= imu_end)
+            elif (gnss_only or not isinstance(t, Integral) or (imu_end is not None and t <= imu_end)
                   or (newest is not None and t < newest - HOLD_MAX_NS)):
-                ready.append((t if isinstance(t, int) else 0, topic, 0, payload))
+                ready.append((int(t) if isinstance(t, Integral) else 0, topic, 0, payload))
             else:
                 held.append((topic, payload))
         self._held = held
