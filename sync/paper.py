@@ -5,9 +5,9 @@ count is carried into a timer counter, which only PPS resets. The paper's synchr
 GPS time(k) + (IMU_CNT + Timer_CNT) / Fs, with k the last edge. Every record carries both counters so a drive
 can be re-timed by the paper's method and compared with the regression clock.
 
-The counters are a function of a sample's monotonic time (how many IMU samples since the last edge), so the OBD
-and altimeter threads get exactly the values the IMU thread would hand them, and the order in which threads
-report does not matter.
+The counters are a function of an instant's monotonic time (how many IMU samples since the last edge), so the
+order in which threads report does not matter; an OBD speed or an altimeter reading stamped before the IMU's FIFO
+has delivered the samples up to it counts those at the IMU's rate.
 """
 
 from __future__ import annotations
@@ -86,14 +86,30 @@ class PaperCounters:
             return
         self.last_edge_ns = t_ns
         self._edges.append(t_ns)
-        self._at_edge.append(self._upto(t_ns))
+        self._at_edge.append(self._registered(t_ns))
         if len(self._edges) > self.EDGES_KEPT:
             del self._edges[0], self._at_edge[0]
 
-    def _upto(self, t_ns: int) -> int:
-        """Samples taken at or before ``t_ns`` since the start (exact for a time inside the kept span)."""
+    def _registered(self, t_ns: int) -> int:
+        """Samples read so far that were taken at or before ``t_ns``, since the start (exact inside the kept span,
+        KEEP_S at least; an older time counts every sample before the span as before it)."""
         ts = self._times
         return self._total - (len(ts) - bisect.bisect_right(ts, t_ns))
+
+    def _unread(self, t_ns: int) -> int:
+        """Samples taken after the newest one read and at or before ``t_ns``, at the IMU's rate: a FIFO holds up
+        to half a second at 20 Hz, and an OBD speed or a fix stamped meanwhile counts them, as the paper's counter
+        ticking at each sample would have."""
+        ts = self._times
+        return (t_ns - ts[-1]) * self.rate // 1_000_000_000 if ts and t_ns > ts[-1] else 0
+
+    def _upto(self, t_ns: int) -> int:
+        """Samples taken at or before ``t_ns`` since the start, read or not."""
+        return self._registered(t_ns) + self._unread(t_ns)
+
+    def _at(self, j: int) -> int:
+        """Samples taken at or before edge ``j``: those read (counted as they came) and those not yet."""
+        return self._at_edge[j] + self._unread(self._edges[j])
 
     def counters_many(self, times_ns: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`counters` at each of several instants, as arrays (a FIFO read's samples)."""
@@ -106,20 +122,23 @@ class PaperCounters:
             # strictly increasing, so each one's position is its place among them, what the search finds.
             n = np.arange(self._total - k + 1, self._total + 1)
         else:
-            n = self._total - len(ts) + np.searchsorted(np.asarray(ts, dtype=np.int64), t, side="right")
+            n = np.array([self._upto(x) for x in times_ns], dtype=np.int64).reshape(k)
         edges = self._edges
         if edges and k and times_ns[0] > edges[-1]:  # all after the last edge (most reads)
-            n = n - self._at_edge[-1]
+            n = n - self._at(len(edges) - 1)
         elif edges:
             j = np.searchsorted(np.asarray(edges, dtype=np.int64), t, side="left") - 1  # the last edge before each
-            n = n - np.where(j >= 0, np.asarray(self._at_edge, dtype=np.int64)[np.maximum(j, 0)], 0)
+            at = np.array([self._at(i) for i in range(len(edges))], dtype=np.int64)
+            n = n - np.where(j >= 0, at[np.maximum(j, 0)], 0)
         limit = self.rate + 1
         carries = np.where(n > limit, -(-(n - limit) // self.rate), 0) * self.rate
         return n - carries, carries
 
     def counters(self, t_ns: int) -> tuple[int, int]:
+        """(IMU_CNT, Timer_CNT) at ``t_ns``: exact inside the kept span of sample times (KEEP_S, and edges reported
+        within it), the unread samples counted at the IMU's rate after the newest one read."""
         n = self._upto(t_ns)
         j = bisect.bisect_left(self._edges, t_ns) - 1  # the last edge before this instant
         if j >= 0:
-            n -= self._at_edge[j]
+            n -= self._at(j)
         return split_count(n, self.rate)

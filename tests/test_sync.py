@@ -126,7 +126,8 @@ def test_samples_read_after_an_edge_they_preceded_count_from_the_edge_before() -
     """20 Hz through the FIFO, read twice a second: the PPS thread reports each edge within milliseconds, the read
     holding the samples taken before it comes up to half a second later. Each sample's counters are still those
     of its own time: the samples since the last edge before it (since the start before the first edge; carried
-    into the timer after 10 s without PPS), whatever was reported first."""
+    into the timer after 10 s without PPS), whatever was reported first; so are an OBD speed's, stamped before the
+    read that holds the samples up to it."""
     c = PaperCounters(20.0)
     t = [int(k * 50e6) + 13_000_000 for k in range(20 * 25)]
     edges = [k * NS + 7_000 for k in range(1, 11)]  # then 15 s without PPS
@@ -141,6 +142,10 @@ def test_samples_read_after_an_edge_they_preceded_count_from_the_edge_before() -
         if kind == "pps":
             c.on_edge(what)
             continue
+        # An OBD speed stamped while these samples were still in the FIFO: counted at the IMU's rate (from the
+        # first read on: before any, there is no sample to count from).
+        for q in (what[4] + 20_000_000, what[-1] + 1_000_000) if what[0] > t[0] else ():
+            assert c.counters(q) == truth(q)
         c.on_imu_many(what)
         ic, tc = c.counters_many(what)
         assert list(zip(ic.tolist(), tc.tolist(), strict=True)) == [truth(x) for x in what]
