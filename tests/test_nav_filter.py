@@ -172,6 +172,18 @@ def test_the_offsets_verdict_says_beyond_or_within_only_as_far_as_the_filter_kno
     assert offsets_verdict(engine).startswith("IMU offsets not yet known")  # 0 +- 50 mg: no verdict either
     engine.ekf.p[BA_ID + 1, BA_ID + 1] = (0.005 * 9.80665) ** 2
     assert offsets_verdict(engine).startswith("IMU offsets within the datasheet")
+    engine.state.ba = (engine.state.ba[0], float("nan"), engine.state.ba[2])
+    assert offsets_verdict(engine).startswith("IMU offsets not yet known")  # not "within" on a NaN
+
+    # The tolerances are the chip's: a board rolled 90 deg carries the chip's y (50 mg) on the vehicle's z (80).
+    rolled = dcm_from_euler(math.radians(90.0), 0.0, 0.0)  # vehicle from chip
+    ba_chip = np.array([0.0, -0.065 * 9.80665, 0.0])
+    engine._mount_m = rolled
+    engine.state.ba = tuple((rolled @ ba_chip).tolist())
+    p = engine.ekf.p
+    p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] = np.eye(3) * (0.003 * 9.80665) ** 2
+    assert abs(engine.state.ba[2]) / 9.80665 * 1e3 == pytest.approx(65.0)  # on the vehicle's z: under z's 80
+    assert offsets_verdict(engine).startswith("IMU offsets beyond the datasheet: accelerometer y offset 65 mg")
 
 
 def test_antenna_lever_arm_from_the_configuration():

@@ -740,6 +740,11 @@ class NavEngine:
             self.q_diag = self.noise.diagonal(self.n)
 
     # ---- the mounting ----------------------------------------------------------------------------------
+    @property
+    def vehicle_from_chip(self) -> np.ndarray:
+        """The mounting in use: the rotation that turns the chip's axes into the vehicle's (the filter's body)."""
+        return self._mount_m
+
     def _set_mount(self, m: np.ndarray) -> None:
         self._mount_m = m
         self._mount = None if np.allclose(m, np.eye(3)) else tuple(tuple(float(v) for v in row) for row in m)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numpy as np
+
 from logger.nav.earth import G0
 from logger.nav.engine import NavEngine
 from logger.nav.mounting import FORWARD
@@ -99,19 +101,28 @@ def offsets_verdict(engine: NavEngine) -> str:
     "within" or "beyond" then on nothing)."""
     s, ekf = engine.state, engine.ekf
     assert s is not None and ekf is not None
-    ba_mg = [abs(b) / G0 * 1e3 for b in s.ba]
-    ba_sig = [ekf.sigma(BA_ID + i) / G0 * 1e3 for i in range(3)]
-    bg_dps = [abs(math.degrees(b)) for b in s.bg]
-    bg_sig = [math.degrees(ekf.sigma(BG_ID + i)) for i in range(3)]
+    # The filter holds the offsets on the vehicle's axes; the tolerances are the chip's (z is wider): turned back
+    # through the mounting in use (vehicle from chip), with their covariance.
+    m = engine.vehicle_from_chip
+    p = ekf.p
+    ba = m.T @ np.array(s.ba)
+    bg = m.T @ np.array(s.bg)
+    var_a = np.diag(m.T @ p[BA_ID:BA_ID + 3, BA_ID:BA_ID + 3] @ m)
+    var_g = np.diag(m.T @ p[BG_ID:BG_ID + 3, BG_ID:BG_ID + 3] @ m)
+    ba_mg = [abs(float(b)) / G0 * 1e3 for b in ba]
+    ba_sig = [math.sqrt(max(float(v), 0.0)) / G0 * 1e3 for v in var_a]
+    bg_dps = [abs(math.degrees(float(b))) for b in bg]
+    bg_sig = [math.degrees(math.sqrt(max(float(v), 0.0))) for v in var_g]
     bad = [f"accelerometer {'xyz'[i]} offset {ba_mg[i]:.0f} mg (+-{ba_sig[i]:.0f}) beyond the datasheet's "
            f"{ACCEL_LIMIT_MG[i]:.0f}" for i in range(3) if ba_mg[i] - OFFSET_SIGMAS * ba_sig[i] > ACCEL_LIMIT_MG[i]]
     bad += [f"gyro {'xyz'[i]} offset {bg_dps[i]:.1f} deg/s (+-{bg_sig[i]:.1f}) beyond the datasheet's "
             f"{GYRO_LIMIT_DPS:.0f}" for i in range(3) if bg_dps[i] - OFFSET_SIGMAS * bg_sig[i] > GYRO_LIMIT_DPS]
     if bad:
         return "IMU offsets beyond the datasheet: " + "; ".join(bad)
+    # Written so that a NaN (an estimate or a sigma gone bad) is not "within": only a comparison that holds is.
     unsure = ([f"accelerometer {'xyz'[i]}" for i in range(3)
-               if ba_mg[i] + OFFSET_SIGMAS * ba_sig[i] > ACCEL_LIMIT_MG[i]]
-              + [f"gyro {'xyz'[i]}" for i in range(3) if bg_dps[i] + OFFSET_SIGMAS * bg_sig[i] > GYRO_LIMIT_DPS])
+               if not ba_mg[i] + OFFSET_SIGMAS * ba_sig[i] <= ACCEL_LIMIT_MG[i]]
+              + [f"gyro {'xyz'[i]}" for i in range(3) if not bg_dps[i] + OFFSET_SIGMAS * bg_sig[i] <= GYRO_LIMIT_DPS])
     if unsure:
         return (f"IMU offsets not yet known against the datasheet ({', '.join(unsure)}): accel <= {max(ba_mg):.0f} mg "
                 f"+-{max(ba_sig):.0f}, gyro <= {max(bg_dps):.2f} deg/s +-{max(bg_sig):.2f}")
