@@ -90,11 +90,12 @@ def _read_by_read(nav: Navigator, items: list[Item]) -> None:
             nav._maybe_publish()
 
 
-def _merged(nav: Navigator, items: list[Item], merge: bool = True) -> None:
-    """The navigator's wake-ups: what was queued in each WAKE_S, taken at once."""
+def _merged(nav: Navigator, items: list[Item], merge: bool = True, phase_ns: int = 0) -> None:
+    """The navigator's wake-ups: what was queued in each WAKE_S, taken at once (``phase_ns``: the first wake-up
+    that much later)."""
     wake = int(WAKE_S * NS)
     chunk: list[tuple[str, dict[str, Any]]] = []
-    end = items[0][0] + wake
+    end = items[0][0] + wake + phase_ns
     for t, topic, m in items:
         if t >= end:
             nav.take(chunk, merge)
@@ -268,12 +269,26 @@ def test_measurements_offered_ahead_of_their_samples_wait_for_them():
                for i, (t, topic, _) in enumerate(offered))
     in_order = [(t, IMU_BATCH if topic == "/imu" else topic,
                  _read([m], m["temp_degc"], period_s=0.05) if topic == "/imu" else m) for t, topic, m in recs]
-    live, _, _ = _navigator(mode="17")
     replayed, _, _ = _navigator(mode="17")
-    _merged(live, offered)
     _merged(replayed, in_order)
-    _same_trajectory(replayed.engine, live.engine)
-    assert live.processed == len(offered)
+    # Wake-ups at two phases: at 0.77 s past the drive's first record a wake-up falls between a measurement and
+    # the read that brings the samples before it, which then waits for the next wake-up (held at least once).
+    for phase_ns in (0, 770_000_000):
+        live, _, _ = _navigator(mode="17")
+        held: list[int] = []
+        order = live.in_time_order
+
+        def watched(records, order=order, live=live, held=held):
+            out = order(records)
+            held.append(len(live._held))
+            return out
+
+        live.in_time_order = watched  # type: ignore[method-assign]
+        _merged(live, offered, phase_ns=phase_ns)
+        _same_trajectory(replayed.engine, live.engine)
+        assert live.processed == len(offered)
+        if phase_ns:
+            assert max(held) > 0
 
     as_offered, _, _ = _navigator(mode="17")
     as_offered.in_time_order = lambda records: records  # type: ignore[method-assign]

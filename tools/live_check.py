@@ -26,8 +26,8 @@ from logger.exports.nav_score import Score, load_truth, score
 from logger.exports.trajectory import run_filter
 from logger.nav.params import NavParams
 from logger.recording.drive import read_messages
-from logger.recording.topics import IMU_BATCH, NAV_FIX
-from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator
+from logger.recording.topics import NAV_FIX
+from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator, offer_time
 
 NS = 1_000_000_000
 
@@ -45,8 +45,8 @@ def fix_columns(fixes: list[dict[str, Any]]) -> dict[str, np.ndarray]:
 
 def as_offered(files: list[Path]) -> list[dict[str, Any]]:
     """The /nav/fix a navigator publishes from the drive's records in the daemon's order."""
-    recs = sorted(((m["t_sync_ns"][-1] if t == IMU_BATCH else m["t_sync_ns"], t, m)
-                   for t, m in read_messages(files, tuple(INPUT_TOPICS))), key=lambda r: r[0])
+    recs = sorted(((offer_time(t, m), t, m) for t, m in read_messages(files, tuple(INPUT_TOPICS))),
+                  key=lambda r: r[0])
     out: list[dict[str, Any]] = []
     nav = Navigator(NavParams(), publish=lambda r: out.append(r.payload) if r.topic == NAV_FIX else None)
     i, wake = 0, recs[0][0] + int(WAKE_S * NS) if recs else 0
@@ -58,6 +58,7 @@ def as_offered(files: list[Path]) -> list[dict[str, Any]]:
         nav.take(batch)
         nav.rerun_if_due()
         wake += int(WAKE_S * NS)
+    nav.flush()  # the measurements after the drive's last IMU sample
     return out
 
 

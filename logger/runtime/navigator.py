@@ -55,6 +55,14 @@ WAKE_S = 1.0  # the filter runs in batches: each wake-up costs more than the rec
 HOLD_MAX_NS = 2_000_000_000  # a measurement waits for the IMU samples before it at most this long (record time)
 
 
+def offer_time(topic: str, payload: dict[str, Any]) -> int:
+    """When the daemon offers a record to its taps: a FIFO read once its last sample has been read, any other
+    record at its own time (what :meth:`Navigator.in_time_order` puts back in order; the benchmarks and
+    ``tools/live_check.py`` feed recorded drives in this order)."""
+    t = payload["t_sync_ns"]
+    return int(t[-1]) if topic == IMU_BATCH else int(t)
+
+
 def _follows(m: dict[str, Any], last: int | None) -> bool:
     """Whether the FIFO read ``m`` goes on from a sample at ``last``: nothing lost before it, its first sample
     within GAP_PERIODS sample periods after ``last``, its own samples in order."""
@@ -214,6 +222,8 @@ class Navigator:
         newest = self._newest_ns
         for topic, payload in records:
             t = payload["t_sync_ns"]
+            if topic == IMU_BATCH and not t:
+                continue
             last = t[-1] if topic == IMU_BATCH else t
             if isinstance(last, Integral):
                 newest = last if newest is None else max(newest, last)
