@@ -49,12 +49,15 @@ class PaperCounters:
 
     def __init__(self, imu_rate_hz: float) -> None:
         self.rate = max(1, round(imu_rate_hz))
-        self.last_edge_ns: int | None = None
         self._total = 0  # samples registered since the start
         self._times: list[int] = []  # the latest registered sample times, oldest first (KEEP_S of them at least)
         self._keep = self.KEEP_S * self.rate
         self._edges: list[int] = []  # recent edges, oldest first ...
         self._at_edge: list[int] = []  # ... and the samples taken at or before each of them
+
+    @property
+    def last_edge_ns(self) -> int | None:
+        return self._edges[-1] if self._edges else None
 
     def on_imu(self, t_ns: int) -> None:
         self.on_imu_many((t_ns,))
@@ -82,9 +85,8 @@ class PaperCounters:
 
     def on_edge(self, t_ns: int) -> None:
         """A PPS edge resets both counters (for the samples after it; those reported already are counted from it)."""
-        if self.last_edge_ns is not None and t_ns <= self.last_edge_ns:
+        if self._edges and t_ns <= self._edges[-1]:
             return
-        self.last_edge_ns = t_ns
         self._edges.append(t_ns)
         self._at_edge.append(self._registered(t_ns))
         if len(self._edges) > self.EDGES_KEPT:
@@ -115,22 +117,27 @@ class PaperCounters:
         """:meth:`counters` at each of several instants, as arrays (a FIFO read's samples)."""
         t = np.asarray(times_ns, dtype=np.int64)
         k = len(t)
-        ts = self._times
-        if (k and len(ts) >= k and ts[-1] == times_ns[-1] and (len(ts) == k or ts[-k - 1] < times_ns[0])
-                and ts[-k:] == list(times_ns) and (k == 1 or bool((t[1:] > t[:-1]).all()))):
-            # A read just registered (on_imu_many, as the daemon does before stamping it): the newest times,
-            # strictly increasing, so each one's position is its place among them, what the search finds.
+        ts, edges = self._times, self._edges
+        limit = self.rate + 1
+        fresh = (k and len(ts) >= k and ts[-1] == times_ns[-1] and (len(ts) == k or ts[-k - 1] < times_ns[0])
+                 and ts[-k:] == list(times_ns) and (k == 1 or bool((t[1:] > t[:-1]).all())))
+        if fresh and edges and times_ns[0] > edges[-1]:
+            # A read just registered (on_imu_many, as the daemon does before stamping it) and wholly after the last
+            # edge (most reads): the newest times, strictly increasing, so each one's count is its place among
+            # them; with PPS the largest carries nothing.
+            last = self._total - self._at(len(edges) - 1)
+            if last <= limit:
+                return np.arange(last - k + 1, last + 1), np.zeros(k, dtype=np.int64)
+        if fresh:
             n = np.arange(self._total - k + 1, self._total + 1)
         else:
             n = np.array([self._upto(x) for x in times_ns], dtype=np.int64).reshape(k)
-        edges = self._edges
-        if edges and k and times_ns[0] > edges[-1]:  # all after the last edge (most reads)
+        if edges and k and times_ns[0] > edges[-1]:
             n = n - self._at(len(edges) - 1)
         elif edges:
             j = np.searchsorted(np.asarray(edges, dtype=np.int64), t, side="left") - 1  # the last edge before each
             at = np.array([self._at(i) for i in range(len(edges))], dtype=np.int64)
             n = n - np.where(j >= 0, at[np.maximum(j, 0)], 0)
-        limit = self.rate + 1
         carries = np.where(n > limit, -(-(n - limit) // self.rate), 0) * self.rate
         return n - carries, carries
 
