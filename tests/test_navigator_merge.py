@@ -278,8 +278,8 @@ def test_measurements_offered_ahead_of_their_samples_wait_for_them():
         held: list[int] = []
         order = live.in_time_order
 
-        def watched(records, order=order, live=live, held=held):
-            out = order(records)
+        def watched(records, release=False, order=order, live=live, held=held):
+            out = order(records, release)
             held.append(len(live._held))
             return out
 
@@ -291,7 +291,7 @@ def test_measurements_offered_ahead_of_their_samples_wait_for_them():
             assert max(held) > 0
 
     as_offered, _, _ = _navigator(mode="17")
-    as_offered.in_time_order = lambda records: records  # type: ignore[method-assign]
+    as_offered.in_time_order = lambda records, release=False: records  # type: ignore[method-assign]
     _merged(as_offered, offered)
     a = np.array([(r.lat_rad, r.lon_rad) for r in replayed.engine.rows]) * 6.4e6
     b = np.array([(r.lat_rad, r.lon_rad) for r in as_offered.engine.rows[:len(a)]]) * 6.4e6

@@ -21,6 +21,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from nav_eval import trajectory
 
 from logger.exports.nav_score import Score, load_truth, score
 from logger.exports.trajectory import run_filter
@@ -81,12 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             print(line("recorded live /nav/fix", score(fix_columns(recorded), truth)))
         print(line("navigator, as offered", score(fix_columns(as_offered(files)), truth)))
         _, rows = run_filter(files, NavParams())
-        cols = {"t_sync_ns": np.array([r[0] for r in rows], np.int64),
-                "t_mono_ns": np.array([r[1] for r in rows], np.int64),
-                "lat_deg": np.degrees([r[2] for r in rows]), "lon_deg": np.degrees([r[3] for r in rows]),
-                "height_m": np.array([r[4] for r in rows], float)}
-        cols["sn_m"], cols["se_m"], cols["sd_m"] = (np.array([r[9][k] for r in rows], float) for k in range(3))
-        print(line("replay, forward", score(cols, truth)))
+        print(line("replay, forward", score(trajectory(rows), truth)))
     return 0
 
 

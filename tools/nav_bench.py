@@ -185,6 +185,7 @@ def fifo_stream(seconds: float, imu_hz: float = 1000.0, per_read: int = 40,
         temp = 30.0 + 0.01 * t[lo] + rng.normal(0.0, 0.03)
         m = imu_batch_payload(times[sl].tolist(), f[sl], w[sl], temp, 1.0 / imu_hz, 0)
         m["t_sync_ns"] = [T0_NS + x for x in m["t_mono_ns"]]
+        m["seq"] = lo  # the first sample's number, as the daemon's stamped record has it (records.stamped_batch)
         out.append((m["t_sync_ns"][-1], IMU_BATCH, m))
     for k in range(int(seconds)):
         s = drive.state(float(k))

@@ -314,8 +314,7 @@ def imu_slice(batch: dict[str, Any], lo: int, hi: int) -> dict[str, Any]:
     out = {k: v[lo:hi] if isinstance(v, list) else v for k, v in batch.items()}
     if lo:
         out["lost"] = 0
-        if "seq" in batch:  # a recorded read has it; a benchmark's or a test's stream may not
-            out["seq"] = batch["seq"] + lo
+        out["seq"] = batch["seq"] + lo
     return out
 
 

@@ -213,10 +213,12 @@ class Navigator:
                     self.rerun = NavRerun(self.params, self._make_engine, deferred=True)
             self.cpu_s = time.thread_time() - cpu0
 
-    def in_time_order(self, records: list[tuple[str, dict[str, Any]]]) -> list[tuple[str, dict[str, Any]]]:
+    def in_time_order(self, records: list[tuple[str, dict[str, Any]]],
+                      release: bool = False) -> list[tuple[str, dict[str, Any]]]:
         """What of the records held and these can go to the engine now, in the order of their samples' times:
         IMU records always, a measurement once an IMU sample at or after its time has come (or after HOLD_MAX_NS
-        without); FIFO reads cut where a measurement falls between their samples (ties keep the offer order)."""
+        without, or at once with ``release``); FIFO reads cut where a measurement falls between their samples
+        (ties keep the offer order)."""
         records = self._held + records
         imu_end = self.engine.t_last_ns
         newest = self._newest_ns
@@ -239,7 +241,7 @@ class Navigator:
             if topic in (IMU, IMU_BATCH):
                 if topic == IMU or t:
                     imu.append((t[0] if topic == IMU_BATCH else t, topic, 0, payload))
-            elif (gnss_only or not isinstance(t, Integral) or (imu_end is not None and t <= imu_end)
+            elif (release or gnss_only or not isinstance(t, Integral) or (imu_end is not None and t <= imu_end)
                   or (newest is not None and t < newest - HOLD_MAX_NS)):
                 ready.append((int(t) if isinstance(t, Integral) else 0, topic, 0, payload))
             else:
@@ -261,16 +263,9 @@ class Navigator:
     def flush(self) -> None:
         """The measurements still waiting for IMU samples, taken as they are: no sample will come (the end of a
         recorded drive fed through :meth:`take`)."""
-        held, self._held = self._held, []
-        newest, self._newest_ns = self._newest_ns, None
-        try:
-            self._newest_ns = None if newest is None else newest + 2 * HOLD_MAX_NS  # every one is due
-            self.take(held)
-            self.processed -= len(held)  # counted when offered
-        finally:
-            self._newest_ns = newest
+        self.take([], release=True)
 
-    def take(self, records: list[tuple[str, dict[str, Any]]], merge: bool = True) -> None:
+    def take(self, records: list[tuple[str, dict[str, Any]]], merge: bool = True, release: bool = False) -> None:
         """One wake-up's records through the filter in the order of their samples' times (:meth:`in_time_order`:
         a measurement ahead of the IMU samples waits for them), publishing as they go (called with the lock held).
 
@@ -281,9 +276,9 @@ class Navigator:
         by read; /nav/fix goes out from inside a run, the solution at the first integration step that reaches
         its time (the engine's tap, :meth:`_tap`), as it does from reads fed one by one. A read after a gap,
         lost samples or out of order goes alone, as before. ``merge=False``: every read alone (what the
-        benchmark and the tests compare with)."""
+        benchmark and the tests compare with); ``release``: the measurements held go in too (:meth:`flush`)."""
         self.processed += len(records)
-        records = self.in_time_order(records)
+        records = self.in_time_order(records, release)
         rerun, run = self.rerun, []
         self._arm_tap()
         last: int | None = None  # the run's last sample
