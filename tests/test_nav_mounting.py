@@ -219,7 +219,10 @@ def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, 
     # second starts from the mounting the whole drive showed.
     assert len(notes) == 2 and "took its inputs again from the start" in notes[0], notes
     assert "filtered again from the start with it" in notes[1], notes
-    assert forward_axis_deg(twice.params.mounting_rpy_deg, MOUNT) < 1.0  # the second pass started from it
+    # ... refined by a GNSS + IMU pass's side slip and climb (logger/nav/boresight.py): 0.07 deg off the true forward
+    # axis on this drive, the pitch 0.08 deg (the alignment's 4.9 / -4.1 / 30.0 deg).
+    assert "refined to" in notes[1] and "side slip" in notes[1], notes
+    assert forward_axis_deg(twice.params.mounting_rpy_deg, MOUNT) < 0.25, twice.params.mounting_rpy_deg
     assert forward_axis_deg(twice.mount_applied, MOUNT) < 1.0
 
     def rmse(rows) -> float:

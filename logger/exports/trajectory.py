@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from logger.nav import boresight
 from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow, forward_axis_turned
 from logger.nav.inputs import SolutionEpoch
 from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
@@ -107,7 +108,11 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
     engine = _one_pass(paths, params, states, progress, solution, solution_replaces, notes)
     found = mounting_found(engine, params.mounting_rpy_deg) if refilter else None
     if found is not None:
-        again = dataclasses.replace(params, mounting_rpy_deg=tuple(round(a, 3) for a in found.rpy_deg))
+        rpy = tuple(found.rpy_deg)
+        line = ""
+        if engine.mode == "17":  # the mounting is the constraints' business: the 15-state mode has none
+            rpy, line = _boresight(paths, params, rpy, solution, solution_replaces)
+        again = dataclasses.replace(params, mounting_rpy_deg=tuple(round(a, 3) for a in rpy))
         if states is not None:
             states.clear()
         if notes is not None:
@@ -115,7 +120,7 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
             shown = "settled" if found.state == SETTLED else "the forward axis; the roll is not shown yet"
             configured = " / ".join(f"{a:g}" for a in params.mounting_rpy_deg)
             notes.append(f"the drive showed the IMU mounted at {r:.1f} / {p_:.1f} / {y:.1f} deg ({shown}; configured "
-                         f"{configured}): filtered again from the start with it")
+                         f"{configured}){line}: filtered again from the start with it")
         engine = _one_pass(paths, again, states, progress, solution, solution_replaces)
     rows = engine.rows
     if smooth and engine.mode != "gnss" and engine.ekf is not None and engine.epochs:
@@ -124,6 +129,20 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
         engine.close_epochs()
         rows = smooth_rows(rows, engine.epochs, engine.ekf.p, smoothing)
     return engine, rows
+
+
+def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], solution: Sequence[SolutionEpoch],
+               solution_replaces: bool) -> tuple[tuple[float, ...], str]:
+    """The mounting ``rpy`` refined by the side slip and climb of a pass without the car's constraints
+    (:mod:`logger.nav.boresight`), and a note's words on it; ``rpy`` itself where that pass does not show them."""
+    plain = dataclasses.replace(params, mode="15", mounting_rpy_deg=rpy, mount_align=False)
+    r = boresight.residual(_one_pass(paths, plain, None, None, solution, solution_replaces).rows)
+    if r is None or not r.usable():
+        return rpy, ""
+    refined = boresight.refined(rpy, r)
+    return refined, (f", refined to {refined[0]:.2f} / {refined[1]:.2f} / {refined[2]:.2f} deg by a GNSS + IMU pass's "
+                     f"side slip {r.slip_deg:+.2f} +- {r.slip_se_deg:.2f} and climb {r.climb_deg:+.2f} +- "
+                     f"{r.climb_se_deg:.2f} deg over {r.moving_s:.0f} s at speed")
 
 
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
