@@ -21,9 +21,12 @@ def _assumed(true_rpy, e_rad) -> tuple[float, float, float]:
     return tuple(math.degrees(a) for a in euler_from_dcm(u @ vt))
 
 
-def _rows(assumed_rpy, seconds: float, parked_s: float = 0.0, hz: float = 20.0) -> list[TrajectoryRow]:
+def _rows(assumed_rpy, seconds: float, parked_s: float = 0.0, hz: float = 20.0,
+          dead_reckoned: tuple[float, float] = (0.0, 0.0)) -> list[TrajectoryRow]:
     """A solution computed with ``assumed_rpy`` of a car driving along its own axis (turning, on grades), after
-    ``parked_s`` standing with a slewing attitude that would bias the mean if it counted."""
+    ``parked_s`` standing with a slewing attitude that would bias the mean if it counted; from ``dead_reckoned[0]`` s
+    of driving on for ``dead_reckoned[1]`` s no fix holds it: its velocity drifts 1.5 deg off the car's axis and its
+    position sigma grows past boresight.MAX_SIGMA_M."""
     m_err = mount_matrix(TRUE_MOUNT) @ mount_matrix(assumed_rpy).T  # assumed vehicle axes -> true vehicle axes
     rows = []
     n_parked, n = int(parked_s * hz), int((parked_s + seconds) * hz)
@@ -34,10 +37,12 @@ def _rows(assumed_rpy, seconds: float, parked_s: float = 0.0, hz: float = 20.0) 
         c_n_true = dcm_from_euler(0.01 * math.sin(0.1 * t), grade, heading)
         moving = i >= n_parked
         speed = 8.0 + 4.0 * math.sin(0.01 * t) if moving else 0.0
-        v = c_n_true @ np.array((speed, 0.0, 0.0))
+        drifting = 0.0 <= t - parked_s - dead_reckoned[0] < dead_reckoned[1]
+        v = c_n_true @ np.array((speed, speed * math.radians(1.5) if drifting else 0.0, 0.0))
         c_n_assumed = c_n_true @ m_err if moving else dcm_from_euler(0.0, 0.2, 3.0 * t)
+        sigma = 2.0 + (t - parked_s - dead_reckoned[0]) if drifting else 1.0
         rows.append(TrajectoryRow(int(1e18 + t * 1e9), int(t * 1e9), 0.9, 0.2, 100.0, float(v[0]), float(v[1]),
-                                  float(v[2]), quat_from_dcm(c_n_assumed), (1.0, 1.0, 1.0), 0))
+                                  float(v[2]), quat_from_dcm(c_n_assumed), (sigma, sigma, sigma), 0))
     return rows
 
 
@@ -53,6 +58,18 @@ def test_the_side_slip_and_climb_give_back_the_mounting_in_pitch_and_yaw():
     before = np.abs(np.array(assumed) - TRUE_MOUNT)
     after = np.abs(np.array(refined(assumed, r)) - TRUE_MOUNT)
     assert before.max() > 0.3 and after.max() < 0.01, (before, after)
+
+
+def test_dead_reckoning_does_not_count():
+    """A tunnel's minute without fixes: the constraint-free solution's velocity drifts off the car's axis, and its rows
+    (position sigma past MAX_SIGMA_M) are left out; its first seconds, still near the last fix, count."""
+    e = (0.0, 0.0, math.radians(-0.6))
+    rows = _rows(_assumed(TRUE_MOUNT, e), 300.0, dead_reckoned=(100.0, 60.0))
+    r = residual(rows)
+    # Its sigma passes 5 m after 3 s: 61 of its 1200 rows count, 4861 in all (242.95 s between them).
+    assert r is not None and abs(r.moving_s - 242.95) < 0.01, r
+    # Those 61 move the mean by 61 / 4861 of the drift's 1.5 deg (all 1200 would by 1200 / 6000: 0.3 deg).
+    assert abs(r.slip_deg - (0.6 + 1.5 * 61 / 4861)) < 0.002, r
 
 
 def test_a_short_drive_or_a_large_residual_is_not_taken_for_the_mounting():
