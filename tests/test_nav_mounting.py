@@ -238,6 +238,23 @@ def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, 
     assert notes == []
 
 
+def test_replay_says_when_the_mounting_found_is_not_refined(mounted_drive, tmp_path, monkeypatch):
+    """A GNSS + IMU pass that shows too little (a short drive at speed, or a residual too large to be the mounting's)
+    leaves the mounting as the alignment found it, and replay's line says why."""
+    from logger.exports.trajectory import run_filter
+    from logger.nav import boresight
+    from logger.nav.params import NavParams
+
+    _, turned = mounted_drive
+    files = _write(tmp_path / "mounted", turned)
+    monkeypatch.setattr(boresight, "MAX_RESIDUAL_DEG", 0.0)  # every residual too large
+    notes: list[str] = []
+    twice, _ = run_filter(files, NavParams(), refilter=True, notes=notes)
+    assert "not refined" in notes[-1] and "within 0 deg are needed" in notes[-1], notes
+    found = notes[-1].split("mounted at ")[1].split(" deg")[0]
+    assert " / ".join(f"{a:.1f}" for a in twice.params.mounting_rpy_deg) == found  # the alignment's, as it was
+
+
 def test_the_running_sums_at_1_khz_are_kept_per_10_ms_and_give_the_same_windows() -> None:
     """At 1 kHz a sum per sample held 4000 tuples for windows whose ends need only fall within a hundredth of a
     window of the fixes' epochs: one sum is kept per SUM_STEP_NS, and the windows' means are those of every sample

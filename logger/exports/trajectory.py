@@ -137,8 +137,12 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
     (:mod:`logger.nav.boresight`), and a note's words on it; ``rpy`` itself where that pass does not show them."""
     plain = dataclasses.replace(params, mode="15", mounting_rpy_deg=rpy, mount_align=False)
     r = boresight.residual(_one_pass(paths, plain, None, None, solution, solution_replaces).rows)
-    if r is None or not r.usable():
-        return rpy, ""
+    if r is None:
+        return rpy, ", not refined (a GNSS + IMU pass had no solution at speed)"
+    if not r.usable():
+        return rpy, (f", not refined (a GNSS + IMU pass's side slip {r.slip_deg:+.2f} and climb {r.climb_deg:+.2f} deg "
+                     f"over {r.moving_s:.0f} s at speed with fixes: {boresight.MIN_MOVING_S:g} s and within "
+                     f"{boresight.MAX_RESIDUAL_DEG:g} deg are needed)")
     refined = boresight.refined(rpy, r)
     return refined, (f", refined to {refined[0]:.2f} / {refined[1]:.2f} / {refined[2]:.2f} deg by a GNSS + IMU pass's "
                      f"side slip {r.slip_deg:+.2f} +- {r.slip_se_deg:.2f} and climb {r.climb_deg:+.2f} +- "
