@@ -146,7 +146,7 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
     refined = boresight.refined(rpy, r)
     return refined, (f", refined to {refined[0]:.2f} / {refined[1]:.2f} / {refined[2]:.2f} deg by a GNSS + IMU pass's "
                      f"side slip {r.slip_deg:+.2f} +- {r.slip_se_deg:.2f} and climb {r.climb_deg:+.2f} +- "
-                     f"{r.climb_se_deg:.2f} deg over {r.moving_s:.0f} s at speed")
+                     f"{r.climb_se_deg:.2f} deg over {r.moving_s:.0f} s at speed with fixes")
 
 
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
