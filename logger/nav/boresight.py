@@ -67,23 +67,23 @@ class Residual:
 def residual(rows: Sequence[TrajectoryRow]) -> Residual | None:
     """The residual of the mounting a constraint-free solution's rows were computed with; None when no row is at
     speed."""
-    t: list[int] = []
-    slip: list[float] = []
-    climb: list[float] = []
-    for r in rows:
-        if math.hypot(r.vn_mps, r.ve_mps) < MIN_SPEED_MPS or max(r.sigma_ned_m[0], r.sigma_ned_m[1]) > MAX_SIGMA_M:
-            continue
-        vb = dcm_from_quat(r.q).T @ np.array((r.vn_mps, r.ve_mps, r.vd_mps))
-        t.append(r.t_ns)
-        slip.append(math.atan2(vb[1], vb[0]))
-        climb.append(math.atan2(-vb[2], vb[0]))
-    if not t:
+    if not rows:
         return None
-    ta = np.array(t, dtype=np.int64)
-    dt = np.diff(ta) / 1e9
+    t_all, _, _, _, _, vn, ve, vd, q, sig, _ = zip(*rows, strict=True)
+    v = np.array((vn, ve, vd))  # 3 x rows
+    sg = np.array(sig)
+    keep = (np.hypot(v[0], v[1]) >= MIN_SPEED_MPS) & (np.maximum(sg[:, 0], sg[:, 1]) <= MAX_SIGMA_M)
+    if not keep.any():
+        return None
+    qa = np.array(q)[keep]
+    c = dcm_from_quat((qa[:, 0], qa[:, 1], qa[:, 2], qa[:, 3]))  # 3 x 3 x rows, body to NED
+    vb = np.einsum("jin,jn->in", c, v[:, keep])  # C^T v, row by row
+    slip, climb = np.arctan2(vb[1], vb[0]), np.arctan2(-vb[2], vb[0])
+    t = np.array(t_all, dtype=np.int64)[keep]
+    dt = np.diff(t) / 1e9
     moving_s = float(dt[dt < 1.0].sum())  # time between rows at speed, gaps (stops, outages' ends) left out
-    s, c = np.degrees(np.array(slip)), np.degrees(np.array(climb))
-    block = ((ta - ta[0]) // int(BLOCK_S * 1e9)).astype(np.int64)
+    s, c = np.degrees(slip), np.degrees(climb)
+    block = (t - t[0]) // int(BLOCK_S * 1e9)
     return Residual(float(s.mean()), float(c.mean()), _standard_error(s, block), _standard_error(c, block), moving_s)
 
 
