@@ -49,8 +49,10 @@ def _rows(assumed_rpy, seconds: float, parked_s: float = 0.0, hz: float = 20.0,
 def test_the_side_slip_and_climb_give_back_the_mounting_in_pitch_and_yaw():
     e = (0.0, math.radians(0.3), math.radians(-0.6))  # the alignment 0.3 deg off about the car's y, 0.6 about z
     assumed = _assumed(TRUE_MOUNT, e)
-    r = residual(_rows(assumed, 300.0, parked_s=60.0))
+    rows = _rows(assumed, 300.0, parked_s=60.0)
+    r = residual(rows)
     assert r is not None and r.usable()
+    assert residual(rows[::-1]) == r  # rows given in any order
     # Only the rows at speed count (the parked minute's attitude would move the mean by degrees).
     assert abs(r.moving_s - 300.0) < 1.0, r.moving_s
     assert abs(r.slip_deg - 0.6) < 0.005 and abs(r.climb_deg + 0.3) < 0.005, r

@@ -222,6 +222,11 @@ def test_replay_filters_again_with_the_mounting_the_drive_showed(mounted_drive, 
     # ... refined by a GNSS + IMU pass's side slip and climb (logger/nav/boresight.py): 0.07 deg off the true forward
     # axis on this drive, the pitch 0.08 deg (the alignment's 4.9 / -4.1 / 30.0 deg).
     assert "refined to" in notes[1] and "side slip" in notes[1], notes
+    found = tuple(float(a) for a in notes[1].split("mounted at ")[1].split(" deg")[0].split(" / "))
+    refined = tuple(float(a) for a in notes[1].split("refined to ")[1].split(" deg")[0].split(" / "))
+    # The second pass starts from the refined mounting, which the pass moved (by 0.16 deg in pitch here).
+    assert np.allclose(twice.params.mounting_rpy_deg, refined, atol=0.006), (twice.params.mounting_rpy_deg, refined)
+    assert np.abs(np.array(refined) - found).max() > 0.1, (found, refined)
     assert forward_axis_deg(twice.params.mounting_rpy_deg, MOUNT) < 0.25, twice.params.mounting_rpy_deg
     assert forward_axis_deg(twice.mount_applied, MOUNT) < 1.0
 

@@ -425,7 +425,7 @@ def _moving_figures(files: list[Path], truth: Any, traj: dict[str, np.ndarray]) 
 def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any], conf: dict[str, Any]) -> str:
     """A mounted board's figures (the live filter, alignment on) against the configured mounting's, as ratios."""
     if not cell["started"]:
-        return f"| {scenario}, seed {seed}, {duration_s:g} s | the filter never started | | |"
+        return f"| {scenario}, seed {seed}, {duration_s:g} s | the filter never started | | | | |"
     c = conf["rmse_moving"]
 
     def ratios(r: list[float]) -> str:
@@ -443,7 +443,7 @@ def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any
 
 MOUNTED_HEADER = ("| mounted board, drive | configured mounting: RMSE N / E / V while moving, m | live filter "
                   "(one pass) against it N / E / V | its longest outage: max horizontal mounted / configured | "
-                  "`logger replay` (two passes) against it N / E / V | its longest outage |\n"
+                  "`logger replay` (its second pass) against it N / E / V | its longest outage |\n"
                   "| --- | --- | --- | --- | --- | --- |")
 
 

@@ -159,9 +159,10 @@ def main(argv: list[str]) -> int:
     if engine.mode == "gnss":
         work = f"the receiver's fixes passed through in {t1 - t0:.2f} s"
     else:
-        # A note is made when run_filter filtered the drive a second time (with the mounting the first pass found).
+        # Notes say when run_filter filtered the drive more than once (the live filter's re-run of its first minutes;
+        # a second pass with the mounting found, after a GNSS + IMU pass that refines it): the time is all of them.
         work = (f"{plural(c.imu, 'IMU sample')} in {t1 - t0:.2f} s ({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per "
-                f"sample{', two passes' if notes else ''}), initialised by {c.init_method}, "
+                f"sample{', every pass below' if notes else ''}), initialised by {c.init_method}, "
                 f"{plural(c.resets, 'reset')}")
     print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {plural(len(rows), 'solution')} over "
           f"{span:.0f} s, {work}")

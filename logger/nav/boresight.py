@@ -14,8 +14,9 @@ nor climbs out of its own floor's plane on average (its side slip in turns goes 
 speeds counted). That is also the mounting the constraints need: the axes on which the body's lateral and vertical
 velocities average zero. With the velocity in the assumed axes v_a = (v, -e_z v, e_y v) for a residual rotation e
 (small: true axes = (I + [e x]) x assumed axes), the mean side slip atan(v_y / v_x) is -e_z and the mean climb
-atan(-v_z / v_x) is -e_y. The roll is not shown this way (a rotation about the direction of travel leaves it
-alone) and stays the alignment's, which levelling at stops tells well.
+atan(-v_z / v_x) is -e_y. A rotation about the direction of travel is not shown this way and stays the alignment's
+(the car's forward axis on the chip is what is refined: with the board turned 30 deg, all three Euler angles may
+move, the roll too).
 
 The rows counted are the solution's at speed and while fixes hold it (MAX_SIGMA_M); the mean is taken once the drive
 held MIN_MOVING_S of them and when it is small enough to be a residual. Its standard error is the scatter of its 30 s
@@ -80,8 +81,12 @@ def residual(rows: Sequence[TrajectoryRow]) -> Residual | None:
     vb = np.einsum("jin,jn->in", c, v[:, keep])  # C^T v, row by row
     slip, climb = np.arctan2(vb[1], vb[0]), np.arctan2(-vb[2], vb[0])
     t = np.array(t_all, dtype=np.int64)[keep]
+    order = np.argsort(t, kind="stable")  # the engine's rows are in time order; a caller's need not be
+    t, slip, climb = t[order], slip[order], climb[order]
     dt = np.diff(t) / 1e9
-    moving_s = float(dt[dt < 1.0].sum())  # time between rows at speed, gaps (stops, outages' ends) left out
+    # Time between rows at speed (rows come at the IMU's rate or its integration's, 20 Hz and up): gaps of a second
+    # or more (stops, dead reckoning left out) do not count.
+    moving_s = float(dt[(dt > 0.0) & (dt < 1.0)].sum())
     s, c = np.degrees(slip), np.degrees(climb)
     block = (t - t[0]) // int(BLOCK_S * 1e9)
     return Residual(float(s.mean()), float(c.mean()), _standard_error(s, block), _standard_error(c, block), moving_s)
