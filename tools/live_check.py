@@ -30,7 +30,7 @@ from logger.exports.trajectory import run_filter
 from logger.nav.params import NavParams
 from logger.recording.drive import read_messages
 from logger.recording.topics import NAV_FIX
-from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator, offer_time
+from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator, in_offer_order
 
 NS = 1_000_000_000
 
@@ -48,8 +48,7 @@ def fix_columns(fixes: list[dict[str, Any]]) -> dict[str, np.ndarray]:
 
 def as_offered(files: list[Path]) -> list[dict[str, Any]]:
     """The /nav/fix a navigator publishes from the drive's records in the daemon's order."""
-    recs = sorted(((offer_time(t, m), t, m) for t, m in read_messages(files, tuple(INPUT_TOPICS))),
-                  key=lambda r: r[0])
+    recs = in_offer_order(read_messages(files, tuple(INPUT_TOPICS)))
     out: list[dict[str, Any]] = []
     nav = Navigator(NavParams(), publish=lambda r: out.append(r.payload) if r.topic == NAV_FIX else None)
     i, wake = 0, recs[0][0] + int(WAKE_S * NS) if recs else 0

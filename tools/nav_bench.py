@@ -49,7 +49,7 @@ from logger.nav.params import MODES, NavParams
 from logger.recording.drive import read_messages
 from logger.recording.records import NAV_INPUT_TOPICS, feed_record, imu_batch_payload, nav_feeder
 from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED
-from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator, offer_time
+from logger.runtime.navigator import INPUT_TOPICS, WAKE_S, Navigator, in_offer_order
 from sensors.sim.scenarios import make_drive
 
 NS = 1_000_000_000
@@ -125,8 +125,7 @@ def bench_filter_alone(msgs: list[tuple[str, dict[str, Any]]], mode: str, repeat
 
 
 def bench_live(files: list[Path], seconds: float, start_s: float) -> None:
-    msgs = sorted(((offer_time(t, m), t, m) for t, m in read_messages(files, tuple(INPUT_TOPICS))),
-                  key=lambda x: x[0])
+    msgs = in_offer_order(read_messages(files, tuple(INPUT_TOPICS)))
     nav = Navigator(NavParams(), publish=lambda r: None)
     # Everything before start_s goes in at once (levelling, heading), then the paced part is measured.
     skip = msgs[0][0] + int(start_s * 1e9)

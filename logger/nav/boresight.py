@@ -1,7 +1,7 @@
 """The IMU's mounting refined at the office: the side slip and climb of a solution without the car's constraints.
 
 The mount alignment (``mounting.py``) finds the mounting from the drive's accelerations and velocities to a few
-tenths of a degree in pitch and yaw (0.2-0.6 deg on the simulated urban drives with the board at (5, -4, 30) deg).
+tenths of a degree in pitch and yaw (0.1-0.6 deg on the simulated urban drives with the board at (5, -4, 30) deg).
 The 17-state filter is that sensitive to what is left: the OBD speed and the non-holonomic rows hold the vehicle's
 lateral and vertical velocity at zero on the axes the mounting gives, so a mounting 0.6 deg off in yaw holds the
 solution's heading 0.6 deg off too (its own side slip then reads zero whatever the error), and on those drives it
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from logger.nav.engine import TrajectoryRow
-from logger.nav.mounting import mount_matrix
+from logger.nav.mounting import mount_matrix, nearest_rotation
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm, skew
 
 MIN_SPEED_MPS = 5.0  # rows slower than this are left out: a heading is poorly held standing, a slip angle noisy
@@ -105,7 +105,6 @@ def _standard_error(x: np.ndarray, block: np.ndarray) -> float:
 def refined(rpy_deg: Sequence[float], r: Residual) -> tuple[float, float, float]:
     """The mounting (roll, pitch, yaw deg, as ``nav.mounting_rpy_deg``) with the residual taken out."""
     e = (0.0, -math.radians(r.climb_deg), -math.radians(r.slip_deg))
-    m = (np.eye(3) + skew(e)) @ mount_matrix(tuple(rpy_deg))
-    u, _, vt = np.linalg.svd(m)  # the nearest rotation (I + [e x] is one only to first order)
-    roll, pitch, yaw = euler_from_dcm(u @ vt)
+    # I + [e x] is a rotation only to first order: the nearest one.
+    roll, pitch, yaw = euler_from_dcm(nearest_rotation((np.eye(3) + skew(e)) @ mount_matrix(tuple(rpy_deg))))
     return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)

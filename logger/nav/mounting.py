@@ -213,6 +213,11 @@ def _wahba(cross: list[float]) -> list[float]:
     return [us[3 * i] * v9[j] + us[3 * i + 1] * v9[3 + j] + us[3 * i + 2] * v9[6 + j] for _, i, j in _IJ]
 
 
+def nearest_rotation(m: np.ndarray) -> np.ndarray:
+    """The rotation nearest the 3 x 3 matrix ``m``: Wahba's problem with ``m`` as the cross-covariance."""
+    return np.array(_wahba(np.asarray(m, dtype=float).ravel().tolist())).reshape(3, 3)
+
+
 def _det3(m: list[float]) -> float:
     a, b, c, d, e, f, g, h, i = m
     return a * (e * i - f * h) + b * (f * g - d * i) + c * (d * h - e * g)

@@ -25,7 +25,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from itertools import pairwise
 from numbers import Integral
@@ -55,12 +55,15 @@ WAKE_S = 1.0  # the filter runs in batches: each wake-up costs more than the rec
 HOLD_MAX_NS = 2_000_000_000  # a measurement waits for the IMU samples before it at most this long (record time)
 
 
-def offer_time(topic: str, payload: dict[str, Any]) -> int:
-    """When the daemon offers a record to its taps: a FIFO read once its last sample has been read, any other
-    record at its own time (what :meth:`Navigator.in_time_order` puts back in order; the benchmarks and
-    ``tools/live_check.py`` feed recorded drives in this order)."""
-    t = payload["t_sync_ns"]
-    return int(t[-1]) if topic == IMU_BATCH else int(t)
+def in_offer_order(messages: Iterable[tuple[str, dict[str, Any]]]) -> list[tuple[int, str, dict[str, Any]]]:
+    """Recorded (topic, payload) pairs in the order the daemon offers them to its taps, each with that time: a FIFO
+    read once its last sample has been read, any other record at its own time (what :meth:`Navigator.in_time_order`
+    puts back in order; the benchmarks and ``tools/live_check.py`` feed recorded drives so)."""
+    def offered(topic: str, payload: dict[str, Any]) -> int:
+        t = payload["t_sync_ns"]
+        return int(t[-1]) if topic == IMU_BATCH else int(t)
+
+    return sorted(((offered(t, m), t, m) for t, m in messages), key=lambda r: r[0])
 
 
 def _follows(m: dict[str, Any], last: int | None) -> bool:
