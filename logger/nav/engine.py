@@ -52,6 +52,7 @@ from logger.nav.policies import (
 )
 from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
+from logger.nav.start_height import StartHeight
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
@@ -163,6 +164,7 @@ class NavEngine:
         self.mech = Strapdown(coning=False)
         self.stops = StopDetector(p.still_accel_mps2)
         self.startup = Startup(p)
+        self.start_height = StartHeight()
         self.epoch_clock = GnssEpochClock()
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)
@@ -600,6 +602,8 @@ class NavEngine:
                     heading_var: float) -> None:
         """Start the filter from what the start-up built: state, covariance, and the integration primed."""
         n = self.n
+        fix = self.start_height.start_fix(fix)
+        self.start_height.clear()
         s, p0 = self.startup.initial(t_ns, yaw_or_none, method, fix, heading_var, n, self.lever,
                                      self.last_readings.baro)
         self.startup.started()
@@ -915,6 +919,7 @@ class NavEngine:
             self._gnss_row(fix)
             return
         if self.state is None:
+            self.start_height.fix(fix)
             self._try_heading_init(fix)
             return
         positions = sol is None or not sol.replace
@@ -980,6 +985,7 @@ class NavEngine:
         self.counters.baro += 1
         self.last_readings.baro = (t_ns, altitude_m)
         if self.state is None:
+            self.start_height.baro(t_ns, altitude_m)
             return
         self._baro.update(self, t_ns, altitude_m)
 

@@ -1,0 +1,102 @@
+"""The height the filter starts from: every fix of the last minute before the start, carried by the barometer.
+
+The filter starts on one fix (:meth:`logger.nav.startup.Startup.initial`), and the height of one fix is its
+vertical error whole (0.8 m at 1 sigma for a good receiver; more for the first fixes after a cold start). Until
+the next good fixes the filter has nothing better: a start followed by a street canyon kept that one fix's error
+for minutes (the simulated urban drive of seed 2: 1.46 m at the start, about 1 m through the first 90 s). The fixes
+before the start are not wasted if the barometer says how the height changed since each: ``h(t) = h_i + b(t) -
+b(t_i)``, with ``b`` the barometric altitude, whose offset cancels and whose drift over a minute (weather: about
+0.05 m) is far below a fix's error. Their weighted mean (weights the fixes' own vertical variances) is the
+starting height. The fixes' errors are correlated over seconds, so the mean is not credited with their number:
+the starting variance stays the last fix's (the start is never claimed better than it was), and the mean is
+never worse than one fix in expectation (the variance of a mean of equally uncertain errors, correlated or not,
+is at most theirs).
+
+Only with a barometer (the 17-state mode): without one the fixes' heights cannot be brought to one instant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import deque
+
+from logger.nav.core import PreparedFix
+
+NS = 1_000_000_000
+WINDOW_S = 60.0  # fixes this far before the start count (the barometer's weather drift under 0.1 m over it)
+MAX_BARO_GAP_S = 3.0  # readings further apart than this do not bring a fix between them to the start
+_MAX_FIXES = 1600  # 25 Hz for a minute and a margin: memory stays bounded whatever the receiver sends
+
+
+class StartHeight:
+    """Fixes and barometer readings before the start; the start's height from all of them."""
+
+    def __init__(self, window_s: float = WINDOW_S) -> None:
+        self.window_ns = int(window_s * NS)
+        self._fixes: deque[tuple[int, float, float]] = deque(maxlen=_MAX_FIXES)  # (epoch, height, vertical sigma)
+        self._baro: deque[tuple[int, float]] = deque(maxlen=_MAX_FIXES)
+        self.used = 0  # fixes in the last start's height (0: the fix's own)
+
+    def fix(self, fix: PreparedFix) -> None:
+        """A fix before the start (3D fixes only: a 2D fix's height is the receiver's assumption)."""
+        if fix.fix_3d and fix.sigma[2] > 0.0:
+            self._fixes.append((fix.t_ns, fix.h, fix.sigma[2]))
+
+    def baro(self, t_ns: int, altitude_m: float) -> None:
+        if self._baro and t_ns <= self._baro[-1][0]:
+            return  # out of order: the interpolation needs increasing times
+        self._baro.append((t_ns, altitude_m))
+        while len(self._baro) > 2 and t_ns - self._baro[1][0] > self.window_ns:
+            self._baro.popleft()
+
+    def _baro_at(self, t_ns: int) -> float | None:
+        """The barometric altitude at ``t_ns`` interpolated between the two readings around it, None outside."""
+        b = self._baro
+        lo, hi = 0, len(b) - 1
+        if hi < 1 or not b[0][0] <= t_ns <= b[-1][0]:
+            return None
+        while hi - lo > 1:  # the readings are in time order: bisection
+            mid = (lo + hi) // 2
+            if b[mid][0] <= t_ns:
+                lo = mid
+            else:
+                hi = mid
+        (t0, a0), (t1, a1) = b[lo], b[hi]
+        if t1 - t0 > MAX_BARO_GAP_S * NS:
+            return None
+        return a0 if t1 == t0 else a0 + (a1 - a0) * (t_ns - t0) / (t1 - t0)
+
+    def start_fix(self, fix: PreparedFix) -> PreparedFix:
+        """``fix`` with its height replaced by the pooled one at its epoch, or as it is without what that needs.
+
+        The pooled height is anchored at the newest barometer reading and carried to the fix's epoch by the fix's
+        vertical velocity when the receiver gives one (held otherwise: under a second at the barometer's rate)."""
+        self.used = 0
+        if not self._baro:
+            return fix
+        t_b, b_now = self._baro[-1]
+        if abs(fix.t_ns - t_b) > MAX_BARO_GAP_S * NS:
+            return fix  # the barometer has stopped (or not reached the fix): nothing carries a height to it
+        total_w = total = 0.0
+        n = 0
+        for t, h, sigma in self._fixes:
+            if fix.t_ns - t > self.window_ns or t > fix.t_ns:
+                continue
+            b = self._baro_at(t)
+            if b is None:
+                continue
+            w = 1.0 / (sigma * sigma)
+            total_w += w
+            total += w * (h - b)
+            n += 1
+        if n == 0:
+            return fix
+        h0 = total / total_w + b_now
+        if fix.vel is not None and fix.vel_3d:
+            h0 -= float(fix.vel[2]) * (fix.t_ns - t_b) / NS
+        self.used = n
+        return dataclasses.replace(fix, h=h0)
+
+    def clear(self) -> None:
+        self._fixes.clear()
+        self._baro.clear()
