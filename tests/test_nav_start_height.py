@@ -11,7 +11,7 @@ from logger.nav.core import PreparedFix
 from logger.nav.engine import NavEngine
 from logger.nav.gnss_noise import RECEIVER, FixFigures
 from logger.nav.params import NavParams
-from logger.nav.start_height import StartHeight
+from logger.nav.start_height import MIN_WINDOW_S, StartHeight, window_s
 from logger.recording.records import feed_record, nav_feeder
 from sensors.sim.scenarios import make_drive
 
@@ -32,7 +32,7 @@ def test_the_fixes_before_the_start_are_brought_to_it_by_the_barometer() -> None
     """A car climbing 0.5 m/s, a barometer 30 m off reading the climb exactly, fixes whose errors alternate +-1.5 m:
     the start is the true height (what one fix alone could not say), carried from the last barometer reading to
     the fix's epoch by its vertical velocity."""
-    sh = StartHeight()
+    sh = StartHeight(60.0)
     for k in range(20):
         sh.baro(T0_NS + round((k + 0.3) * NS), climbing(k + 0.3) - 30.0)
         if k < 19:
@@ -46,7 +46,7 @@ def test_the_fixes_before_the_start_are_brought_to_it_by_the_barometer() -> None
 
 
 def test_more_certain_fixes_weigh_more() -> None:
-    sh = StartHeight()
+    sh = StartHeight(60.0)
     for k in range(6):
         sh.baro(T0_NS + k * NS, 50.0)
     sh.fix(fix(1.0, 102.0, sigma_v=1.0))
@@ -58,14 +58,14 @@ def test_more_certain_fixes_weigh_more() -> None:
 def test_without_what_it_needs_the_start_is_the_fix_itself() -> None:
     """No barometer, a barometer that stopped, only 2D fixes, only fixes older than the window: the fix as it is."""
     last = fix(100.0, 123.0)
-    assert StartHeight().start_fix(last) is last
-    stopped = StartHeight()
+    assert StartHeight(60.0).start_fix(last) is last
+    stopped = StartHeight(60.0)
     for k in range(10):
         stopped.baro(T0_NS + k * NS, 10.0)
         stopped.fix(fix(float(k), 200.0))
     assert stopped.start_fix(last) is last
-    flat = StartHeight()
-    old = StartHeight()
+    flat = StartHeight(60.0)
+    old = StartHeight(60.0)
     for k in range(101):
         flat.baro(T0_NS + k * NS, 10.0)
         old.baro(T0_NS + k * NS, 10.0)
@@ -95,8 +95,10 @@ def start_height_errors(window_s: float | None) -> np.ndarray:
 
 
 def test_the_filter_starts_nearer_the_true_height_than_its_last_fix() -> None:
-    """Standing 8 s then moving off: about ten fixes before the start. Pooled, the start's height error is the mean
-    of theirs and the barometer's noise (RMS about 0.4 m here); from the last fix alone it is that fix's (1 m)."""
+    """Standing 8 s then moving off: the fixes of the ten seconds before the start (the default window, two
+    multipath correlation times) are pooled. The start's height error is then the mean of theirs and the
+    barometer's noise (RMS 0.5 m on these drives); from the last fix alone it is that fix's (1 m)."""
+    assert window_s(NavParams()) == 10.0 and window_s(NavParams(gnss_multipath_corr_s=0.0)) == MIN_WINDOW_S
     pooled, single = start_height_errors(None), start_height_errors(0.0)
     rms_pooled, rms_single = math.sqrt(np.mean(pooled**2)), math.sqrt(np.mean(single**2))
     assert rms_pooled < 0.5 * rms_single, (pooled, single)
