@@ -90,6 +90,7 @@ def start_height_errors(window_s: float | None) -> np.ndarray:
         for _, topic, msg in records(drive, 30.0, seed=100 + seed):
             feed_record(feed, topic, msg)
         row = engine.rows[0]
+        assert (engine.counters.init_height_fixes > 3) == (window_s != 0.0)
         out.append(row[4] - truth_at(drive, row[0]).height_m)
     return np.array(out)
 

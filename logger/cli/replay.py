@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
+from logger.nav.core import EngineCounters
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.drive import DriveFileError, cut_notes, open_drive
@@ -89,6 +90,13 @@ def no_cycle_collector() -> Iterator[None]:
     finally:
         if was:
             gc.enable()
+
+
+def start_height(c: EngineCounters) -> str:
+    """Where the start's height came from, as the replay line says it (logger/nav/start_height.py)."""
+    if not c.init_height_fixes:
+        return ""
+    return f" (its height from {plural(c.init_height_fixes, 'fix', 'fixes')} before it, by the barometer)"
 
 
 def main(argv: list[str]) -> int:
@@ -162,7 +170,7 @@ def main(argv: list[str]) -> int:
         # Notes say when run_filter filtered the drive more than once (the live filter's re-run of its first minutes;
         # a second pass with the mounting found, after a GNSS + IMU pass that refines it): the time is all of them.
         work = (f"{plural(c.imu, 'IMU sample')} in {t1 - t0:.2f} s ({(t1 - t0) / max(c.imu, 1) * 1e6:.1f} us per "
-                f"sample{', every pass below' if notes else ''}), initialised by {c.init_method}, "
+                f"sample{', every pass below' if notes else ''}), initialised by {c.init_method}{start_height(c)}, "
                 f"{plural(c.resets, 'reset')}")
     print(f"mode {engine.mode}{' smoothed' if args.smooth else ''}: {plural(len(rows), 'solution')} over "
           f"{span:.0f} s, {work}")

@@ -604,6 +604,7 @@ class NavEngine:
         """Start the filter from what the start-up built: state, covariance, and the integration primed."""
         n = self.n
         fix = self.start_height.start_fix(fix)
+        self.counters.init_height_fixes = self.start_height.used
         self.start_height.clear()
         s, p0 = self.startup.initial(t_ns, yaw_or_none, method, fix, heading_var, n, self.lever,
                                      self.last_readings.baro)
