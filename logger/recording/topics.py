@@ -296,9 +296,10 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "remounts": ("integer", "times the mount alignment replaced the mounting in use (its forward axis once known, "
                             "then the settled estimate)"),
     "mount_moves": ("integer", "times the mounting was seen to move during the drive (the board knocked)"),
-    "rerun_at_s": ("number?", "how far into its kept inputs the first remount that reopened attitude and offsets "
-                              "came, s, once the filter took those inputs again from the start with that mounting "
-                              "(the first minutes of a drive on a mounting not configured); null if it has not"),
+    "rerun_at_s": ("number?", "how far into its kept inputs the remount that reopened attitude and offsets came "
+                              "(or, for a second re-run, the forward axis that held still), s, once the filter took "
+                              "those inputs again from the start with that mounting (the first minutes of a drive on "
+                              "a mounting not configured); null if it has not"),
     "gnss_time": ("string", "how fix epochs are placed on the logger's clock: clock locked, pps, shortest delay, "
                             "by arrival for a fix without a valid time, none before the first fix"),
     "verdicts": ("string[]", "plain health verdicts, one sentence each (live only)"),
