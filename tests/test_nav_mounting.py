@@ -542,6 +542,46 @@ def test_the_daemons_navigator_takes_its_first_minutes_again_and_publishes_on(mo
     assert 20.0 < states[-1]["rerun_at_s"] < 120.0
 
 
+def test_the_daemons_navigator_takes_the_held_forward_axis_by_a_second_re_run(caplog):
+    """The second re-run in the daemon, as the first: built outside the lock at a wake-up, then the engine in use;
+    /nav/fix goes on without a gap or a step back, and /nav/state's rerun_at_s moves to the second's."""
+    import logging
+
+    from logger.nav.params import NavParams
+    from logger.recording.topics import NAV_FIX, NAV_STATE
+    from logger.runtime.navigator import Navigator
+
+    drive = make_drive("outage-60s", seed=3, duration_s=240.0)
+    recs = _turned(records(drive, 240.0, seed=4))
+    published = []
+    nav = Navigator(NavParams(), publish=published.append)
+    caplog.set_level(logging.INFO, logger="logger.recording.nav_rerun")
+    build, built = nav.rerun.build, []
+
+    def build_unlocked():
+        assert not nav._lock.locked()
+        built.append(build())
+        return built[-1]
+
+    nav.rerun.build = build_unlocked
+    chunk, end = [], recs[0][0] + 1_000_000_000
+    for t, topic, msg in recs:
+        if t >= end:
+            nav.take(chunk)
+            nav.rerun_if_due()
+            chunk, end = [], end + 1_000_000_000
+        chunk.append((topic, msg))
+    nav.take(chunk)
+    (first, at1), (second, at2) = nav.rerun.reruns
+    assert len(built) == 2 and nav.engine is built[1] and nav.rerun.kept is None
+    assert forward_axis_deg(second, MOUNT) < forward_axis_deg(first, MOUNT) - 0.5
+    assert caplog.text.count("again from the start") == 2
+    t = np.array([r.payload["t_sync_ns"] for r in published if r.topic == NAV_FIX])
+    assert len(t) > 500 and np.diff(t).min() > 0 and np.diff(t).max() < 0.5e9
+    at = [r.payload["rerun_at_s"] for r in published if r.topic == NAV_STATE]
+    assert at[0] is None and at1 in at and at[-1] == at2 > at1
+
+
 @pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (500.0, True), (100.0, True)])
 def test_an_imu_too_fast_for_the_tape_keeps_nothing(imu_hz, kept):
     """FIFO reads at 1 kHz would fill the tape before the forward axis shows: the first RATE_SPAN_S tell, and the
