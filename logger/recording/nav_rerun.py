@@ -196,7 +196,7 @@ class NavRerun:
     @property
     def kept(self) -> tuple[float, int] | None:
         """The span (s, from the first input kept to the last) and the estimated bytes on the tape; None once it
-        is given up or used."""
+        is given up or no re-run can come any more."""
         tape = self._tape
         if tape is None:
             return None
@@ -310,7 +310,8 @@ class NavRerun:
 
     @property
     def due(self) -> bool:
-        """Whether the first reopening came and the inputs wait to be filtered again (``deferred``)."""
+        """Whether a re-run is due (the first reopening came, or the forward axis held still after it) and the inputs
+        wait to be filtered again (``deferred``)."""
         return self._due is not None and self._tape is not None
 
     def build(self) -> NavEngine:
