@@ -77,6 +77,25 @@ def test_without_what_it_needs_the_start_is_the_fix_itself() -> None:
     assert old.start_fix(last) is last and old.used == 0
 
 
+def test_a_fix_surer_than_the_pool_and_a_single_fix_keep_their_own_height() -> None:
+    """The pool's variance holds the barometer's (0.5 m here, once whole for the reading at the start): a receiver
+    sure of its height to 3 cm (RTK) keeps its own, and so does a start with only one fix to pool; a receiver at
+    1 m takes the pool."""
+    def pooled(sigma_last: float, fixes: int) -> tuple[float, int]:
+        sh = StartHeight(60.0, baro_sigma_m=0.5)
+        for k in range(12):
+            sh.baro(T0_NS + k * NS, 50.0)
+        for k in range(11 - fixes, 11):
+            sh.fix(fix(float(k), 100.0 + (1.0 if k % 2 else -1.0)))
+        start = sh.start_fix(fix(11.0, 103.0, sigma_v=sigma_last))
+        return start.h, sh.used
+
+    assert pooled(0.03, 10) == (103.0, 0)
+    assert pooled(1.0, 1) == (103.0, 0)
+    h, used = pooled(1.0, 10)
+    assert used == 10 and abs(h - 100.0) < 1e-9
+
+
 def start_height_errors(window_s: float | None) -> np.ndarray:
     """The filter's height error at its start on eight synthetic drives (white fix errors, 1 m vertical), with
     the fixes before the start pooled over ``window_s`` (None: the default) or not (0)."""

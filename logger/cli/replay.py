@@ -96,7 +96,7 @@ def start_height(c: EngineCounters) -> str:
     """Where the start's height came from, as the replay line says it (logger/nav/start_height.py)."""
     if not c.init_height_fixes:
         return ""
-    return f" (its height from {plural(c.init_height_fixes, 'fix', 'fixes')} before it, by the barometer)"
+    return f" (its height from {plural(c.init_height_fixes, 'fix', 'fixes')} and the barometer)"
 
 
 def main(argv: list[str]) -> int:

@@ -42,7 +42,7 @@ class EngineCounters:
     remounts: int = 0  # times the mount alignment, settled, replaced the mounting in use
     initialised_ns: int | None = None
     init_method: str = ""
-    init_height_fixes: int = 0  # fixes the start's height was pooled from (start_height.py); 0: its own fix's
+    init_height_fixes: int = 0  # fixes the start's height was pooled from (start_height.py); 0: the start fix's
 
 
 @dataclass

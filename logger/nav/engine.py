@@ -165,7 +165,7 @@ class NavEngine:
         self.mech = Strapdown(coning=False)
         self.stops = StopDetector(p.still_accel_mps2)
         self.startup = Startup(p)
-        self.start_height = StartHeight(start_window_s(p))
+        self.start_height = StartHeight(start_window_s(p), p.baro_sigma_m, p.gnss_multipath_corr_s)
         self.epoch_clock = GnssEpochClock()
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)

@@ -1,4 +1,4 @@
-"""The height the filter starts from: every fix of the last minute before the start, carried by the barometer.
+"""The height the filter starts from: the fixes of the window before the start, carried to it by the barometer.
 
 The filter starts on one fix (:meth:`logger.nav.startup.Startup.initial`), and the height of one fix is its
 vertical error whole (0.8 m at 1 sigma for a good receiver; more for the first fixes after a cold start). Until
@@ -7,10 +7,12 @@ for minutes (the simulated urban drive of seed 2: 1.46 m at the start, about 1 m
 before the start are not wasted if the barometer says how the height changed since each: ``h(t) = h_i + b(t) -
 b(t_i)``, with ``b`` the barometric altitude, whose offset cancels and whose drift over a minute (weather: about
 0.05 m) is far below a fix's error. Their weighted mean (weights the fixes' own vertical variances) is the
-starting height. The fixes' errors are correlated over seconds, so the mean is not credited with their number:
-the starting variance stays the last fix's (the start is never claimed better than it was), and the mean is
-never worse than one fix in expectation (the variance of a mean of equally uncertain errors, correlated or not,
-is at most theirs).
+starting height, when it is the better guess: the barometer's noise enters it too (its reading at the start
+whole, each fix's share of its own), and the fixes' errors are correlated over the multipath time, so its
+variance is taken as the fixes' mean variance over the number of multipath times they span (at most their number)
+plus the barometer's variance (1 + 1 / n) times. It replaces the start fix's height only below that fix's variance
+and from two fixes on: a receiver sure of its height to a few centimetres (RTK) keeps its own, as does a single fix.
+The starting variance stays the start fix's (the pooled one is never claimed better than it).
 
 Which fixes: those of the last two multipath correlation times (``gnss_multipath_corr_s``, 5 s by default: ten
 fixes at 1 Hz, more at a faster rate). That averages the fast part of the error (reflections, noise), which is
@@ -46,8 +48,10 @@ def window_s(params: NavParams) -> float:
 class StartHeight:
     """Fixes and barometer readings before the start; the start's height from all of them."""
 
-    def __init__(self, window_s: float) -> None:
+    def __init__(self, window_s: float, baro_sigma_m: float = 0.5, multipath_corr_s: float = 5.0) -> None:
         self.window_ns = int(window_s * NS)
+        self.baro_var = baro_sigma_m * baro_sigma_m
+        self.corr_s = multipath_corr_s
         self._fixes: deque[tuple[int, float, float]] = deque(maxlen=_MAX_FIXES)  # (epoch, height, vertical sigma)
         self._baro: deque[tuple[int, float]] = deque(maxlen=_MAX_FIXES)
         self.used = 0  # fixes in the last start's height (0: the fix's own)
@@ -82,10 +86,12 @@ class StartHeight:
         return a0 if t1 == t0 else a0 + (a1 - a0) * (t_ns - t0) / (t1 - t0)
 
     def start_fix(self, fix: PreparedFix) -> PreparedFix:
-        """``fix`` with its height replaced by the pooled one at its epoch, or as it is without what that needs.
+        """``fix`` with its height replaced by the pooled one at its epoch, or as it is without what that needs or
+        when the pooled one is no better (the module's docstring).
 
         The pooled height is anchored at the newest barometer reading and carried to the fix's epoch by the fix's
-        vertical velocity when the receiver gives one (held otherwise: under a second at the barometer's rate)."""
+        vertical velocity when the receiver gives one (held otherwise: the newest reading is at most
+        MAX_BARO_GAP_S from the fix, so a barometer read more slowly than that leaves the start to the fix)."""
         self.used = 0
         if not self._baro:
             return fix
@@ -94,6 +100,7 @@ class StartHeight:
             return fix  # the barometer has stopped (or not reached the fix): nothing carries a height to it
         total_w = total = 0.0
         n = 0
+        first = last = fix.t_ns
         for t, h, sigma in self._fixes:
             if fix.t_ns - t > self.window_ns or t > fix.t_ns:
                 continue
@@ -103,9 +110,17 @@ class StartHeight:
             w = 1.0 / (sigma * sigma)
             total_w += w
             total += w * (h - b)
+            if n == 0:
+                first = t
+            last = t
             n += 1
-        if n == 0:
+        if n < 2:
             return fix
+        span_s = (last - first) / NS
+        independent = n if self.corr_s <= 0.0 else min(float(n), 1.0 + span_s / self.corr_s)
+        var = n / total_w / independent + self.baro_var * (1.0 + 1.0 / n)
+        if var >= fix.sigma[2] * fix.sigma[2]:
+            return fix  # the start fix is surer of its height than the pool would be
         h0 = total / total_w + b_now
         if fix.vel is not None and fix.vel_3d:
             h0 -= float(fix.vel[2]) * (fix.t_ns - t_b) / NS

@@ -20,21 +20,24 @@ go when it is full before the first reopening (at 20 Hz 180 s take about 0.9 MB)
 :data:`RATE_SPAN_S` show that :data:`USEFUL_S` of drive would not fit (an IMU faster than about 700 Hz: no re-run,
 no memory spent on it), when the alignment has shown the car's forward axis within REOPEN_DEG of the
 mounting in use (a board mounted as configured, or as the last drive saved it: no reopening is coming), or once it
-has been used; the filter then goes on as before. The forward axis the first re-run takes is the
-alignment's first showing of it, from half a minute of driving: on the simulated outage and tunnel drives 1.0 deg
-from the truth, where a minute later the estimate holds within 0.3 deg of 0.1-0.4 deg from it (its sigma, 2.8 deg,
-says far less, so the engine's own rule, three sigmas, never takes it). The tape is therefore kept after the first
-re-run while the alignment shows the forward axis only, and a second re-run takes the forward axis once it has held
-still for a minute (:data:`REFINE_LOOKS` looks :data:`REFINE_LOOK_S` apart within :data:`REFINE_HOLD_DEG`) at least
-:data:`REFINE_MIN_DEG` from the first's: the outage-60s seed 2 drive's east RMSE while moving went from 1.26 to
-1.05 times the configured mounting's, tunnel-130s seed 2's from 1.33 to 0.84 times (docs/nav.md). Taking the same
-forward axis as a remount without re-running made those drives worse (the offsets learnt on the old axis stay),
-and with turns the roll too is shown, and a street canyon's velocities can hold the estimate still but 3 deg off
-(the urban seed 2 drive): there the tape is let go as before. At most two re-runs; the new engine's other remounts
-are refinements of a mounting it started near. In the daemon the new engine is built outside the navigator's lock
-(``deferred``), so ``logger status`` reads the engine in use while it runs (seconds on the board), and only the
-swap takes the lock; meanwhile the navigator's queue holds what arrives. What the first engine published before
-the swap (``/nav/fix``, ``/nav/state``, replay's states) stays as it was: it is what the daemon said then.
+has been used; the filter then goes on as before. The forward axis the first re-run takes is the alignment's first
+showing of it, from half a minute of driving: on the simulated outage and tunnel drives 1.0 deg from the truth,
+where a minute later the estimate holds within 0.3 deg of 0.1-0.4 deg from it (its sigma, 2.8 deg, says far less, so
+the engine's own rule, three sigmas, never takes it). The tape is therefore kept after the first re-run while the
+alignment shows the forward axis only, and a second re-run takes the forward axis once it has held still for 50 s
+(:data:`REFINE_LOOKS` looks :data:`REFINE_LOOK_S` apart, or CONFIRM_EVERY inputs where they come more slowly, within
+:data:`REFINE_HOLD_DEG`) at least :data:`REFINE_MIN_DEG` from the first's: the outage-60s seed 2 drive's east RMSE
+while moving went from 1.26 to 1.05 times the configured mounting's, tunnel-130s seed 2's from 1.33 to 0.84 times
+(docs/nav.md). Taking the same forward axis as a remount without re-running made those drives worse (the offsets
+learnt on the old axis stay), and with turns the roll too is shown, and a street canyon's velocities can hold the
+estimate still but 3 deg off (the urban seed 2 drive): there the tape is let go as before. The tape's bounds stay: a
+forward axis that holds still only after 180 s (tunnel-130s seed 1) gets no second re-run, nor does an IMU whose
+samples fill the 3 MB sooner (at 500 Hz about 85 s: the first re-run only). At most two re-runs; the new engine's
+other remounts are refinements of a mounting it started near. In the daemon the new engine is built outside the
+navigator's lock (``deferred``), so ``logger status`` reads the engine in use while it runs (seconds on the board),
+and only the swap takes the lock; meanwhile the navigator's queue holds what arrives. What the first engine
+published before the swap (``/nav/fix``, ``/nav/state``, replay's states) stays as it was: it is what the daemon
+said then.
 """
 
 from __future__ import annotations
@@ -147,8 +150,9 @@ def _speed(topic: str, m: Any) -> float | None:
 
 
 class NavRerun:
-    """An engine fed record by record, which is replaced once by one filtering its inputs again with the mounting
-    of its first reopening remount (see the module's docstring). ``engine`` is the one in use. The re-run happens
+    """An engine fed record by record, which is replaced by one filtering its inputs again with the mounting of its
+    first reopening remount, and perhaps once more with the forward axis held still after it (see the module's
+    docstring). ``engine`` is the one in use. The re-run happens
     inside the feeding call that found the mounting, or, ``deferred``, when the caller asks (:attr:`due`)."""
 
     def __init__(self, params: NavParams, make_engine: Callable[[NavParams], NavEngine],
@@ -291,7 +295,8 @@ class NavRerun:
         est = al.estimate()
         if est.state != FORWARD:
             if est.state == LEARNING and not max(est.sigma_deg[1], est.sigma_deg[2]) < USABLE_SIGMA_DEG:
-                return False  # not shown at all yet (the new engine's windows are still few): look again
+                self._looks.clear()  # not shown at the moment (a fit started again): a hold starts again after it
+                return False
             self._let_go()  # the roll is showing (turns), or settled: the engine's own rules take it from here
             return True
         looks = self._looks
@@ -367,5 +372,5 @@ class NavRerun:
         if len(self.reruns) == 1:
             return line + ": the filter took its inputs again from the start with it"
         (r, p, y), at = self.reruns[1]
-        return (line + f", and its forward axis held at {r:.2f} / {p:.2f} / {y:.2f} deg from {at:.0f} s: the filter "
+        return (line + f", and its forward axis held at {r:.2f} / {p:.2f} / {y:.2f} deg at {at:.0f} s: the filter "
                 "took its inputs again from the start with each")

@@ -97,7 +97,8 @@ class Navigator:
         if tempco_path:
             bound = TempcoLearner(configured_tempco(params)).bound
             self._tempco_saved = tempco_state.load(tempco_path, imu_installation, bound)
-        # The engine, replaced once by one that filters the first minutes again if the drive shows another mounting.
+        # The engine, replaced (once or twice) by one that filters the first minutes again if the drive shows another
+        # mounting (and once more when its forward axis has held still).
         self.rerun = NavRerun(params, self._make_engine, deferred=True)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
