@@ -402,15 +402,16 @@ def matrix_cell(files: list[Path]) -> dict[str, Any]:
 def configured_cell(files: list[Path], rpy_deg: tuple[float, float, float]) -> dict[str, Any]:
     """The same drive with the board's mounting configured and the alignment off: what issue 12's "within 10 % of
     the configured-mounting run" compares a mounted board's figures with."""
-    truth = load_truth(files)
     _, traj, _ = replay(files, "17", params=NavParams(mounting_rpy_deg=rpy_deg, mount_align=False))
-    out = _moving_figures(files, truth, traj)
-    # What `logger replay` gives at the office by default: a second pass from the start with the mounting the drive
-    # showed (refined by a GNSS + IMU pass's side slip and climb, logger/nav/boresight.py).
+    return _moving_figures(files, load_truth(files), traj)
+
+
+def office_cell(files: list[Path]) -> dict[str, Any]:
+    """The mounted board's drive as `logger replay` gives it at the office by default, the mounting not configured:
+    a second pass from the start with the mounting the drive showed (refined by a GNSS + IMU pass's side slip and
+    climb, logger/nav/boresight.py)."""
     _, rows = run_filter(files, NavParams(), refilter=True)
-    office = _moving_figures(files, truth, trajectory(rows))
-    out.update(office_rmse_moving=office["rmse_moving"], office_max_h_m=office["max_h_m"])
-    return out
+    return _moving_figures(files, load_truth(files), trajectory(rows))
 
 
 def _moving_figures(files: list[Path], truth: Any, traj: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -422,8 +423,10 @@ def _moving_figures(files: list[Path], truth: Any, traj: dict[str, np.ndarray]) 
             "max_h_m": longest["max_h_m"] if longest is not None else None}
 
 
-def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any], conf: dict[str, Any]) -> str:
-    """A mounted board's figures (the live filter, alignment on) against the configured mounting's, as ratios."""
+def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any], conf: dict[str, Any],
+                office: dict[str, Any]) -> str:
+    """A mounted board's figures (the live filter, alignment on; `logger replay`'s) against the configured
+    mounting's, as ratios."""
     if not cell["started"]:
         return f"| {scenario}, seed {seed}, {duration_s:g} s | the filter never started | | | | |"
     c = conf["rmse_moving"]
@@ -438,7 +441,7 @@ def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any
     out = cell.get("outage")
     return (f"| {scenario}, seed {seed}, {duration_s:g} s | {c[0]:.2f} / {c[1]:.2f} / {c[2]:.2f} | "
             f"{ratios(cell['rmse_moving'])} | {outage(out['max_h_m'] if out else None)} | "
-            f"{ratios(conf['office_rmse_moving'])} | {outage(conf['office_max_h_m'])} |")
+            f"{ratios(office['rmse_moving'])} | {outage(office['max_h_m'])} |")
 
 
 MOUNTED_HEADER = ("| mounted board, drive | configured mounting: RMSE N / E / V while moving, m | live filter "
@@ -510,7 +513,7 @@ def run_matrix(args: argparse.Namespace) -> int:
                 mount = PROFILES[profile].get("mounting_rpy_deg")
                 if mount is not None:
                     conf = configured_cell(files, (float(mount[0]), float(mount[1]), float(mount[2])))
-                    mounted.append(mounted_row(scenario, seed, duration, cell, conf))
+                    mounted.append(mounted_row(scenario, seed, duration, cell, conf, office_cell(files)))
                     print(mounted[-1], flush=True)
     if mounted:
         rows += ["", MOUNTED_HEADER, *mounted]

@@ -27,13 +27,13 @@ from typing import TYPE_CHECKING, Any
 
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
-from logger.nav.core import EngineCounters
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.drive import DriveFileError, cut_notes, open_drive
 from logger.words import plural
 
 if TYPE_CHECKING:
+    from logger.nav.core import EngineCounters
     from logger.nav.smoother import SmoothingReport
     from logger.recording.rtklib_pos import SolutionFile
 

@@ -53,7 +53,6 @@ from logger.nav.policies import (
 from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
 from logger.nav.solution import SolutionPolicy
 from logger.nav.start_height import StartHeight
-from logger.nav.start_height import window_s as start_window_s
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
@@ -165,7 +164,7 @@ class NavEngine:
         self.mech = Strapdown(coning=False)
         self.stops = StopDetector(p.still_accel_mps2)
         self.startup = Startup(p)
-        self.start_height = StartHeight(start_window_s(p), p.baro_sigma_m, p.gnss_multipath_corr_s)
+        self.start_height = StartHeight.for_params(p)
         self.epoch_clock = GnssEpochClock()
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
                                   p.baro_offset_walk_m_rts)

@@ -28,6 +28,7 @@ Only with a barometer (the 17-state mode): without one the fixes' heights cannot
 from __future__ import annotations
 
 import dataclasses
+from bisect import bisect_right
 from collections import deque
 
 from logger.nav.core import PreparedFix
@@ -37,7 +38,7 @@ NS = 1_000_000_000
 MULTIPATH_TIMES = 2.0  # the fixes counted: this many multipath correlation times before the start ...
 MIN_WINDOW_S = 5.0  # ... and at least this long (multipath configured as white: a few fixes still average)
 MAX_BARO_GAP_S = 3.0  # readings further apart than this do not bring a fix between them to the start
-_MAX_FIXES = 1600  # a minute at 25 Hz and more: memory stays bounded whatever the receiver and the window
+_MAX_KEPT = 1600  # fixes (a minute at 25 Hz and more) and readings: memory bounded whatever the window
 
 
 def window_s(params: NavParams) -> float:
@@ -48,12 +49,17 @@ def window_s(params: NavParams) -> float:
 class StartHeight:
     """Fixes and barometer readings before the start; the start's height from all of them."""
 
+    @classmethod
+    def for_params(cls, params: NavParams) -> StartHeight:
+        """The window, the barometer's noise and the multipath time the configuration gives."""
+        return cls(window_s(params), params.baro_sigma_m, params.gnss_multipath_corr_s)
+
     def __init__(self, window_s: float, baro_sigma_m: float = 0.5, multipath_corr_s: float = 5.0) -> None:
         self.window_ns = int(window_s * NS)
         self.baro_var = baro_sigma_m * baro_sigma_m
         self.corr_s = multipath_corr_s
-        self._fixes: deque[tuple[int, float, float]] = deque(maxlen=_MAX_FIXES)  # (epoch, height, vertical sigma)
-        self._baro: deque[tuple[int, float]] = deque(maxlen=_MAX_FIXES)
+        self._fixes: deque[tuple[int, float, float]] = deque(maxlen=_MAX_KEPT)  # (epoch, height, vertical sigma)
+        self._baro: deque[tuple[int, float]] = deque(maxlen=_MAX_KEPT)
         self.used = 0  # fixes in the last start's height (0: the fix's own)
 
     def fix(self, fix: PreparedFix) -> None:
@@ -71,16 +77,10 @@ class StartHeight:
     def _baro_at(self, t_ns: int) -> float | None:
         """The barometric altitude at ``t_ns`` interpolated between the two readings around it, None outside."""
         b = self._baro
-        lo, hi = 0, len(b) - 1
-        if hi < 1 or not b[0][0] <= t_ns <= b[-1][0]:
+        if len(b) < 2 or not b[0][0] <= t_ns <= b[-1][0]:
             return None
-        while hi - lo > 1:  # the readings are in time order: bisection
-            mid = (lo + hi) // 2
-            if b[mid][0] <= t_ns:
-                lo = mid
-            else:
-                hi = mid
-        (t0, a0), (t1, a1) = b[lo], b[hi]
+        hi = min(bisect_right(b, t_ns, key=lambda r: r[0]), len(b) - 1)  # the readings are in time order
+        (t0, a0), (t1, a1) = b[hi - 1], b[hi]
         if t1 - t0 > MAX_BARO_GAP_S * NS:
             return None
         return a0 if t1 == t0 else a0 + (a1 - a0) * (t_ns - t0) / (t1 - t0)
