@@ -246,6 +246,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "obd_speed_sigma_mps": Key(NUM, FIELD, _range(0.01, 10), "OBD speed noise (1 km/h steps, timing)"),
         "obd_scale_sigma": Key(NUM, FIELD, _range(1e-4, 0.5), "initial uncertainty of the OBD scale factor"),
         "obd_scale_walk_rts": Key(NUM, FIELD, _range(0, 0.01), "OBD scale factor random walk, 1/sqrt(s)"),
+        "obd_rounding_state": Key(bool, FIELD, None, "OBD reading's rounding as a state (an 18th)"),
+        "obd_rounding_walk_mps_rts": Key(NUM, FIELD, _range(0, 1), "true speed's drift inside one OBD step"),
         "nhc_sigma_mps": Key(NUM, FIELD, _range(0.001, 10), "lateral and vertical body velocity allowed"),
         "baro_sigma_m": Key(NUM, FIELD, _range(0.01, 100), "barometric altitude noise"),
         "baro_offset_walk_m_rts": Key(NUM, FIELD, _range(0, 10), "random walk of baro-GNSS height offset"),

@@ -6,6 +6,7 @@ simulator's device models, so these also check that the filter holds on data the
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -66,6 +67,67 @@ def test_a_minute_without_gnss_is_bridged_by_obd_and_baro_and_not_by_the_imu_alo
     assert np.abs(e17[inside, 2]).max() < 2.0  # the barometer holds the height
     assert {"gnss_pos", "gnss_vel", "obd", "baro"} <= set(full.ekf.stats)
     assert set(base.ekf.stats) == {"gnss_pos", "gnss_vel"}  # the baseline knows nothing of OBD or baro
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_cruises_rounding_learnt_before_an_outage_carries_through_it(seed):
+    """OBD speed comes in whole km/h, so a cruise's every reading carries one rounding error: here 55.45 km/h is
+    read as 55 (the true speed 0.12 m/s faster than the reading says, scale apart: 7.3 m over the minute). The
+    rounding is a state of the run of equal readings (RQ_ID, ``obd_rounding_state``): the fixes before the outage
+    teach it, and the dead reckoning through the outage goes at the true speed. The paper's model (the readings'
+    rounding as their noise, repeats weighing less) goes at the reading's speed: 3.3 / 2.0 m on these seeds."""
+    from logger.nav.state import RQ_ID, SF_ID
+
+    factor = 1.0269
+    drive = make_drive("outage-60s", seed=1, duration_s=200.0)
+    (span,) = drive.spans_of("outage")
+    kmh = drive.state(span.start_s).forward_speed_mps * 3.6 * factor  # what the ECU would send unrounded
+    rounding = (kmh - round(kmh)) / 3.6  # true = (1 + s) (reading + rounding), 1 + s = 1 / factor
+    assert abs(rounding) > 0.1 and drive.state(span.end_s).forward_speed_mps * 3.6 * factor == pytest.approx(kmh)
+    recs = records(drive, 200.0, seed=seed, gnss_off=[(span.start_s, span.end_s)],
+                   errors=SynthErrors(obd_factor=factor))
+    engine = NavEngine(NavParams(obd_rounding_state=True), record=True)
+    feed = nav_feeder(engine)
+    speed = None  # what the filter takes the reading to mean when the outage begins: (1 + s) (reading + rounding)
+    reading = 0.0
+    for ts, topic, msg in recs:
+        if speed is None and (ts - T0_NS) / NS >= span.start_s:
+            st, p = engine.state, engine.ekf.p
+            j = np.array((reading + st.rq, 1.0 + st.sf))  # the speed's derivatives in the scale and the rounding
+            cov = p[np.ix_((SF_ID, RQ_ID), (SF_ID, RQ_ID))]
+            speed = ((1.0 + st.sf) * (reading + st.rq), math.sqrt(float(j @ cov @ j)), reading)
+        if topic == "/obd/speed":
+            reading = msg["speed_kmh"] / 3.6
+        feed_record(feed, topic, msg)
+    true = drive.state(span.start_s).forward_speed_mps
+    assert speed is not None and speed[2] == round(kmh) / 3.6
+    assert abs(speed[0] - true) < 0.03 and speed[1] < 0.03  # the rounding's 0.12 m/s learnt to a few cm/s
+    bound = 0.2 * abs(rounding) * (span.end_s - span.start_s)
+    t, e, _ = errors(drive, engine.rows)
+    inside = (t >= span.start_s) & (t <= span.end_s)
+    assert np.hypot(e[inside, 0], e[inside, 1]).max() < bound
+    t, e, _ = errors(drive, run(recs).rows)
+    inside = (t >= span.start_s) & (t <= span.end_s)
+    assert np.hypot(e[inside, 0], e[inside, 1]).max() > bound
+
+
+def test_each_new_speed_reading_starts_a_new_rounding(outage):
+    """A reading unlike the last begins a run whose rounding owes nothing to the last one's: the covariance step
+    there forgets the state (its row in the transition zero, its variance a step's uniform spread), and the smoother's
+    epoch holds the same transition."""
+    from logger.nav.measurements import ROUNDING_VAR
+    from logger.nav.state import RQ_ID
+
+    _, _, recs = outage
+    engine = run(recs, obd_rounding_state=True)
+    readings = [m["speed_kmh"] for ts, topic, m in recs
+                if topic == "/obd/speed" and ts >= (engine.counters.initialised_ns or 0)]
+    changes = sum(1 for a, b in itertools.pairwise(readings) if a != b)
+    resets = [ep for ep in engine.epochs if ep.phi is not None and ep.phi[RQ_ID, RQ_ID] == 0.0]
+    assert changes > 10 and abs(len(resets) - changes) <= 1
+    for ep in resets:
+        assert ep.p_minus[RQ_ID, RQ_ID] == pytest.approx(ROUNDING_VAR)
+        assert not np.any(np.delete(ep.p_minus[RQ_ID], RQ_ID)) and not np.any(np.delete(ep.phi[RQ_ID], RQ_ID))
 
 
 def test_smoothing_shrinks_the_outage_error(outage):
@@ -487,6 +549,13 @@ def test_an_outages_covariance_is_the_sum_of_what_made_it(outage):
     assert grew > 3.0
     assert shares["start: position"] < 1.0 / grew**2 + 0.01  # carried through, not grown
     assert shares["noise: obd row 0"] > 0.05  # the speed readings' noise is one of the sources
+    # With the reading's rounding a state, the rounding of the run the outage began in (a cruise stays on one 1 km/h
+    # step) is the main source, with the rounding of each new run and the rest of the readings' noise.
+    r = nav_budget.budget([(topic, msg) for _, topic, msg in recs], NavParams(obd_rounding_state=True))
+    shares = {name: share for name, share, _, _ in r.horizontal_shares()}
+    assert np.abs(r.total() - r.p_end).max() <= 1e-9 * scale.max()
+    assert shares["start: OBD rounding"] + shares["process noise: OBD rounding"] + shares["noise: obd row 0"] > 0.3
+    assert "start: OBD rounding" not in b.horizontal_shares()[0][0]
 
 
 def test_the_start_ups_provisional_attitudes_are_let_go_once_the_filter_runs() -> None:

@@ -26,7 +26,7 @@ from logger.nav.rotations import (
     quat_from_euler,
     rotvec_from_dcm,
 )
-from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, P_ID, PHI_ID, SF_ID, V_ID, NavState
+from logger.nav.state import BA_ID, BG_ID, DH_ID, N_ROUNDING, P_ID, PHI_ID, RQ_ID, SF_ID, V_ID, NavState
 from logger.nav.strapdown import Strapdown
 from sensors.sim import earth as sim_earth
 from sensors.sim.scenarios import make_drive
@@ -88,21 +88,21 @@ def _perturbed(s: NavState, dx: np.ndarray) -> NavState:
 
 def _difference(est: NavState, true: NavState) -> np.ndarray:
     """Error of ``est`` against ``true`` in the filter's convention."""
-    dx = np.zeros(N_FULL)
+    dx = np.zeros(N_ROUNDING)
     dx[P_ID:P_ID + 3] = earth.ned_offset_m(true.lat, true.lon, true.h, est.lat, est.lon, est.h)
     dx[V_ID:V_ID + 3] = est.vel() - true.vel()
     dx[PHI_ID:PHI_ID + 3] = rotvec_from_dcm(true.dcm() @ est.dcm().T)
     dx[BA_ID:BA_ID + 3] = np.subtract(est.ba, true.ba)
     dx[BG_ID:BG_ID + 3] = np.subtract(est.bg, true.bg)
-    dx[SF_ID], dx[DH_ID] = est.sf - true.sf, est.dh - true.dh
+    dx[SF_ID], dx[DH_ID], dx[RQ_ID] = est.sf - true.sf, est.dh - true.dh, est.rq - true.rq
     return dx
 
 
 def test_feedback_and_difference_are_inverse():
     s = NavState(0.6, 2.2, 40.0, 10.0, -3.0, 0.2, quat_from_euler(0.05, -0.02, 2.0), (0.1, 0.2, 0.3), (0.01, 0.0, 0.0),
-                 0.02, 20.0)
+                 0.02, 20.0, 0.05)
     dx = np.array([1.0, -2.0, 0.5, 0.1, -0.2, 0.05, 1e-3, -2e-3, 3e-3, 0.01, 0.02, -0.03, 1e-4, 2e-4, -1e-4, 0.01,
-                   0.4])
+                   0.4, -0.03])
     assert np.allclose(_difference(_perturbed(s, dx), s), dx, rtol=1e-5, atol=1e-9)
 
 
@@ -119,14 +119,14 @@ MODELS = [
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: type(m).__name__)
 def test_measurement_jacobians_match_finite_differences(model):
     true = NavState(0.6, 2.2, 40.0, 10.0, -3.0, 0.2, quat_from_euler(0.05, -0.02, -0.3), (0.1, 0.2, 0.3),
-                    (0.01, -0.02, 0.005), 0.02, 20.0)
-    z0 = model.observe(true, true.dcm(), N_FULL).z
+                    (0.01, -0.02, 0.005), 0.02, 20.0, 0.06)
+    z0 = model.observe(true, true.dcm(), N_ROUNDING).z
     rng = np.random.default_rng(1)
-    scale = np.array([0.5] * 3 + [0.05] * 3 + [2e-3] * 3 + [0.02] * 3 + [2e-3] * 3 + [0.01, 0.5])
+    scale = np.array([0.5] * 3 + [0.05] * 3 + [2e-3] * 3 + [0.02] * 3 + [2e-3] * 3 + [0.01, 0.5, 0.05])
     for _ in range(5):
-        dx = rng.standard_normal(N_FULL) * scale
+        dx = rng.standard_normal(N_ROUNDING) * scale
         est = _perturbed(true, dx)
-        obs = model.observe(est, est.dcm(), N_FULL)
+        obs = model.observe(est, est.dcm(), N_ROUNDING)
         predicted = obs.h @ dx
         actual = obs.z - z0
         # Linearisation: the residual is second order in dx, far below the first-order change.
@@ -147,10 +147,10 @@ def test_error_dynamics_predict_how_the_mechanization_spreads_an_error(drive):
     ba, bg = np.array([0.15, -0.1, 0.2]), np.array([0.01, -0.02, 0.015])
     true = _state_from_truth(s0)
     true.ba, true.bg = tuple(ba), tuple(bg)
-    dx0 = np.array([2.0, -1.0, 0.5, 0.2, -0.1, 0.05, 2e-3, -1e-3, 5e-3, 0.03, -0.02, 0.04, 1e-3, 5e-4, -1e-3, 0, 0])
+    dx0 = np.array([2.0, -1.0, 0.5, 0.2, -0.1, 0.05, 2e-3, -1e-3, 5e-3, 0.03, -0.02, 0.04, 1e-3, 5e-4, -1e-3, 0, 0, 0])
     est = _perturbed(true, dx0)
     m_true, m_est = Strapdown(), Strapdown()
-    phi_total = np.eye(N_FULL)
+    phi_total = np.eye(N_ROUNDING)
     n = int(2.0 * rate)
     for k in range(n + 1):
         s = drive.state(t0 + k / rate)
@@ -161,7 +161,8 @@ def test_error_dynamics_predict_how_the_mechanization_spreads_an_error(drive):
         m_true.step(true, tuple(w - np.array(true.bg)), tuple(f - np.array(true.ba)), 1.0 / rate)
         m_est.step(est, tuple(w - np.array(est.bg)), tuple(f - np.array(est.ba)), 1.0 / rate)
         if k > 0:
-            phi, _ = discretize(error_dynamics(est, est.dcm(), m_est.f_ned, N_FULL), np.zeros(N_FULL), 1.0 / rate)
+            f_err = error_dynamics(est, est.dcm(), m_est.f_ned, N_ROUNDING)
+            phi, _ = discretize(f_err, np.zeros(N_ROUNDING), 1.0 / rate)
             phi_total = phi @ phi_total
     actual = _difference(est, true)
     predicted = phi_total @ dx0

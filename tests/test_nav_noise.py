@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from logger.nav.ekf import ErrorStateEkf
 from logger.nav.gnss_noise import CorrelatedGnssNoise, RunningMin
-from logger.nav.measurements import repeat_variance
+from logger.nav.measurements import OBD_STEP_MPS, ROUNDING_VAR, Observation, repeat_variance
 
 NS = 1_000_000_000
 
@@ -82,3 +83,23 @@ def test_rounded_steady_speeds_are_consistent_with_the_weight_of_their_run():
 def test_no_white_part_leaves_the_repeats_without_weight_but_finite():
     assert repeat_variance(0.05, 1.0 / 3.6, 1) == pytest.approx(0.0025)
     assert math.isfinite(repeat_variance(0.05, 1.0 / 3.6, 2)) and repeat_variance(0.05, 1.0 / 3.6, 2) >= 1e5
+
+
+def _run_of_readings(n: int, sigma: float) -> float:
+    """With the rounding a state (``obd_rounding_state``): the speed's variance after ``n`` equal readings, by the
+    filter's own update: the speed error and the run's rounding error as states (the speed unknown at first), each
+    reading's row speed - rounding with the white part of ``sigma`` as the policy gives it."""
+    var_w = sigma**2 - ROUNDING_VAR
+    ekf = ErrorStateEkf(np.array((100.0, ROUNDING_VAR)))
+    for _ in range(n):
+        obs = Observation("obd", np.zeros(1), np.array(((1.0, -1.0),)), np.array((var_w,)))
+        assert ekf.update(obs, gated=False) is not None
+    return float(ekf.p[0, 0])
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 40, 400])
+def test_the_rounding_state_knows_a_runs_speed_as_the_repeats_weights_do(n):
+    """The two models of a run agree on what it knows: the rounding's variance plus the rest over n."""
+    sigma = 0.2
+    info = sum(1.0 / repeat_variance(sigma, OBD_STEP_MPS, k) for k in range(1, n + 1))
+    assert _run_of_readings(n, sigma) == pytest.approx(1.0 / info, rel=1e-3)

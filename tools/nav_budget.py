@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from logger.nav.engine import NavEngine  # noqa: E402
 from logger.nav.params import NavParams  # noqa: E402
-from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID  # noqa: E402
+from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, RQ_ID, SF_ID, V_ID  # noqa: E402
 from logger.recording.records import nav_feeder  # noqa: E402
 from logger.recording.topics import GNSS_FIX  # noqa: E402
 
@@ -39,7 +39,7 @@ NS = 1_000_000_000
 START_AFTER_NS = NS // 2  # after the outage's last fix: its update is in the starting covariance
 GROUPS = {"position": range(P_ID, P_ID + 3), "velocity": range(V_ID, V_ID + 3), "attitude": range(PHI_ID, PHI_ID + 3),
           "accel offset": range(BA_ID, BA_ID + 3), "gyro offset": range(BG_ID, BG_ID + 3), "OBD scale": (SF_ID,),
-          "height offset": (DH_ID,)}
+          "height offset": (DH_ID,), "OBD rounding": (RQ_ID,)}
 
 
 @dataclass

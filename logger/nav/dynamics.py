@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from logger.nav import earth
-from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID, NavState
+from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, RQ_ID, SF_ID, V_ID, NavState
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,7 @@ class ProcessNoise:
     gyro_bias_walk: float  # rad/s/sqrt(s)
     scale_walk: float  # 1/sqrt(s)
     height_offset_walk: float  # m/sqrt(s)
+    rounding_walk: float = 0.0  # m/s/sqrt(s): the true speed's drift inside one OBD reading's step
 
     def diagonal(self, n: int) -> np.ndarray:
         q = np.zeros(n)
@@ -44,6 +45,8 @@ class ProcessNoise:
         if n > SF_ID:
             q[SF_ID] = self.scale_walk**2
             q[DH_ID] = self.height_offset_walk**2
+        if n > RQ_ID:
+            q[RQ_ID] = self.rounding_walk**2
         return q
 
 

@@ -38,7 +38,7 @@ from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
 from logger.nav.imu_noise import CONSUMER_NOISE_RATIO, ImuNoiseMonitor, OffsetWander
 from logger.nav.inputs import GnssObservation, SolutionEpoch
-from logger.nav.measurements import Observation
+from logger.nav.measurements import ROUNDING_VAR, Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, forward_axis_deg, mount_matrix
 from logger.nav.params import MODES, NavParams
 from logger.nav.policies import (
@@ -54,7 +54,7 @@ from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, q
 from logger.nav.solution import SolutionPolicy
 from logger.nav.start_height import StartHeight
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
-from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, P_ID, PHI_ID, V_ID, NavState
+from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, N_ROUNDING, P_ID, PHI_ID, RQ_ID, V_ID, NavState
 from logger.nav.stops import StopDetector
 from logger.nav.strapdown import Strapdown, preintegrate
 from logger.nav.thermal import TempcoLearner, TemperatureSpan, turned
@@ -150,7 +150,7 @@ class NavEngine:
         if p.mode not in MODES:
             raise ValueError(f"unknown navigation mode {p.mode!r}: choose one of {', '.join(MODES)}")
         self.mode = p.mode
-        self.n = N_FULL if p.mode == "17" else N_INS
+        self.n = (N_ROUNDING if p.obd_rounding_state else N_FULL) if p.mode == "17" else N_INS
         self._full, self._gnss_only = p.mode == "17", p.mode == "gnss"
         self._set_mount(dcm_from_euler(*(math.radians(a) for a in p.mounting_rpy_deg)))
         self.alignment = MountAlignment(p.mounting_rpy_deg) if p.mount_align and p.mode != "gnss" else None
@@ -167,7 +167,7 @@ class NavEngine:
         self.start_height = StartHeight.for_params(p)
         self.epoch_clock = GnssEpochClock()
         self.noise = ProcessNoise(p.accel_vrw, p.gyro_arw, p.accel_bias_walk, p.gyro_bias_walk, p.obd_scale_walk_rts,
-                                  p.baro_offset_walk_m_rts)
+                                  p.baro_offset_walk_m_rts, p.obd_rounding_walk_mps_rts)
         self.q_diag = self.noise.diagonal(self.n)
         self.imu_noise = ImuNoiseMonitor() if p.imu_noise_from_drive else None
         self.offset_wander = OffsetWander() if p.imu_noise_from_drive else None
@@ -626,8 +626,9 @@ class NavEngine:
             self.epochs.append(Epoch(t_ns, None, p0.copy(), dx=np.zeros(n)))
 
     # ---- covariance ------------------------------------------------------------------------------------
-    def propagate(self) -> None:
-        """Bring the covariance to the last IMU sample (an epoch for the smoother when recording)."""
+    def propagate(self, new_rounding: bool = False) -> None:
+        """Bring the covariance to the last IMU sample (an epoch for the smoother when recording); with
+        ``new_rounding`` the OBD reading's rounding starts again at its end (:meth:`_new_rounding_run`)."""
         dt = self._cov_dt
         if dt <= 0.0 or self.ekf is None or self.state is None:
             return
@@ -635,9 +636,13 @@ class NavEngine:
         fa = self.mech.dv_ned_sum  # the specific force's velocity increments in NED since the last propagation
         f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
         phi = transition(error_dynamics(s, dcm_elements(s.q), f_mean, self.n), dt)
+        half_q = self.q_diag * (0.5 * dt)
+        if new_rounding:
+            phi[RQ_ID, :] = 0.0  # the new rounding owes nothing to the old one or to anything else
+            half_q[RQ_ID] = ROUNDING_VAR  # P = phi (P + Q/2) phi^T + Q/2: the new variance, no correlation
         if self.record:
             self._close_epoch()
-        self.ekf.propagate_trapezoid(phi, self.q_diag * (0.5 * dt))
+        self.ekf.propagate_trapezoid(phi, half_q)
         owed = self.thermal.take()
         if owed > 0.0:
             # The offsets follow the die temperature through a fixed coefficient, known as far as the drive showed
@@ -654,6 +659,8 @@ class NavEngine:
         self.refresh_sigma()
         if self._t_last is not None:
             self.history.trim(self._t_last)
+        if new_rounding:
+            return  # a step for the rounding's sake: what follows the covariance's own steps waits for the next one
         self._follow_temperature()
         if self.alignment is not None:
             self._follow_alignment()
@@ -741,7 +748,7 @@ class NavEngine:
         if (abs(vrw / self.noise.accel_vrw - 1.0) > 0.1 or abs(arw / self.noise.gyro_arw - 1.0) > 0.1
                 or abs(gyro_walk / self.noise.gyro_bias_walk - 1.0) > 0.1):
             self.noise = ProcessNoise(vrw, arw, p.accel_bias_walk * vrw / p.accel_vrw, gyro_walk,
-                                      p.obd_scale_walk_rts, p.baro_offset_walk_m_rts)
+                                      p.obd_scale_walk_rts, p.baro_offset_walk_m_rts, p.obd_rounding_walk_mps_rts)
             self.q_diag = self.noise.diagonal(self.n)
 
     # ---- the mounting ----------------------------------------------------------------------------------
@@ -974,10 +981,35 @@ class NavEngine:
         if self.mode != "17":  # the baseline and GNSS-only modes know nothing of the vehicle's speed sensor
             return
         self.counters.obd += 1
-        self._obd.note(t_ns, speed_mps)
+        new_run = self._obd.note(t_ns, speed_mps)
         if self.state is None:
             return
+        if new_run and self.n > RQ_ID:
+            self._new_rounding_run()
         self._obd.update(self, t_ns, speed_mps, self._t_last or 0)
+
+    def _new_rounding_run(self) -> None:
+        """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The
+        covariance is brought to now with a transition that forgets the state (its row zero, its variance the
+        rounding's): the smoother's epoch then says the same. With no sample since the last step, a step of zero
+        length does it."""
+        assert self.ekf is not None and self.state is not None
+        self.state.rq = 0.0
+        if self._cov_dt > 0.0:
+            self.propagate(new_rounding=True)
+            return
+        n = self.n
+        phi = np.eye(n, dtype=np.float32)
+        phi[RQ_ID, RQ_ID] = 0.0
+        if self.record:
+            self._close_epoch()
+        p = self.ekf.p.copy()
+        p[RQ_ID, :] = 0.0
+        p[:, RQ_ID] = 0.0
+        p[RQ_ID, RQ_ID] = ROUNDING_VAR
+        self.ekf.p = p
+        if self.record:
+            self.epochs.append(Epoch(self._t_last or 0, phi, p.copy(), dx=np.zeros(n)))
 
     def baro(self, t_ns: int, altitude_m: float) -> None:
         """A barometric (pressure) altitude, m."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from logger.nav import earth
 from logger.nav.rotations import skew
-from logger.nav.state import BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID, NavState
+from logger.nav.state import BG_ID, DH_ID, P_ID, PHI_ID, RQ_ID, SF_ID, V_ID, NavState
 
 _I3 = np.arange(3)  # a 3x3 identity block set through its diagonal (np.eye costs more than the update's rows)
 
@@ -108,17 +108,23 @@ class ObdVelocity:
     def observe(self, s: NavState, c_bn: np.ndarray, n: int) -> Observation:
         vb, h = _body_velocity_rows(s, c_bn, n)
         z = vb.copy()
-        z[0] -= (1.0 + s.sf) * self.speed_mps
+        u = self.speed_mps + s.rq if n > RQ_ID else self.speed_mps
+        z[0] -= (1.0 + s.sf) * u
         if n > SF_ID:
-            h[0, SF_ID] = -self.speed_mps
+            h[0, SF_ID] = -u
+        if n > RQ_ID:
+            h[0, RQ_ID] = -(1.0 + s.sf)
         return Observation("obd", z, h, np.array((self.sigma**2, self.nhc_sigma**2, self.nhc_sigma**2)))
 
 
+OBD_STEP_MPS = 1.0 / 3.6  # PID 0x0D's resolution, whatever the interface
+ROUNDING_VAR = OBD_STEP_MPS**2 / 12.0  # a reading's rounding to it: uniform over one step
 NO_WEIGHT_VAR = 1.0e6  # a row's variance that leaves the state as it is, yet keeps the update's algebra finite
 
 
 def repeat_variance(sigma: float, step: float, n: int) -> float:
-    """Forward-row variance of the ``n``-th of equal speed readings in a row, so that the run weighs as it should.
+    """Forward-row variance of the ``n``-th of equal speed readings in a row, so that the run weighs as it should
+    (without the rounding state, ``obd_rounding_state`` off).
 
     A reading's error is its rounding to ``step`` (variance step^2 / 12, part of ``sigma``) plus the rest
     (latency, wheel slip), taken as white. At a steady speed the rounding error is the same in every reading

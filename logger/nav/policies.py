@@ -28,6 +28,8 @@ from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
+    OBD_STEP_MPS,
+    ROUNDING_VAR,
     BaroHeight,
     GnssPosition,
     GnssVelocity,
@@ -38,15 +40,15 @@ from logger.nav.measurements import (
     repeat_variance,
 )
 from logger.nav.params import NavParams
-from logger.nav.state import P_ID, V_ID
+from logger.nav.state import P_ID, RQ_ID, V_ID
 from logger.nav.stops import StopDetector
 
 NS = 1_000_000_000
 OBD_FRESH_NS = int(1.2 * NS)
 BARO_FRESH_NS = 5 * NS  # a barometer heard from within this long still holds the height (it runs at 1-2 Hz)
 OBD_MIN_SPEED_MPS = 0.5  # below this the 1 km/h steps of PID 0x0D say little
-OBD_STEP_MPS = 1.0 / 3.6  # PID 0x0D's resolution, whatever the interface
 OBD_ROUNDING_HOLD_NS = 10 * NS  # how long one rounding error is taken to last: a speed leaves its step by then
+MIN_WHITE_VAR = 0.02**2  # (m/s)^2: the least white noise of a reading besides its rounding
 NHC_MIN_SPEED_MPS = 1.0
 NHC_INTERVAL_NS = NS // 2
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
@@ -264,14 +266,17 @@ class ObdPolicy:
         self._run_t0 = 0
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
 
-    def note(self, t_ns: int, speed_mps: float) -> None:
-        """Every reading, before the filter runs too: the rounding run and the latest speed."""
+    def note(self, t_ns: int, speed_mps: float) -> bool:
+        """Every reading, before the filter runs too: the rounding run and the latest speed. Whether the reading
+        begins a new run of equal readings (a value unlike the last one)."""
         last = self.last_readings.obd
-        if last is None or last[1] != speed_mps:
+        new = last is None or last[1] != speed_mps
+        if new:
             self._run, self._run_t0 = 1, t_ns
         elif t_ns - self._run_t0 <= OBD_ROUNDING_HOLD_NS:
             self._run += 1
         self.last_readings.obd = (t_ns, speed_mps)
+        return new
 
     def update(self, core: FilterCore, t_ns: int, speed_mps: float, t_last_ns: int) -> None:
         p = self.params
@@ -280,12 +285,20 @@ class ObdPolicy:
         if speed_mps < OBD_MIN_SPEED_MPS:
             return
         # The speed the ECU reported belongs to its own instant: evaluated against the solution then.
-        # At a steady speed the reading stays on one 1 km/h step and its rounding error stays the same: the
-        # repeats say little new about it, so they weigh less and less (a run of equal readings is not many
-        # independent ones: 40 of them would otherwise pull the solution to the rounded speed). A real speed
-        # does not stay within one step for long, and the IMU drifts meanwhile: past OBD_ROUNDING_HOLD_NS the
-        # repeats keep the weight they had then, and hold the speed again.
-        sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._run))
+        # At a steady speed the reading stays on one 1 km/h step and its rounding error stays the same.
+        if core.n > RQ_ID:
+            # That rounding is a state of the run of equal readings (RQ_ID, ``obd_rounding_state``; started
+            # again by the engine at each new value), so each reading adds only the rest of its error (latency,
+            # wheel slip) as white noise: n readings of a run know the speed to the rounding's variance plus the
+            # rest over n, and fixes during the run teach the rounding.
+            var = p.obd_speed_sigma_mps**2
+            sigma = math.sqrt(max(var - min(ROUNDING_VAR, var), MIN_WHITE_VAR))
+        else:
+            # The paper's model: the repeats say little new about the rounding, so they weigh less and less (a run
+            # of equal readings is not many independent ones: 40 of them would otherwise pull the solution to the
+            # rounded speed). A real speed does not stay within one step for long, and the IMU drifts meanwhile:
+            # past OBD_ROUNDING_HOLD_NS the repeats keep the weight they had then, and hold the speed again.
+            sigma = math.sqrt(repeat_variance(p.obd_speed_sigma_mps, OBD_STEP_MPS, self._run))
         snap = core.state_at(t_ns)
         c_bn = snap.dcm()
         obs = ObdVelocity(speed_mps, sigma, p.nhc_sigma_mps).observe(snap, c_bn, core.n)

@@ -24,6 +24,7 @@ from logger.nav.alignment import (
     tilt_bias_covariance,
 )
 from logger.nav.core import PreparedFix
+from logger.nav.measurements import ROUNDING_VAR
 from logger.nav.params import NavParams
 from logger.nav.rotations import (
     dcm_from_euler,
@@ -35,7 +36,7 @@ from logger.nav.rotations import (
     quat_mul,
     quats_from_rotvecs,
 )
-from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, SF_ID, V_ID, NavState
+from logger.nav.state import BA_ID, BG_ID, DH_ID, P_ID, PHI_ID, RQ_ID, SF_ID, V_ID, NavState
 
 NS = 1_000_000_000
 MAX_IMU_GAP_S = 5.0  # beyond this the rates at both ends say nothing about the gap: coast on the velocity
@@ -234,4 +235,6 @@ class Startup:
         if n > SF_ID:
             p0[SF_ID, SF_ID] = p.obd_scale_sigma**2
             p0[DH_ID, DH_ID] = height_offset_variance(p, fix.sigma[2])
+        if n > RQ_ID:
+            p0[RQ_ID, RQ_ID] = ROUNDING_VAR
         return s.plain(), p0

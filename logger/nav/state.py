@@ -24,11 +24,13 @@ BA_ID = 9  # accelerometer bias error, m/s^2, body
 BG_ID = 12  # gyro bias error, rad/s, body
 SF_ID = 15  # OBD speed scale factor error (true speed = (1 + s) x OBD speed)
 DH_ID = 16  # height offset error, m (ellipsoidal height minus baro pressure altitude)
+RQ_ID = 17  # error of the current OBD reading's rounding, m/s (true speed = (1 + s) x (OBD speed + r))
 N_INS = 15
-N_FULL = 17
+N_FULL = 17  # the paper's filter
+N_ROUNDING = 18  # with the OBD reading's rounding (NavParams.obd_rounding_state)
 
 STATE_NAMES = ("pn", "pe", "pd", "vn", "ve", "vd", "phin", "phie", "phid", "bax", "bay", "baz", "bgx", "bgy",
-               "bgz", "sf", "dh")
+               "bgz", "sf", "dh", "rq")
 
 
 @dataclass
@@ -47,6 +49,7 @@ class NavState:
     bg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sf: float = 0.0
     dh: float = 0.0
+    rq: float = 0.0
 
     def plain(self) -> NavState:
         """Every field as a plain Python float, in place (and returned). The inner loop's arithmetic on numpy
@@ -56,7 +59,7 @@ class NavState:
         self.q = (float(self.q[0]), float(self.q[1]), float(self.q[2]), float(self.q[3]))
         self.ba = (float(self.ba[0]), float(self.ba[1]), float(self.ba[2]))
         self.bg = (float(self.bg[0]), float(self.bg[1]), float(self.bg[2]))
-        self.sf, self.dh = float(self.sf), float(self.dh)
+        self.sf, self.dh, self.rq = float(self.sf), float(self.dh), float(self.rq)
         return self
 
     def dcm(self) -> np.ndarray:
@@ -70,7 +73,7 @@ class NavState:
 
     def copy(self) -> NavState:
         return NavState(self.lat, self.lon, self.h, self.vn, self.ve, self.vd, self.q, self.ba, self.bg, self.sf,
-                        self.dh)
+                        self.dh, self.rq)
 
     def correct(self, dx: np.ndarray) -> None:
         """Feed an estimated error back into the nominal state (closed loop): x_true = x_hat - dx."""
@@ -91,3 +94,5 @@ class NavState:
         if len(d) > SF_ID:
             self.sf -= d[SF_ID]
             self.dh -= d[DH_ID]
+        if len(d) > RQ_ID:
+            self.rq -= d[RQ_ID]

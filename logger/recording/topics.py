@@ -275,7 +275,7 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "obd_scale": ("number?", "true speed divided by OBD speed (1 + the scale factor state)"),
     "height_offset_m": ("number?", "ellipsoidal height minus barometric altitude, m"),
     "p_diag": ("number[]?", "covariance diagonal in state_names order: m^2, (m/s)^2, rad^2, (m/s^2)^2, (rad/s)^2, 1, "
-                            "m^2"),
+                            "m^2 (and (m/s)^2 with [nav] obd_rounding_state)"),
     "state_names": ("string[]", "names of the error states, in covariance order"),
     "innovations": ("object", "last innovation (predicted minus measured) per update type, SI units of that type"),
     "nis": ("object", "last normalised innovation squared per update type (chi-square distributed when consistent)"),
