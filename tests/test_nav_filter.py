@@ -130,6 +130,29 @@ def test_each_new_speed_reading_starts_a_new_rounding(outage):
         assert not np.any(np.delete(ep.p_minus[RQ_ID], RQ_ID)) and not np.any(np.delete(ep.phi[RQ_ID], RQ_ID))
 
 
+@pytest.mark.parametrize("mode", ["15", "17"])
+def test_a_fast_imus_wider_bandwidth_still_reads_as_standing(mode, monkeypatch):
+    """At 200 Hz the MPU-6050 runs its 94 Hz low-pass (the widest under half the rate: sensors/mpu6050.py), so each
+    sample carries the 400 ug/sqrt(Hz) noise over ~100 Hz, 0.039 m/s^2 per axis: a standing car's samples vary by
+    0.0046 (m/s^2)^2, over the stop detector's 0.0025. It looks at 20 Hz means of them (stops.MEAN_S), so the
+    start levels, and the 15-state filter, which has no OBD speed to learn the threshold from, does not lose itself.
+    Read sample by sample, it never levelled (the check below)."""
+    from logger.nav import stops
+
+    rate = 200.0
+    noise = SynthErrors(accel_noise=400e-6 * 9.80665 * math.sqrt(rate / 2.0),
+                        gyro_noise=math.radians(0.005) * math.sqrt(rate / 2.0))
+    drive = make_drive("outage-60s", seed=1, duration_s=60.0)
+    recs = records(drive, 60.0, seed=3, imu_hz=rate, errors=noise)
+    engine = run(recs, mode=mode)
+    assert engine.startup.levelled is not None and engine.counters.init_method == "gnss course"
+    assert engine.counters.resets == 0 and engine.stops.group == 10
+    _, e, _ = errors(drive, engine.rows)
+    assert np.hypot(e[:, 0], e[:, 1]).max() < 2.0
+    monkeypatch.setattr(stops, "MEAN_S", 0.0)  # each sample on its own, as before
+    assert run(recs, mode=mode).startup.levelled is None
+
+
 def test_smoothing_shrinks_the_outage_error(outage):
     drive, span, recs = outage
     engine = run(recs, gnss_floor_corr_s=0.0)  # the synthetic fixes' errors are white: the filter is told so

@@ -253,6 +253,10 @@ class NavEngine:
             # need consecutive increments of one sampling clock, which a slow polled IMU does not give.
             self._dt_mean += 0.02 * (dt - self._dt_mean)
             mech.coning = self._dt_mean < CONING_MAX_DT_S
+            if self.stops.group == 0:
+                # The first interval sizes the stop detector's means, once: a batch's first samples come here one
+                # by one, so a FIFO drive's reads taken whole and one by one size them alike.
+                self.stops.set_interval(dt)
         else:
             if dt > IMU_GAP_S:
                 c.imu_gaps += 1
