@@ -369,3 +369,38 @@ def test_blocks_before_the_start_give_the_start_and_trajectory_of_its_samples(he
         "config heading" if heading_source == "config" else "gnss course")
     assert one.counters.initialised_ns == many.counters.initialised_ns
     _same_trajectory(one, many)
+
+
+def test_replay_takes_a_fast_imus_reads_in_a_row_as_one_block(tmp_path):
+    """A 200 Hz IMU's FIFO reads are ten samples: alone each is under the block forms' least (and integrated sample by
+    sample, a row each). Replay feeds the reads that follow one another with nothing between them as one run, as the
+    live navigator feeds a wake-up's: the ~40 samples between two measurements go in steps of ``integration_hz``
+    (100 Hz, two samples), a row per step, where the samples one by one put the vehicle at the steps' ends."""
+    from test_nav_mounting import _as_reads
+
+    from logger.exports.trajectory import run_filter
+    from logger.recording.recorder import Recorder
+    from logger.recording.settings import RecorderSettings
+    from logger.recording.topics import TOPICS
+
+    drive = make_drive("outage-60s", seed=3, duration_s=40.0)
+    recs = records(drive, 40.0, seed=4, imu_hz=200.0)
+    rec = Recorder(RecorderSettings(out_dir=tmp_path), TOPICS)
+    rec.start()
+    for t, topic, msg in _as_reads(recs, per_read=10):
+        mono = msg["t_mono_ns"]
+        assert rec.submit(topic, msg, t, mono[0] if isinstance(mono, list) else mono)
+    rec.stop()
+    files = sorted(tmp_path.glob("*.mcap"))
+    engine, rows = run_filter(files, NavParams())
+    one = NavEngine(NavParams(), record=True)
+    feed = nav_feeder(one)
+    for _, topic, msg in recs:
+        feed_record(feed, topic, msg)
+    assert engine.counters.imu == one.counters.imu == 8001
+    started = [r for r in one.rows if r.t_ns >= one.counters.initialised_ns]
+    assert 0.5 * len(started) <= len(rows) <= 0.6 * len(started)
+    by_t = {r.t_ns: r for r in one.rows}
+    a = np.array([(r.lat_rad, r.lon_rad) for r in rows if r.t_ns in by_t]) * 6.4e6
+    b = np.array([(by_t[r.t_ns].lat_rad, by_t[r.t_ns].lon_rad) for r in rows if r.t_ns in by_t]) * 6.4e6
+    assert len(a) > 0.95 * len(rows) and np.abs(a - b).max() < 0.01  # metres: the steps' second order

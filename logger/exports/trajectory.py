@@ -162,17 +162,36 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
 
     rerun = NavRerun(params, make_engine)  # as live: the first minutes again once the drive shows the mounting
     next_state = 0
-    for topic, msg in read_drive(paths, progress=progress, runs=True):
-        rerun.feed(topic, msg)
+    reads: list[dict[str, Any]] = []  # FIFO reads in a row, nothing between them: one block, as the live navigator
+    # takes a wake-up's (a 200 Hz IMU's reads of ten samples then go in as the ~40 between two measurements, and
+    # are integrated in steps of integration_hz as a 1 kHz IMU's are)
+
+    def fed(topic: str, msg: dict[str, Any]) -> None:
+        nonlocal next_state
         engine = rerun.engine
-        if states is None or engine.state is None or topic not in (IMU, IMU_BATCH):
-            continue
+        if states is None or engine.state is None:
+            return
         # The last sample fed: a sample's own record, or a block's last.
         t, mono = ((msg["t_sync_ns"], msg["t_mono_ns"]) if topic == IMU
                    else (msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
         if t >= next_state:
             next_state = t + 1_000_000_000
             states.append(nav_state_record(engine, t, mono))
+
+    for topic, msg in read_drive(paths, progress=progress, runs=True):
+        if topic == IMU_BATCH:
+            reads.append(msg)
+            continue
+        if reads:
+            rerun.feed_reads(reads)
+            fed(IMU_BATCH, reads[-1])
+            reads = []
+        rerun.feed(topic, msg)
+        if topic == IMU:
+            fed(topic, msg)
+    if reads:
+        rerun.feed_reads(reads)
+        fed(IMU_BATCH, reads[-1])
     if notes is not None and rerun.note():
         notes.append(rerun.note())
     return rerun.engine
