@@ -40,6 +40,11 @@ sample filtered:
   (from bytecode compiled beforehand, as a pip install has it: tools/bytecode.py), reading, filtering,
   trajectory.csv and trajectory.mcap.
 
+Per IMU sample the two scale differently with the IMU's rate: KF-GINS propagates its covariance at every sample,
+this filter every ``cov_interval_s`` and at its updates, which come at the other sensors' rates (fixes, OBD speed,
+barometer) whatever the IMU's, and a FIFO drive's runs of reads go in strapdown steps of ``integration_hz`` (a drive
+named ``-imu-200hz`` is the same simulated drive with the IMU at 200 Hz, read through its FIFO).
+
 Accuracy, each against /truth/nav with :func:`logger.exports.nav_score.score` (KF-GINS's navresult and std turned
 into the same columns), over the rows from KF-GINS's start on while the car moves (``nav_eval.moving``), and the
 largest horizontal error in the drive's longest GNSS outage. Prints a markdown table ready to paste, per drive,
