@@ -250,7 +250,7 @@ def test_preintegrated_steps_hold_the_coning_and_sculling_of_their_samples():
         assert np.abs(dv[g] - v).max() < 5e-6  # the second order left out: alpha^2 ~ 1e-4 of a 0.1 m/s increment
 
 
-@pytest.mark.parametrize("interval_s", [None, 0.001], ids=["each sample", "20 Hz means"])
+@pytest.mark.parametrize("interval_s", [0.05, None], ids=["each sample", "20 Hz means, sized by the detector"])
 @pytest.mark.parametrize("ask_every", [1, 7], ids=["asked after each", "blocks kept between asks"])
 def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample(ask_every, interval_s):
     """Blocks and single samples in turn (a FIFO drive's reads cut at measurements), the window's old end inside a
@@ -262,8 +262,8 @@ def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample(a
     acc = rng.normal((0.1, -0.2, -9.8), 0.05, (n, 3))
     gyro = rng.normal(0.0, 0.01, (n, 3))
     one, mixed = StopDetector(), StopDetector()
-    if interval_s is not None:  # a 1 kHz IMU's samples taken as means of 50 (stops.MEAN_S), a mean across reads
-        one.set_interval(interval_s)
+    if interval_s is not None:  # each sample a mean of its own; else the 1 kHz samples' first interval sizes means
+        one.set_interval(interval_s)  # of 50 (stops.MEAN_S) in each detector, a mean across reads
         mixed.set_interval(interval_s)
     i, checks, steps = 0, 0, 0
     while i < n:
@@ -286,10 +286,11 @@ def test_stop_window_mixing_blocks_and_single_samples_matches_sample_by_sample(a
         assert mixed.var_a == pytest.approx(one.var_a, rel=rel)
         assert mixed.var_w == pytest.approx(one.var_w, rel=rel)
         checks += 1
-    assert checks > 100 / ask_every and len(one._win) == mixed._n > 900 // max(one.group, 1)
+    assert one.group == mixed.group and (one.group == 1 if interval_s else 45 <= one.group <= 56)
+    assert checks > 100 / ask_every and len(one._win) == mixed._n > 900 // one.group
 
 
-@pytest.mark.parametrize("interval_s", [None, 0.001], ids=["each sample", "20 Hz means"])
+@pytest.mark.parametrize("interval_s", [0.05, None], ids=["each sample", "20 Hz means, sized by the detector"])
 def test_stop_flags_of_a_block_are_what_each_sample_added_alone_would_leave(interval_s):
     """``still_flags`` before the samples go in (singles, FIFO reads, a block longer than the window): after each
     sample the word :attr:`still` gives when the samples are added one by one, through stops and starts."""
@@ -321,7 +322,7 @@ def test_stop_flags_of_a_block_are_what_each_sample_added_alone_would_leave(inte
         else:
             blocks.add_block(t[sl], acc[sl], gyro[sl])
         i = sl.stop
-    assert got == expected
+    assert got == expected and one.group == blocks.group and (one.group == 1 if interval_s else 45 <= one.group <= 56)
     assert 0.2 < np.mean(expected) < 0.8 and np.count_nonzero(np.diff(expected)) >= 4
 
 
@@ -376,7 +377,7 @@ def test_replay_takes_a_fast_imus_reads_in_a_row_as_one_block(tmp_path):
     sample, a row each). Replay feeds the reads that follow one another with nothing between them as one run, as the
     live navigator feeds a wake-up's: the ~40 samples between two measurements go in steps of ``integration_hz``
     (100 Hz, two samples), a row per step, where the samples one by one put the vehicle at the steps' ends."""
-    from test_nav_mounting import _as_reads
+    from test_navigator_merge import _read
 
     from logger.exports.trajectory import run_filter
     from logger.recording.recorder import Recorder
@@ -387,9 +388,12 @@ def test_replay_takes_a_fast_imus_reads_in_a_row_as_one_block(tmp_path):
     recs = records(drive, 40.0, seed=4, imu_hz=200.0)
     rec = Recorder(RecorderSettings(out_dir=tmp_path), TOPICS)
     rec.start()
-    for t, topic, msg in _as_reads(recs, per_read=10):
-        mono = msg["t_mono_ns"]
-        assert rec.submit(topic, msg, t, mono[0] if isinstance(mono, list) else mono)
+    for topic, item in _runs(recs, 10):  # FIFO reads of ten samples, each stamped with its 5 ms period
+        if topic == "batch":
+            read = _read(item, 30.0, period_s=0.005)
+            assert rec.submit("/imu/batch", read, read["t_sync_ns"][0], read["t_mono_ns"][0])
+        else:
+            assert rec.submit(topic, item, item["t_sync_ns"], item["t_mono_ns"])
     rec.stop()
     files = sorted(tmp_path.glob("*.mcap"))
     engine, rows = run_filter(files, NavParams())

@@ -184,6 +184,7 @@ def test_stop_detector_learns_this_vehicles_standstill():
 
     rng = np.random.default_rng(3)
     det = StopDetector(still_accel_mps2=0.05)
+    det.set_interval(0.05)  # each sample on its own (its 50 Hz would make means of two: stops.MEAN_S)
     t = 0
 
     def feed(seconds: float, accel_sigma: float, gyro_sigma: float, ramp: float = 0.0) -> None:

@@ -33,7 +33,7 @@ from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
-from logger.recording.records import NAV_INPUT_TOPICS, nav_fix_record, nav_state_record
+from logger.recording.records import NAV_INPUT_TOPICS, follows_on, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
 
 if TYPE_CHECKING:
@@ -162,36 +162,38 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
 
     rerun = NavRerun(params, make_engine)  # as live: the first minutes again once the drive shows the mounting
     next_state = 0
-    reads: list[dict[str, Any]] = []  # FIFO reads in a row, nothing between them: one block, as the live navigator
+    # FIFO reads that go on from one another with nothing between them go in as one run, as the live navigator
     # takes a wake-up's (a 200 Hz IMU's reads of ten samples then go in as the ~40 between two measurements, and
-    # are integrated in steps of integration_hz as a 1 kHz IMU's are)
+    # are integrated in steps of integration_hz as a 1 kHz IMU's are); a read that does not goes alone.
+    run: list[dict[str, Any]] = []
 
-    def fed(topic: str, msg: dict[str, Any]) -> None:
+    def note_state(topic: str, msg: dict[str, Any]) -> None:
+        """A /nav/state record a second, after the sample fed last (a sample's own record, or a block's last)."""
         nonlocal next_state
         engine = rerun.engine
         if states is None or engine.state is None:
             return
-        # The last sample fed: a sample's own record, or a block's last.
         t, mono = ((msg["t_sync_ns"], msg["t_mono_ns"]) if topic == IMU
                    else (msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
         if t >= next_state:
             next_state = t + 1_000_000_000
             states.append(nav_state_record(engine, t, mono))
 
+    def feed_run() -> None:
+        if run:
+            rerun.feed_reads(run)
+            note_state(IMU_BATCH, run[-1])
+            run.clear()
+
     for topic, msg in read_drive(paths, progress=progress, runs=True):
-        if topic == IMU_BATCH:
-            reads.append(msg)
+        if topic == IMU_BATCH and follows_on(msg, run[-1]["t_sync_ns"][-1] if run else rerun.engine.t_last_ns):
+            run.append(msg)
             continue
-        if reads:
-            rerun.feed_reads(reads)
-            fed(IMU_BATCH, reads[-1])
-            reads = []
+        feed_run()
         rerun.feed(topic, msg)
-        if topic == IMU:
-            fed(topic, msg)
-    if reads:
-        rerun.feed_reads(reads)
-        fed(IMU_BATCH, reads[-1])
+        if topic in (IMU, IMU_BATCH):
+            note_state(topic, msg)
+    feed_run()
     if notes is not None and rerun.note():
         notes.append(rerun.note())
     return rerun.engine

@@ -253,10 +253,6 @@ class NavEngine:
             # need consecutive increments of one sampling clock, which a slow polled IMU does not give.
             self._dt_mean += 0.02 * (dt - self._dt_mean)
             mech.coning = self._dt_mean < CONING_MAX_DT_S
-            if self.stops.group == 0:
-                # The first interval sizes the stop detector's means, once: a batch's first samples come here one
-                # by one, so a FIFO drive's reads taken whole and one by one size them alike.
-                self.stops.set_interval(dt)
         else:
             if dt > IMU_GAP_S:
                 c.imu_gaps += 1
@@ -634,12 +630,15 @@ class NavEngine:
         """Bring the covariance to the last IMU sample (an epoch for the smoother when recording); with
         ``new_rounding`` the OBD reading's rounding starts again at its end (:meth:`_new_rounding_run`)."""
         dt = self._cov_dt
-        if dt <= 0.0 or self.ekf is None or self.state is None:
+        if (dt <= 0.0 and not new_rounding) or self.ekf is None or self.state is None:
             return
         s = self.state
-        fa = self.mech.dv_ned_sum  # the specific force's velocity increments in NED since the last propagation
-        f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
-        phi = transition(error_dynamics(s, dcm_elements(s.q), f_mean, self.n), dt)
+        if dt > 0.0:
+            fa = self.mech.dv_ned_sum  # the specific force's velocity increments in NED since the last propagation
+            f_mean = (fa[0] / dt, fa[1] / dt, fa[2] / dt)
+            phi = transition(error_dynamics(s, dcm_elements(s.q), f_mean, self.n), dt)
+        else:  # no sample since the last step: a step of zero length, for the rounding's sake
+            phi = np.eye(self.n)
         half_q = self.q_diag * (0.5 * dt)
         if new_rounding:
             phi[RQ_ID, :] = 0.0  # the new rounding owes nothing to the old one or to anything else
@@ -995,25 +994,10 @@ class NavEngine:
     def _new_rounding_run(self) -> None:
         """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The
         covariance is brought to now with a transition that forgets the state (its row zero, its variance the
-        rounding's): the smoother's epoch then says the same. With no sample since the last step, a step of zero
-        length does it."""
-        assert self.ekf is not None and self.state is not None
+        rounding's): the smoother's epoch then says the same."""
+        assert self.state is not None
         self.state.rq = 0.0
-        if self._cov_dt > 0.0:
-            self.propagate(new_rounding=True)
-            return
-        n = self.n
-        phi = np.eye(n, dtype=np.float32)
-        phi[RQ_ID, RQ_ID] = 0.0
-        if self.record:
-            self._close_epoch()
-        p = self.ekf.p.copy()
-        p[RQ_ID, :] = 0.0
-        p[:, RQ_ID] = 0.0
-        p[RQ_ID, RQ_ID] = ROUNDING_VAR
-        self.ekf.p = p
-        if self.record:
-            self.epochs.append(Epoch(self._t_last or 0, phi, p.copy(), dx=np.zeros(n)))
+        self.propagate(new_rounding=True)
 
     def baro(self, t_ns: int, altitude_m: float) -> None:
         """A barometric (pressure) altitude, m."""

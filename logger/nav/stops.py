@@ -9,6 +9,7 @@ dominate), and the threshold is a fixed factor above it, bounded on both sides.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 
@@ -19,10 +20,10 @@ from logger.nav.deferred import PENDING_MAX, BlockKeeper, Deferred
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
 # The detector looks at means over this long (20 Hz, the rate its thresholds were set at): a faster IMU's samples
-# are averaged down to it, so that its wider bandwidth's noise and an idling engine's shake, which averages out
-# within it, do not read as motion (at 200 Hz a standing car's samples varied by 0.006 (m/s^2)^2, over twice the
-# threshold: the start-up never levelled, and the 15-state filter, which has no OBD speed to teach the threshold,
-# restarted seven times on the simulated urban drive).
+# are averaged down to it, so that the noise of its wider bandwidth does not read as motion (at 200 Hz a standing
+# car's samples varied by 0.006 (m/s^2)^2, over twice the threshold: the start-up never levelled, and the 15-state
+# filter, which has no OBD speed to teach the threshold, restarted seven times on the simulated urban drive). The
+# number of samples a mean takes is fixed by the first interval between two samples the detector is given.
 MEAN_S = 0.05
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
@@ -68,7 +69,8 @@ class StopDetector(Deferred, BlockKeeper):
         self._log_a: float | None = None
         self._log_w: float | None = None
         self.learned = 0
-        self.group = 0  # samples per mean, 0 until set_interval (taken as 1)
+        self.group = 0  # samples per mean, 0 until the first interval sizes it (taken as 1 meanwhile)
+        self._t_first: int | None = None  # the first sample's time, while the group is not sized
         self._carry: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]] = []  # a mean's so far
 
     def set_interval(self, dt_s: float) -> None:
@@ -78,6 +80,27 @@ class StopDetector(Deferred, BlockKeeper):
         if group != self.group:
             self.group = group
             self._carry = []
+
+    def _lead(self, t_ns: np.ndarray) -> int:
+        """How many of these samples come before the group is sized (they go in one by one, as :meth:`add` takes
+        them); sizes it on the way."""
+        for i, t in enumerate(t_ns.tolist()):
+            self._size(t)
+            if self.group:
+                return i
+        return len(t_ns)
+
+    def _size(self, t_ns: int) -> None:
+        """Before the sample at ``t_ns`` while the group is not sized: the interval from the first sample sizes it
+        (an interval of a window or more says nothing of the rate), whichever way the samples come (one by one,
+        blocks, flags asked), so every path groups the same samples."""
+        t0 = self._t_first
+        if t0 is None:
+            self._t_first = t_ns
+        elif 0 < t_ns - t0 < WINDOW_NS:
+            self.set_interval((t_ns - t0) / 1e9)
+        else:
+            self._t_first = t_ns
 
     def _grouped(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[tuple[int, tuple, tuple]]]:
@@ -102,6 +125,8 @@ class StopDetector(Deferred, BlockKeeper):
         """One sample into the one-second window. Kept until the variances are asked for, then taken in order in one
         loop (running sums: a call per sample cost more than the arithmetic). Of a fast IMU, the means of
         ``group`` samples go in."""
+        if self.group == 0:
+            self._size(t_ns)
         if self.group > 1:
             carry = self._carry
             carry.append((t_ns, f, w))
@@ -190,6 +215,13 @@ class StopDetector(Deferred, BlockKeeper):
         cost is the same whatever its length, and a 1 kHz IMU's run of reads is cut into several by the
         measurements between them."""
         self.flush_pending()
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        if self.group == 0 and len(t_ns):
+            lead = self._lead(t_ns)
+            if lead:
+                self._dirty = True
+                self.keep_block(t_ns[:lead], f[:lead], w[:lead])
+                t_ns, f, w = t_ns[lead:], f[lead:], w[lead:]
         if self.group > 1 and len(t_ns):
             t_ns, f, w, _, self._carry = self._grouped(np.asarray(t_ns, dtype=np.int64), f, w)
         if len(t_ns):
@@ -224,18 +256,31 @@ class StopDetector(Deferred, BlockKeeper):
         Before the filter starts, the start-up asks after every sample (levelling ends with the first that moves):
         one call per sample cost a 1 kHz IMU 10 us each. Here the window's sums at each sample come from cumulative
         sums of the samples that leave the window during these (its oldest) and of these themselves. Of a fast IMU,
-        the word changes with each mean complete (``group``)."""
+        the word changes with each mean complete (``group``; sized here as :meth:`add_block` would, from the times
+        alone)."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        if self.group == 0 and len(t_ns):
+            # Not sized yet (the first samples): on a copy, as add and add_block would size it and take them.
+            probe = copy.deepcopy(self)
+            lead = probe._lead(t_ns)
+            head = probe._flags(t_ns[:lead], f[:lead], w[:lead]) if lead else np.zeros(0, bool)
+            if lead == len(t_ns):
+                return head
+            if lead:
+                probe.keep_block(t_ns[:lead], f[:lead], w[:lead])
+                probe._dirty = True
+            return np.concatenate((head, probe.still_flags(t_ns[lead:], f[lead:], w[lead:])))
         if self.group > 1:
             tm, fm, wm, done, _ = self._grouped(np.asarray(t_ns, dtype=np.int64), f, w)
             before = self.still
             if not len(tm):
                 return np.full(len(done), before)
-            group, self.group = self.group, 1
-            try:
-                flags = self.still_flags(tm, fm, wm)
-            finally:
-                self.group = group
+            flags = self._flags(tm, fm, wm)
             return np.where(done > 0, flags[np.maximum(done - 1, 0)], before)
+        return self._flags(t_ns, f, w)
+
+    def _flags(self, t_ns: np.ndarray, f: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """:meth:`still_flags` of the window's own entries (samples, or a fast IMU's means)."""
         self.take_kept()
         self.flush_pending()
         t = np.asarray(t_ns, dtype=np.int64)

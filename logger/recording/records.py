@@ -14,7 +14,7 @@ from __future__ import annotations
 import base64
 import math
 from collections.abc import Callable, Sequence
-from itertools import chain
+from itertools import chain, pairwise
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,7 +22,7 @@ import numpy as np
 from logger.nav.engine import NavEngine
 from logger.nav.inputs import GnssObservation
 from logger.nav.state import N_FULL, STATE_NAMES
-from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
+from logger.recording.topics import BARO, GAP_PERIODS, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.stamp import Stamp, StampClock, Stamps, TrackingReport
 
@@ -279,6 +279,17 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
 
 _ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
 _GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
+
+
+def follows_on(m: dict[str, Any], last: int | None) -> bool:
+    """Whether the FIFO read ``m`` goes on from a sample at ``last``: nothing lost before it, its first sample
+    within GAP_PERIODS sample periods after ``last``, its own samples in order (such reads go to
+    :func:`feed_reads` together)."""
+    t = m["t_sync_ns"]
+    period = m.get("period_s")
+    if last is None or len(t) == 0 or m.get("lost") or not period or not 0 < t[0] - last <= GAP_PERIODS * period * 1e9:
+        return False
+    return all(a < b for a, b in pairwise(t))
 
 
 def feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:

@@ -14,6 +14,9 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
+# A silence longer than this many sample periods is a gap: one lost sample is jitter, two and a half are not (the
+# samplers count gaps by it, and a FIFO read goes on from the last only within it).
+GAP_PERIODS = 2.5
 
 @dataclass(frozen=True)
 class TopicSpec:

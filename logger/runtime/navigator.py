@@ -27,7 +27,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import replace
-from itertools import pairwise
 from numbers import Integral
 from pathlib import Path
 from typing import Any
@@ -40,13 +39,14 @@ from logger.recording.drive import in_runs
 from logger.recording.nav_rerun import NavRerun
 from logger.recording.records import (
     NAV_INPUT_TOPICS,
+    follows_on,
     nav_fix_record,
     nav_state_record,
 )
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state, tempco_state
 from logger.runtime.daemon import Attachments
-from logger.runtime.sampler import GAP_PERIODS, Reading
+from logger.runtime.sampler import Reading
 
 log = logging.getLogger(__name__)
 
@@ -64,16 +64,6 @@ def in_offer_order(messages: Iterable[tuple[str, dict[str, Any]]]) -> list[tuple
         return int(t[-1]) if topic == IMU_BATCH else int(t)
 
     return sorted(((offered(t, m), t, m) for t, m in messages), key=lambda r: r[0])
-
-
-def _follows(m: dict[str, Any], last: int | None) -> bool:
-    """Whether the FIFO read ``m`` goes on from a sample at ``last``: nothing lost before it, its first sample
-    within GAP_PERIODS sample periods after ``last``, its own samples in order."""
-    t = m["t_sync_ns"]
-    period = m.get("period_s")
-    if last is None or len(t) == 0 or m.get("lost") or not period or not 0 < t[0] - last <= GAP_PERIODS * period * 1e9:
-        return False
-    return all(a < b for a, b in pairwise(t))
 
 
 class Navigator:
@@ -274,8 +264,8 @@ class Navigator:
         a measurement ahead of the IMU samples waits for them), publishing as they go (called with the lock held).
 
         At 1 kHz a FIFO read is 40 samples, too few for the engine's block forms (``BATCH_MIN``), and nothing
-        else comes between most reads: so a run of reads that follow one another (:func:`_follows`) goes in as
-        one block (:func:`feed_reads`). A run ends before any other record, at the end of the wake-up, and
+        else comes between most reads: so a run of reads that follow one another (:func:`follows_on`) goes in
+        as one block (:func:`feed_reads`). A run ends before any other record, at the end of the wake-up, and
         with the read that reaches the next /nav/state, so /nav/state goes out after the same reads as fed read
         by read; /nav/fix goes out from inside a run, the solution at the first integration step that reaches
         its time (the engine's tap, :meth:`_tap`), as it does from reads fed one by one. A read after a gap,
@@ -289,7 +279,7 @@ class Navigator:
         for topic, payload in records:
             if topic == IMU_BATCH and merge:
                 t = payload["t_sync_ns"]
-                if _follows(payload, last if run else rerun.engine.t_last_ns):
+                if follows_on(payload, last if run else rerun.engine.t_last_ns):
                     run.append(payload)
                     last = t[-1]
                     if self._state_due(last):

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from logger.recording.topics import GAP_PERIODS
 from logger.runtime.journal import PROBLEM_LOG_REPEAT_S, RateLimiter, problem_key
 from logger.runtime.timebase import TimeBase
 from sensors.errors import DeviceNotFound, NoData, SensorError
@@ -128,10 +129,6 @@ class SensorHealth:
         if self.last_incident_mono_ns is None or now_ns - self.last_incident_mono_ns > INCIDENT_SHOW_S * 1e9:
             return None
         return self.last_incident
-
-
-# A silence longer than this many sample periods is a gap: one lost sample is jitter, two and a half are not.
-GAP_PERIODS = 2.5
 
 
 class Sampler(threading.Thread):
