@@ -145,6 +145,9 @@ class Injector:
         fault that ends by itself wait until the status has settled; then journal the window."""
         t0, h0 = self.now(), time.monotonic_ns()
         start()
+        # Its start goes into the journal at once: a stop of the daemon can end the process before this thread
+        # journals the whole window (faults_of then closes it at the segment's last word).
+        self.j.write(ev="fault_start", kind=kind, start_ns=t0, start_host_ns=h0)
         seen: str | None = None
         seen_after = None
         status_text = ""
@@ -454,6 +457,23 @@ def read_files(out: Path) -> dict[str, dict[str, Any]]:
     return files
 
 
+def faults_of(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A segment's faults, each as journalled when it ended; one that started but never got that far (the
+    daemon's stop ended the process first) lasts to the segment's last word and counts as cut short by the stop."""
+    done = {(e["kind"], e["start_ns"]) for e in events if e["ev"] == "fault"}
+    out = [e for e in events if e["ev"] == "fault"]
+    timed = [e for e in events if "drive_ns" in e and "host_ns" in e]
+    for e in events:
+        if e["ev"] == "fault_start" and (e["kind"], e["start_ns"]) not in done:
+            last = max(timed, key=lambda x: x["drive_ns"], default=None)
+            out.append({"ev": "fault", "kind": e["kind"], "start_ns": e["start_ns"],
+                        "end_ns": max(e["start_ns"], last["drive_ns"]) if last else e["start_ns"],
+                        "start_host_ns": e["start_host_ns"],
+                        "end_host_ns": max(e["start_host_ns"], last["host_ns"]) if last else e["start_host_ns"],
+                        "seen_in_status": None, "seen_after_s": None, "cut_short": True, "status_excerpt": ""})
+    return sorted(out, key=lambda e: e["start_ns"])
+
+
 def windows_for(events: list[dict[str, Any]], topic: str) -> list[tuple[int, int, str]]:
     """Drive-time windows in which a gap in ``topic`` is explained: its faults (plus recovery), disk full."""
     out = []
@@ -481,10 +501,11 @@ def analyse(args: argparse.Namespace, out: Path, segments: list[Segment]) -> dic
     files = read_files(out)
     all_ok = True
     for seg in segments:
-        events = [json.loads(line) for line in (out / f"journal-{seg.index}.jsonl").read_text().splitlines()]
+        journal = [json.loads(line) for line in (out / f"journal-{seg.index}.jsonl").read_text().splitlines()]
+        faults = faults_of(journal)
+        events = [e for e in journal if e["ev"] not in ("fault", "fault_start")] + faults
         start = next(e for e in events if e["ev"] == "start")
         samples = [e for e in events if e["ev"] == "sample"]
-        faults = [e for e in events if e["ev"] == "fault"]
         end = next((e for e in events if e["ev"] == "end"), None)
         seg_files = sorted(n for n, f in files.items() if f["seed"] == seg.seed)
         # Threads alive at the end: the last sample before the stop (a kill -9 leaves no later word).
