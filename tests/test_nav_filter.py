@@ -137,7 +137,7 @@ def test_a_fast_imus_wider_bandwidth_still_reads_as_standing(mode, monkeypatch):
     0.0046 (m/s^2)^2, over the stop detector's 0.0025. It looks at 20 Hz means of them (stops.MEAN_S), so the
     start levels, and the 15-state filter, which has no OBD speed to learn the threshold from, does not lose itself.
     Read sample by sample, it never levelled (the check below)."""
-    from logger.nav import stops
+    from logger.nav import policies, stops
 
     rate = 200.0
     noise = SynthErrors(accel_noise=400e-6 * 9.80665 * math.sqrt(rate / 2.0),
@@ -150,7 +150,51 @@ def test_a_fast_imus_wider_bandwidth_still_reads_as_standing(mode, monkeypatch):
     _, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[:, 0], e[:, 1]).max() < 2.0
     monkeypatch.setattr(stops, "MEAN_S", 0.0)  # each sample on its own, as before
+    monkeypatch.setattr(policies, "HELD_NS", 10**15)  # and no stop held by the OBD speed to teach it otherwise
     assert run(recs, mode=mode).startup.levelled is None
+
+
+def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_holds(monkeypatch):
+    """A phone-grade IMU (ten times the MPU-6050's noise densities, 100 Hz) never reads still by the configured
+    thresholds: its standing car's 20 Hz means vary by ~0.05 (m/s^2)^2, five times the most a learnt threshold could
+    reach, and only a stop it reads still in teaches it. So it never levelled and never took a zero-velocity update.
+    A stop the OBD speed holds at zero for stops.HELD_S teaches it all the same: it levels and stops."""
+    from logger.nav import policies
+
+    rate = 100.0
+    noise = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(rate / 2.0),
+                        gyro_noise=math.radians(0.05) * math.sqrt(rate / 2.0))
+    drive = make_drive("urban", seed=1, duration_s=150.0)  # parked at the start, stands again from 131 s
+    recs = records(drive, 150.0, seed=3, imu_hz=rate, errors=noise)
+    engine = run(recs)
+    assert engine.stops.held_learned >= 1 and engine.stops.thr_a > 4 * 0.05**2
+    assert engine.startup.levelled is not None and engine.counters.zupt > 0 and engine.counters.resets == 0
+    monkeypatch.setattr(policies, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
+    before = run(recs)
+    assert before.startup.levelled is None and before.counters.zupt == 0 and before.stops.learned == 0
+
+
+def test_a_stop_held_by_the_obd_speed_teaches_only_an_imu_that_never_read_still_in_it():
+    """The rule of a held stop (ObdPolicy.held_unstill): readings of zero for HELD_S with the IMU never still at any
+    of them. A car that stood still by the IMU and pulls away while the reading still says zero (the IMU unstill at
+    the stop's last reading) teaches nothing: on the simulated urban drives that moment would have taught the
+    detector the pull-away."""
+    from logger.nav.policies import LastReadings, ObdPolicy
+    from logger.nav.stops import HELD_NS
+
+    obd = ObdPolicy(NavParams(), LastReadings(), None, None)  # type: ignore[arg-type]
+    step = NS // 2
+    said = []
+    for k in range(10):  # zero from t = 0, the IMU never still
+        obd.note(k * step, 0.0)
+        said.append(obd.held_unstill(k * step, False))
+    assert said == [k * step >= HELD_NS for k in range(10)]
+    obd.note(10 * step, 3.0)  # moving: a new stop starts afresh
+    said = []
+    for k in range(11, 21):  # still at its second reading, unstill from the seventh (pulling away)
+        obd.note(k * step, 0.0)
+        said.append(obd.held_unstill(k * step, k == 12))
+    assert not any(said)
 
 
 def test_smoothing_shrinks_the_outage_error(outage):

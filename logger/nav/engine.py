@@ -71,6 +71,7 @@ PRE_INIT_BATCH_MIN = 50  # before the start, blocks from this size go through _p
 BATCH_MIN = 64  # shorter batches go sample by sample: the block forms cost numpy calls worth tens of samples
 DECIMATED_BATCH_MIN = 16  # ... unless integrated in steps of several samples: then a FIFO read of 40 gains
 NEVER = 2**63 - 1
+STANDING_MPS = 0.5  # a solution slower than this may stand (the idle check's, and a held stop's, bound)
 
 
 class TrajectoryRow(NamedTuple):
@@ -557,7 +558,8 @@ class NavEngine:
             # No speed from the vehicle (engine off, adapter gone): standing still is then told by a quiet IMU
             # and a solution that already stands, so a parked car does not drift on its IMU alone.
             self._next_idle_check_ns = t_ns + NHC_INTERVAL_NS
-            stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < 0.5, t_ns)
+            stop.update(self, self.stops.still and math.sqrt(s.vn * s.vn + s.ve * s.ve + s.vd * s.vd) < STANDING_MPS,
+                        t_ns)
         hist = self.history
         hist.entries.append((t_ns, s.lat, s.lon, s.h, s.vn, s.ve, s.vd, s.q, hist.corr))  # SolutionHistory.add
         if self.solution is not None and t_ns >= self.solution.next_ns:
@@ -985,11 +987,24 @@ class NavEngine:
             return
         self.counters.obd += 1
         new_run = self._obd.note(t_ns, speed_mps)
+        if speed_mps == 0.0 and self._obd.held_unstill(t_ns, self.stops.still) and self._standing():
+            # A stop the OBD speed has held while the IMU never read still: a noisier part than the thresholds were
+            # set for teaches them its standstill here (before the start too, so that it levels).
+            self.stops.learn(held=True)
         if self.state is None:
             return
         if new_run and self.n > RQ_ID:
             self._new_rounding_run()
         self._obd.update(self, t_ns, speed_mps, self._t_last or 0)
+
+    def _standing(self) -> bool:
+        """Whether the solution, or before the start the last fix's velocity, agrees that the car stands (no word:
+        yes): an adapter that reads zero while the car drives teaches no threshold."""
+        s = self.state
+        if s is not None:
+            return s.vn * s.vn + s.ve * s.ve + s.vd * s.vd < STANDING_MPS**2
+        fix = self.last_readings.fix
+        return fix is None or fix.vel is None or math.hypot(float(fix.vel[0]), float(fix.vel[1])) < STANDING_MPS
 
     def _new_rounding_run(self) -> None:
         """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The

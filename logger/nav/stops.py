@@ -5,6 +5,13 @@ The variance thresholds adapt to the installation: a car's idling engine shakes 
 datasheet noise, and differently in every car. Each stop that the OBD speed confirms teaches the detector
 the variance of standing still here (a slow running mean of its logarithm, so one long stop does not
 dominate), and the threshold is a fixed factor above it, bounded on both sides.
+
+An IMU far noisier than the configured thresholds (a phone-grade part: its standing car reads 0.03-0.05
+(m/s^2)^2 as 20 Hz means, ten times the configured threshold) never reads still, so no stop would ever teach it.
+A stop the OBD speed has held at zero for HELD_S teaches the detector all the same (:meth:`StopDetector.learn`
+with ``held``), and lifts the bounds to HELD_CEILING_A / HELD_CEILING_W: a car that has read 0 km/h for that long
+stands or creeps under 1 km/h, so what its IMU shows then is this installation's standstill. A datasheet-grade
+IMU reads still well within HELD_S of a stop, and is taught as before.
 """
 
 from __future__ import annotations
@@ -27,6 +34,12 @@ WINDOW_NS = int(WINDOW_S * 1e9)
 MEAN_S = 0.05
 THRESHOLD_FACTOR = 9.0  # three standard deviations of the standing-still signal, in variance
 LEARN_RATE = 0.05
+HELD_S = 3.0  # the OBD speed at zero this long: the car stands, whatever the IMU's variance says
+HELD_NS = int(HELD_S * 1e9)
+# The learnt thresholds' bound once a held stop taught the detector: (0.7 m/s^2)^2 summed over the axes, about
+# what a car pulling away at 1.5 m/s^2 within the one-second window shows, and (3 deg/s)^2.
+HELD_CEILING_A = 0.7**2
+HELD_CEILING_W = math.radians(3.0) ** 2
 RESUM_EVERY = 4096
 
 
@@ -69,6 +82,7 @@ class StopDetector(Deferred, BlockKeeper):
         self._log_a: float | None = None
         self._log_w: float | None = None
         self.learned = 0
+        self.held_learned = 0  # of those, stops the OBD held at zero while the IMU did not read still
         self.group = 0  # samples per mean, 0 until the first interval sizes it (taken as 1 meanwhile)
         self._t_first: int | None = None  # the first sample's time, while the group is not sized
         self._carry: list[tuple[int, tuple[float, float, float], tuple[float, float, float]]] = []  # a mean's so far
@@ -357,10 +371,17 @@ class StopDetector(Deferred, BlockKeeper):
     def still(self) -> bool:
         return self.var_a < self.thr_a and self.var_w < self.thr_w
 
-    def learn(self) -> None:
-        """Called while the OBD speed confirms a stop: adapt the thresholds to this vehicle's standstill."""
+    def learn(self, held: bool = False) -> None:
+        """Called while the OBD speed confirms a stop: adapt the thresholds to this vehicle's standstill.
+
+        ``held``: the OBD speed has read zero for HELD_S and the IMU does not read still by the thresholds so far
+        (a noisier part than configured): taught all the same, within the wider bounds from then on."""
         if not (0.0 < self.var_a < math.inf and 0.0 < self.var_w < math.inf):
             return
+        if held:
+            self._ceil_a = max(self._ceil_a, HELD_CEILING_A)
+            self._ceil_w = max(self._ceil_w, HELD_CEILING_W)
+            self.held_learned += 1
         la, lw = math.log(self.var_a), math.log(self.var_w)
         if self._log_a is None or self._log_w is None:
             self._log_a, self._log_w = la, lw
