@@ -166,9 +166,21 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
                         gyro_noise=math.radians(0.05) * math.sqrt(rate / 2.0))
     drive = make_drive("urban", seed=1, duration_s=150.0)  # parked at the start, stands again from 131 s
     recs = records(drive, 150.0, seed=3, imu_hz=rate, errors=noise)
+    rate_sigmas = []
+
+    class Seen(policies.ZeroMotion):
+        def __init__(self, gyro_mean, sigma_v, sigma_w) -> None:
+            super().__init__(gyro_mean, sigma_v, sigma_w)
+            rate_sigmas.append(sigma_w)
+
+    monkeypatch.setattr(policies, "ZeroMotion", Seen)
     engine = run(recs)
     assert engine.stops.held_learned >= 1 and engine.stops.thr_a > 4 * 0.05**2
     assert engine.startup.levelled is not None and engine.counters.zupt > 0 and engine.counters.resets == 0
+    # Its zero-rate updates know the gyro's noise as the drive measured it (five times the datasheet's here),
+    # not as configured: the stop's mean rate is no surer than the chip's noise makes it.
+    assert engine.noise.gyro_arw > 3.0 * engine.params.gyro_arw
+    assert max(rate_sigmas) * math.sqrt(0.5) > engine.params.gyro_arw * 3.0
     monkeypatch.setattr(policies, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
     before = run(recs)
     assert before.startup.levelled is None and before.counters.zupt == 0 and before.stops.learned == 0

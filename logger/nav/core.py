@@ -15,6 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
+from logger.nav.dynamics import ProcessNoise
 from logger.nav.ekf import ErrorStateEkf
 from logger.nav.gnss_noise import FixFigures
 from logger.nav.measurements import Observation
@@ -77,6 +78,7 @@ class FilterCore(Protocol):
     ekf: ErrorStateEkf | None
     counters: EngineCounters
     sigma: tuple[float, float, float]  # 1-sigma position N, E, D as last propagated or updated, m
+    noise: ProcessNoise  # the IMU's densities in use: the configured, or wider as the drive shows them
 
     def apply(self, obs: Observation, gated: bool = True) -> bool:
         """Bring the covariance to now, update with ``obs`` and feed the correction back; whether it went in."""

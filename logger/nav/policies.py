@@ -245,7 +245,7 @@ class StopPolicy:
             if was and ws[3] > 0 and span_s > 0.0:
                 w_mean = np.array((ws[0] / ws[3], ws[1] / ws[3], ws[2] / ws[3]))
                 # The mean over the window: the gyro's white noise averages down with its length.
-                sigma_w = max(math.radians(p.zaru_sigma_dps), p.gyro_arw) / math.sqrt(span_s)
+                sigma_w = max(math.radians(p.zaru_sigma_dps), core.noise.gyro_arw) / math.sqrt(span_s)
                 obs = ZeroMotion(w_mean, p.zupt_sigma_mps, sigma_w).observe(s, s.dcm(), core.n)
                 self.velocity.judge(core, obs, core.apply(obs), t_last_ns, learn)
                 core.counters.zupt += 1
