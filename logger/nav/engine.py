@@ -50,7 +50,15 @@ from logger.nav.policies import (
     ObdPolicy,
     StopPolicy,
 )
-from logger.nav.rotations import dcm_elements, dcm_from_euler, euler_from_dcm, quat_from_euler, rotvec_from_dcm
+from logger.nav.rotations import (
+    dcm_elements,
+    dcm_from_euler,
+    euler_from_dcm,
+    quat_from_dcm,
+    quat_from_euler,
+    rotvec_from_dcm,
+    twist_about_x,
+)
 from logger.nav.solution import SolutionPolicy
 from logger.nav.start_height import StartHeight
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
@@ -796,11 +804,15 @@ class NavEngine:
     def remount(self, est: MountEstimate, reopen: bool = True) -> None:
         """Take a new mounting: the samples are turned the new way from now on.
 
-        The filter's attitude is kept: it is the vehicle's, since the GNSS course, the OBD speed and the
-        non-holonomic rows pulled the body axes onto the vehicle's while the samples came in turned the wrong
-        way (that is where the mounting's error went: into the attitude the filter held of the chip, and into its
-        offsets). Keeping the chip's attitude instead turned the body 30 deg off the road on a board mounted at
-        30 deg, and the filter refused its fixes for half a minute. The offsets, fitted through the wrong
+        The filter's attitude keeps its forward axis: it is the vehicle's, since the GNSS course, the OBD speed and
+        the non-holonomic rows pulled the body's forward axis onto the vehicle's while the samples came in turned
+        the wrong way (that is where the mounting's error went: into the attitude the filter held of the chip, and
+        into its offsets). Keeping the chip's attitude instead turned the body 30 deg off the road on a board
+        mounted at 30 deg, and the filter refused its fixes for half a minute. About the forward axis the rows
+        hold nothing (the car's lateral and vertical velocities are both nought, turned about it or not): there
+        the body took the turn the old mounting left, as gravity showed it, so the change's twist about the forward
+        axis turns the attitude (a phone in a holder, whose forward axis came first and the 70 deg turn about it
+        minutes later, was 33 m off within two seconds with the attitude kept). The offsets, fitted through the wrong
         mounting, are reopened, as after a restart. A small change (``reopen`` False: under REOPEN_DEG) is a
         refinement: the offsets turn with the axes and nothing is reopened (reopening a phone-grade IMU's offsets
         for every half-degree refinement cost it eight restarts in ten minutes)."""
@@ -808,6 +820,7 @@ class NavEngine:
         m_new = mount_matrix(est.rpy_deg)
         d = m_new @ self._mount_m.T  # new body from old body
         s = self.state
+        s.q = quat_from_dcm(s.dcm() @ twist_about_x(d).T)
         # The gyro's offset came from standstills, where the mounting does not matter: it turns with the axes.
         # After a large change the accelerometer's, which took up the mounting's tilt, starts again from zero.
         s.bg = tuple(float(v) for v in d @ np.array(s.bg))

@@ -89,6 +89,16 @@ def quat_mul(a: tuple[float, float, float, float],
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
 
 
+def twist_about_x(c: np.ndarray) -> np.ndarray:
+    """The part of rotation ``c`` about the x axis: T in c = S T, with S a swing (a rotation about an axis
+    perpendicular to x) applied after the twist T (the swing-twist decomposition of its quaternion)."""
+    w, x, _, _ = quat_from_dcm(c)
+    n = math.hypot(w, x)
+    if n < 1e-12:  # a half turn about an axis perpendicular to x: no twist to speak of
+        return np.eye(3)
+    return dcm_from_quat((w / n, x / n, 0.0, 0.0))
+
+
 def quat_from_rotvec(x: float, y: float, z: float) -> tuple[float, float, float, float]:
     """Quaternion of a rotation vector (axis times angle, rad); series near zero keeps it exact and cheap."""
     a2 = x * x + y * y + z * z
