@@ -22,7 +22,8 @@ Everything printed is measured on these files; nothing is carried over from an e
 
 runs the hardware matrix instead: every profile of :data:`PROFILES` (the ``[sim]`` keys a drive is recorded with:
 an NMEA-only receiver, a phone-grade IMU with 10 Hz fixes, a board mounted at an angle the filter is not told,
-fixes arriving late) on every scenario, each replayed with the default 17-state filter, forward and smoothed.
+that phone standing in a windscreen holder, fixes arriving late) on every scenario, each replayed with the
+default 17-state filter, forward and smoothed.
 Per cell: how much of the drive was parked, the RMSE north / east / vertical while the car moves, the largest
 horizontal error in the longest outage (forward / smoothed), the share within 3 sigma per axis, the restarts.
 ``--write-docs`` puts the table into ``docs/nav.md`` between its markers (a ``--quick`` run never does: its drives
@@ -74,6 +75,8 @@ PROFILES: dict[str, dict[str, Any]] = {
     "nmea-10hz": {"receiver": "nmea", "gnss_rate_hz": 10},  # the same at 10 Hz: one error reported ten times
     "phone": {"imu": "phone", "gnss_rate_hz": 10},  # phone-grade IMU at 100 Hz, fixes at 10 Hz
     "mounted": {"mounting_rpy_deg": [5.0, -4.0, 30.0]},  # the filter is not told
+    # The phone in a windscreen holder, standing up (its screen to the driver) and turned: not told either.
+    "holder": {"imu": "phone", "gnss_rate_hz": 10, "mounting_rpy_deg": [0.0, -70.0, 90.0]},
     "late": {"gnss_latency_s": 0.3},  # fixes at least 0.3 s after their epoch
 }
 MATRIX_SCENARIOS = ("urban", "outage-60s", "tunnel-130s")
@@ -423,12 +426,13 @@ def _moving_figures(files: list[Path], truth: Any, traj: dict[str, np.ndarray]) 
             "max_h_m": longest["max_h_m"] if longest is not None else None}
 
 
-def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any], conf: dict[str, Any],
-                office: dict[str, Any]) -> str:
-    """A mounted board's figures (the live filter, alignment on; `logger replay`'s) against the configured
+def mounted_row(profile: str, scenario: str, seed: int, duration_s: float, cell: dict[str, Any],
+                conf: dict[str, Any], office: dict[str, Any]) -> str:
+    """A board at an angle: its figures (the live filter, alignment on; `logger replay`'s) against the configured
     mounting's, as ratios."""
+    drive = f"{profile}: {scenario}, seed {seed}, {duration_s:g} s"
     if not cell["started"]:
-        return f"| {scenario}, seed {seed}, {duration_s:g} s | the filter never started | | | | |"
+        return f"| {drive} | the filter never started | | | | |"
     c = conf["rmse_moving"]
 
     def ratios(r: list[float]) -> str:
@@ -439,14 +443,14 @@ def mounted_row(scenario: str, seed: int, duration_s: float, cell: dict[str, Any
             else "none"
 
     out = cell.get("outage")
-    return (f"| {scenario}, seed {seed}, {duration_s:g} s | {c[0]:.2f} / {c[1]:.2f} / {c[2]:.2f} | "
+    return (f"| {drive} | {c[0]:.2f} / {c[1]:.2f} / {c[2]:.2f} | "
             f"{ratios(cell['rmse_moving'])} | {outage(out['max_h_m'] if out else None)} | "
             f"{ratios(office['rmse_moving'])} | {outage(office['max_h_m'])} |")
 
 
-MOUNTED_HEADER = ("| mounted board, drive | configured mounting: RMSE N / E / V while moving, m | live filter "
-                  "(one pass) against it N / E / V | its longest outage: max horizontal mounted / configured | "
-                  "`logger replay` (its second pass) against it N / E / V | its longest outage |\n"
+MOUNTED_HEADER = ("| board at an angle: profile, drive | configured mounting: RMSE N / E / V while moving, m | "
+                  "live filter (one pass) against it N / E / V | its longest outage: max horizontal mounted / "
+                  "configured | `logger replay` (its second pass) against it N / E / V | its longest outage |\n"
                   "| --- | --- | --- | --- | --- | --- |")
 
 
@@ -495,7 +499,7 @@ def run_matrix(args: argparse.Namespace) -> int:
         raise SystemExit(f"nav_eval: unknown profile or scenario: {', '.join(unknown)} (profiles: "
                          f"{', '.join(PROFILES)}; scenarios: {', '.join(MATRIX_SCENARIOS)})")
     rows: list[str] = []
-    mounted: list[str] = []  # the mounted profile's cells against the mounting configured
+    mounted: list[str] = []  # the cells of the profiles at an angle against the mounting configured
     for profile in args.profiles:
         for scenario in args.scenarios:
             for seed in args.seeds:
@@ -513,7 +517,7 @@ def run_matrix(args: argparse.Namespace) -> int:
                 mount = PROFILES[profile].get("mounting_rpy_deg")
                 if mount is not None:
                     conf = configured_cell(files, (float(mount[0]), float(mount[1]), float(mount[2])))
-                    mounted.append(mounted_row(scenario, seed, duration, cell, conf, office_cell(files)))
+                    mounted.append(mounted_row(profile, scenario, seed, duration, cell, conf, office_cell(files)))
                     print(mounted[-1], flush=True)
     if mounted:
         rows += ["", MOUNTED_HEADER, *mounted]
