@@ -137,7 +137,7 @@ def test_a_fast_imus_wider_bandwidth_still_reads_as_standing(mode, monkeypatch):
     0.0046 (m/s^2)^2, over the stop detector's 0.0025. It looks at 20 Hz means of them (stops.MEAN_S), so the
     start levels, and the 15-state filter, which has no OBD speed to learn the threshold from, does not lose itself.
     Read sample by sample, it never levelled (the check below)."""
-    from logger.nav import policies, stops
+    from logger.nav import stops
 
     rate = 200.0
     noise = SynthErrors(accel_noise=400e-6 * 9.80665 * math.sqrt(rate / 2.0),
@@ -150,7 +150,7 @@ def test_a_fast_imus_wider_bandwidth_still_reads_as_standing(mode, monkeypatch):
     _, e, _ = errors(drive, engine.rows)
     assert np.hypot(e[:, 0], e[:, 1]).max() < 2.0
     monkeypatch.setattr(stops, "MEAN_S", 0.0)  # each sample on its own, as before
-    monkeypatch.setattr(policies, "HELD_NS", 10**15)  # and no stop held by the OBD speed to teach it otherwise
+    monkeypatch.setattr(stops, "HELD_NS", 10**15)  # and no held stop to teach it otherwise
     assert run(recs, mode=mode).startup.levelled is None
 
 
@@ -158,8 +158,12 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
     """A phone-grade IMU (ten times the MPU-6050's noise densities, 100 Hz) never reads still by the configured
     thresholds: its standing car's 20 Hz means vary by ~0.05 (m/s^2)^2, five times the most a learnt threshold could
     reach, and only a stop it reads still in teaches it. So it never levelled and never took a zero-velocity update.
-    A stop the OBD speed holds at zero for stops.HELD_S teaches it all the same: it levels and stops."""
-    from logger.nav import policies
+    A stop the OBD speed holds at zero for stops.HELD_S teaches it all the same: it levels and stops (the fixes'
+    speed, which could hold the stop too, left out here)."""
+    from logger.nav import engine as engine_module
+    from logger.nav import policies, stops
+
+    monkeypatch.setattr(engine_module, "GNSS_STANDING_MPS", 0.0)
 
     rate = 100.0
     noise = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(rate / 2.0),
@@ -181,32 +185,45 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
     # not as configured: the stop's mean rate is no surer than the chip's noise makes it.
     assert engine.noise.gyro_arw > 3.0 * engine.params.gyro_arw
     assert max(rate_sigmas) * math.sqrt(0.5) > engine.params.gyro_arw * 3.0
-    monkeypatch.setattr(policies, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
+    monkeypatch.setattr(stops, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
     before = run(recs)
     assert before.startup.levelled is None and before.counters.zupt == 0 and before.stops.learned == 0
 
 
-def test_a_stop_held_by_the_obd_speed_teaches_only_an_imu_that_never_read_still_in_it():
-    """The rule of a held stop (ObdPolicy.held_unstill): readings of zero for HELD_S with the IMU never still at any
-    of them. A car that stood still by the IMU and pulls away while the reading still says zero (the IMU unstill at
-    the stop's last reading) teaches nothing: on the simulated urban drives that moment would have taught the
-    detector the pull-away."""
-    from logger.nav.policies import LastReadings, ObdPolicy
-    from logger.nav.stops import HELD_NS
+def test_a_held_stop_teaches_only_an_imu_that_never_read_still_in_it():
+    """The rule of a held stop (stops.HeldStop): readings that say the car stands for HELD_S with the IMU never
+    still at any of them. A car that stood still by the IMU and pulls away while the reading still says it stands
+    (the IMU unstill at the stop's last reading) teaches nothing: on the simulated urban drives that moment would
+    have taught the detector the pull-away."""
+    from logger.nav.stops import HELD_NS, HeldStop
 
-    obd = ObdPolicy(NavParams(), LastReadings(), None, None)  # type: ignore[arg-type]
+    held = HeldStop()
     step = NS // 2
-    said = []
-    for k in range(10):  # zero from t = 0, the IMU never still
-        obd.note(k * step, 0.0)
-        said.append(obd.held_unstill(k * step, False))
+    said = [held.holds(k * step, False) for k in range(10)]  # standing from t = 0, the IMU never still
     assert said == [k * step >= HELD_NS for k in range(10)]
-    obd.note(10 * step, 3.0)  # moving: a new stop starts afresh
-    said = []
-    for k in range(11, 21):  # still at its second reading, unstill from the seventh (pulling away)
-        obd.note(k * step, 0.0)
-        said.append(obd.held_unstill(k * step, k == 12))
-    assert not any(said)
+    held.end()  # moving: a new stop starts afresh
+    # Still at its second reading, unstill from the seventh on (pulling away): never held.
+    assert not any(held.holds(k * step, k == 12) for k in range(11, 21))
+
+
+@pytest.mark.parametrize("mode", ["15", "17"])
+def test_fixes_that_say_the_car_stands_teach_a_phone_grade_imu_without_an_obd_speed(mode, monkeypatch):
+    """No OBD adapter (or the GNSS + IMU mode, which reads none): fixes whose speed stays under
+    stops.GNSS_STANDING_MPS for HELD_S hold the stop instead, so the phone-grade IMU levels at the start. Before,
+    the 15-state mode never levelled it, and replay's boresight pass (that mode) read side slips of tens of degrees
+    on a phone in a holder."""
+    from logger.nav import stops
+
+    rate = 100.0
+    noise = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(rate / 2.0),
+                        gyro_noise=math.radians(0.05) * math.sqrt(rate / 2.0))
+    drive = make_drive("urban", seed=1, duration_s=60.0)
+    recs = [r for r in records(drive, 60.0, seed=3, imu_hz=rate, errors=noise) if r[1] != "/obd/speed"]
+    engine = run(recs, mode=mode)
+    assert engine.stops.held_learned >= 1 and engine.startup.levelled is not None
+    assert engine.counters.resets == 0 and engine.counters.init_method == "gnss course"
+    monkeypatch.setattr(stops, "HELD_NS", 10**15)  # no held stop: as before
+    assert run(recs, mode=mode).startup.levelled is None
 
 
 def test_smoothing_shrinks_the_outage_error(outage):

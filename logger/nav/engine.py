@@ -63,7 +63,7 @@ from logger.nav.solution import SolutionPolicy
 from logger.nav.start_height import StartHeight
 from logger.nav.startup import CONFIG_HEADING, MAX_IMU_GAP_S, Startup, height_offset_variance
 from logger.nav.state import BA_ID, BG_ID, DH_ID, N_FULL, N_INS, N_ROUNDING, P_ID, PHI_ID, RQ_ID, V_ID, NavState
-from logger.nav.stops import StopDetector
+from logger.nav.stops import GNSS_STANDING_MPS, HeldStop, StopDetector
 from logger.nav.strapdown import Strapdown, preintegrate
 from logger.nav.thermal import TempcoLearner, TemperatureSpan, turned
 
@@ -172,6 +172,7 @@ class NavEngine:
         self.lever = np.array(p.lever_arm_m, float)
         self.mech = Strapdown(coning=False)
         self.stops = StopDetector(p.still_accel_mps2)
+        self._obd_held, self._fix_held = HeldStop(), HeldStop()  # stops the OBD speed, or the fixes, hold
         self.startup = Startup(p)
         self.start_height = StartHeight.for_params(p)
         self.epoch_clock = GnssEpochClock()
@@ -938,6 +939,13 @@ class NavEngine:
         if sol is not None and msg.gnss_time_ns is not None and self.mode != "gnss":
             sol.map(msg.gnss_time_ns, fix.t_ns, fix.t_mono_ns)
         self.last_readings.fix = fix
+        v = fix.vel
+        if v is None or self.mode == "gnss" or v[0] * v[0] + v[1] * v[1] >= GNSS_STANDING_MPS**2:
+            self._fix_held.end()
+        elif self._fix_held.holds(fix.t_ns, self.stops.still) and self._standing():
+            # The same from the fixes' speed: a car without an OBD adapter, or this filter without its speed (the
+            # GNSS + IMU mode).
+            self.stops.learn(held=True)
         if self.alignment is not None and fix.vel is not None and self.state is not None:
             v = fix.vel
             self.alignment.fix(fix.t_ns, (float(v[0]), float(v[1]), float(v[2]) if fix.vel_3d else self.state.vd))
@@ -1000,7 +1008,9 @@ class NavEngine:
             return
         self.counters.obd += 1
         new_run = self._obd.note(t_ns, speed_mps)
-        if speed_mps == 0.0 and self._obd.held_unstill(t_ns, self.stops.still) and self._standing():
+        if speed_mps != 0.0:
+            self._obd_held.end()
+        elif self._obd_held.holds(t_ns, self.stops.still) and self._standing():
             # A stop the OBD speed has held while the IMU never read still: a noisier part than the thresholds were
             # set for teaches them its standstill here (before the start too, so that it levels).
             self.stops.learn(held=True)

@@ -41,7 +41,7 @@ from logger.nav.measurements import (
 )
 from logger.nav.params import NavParams
 from logger.nav.state import P_ID, RQ_ID, V_ID
-from logger.nav.stops import HELD_NS, StopDetector
+from logger.nav.stops import StopDetector
 
 NS = 1_000_000_000
 OBD_FRESH_NS = int(1.2 * NS)
@@ -264,8 +264,6 @@ class ObdPolicy:
         self.velocity = velocity
         self._run = 0  # readings in a row with the same value (within OBD_ROUNDING_HOLD_NS of the first)
         self._run_t0 = 0
-        self.zero_since_ns: int | None = None  # the first of the readings of zero in a row up to the last one
-        self.still_in_stop = False  # the IMU read still at one of those readings
         self.mount_yaw_stat = [0.0, 0.0]  # sum of lateral/forward velocity ratios and weights (mounting check)
 
     def note(self, t_ns: int, speed_mps: float) -> bool:
@@ -278,19 +276,7 @@ class ObdPolicy:
         elif t_ns - self._run_t0 <= OBD_ROUNDING_HOLD_NS:
             self._run += 1
         self.last_readings.obd = (t_ns, speed_mps)
-        if speed_mps != 0.0:
-            self.zero_since_ns = None
-        elif new or self.zero_since_ns is None:
-            self.zero_since_ns, self.still_in_stop = t_ns, False
         return new
-
-    def held_unstill(self, t_ns: int, still: bool) -> bool:
-        """At a reading of zero, whether the IMU, ``still`` or not now, has not read still at any of this stop's
-        readings though they have said zero for HELD_NS (the car stands, or creeps under the first 1 km/h step):
-        an IMU noisier than the thresholds. A stop it read still in is not one: the car pulling away while the
-        reading still says zero reads unstill at its end."""
-        self.still_in_stop = self.still_in_stop or still
-        return not self.still_in_stop and self.zero_since_ns is not None and t_ns - self.zero_since_ns >= HELD_NS
 
     def update(self, core: FilterCore, t_ns: int, speed_mps: float, t_last_ns: int) -> None:
         p = self.params

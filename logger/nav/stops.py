@@ -8,10 +8,11 @@ dominate), and the threshold is a fixed factor above it, bounded on both sides.
 
 An IMU far noisier than the configured thresholds (a phone-grade part: its standing car reads 0.03-0.05
 (m/s^2)^2 as 20 Hz means, ten times the configured threshold) never reads still, so no stop would ever teach it.
-A stop the OBD speed has held at zero for HELD_S teaches the detector all the same (:meth:`StopDetector.learn`
-with ``held``), and lifts the bounds to HELD_CEILING_A / HELD_CEILING_W: a car that has read 0 km/h for that long
-stands or creeps under 1 km/h, so what its IMU shows then is this installation's standstill. A datasheet-grade
-IMU reads still well within HELD_S of a stop, and is taught as before.
+A stop held for HELD_S by the OBD speed at zero, or by fixes whose speed is under GNSS_STANDING_MPS (a car without
+an OBD adapter, and the GNSS + IMU mode, which reads none), teaches the detector all the same (:class:`HeldStop`,
+:meth:`StopDetector.learn` with ``held``), and lifts the bounds to HELD_CEILING_A / HELD_CEILING_W: a car that has
+read 0 km/h, or a few centimetres a second, for that long stands or creeps, so what its IMU shows then is this
+installation's standstill. A datasheet-grade IMU reads still well within HELD_S of a stop, and is taught as before.
 """
 
 from __future__ import annotations
@@ -40,6 +41,33 @@ HELD_NS = int(HELD_S * 1e9)
 # what a car pulling away at 1.5 m/s^2 within the one-second window shows, and (3 deg/s)^2.
 HELD_CEILING_A = 0.7**2
 HELD_CEILING_W = math.radians(3.0) ** 2
+# A fix's horizontal speed under this says the car stands: a receiver standing reads a few cm/s (u-blox: 0.01-0.05
+# m/s with sAcc 0.1-0.3), a car that creeps reads it, one that moves off reads more within a second.
+GNSS_STANDING_MPS = 0.15
+
+
+class HeldStop:
+    """A run of readings that each say the car stands (an OBD speed of zero, or a fix's speed under
+    GNSS_STANDING_MPS), and whether the IMU read still at any of them. The run holds once it has lasted HELD_NS with
+    the IMU never still: an IMU noisier than the thresholds, which only such a run can teach. A stop the IMU read
+    still in is not one: the car pulling away while the readings still say it stands reads unstill at their end (on
+    every simulated urban drive, after 34-60 s of zero: it would have taught the detector the pull-away)."""
+
+    def __init__(self) -> None:
+        self.since_ns: int | None = None  # the first reading of the run
+        self.still_seen = False
+
+    def end(self) -> None:
+        """A reading that says the car moves (or says nothing of it)."""
+        self.since_ns = None
+
+    def holds(self, t_ns: int, still: bool) -> bool:
+        """A reading at ``t_ns`` that says the car stands, the IMU ``still`` or not then: whether the run holds."""
+        if self.since_ns is None:
+            self.since_ns, self.still_seen = t_ns, still
+        else:
+            self.still_seen = self.still_seen or still
+        return not self.still_seen and t_ns - self.since_ns >= HELD_NS
 RESUM_EVERY = 4096
 
 
