@@ -942,7 +942,7 @@ class NavEngine:
         v = fix.vel
         if v is None or self.mode == "gnss" or v[0] * v[0] + v[1] * v[1] >= GNSS_STANDING_MPS**2:
             self._fix_held.end()
-        elif self._fix_held.holds(fix.t_ns, self.stops.still) and self._standing():
+        elif self._fix_held.holds(fix.t_ns, self.stops.still) and self._standing() and self._noisy_chip():
             # The same from the fixes' speed: a car without an OBD adapter, or this filter without its speed (the
             # GNSS + IMU mode).
             self.stops.learn(held=True)
@@ -1010,7 +1010,7 @@ class NavEngine:
         new_run = self._obd.note(t_ns, speed_mps)
         if speed_mps != 0.0:
             self._obd_held.end()
-        elif self._obd_held.holds(t_ns, self.stops.still) and self._standing():
+        elif self._obd_held.holds(t_ns, self.stops.still) and self._standing() and self._noisy_chip():
             # A stop the OBD speed has held while the IMU never read still: a noisier part than the thresholds were
             # set for teaches them its standstill here (before the start too, so that it levels).
             self.stops.learn(held=True)
@@ -1028,6 +1028,18 @@ class NavEngine:
             return s.vn * s.vn + s.ve * s.ve + s.vd * s.vd < STANDING_MPS**2
         fix = self.last_readings.fix
         return fix is None or fix.vel is None or math.hypot(float(fix.vel[0]), float(fix.vel[1])) < STANDING_MPS
+
+    def _noisy_chip(self) -> bool:
+        """Whether the IMU measures CONSUMER_NOISE_RATIO times noisier than its configured densities or more
+        (imu_noise.py: white noise, which a car shaken by people getting in or out does not add): a part whose
+        standstill the configured thresholds cannot tell, which a held stop may teach. A datasheet-grade chip
+        waits for a stop it reads still in, as before. Without the monitor (``imu_noise_from_drive`` off): yes."""
+        monitor = self.imu_noise
+        if monitor is None:
+            return True
+        d = monitor.densities()
+        p = self.params
+        return d is not None and (d[0] > CONSUMER_NOISE_RATIO * p.accel_vrw or d[1] > CONSUMER_NOISE_RATIO * p.gyro_arw)
 
     def _new_rounding_run(self) -> None:
         """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The
