@@ -206,6 +206,31 @@ def test_a_held_stop_teaches_only_an_imu_that_never_read_still_in_it():
     assert not any(held.holds(k * step, k == 12) for k in range(11, 21))
 
 
+def test_a_datasheet_grade_chip_shaken_at_a_stop_is_not_taught_the_shaking(monkeypatch):
+    """People getting into a standing car shake it for the whole of the first seconds (here 0.3 m/s^2 at 1 Hz): the
+    IMU never reads still while the OBD speed says zero. Such a stop teaches only a chip the noise monitor measures
+    noisier than its grade (white noise, which a slow shake is not): a datasheet-grade one waits for a stop it
+    reads still in, and its thresholds stay where they were."""
+    from logger.nav.engine import NavEngine as Engine
+
+    drive = make_drive("urban", seed=1, duration_s=40.0)
+
+    def shaken(m: dict) -> dict:
+        t = (m["t_sync_ns"] - T0_NS) / NS
+        if t >= 7.5:
+            return m
+        a = list(m["accel_mps2"])
+        a[2] += 0.3 * math.sin(2.0 * math.pi * t)
+        a[0] += 0.2 * math.sin(2.0 * math.pi * 0.7 * t)
+        return {**m, "accel_mps2": a}
+
+    recs = [(ts, tp, shaken(m) if tp == "/imu" else m) for ts, tp, m in records(drive, 40.0, seed=3)]
+    engine = run(recs)
+    assert engine.stops.held_learned == 0 and engine.stops.thr_a == pytest.approx(0.05**2)
+    monkeypatch.setattr(Engine, "_noisy_chip", lambda self: True)  # any chip taught by a held stop
+    assert run(recs).stops.held_learned >= 1
+
+
 @pytest.mark.parametrize("mode", ["15", "17"])
 def test_fixes_that_say_the_car_stands_teach_a_phone_grade_imu_without_an_obd_speed(mode, monkeypatch):
     """No OBD adapter (or the GNSS + IMU mode, which reads none): fixes whose speed stays under
