@@ -16,6 +16,7 @@ from test_nav_synth import NS, T0_NS, SynthErrors, records
 
 from logger.nav import earth
 from logger.nav.engine import NavEngine
+from logger.nav.health import noise_verdict
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.nav.smoother import smooth_rows
@@ -185,6 +186,9 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
     # not as configured: the stop's mean rate is no surer than the chip's noise makes it.
     assert engine.noise.gyro_arw > 3.0 * engine.params.gyro_arw
     assert max(rate_sigmas) * math.sqrt(0.5) > engine.params.gyro_arw * 3.0
+    # `logger status` says so: on the logger's own board a chip that noisy is a loose one.
+    verdict = noise_verdict(engine)
+    assert verdict is not None and "the configured noise" in verdict and verdict.endswith("stops told by speed")
     monkeypatch.setattr(stops, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
     before = run(recs)
     assert before.startup.levelled is None and before.counters.zupt == 0 and before.stops.learned == 0
@@ -227,6 +231,7 @@ def test_a_datasheet_grade_chip_shaken_at_a_stop_is_not_taught_the_shaking(monke
     recs = [(ts, tp, shaken(m) if tp == "/imu" else m) for ts, tp, m in records(drive, 40.0, seed=3)]
     engine = run(recs)
     assert engine.stops.held_learned == 0 and engine.stops.thr_a == pytest.approx(0.05**2)
+    assert noise_verdict(engine) is None  # a datasheet-grade chip: no word of its noise in `logger status`
     monkeypatch.setattr(Engine, "_noisy_chip", lambda self: True)  # any chip taught by a held stop
     assert run(recs).stops.held_learned >= 1
 

@@ -1,8 +1,8 @@
 """Plain verdicts for ``logger status``, drawn from the filter: what an operator at a red light can act on.
 
 Each verdict is one sentence with its figure: whether GNSS agrees with the IMU, how far the OBD speed reads
-off, whether the barometer's offset holds, whether the IMU offsets are within the datasheet, and whether the
-IMU is mounted the way the configuration says.
+off, whether the barometer's offset holds, whether the IMU offsets are within the datasheet, whether the IMU is
+far noisier than configured (a loose board), and whether the IMU is mounted the way the configuration says.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 
 from logger.nav.earth import G0
 from logger.nav.engine import NavEngine
+from logger.nav.imu_noise import CONSUMER_NOISE_RATIO
 from logger.nav.mounting import FORWARD
 from logger.nav.state import BA_ID, BG_ID, DH_ID, SF_ID
 
@@ -88,6 +89,9 @@ class HealthJudge:
             else:
                 out.append(f"barometer offset {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), trend after a minute")
         out.append(offsets_verdict(engine))
+        noisy = noise_verdict(engine)
+        if noisy:
+            out.append(noisy)
         out.append(mounting_verdict(engine))
         if engine.counters.resets:
             out.append(f"filter restarted from GNSS {engine.counters.resets} times (lost itself)")
@@ -127,6 +131,23 @@ def offsets_verdict(engine: NavEngine) -> str:
         return (f"IMU offsets not yet known against the datasheet ({', '.join(unsure)}): accel <= {max(ba_mg):.0f} mg "
                 f"+-{max(ba_sig):.0f}, gyro <= {max(bg_dps):.2f} deg/s +-{max(bg_sig):.2f}")
     return f"IMU offsets within the datasheet: accel <= {max(ba_mg):.0f} mg, gyro <= {max(bg_dps):.2f} deg/s"
+
+
+def noise_verdict(engine: NavEngine) -> str | None:
+    """The IMU's white noise (imu_noise.py) when it measures CONSUMER_NOISE_RATIO times the configured densities or
+    more: on the logger's own board a chip loose in its mount, or a board on something that rattles, which the
+    operator can fix at the next stop; on a consumer-grade part what the part is. The filter has widened its process
+    noise to it, and stops are told by the vehicle's speed or the fixes (held stops). None when it is not so."""
+    monitor = engine.imu_noise
+    d = monitor.densities() if monitor is not None else None
+    if d is None:
+        return None
+    p = engine.params
+    ra, rg = d[0] / p.accel_vrw, d[1] / p.gyro_arw
+    if max(ra, rg) < CONSUMER_NOISE_RATIO:
+        return None
+    return (f"IMU {ra:.1f}x / {rg:.1f}x the configured noise (accel / gyro): a loose board or a consumer part"
+            + ("; stops told by speed" if engine.stops.held_learned else ""))
 
 
 def mounting_verdict(engine: NavEngine) -> str:
