@@ -20,7 +20,7 @@ from logger.nav.health import noise_verdict
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.nav.smoother import smooth_rows
-from logger.recording.records import feed_record, gnss_observation, nav_feeder
+from logger.recording.records import feed_record, gnss_observation, nav_feeder, nav_state_record
 from sensors.sim.scenarios import INTRO_S, make_drive
 
 
@@ -189,6 +189,8 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
     # `logger status` says so: on the logger's own board a chip that noisy is a loose one.
     verdict = noise_verdict(engine)
     assert verdict is not None and "the configured noise" in verdict and verdict.endswith("stops told by speed")
+    state = nav_state_record(engine, engine.t_last_ns or 0, 0)  # and /nav/state, for the office
+    assert min(state["imu_noise_x"]) > 3.0 and state["held_stops"] == engine.stops.held_learned >= 1
     monkeypatch.setattr(stops, "HELD_NS", 10**15)  # only stops it reads still in teach it, as before
     before = run(recs)
     assert before.startup.levelled is None and before.counters.zupt == 0 and before.stops.learned == 0
@@ -232,6 +234,8 @@ def test_a_datasheet_grade_chip_shaken_at_a_stop_is_not_taught_the_shaking(monke
     engine = run(recs)
     assert engine.stops.held_learned == 0 and engine.stops.thr_a == pytest.approx(0.05**2)
     assert noise_verdict(engine) is None  # a datasheet-grade chip: no word of its noise in `logger status`
+    state = nav_state_record(engine, engine.t_last_ns or 0, 0)
+    assert max(state["imu_noise_x"]) < 1.0 and state["held_stops"] == 0  # it measures under its datasheet's density
     monkeypatch.setattr(Engine, "_noisy_chip", lambda self: True)  # any chip taught by a held stop
     assert run(recs).stops.held_learned >= 1
 

@@ -1029,17 +1029,23 @@ class NavEngine:
         fix = self.last_readings.fix
         return fix is None or fix.vel is None or math.hypot(float(fix.vel[0]), float(fix.vel[1])) < STANDING_MPS
 
+    def imu_noise_ratio(self) -> list[float] | None:
+        """The IMU's white noise as measured (imu_noise.py) over the configured densities, accelerometer and gyro;
+        None before it is measured or without the monitor."""
+        d = self.imu_noise.densities() if self.imu_noise is not None else None
+        if d is None:
+            return None
+        return [d[0] / self.params.accel_vrw, d[1] / self.params.gyro_arw]
+
     def _noisy_chip(self) -> bool:
         """Whether the IMU measures CONSUMER_NOISE_RATIO times noisier than its configured densities or more
         (imu_noise.py: white noise, which a car shaken by people getting in or out does not add): a part whose
         standstill the configured thresholds cannot tell, which a held stop may teach. A datasheet-grade chip
         waits for a stop it reads still in, as before. Without the monitor (``imu_noise_from_drive`` off): yes."""
-        monitor = self.imu_noise
-        if monitor is None:
+        if self.imu_noise is None:
             return True
-        d = monitor.densities()
-        p = self.params
-        return d is not None and (d[0] > CONSUMER_NOISE_RATIO * p.accel_vrw or d[1] > CONSUMER_NOISE_RATIO * p.gyro_arw)
+        ratio = self.imu_noise_ratio()
+        return ratio is not None and max(ratio) > CONSUMER_NOISE_RATIO
 
     def _new_rounding_run(self) -> None:
         """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The

@@ -138,12 +138,10 @@ def noise_verdict(engine: NavEngine) -> str | None:
     more: on the logger's own board a chip loose in its mount, or a board on something that rattles, which the
     operator can fix at the next stop; on a consumer-grade part what the part is. The filter has widened its process
     noise to it, and stops are told by the vehicle's speed or the fixes (held stops). None when it is not so."""
-    monitor = engine.imu_noise
-    d = monitor.densities() if monitor is not None else None
-    if d is None:
+    ratio = engine.imu_noise_ratio()
+    if ratio is None:
         return None
-    p = engine.params
-    ra, rg = d[0] / p.accel_vrw, d[1] / p.gyro_arw
+    ra, rg = ratio
     if max(ra, rg) < CONSUMER_NOISE_RATIO:
         return None
     return (f"IMU {ra:.1f}x / {rg:.1f}x the configured noise (accel / gyro): a loose board or a consumer part"

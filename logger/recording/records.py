@@ -360,6 +360,8 @@ def nav_state_record(engine: NavEngine, t_ns: int, t_mono_ns: int, verdicts: lis
         "rejections": {k: v.rejected for k, v in ekf.stats.items()} if ekf else {},
         "resets": c.resets, "reanchors": c.reanchors, "reopens": c.reopens, "repairs": ekf.repairs if ekf else 0,
         "stopped": engine.stopped,
+        "imu_noise_x": engine.imu_noise_ratio(),
+        "held_stops": engine.stops.held_learned,
         **_mount_fields(engine),
         "gnss_time": engine.epoch_clock.method,
         "verdicts": verdicts or [],
