@@ -23,6 +23,11 @@ from logger.nav.smoother import smooth_rows
 from logger.recording.records import feed_record, gnss_observation, nav_feeder, nav_state_record
 from sensors.sim.scenarios import INTRO_S, make_drive
 
+# A phone-grade IMU on the synthetic drives: ten times the MPU-6050's noise densities, over its 100 Hz band.
+PHONE_HZ = 100.0
+PHONE_NOISE = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(PHONE_HZ / 2.0),
+                          gyro_noise=math.radians(0.05) * math.sqrt(PHONE_HZ / 2.0))
+
 
 def run(recs, **params) -> NavEngine:
     engine = NavEngine(NavParams(**params), record=True)
@@ -166,11 +171,8 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
 
     monkeypatch.setattr(engine_module, "GNSS_STANDING_MPS", 0.0)
 
-    rate = 100.0
-    noise = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(rate / 2.0),
-                        gyro_noise=math.radians(0.05) * math.sqrt(rate / 2.0))
     drive = make_drive("urban", seed=1, duration_s=150.0)  # parked at the start, stands again from 131 s
-    recs = records(drive, 150.0, seed=3, imu_hz=rate, errors=noise)
+    recs = records(drive, 150.0, seed=3, imu_hz=PHONE_HZ, errors=PHONE_NOISE)
     rate_sigmas = []
 
     class Seen(policies.ZeroMotion):
@@ -248,11 +250,8 @@ def test_fixes_that_say_the_car_stands_teach_a_phone_grade_imu_without_an_obd_sp
     on a phone in a holder."""
     from logger.nav import stops
 
-    rate = 100.0
-    noise = SynthErrors(accel_noise=4000e-6 * 9.80665 * math.sqrt(rate / 2.0),
-                        gyro_noise=math.radians(0.05) * math.sqrt(rate / 2.0))
     drive = make_drive("urban", seed=1, duration_s=60.0)
-    recs = [r for r in records(drive, 60.0, seed=3, imu_hz=rate, errors=noise) if r[1] != "/obd/speed"]
+    recs = [r for r in records(drive, 60.0, seed=3, imu_hz=PHONE_HZ, errors=PHONE_NOISE) if r[1] != "/obd/speed"]
     engine = run(recs, mode=mode)
     assert engine.stops.held_learned >= 1 and engine.startup.levelled is not None
     assert engine.counters.resets == 0 and engine.counters.init_method == "gnss course"

@@ -55,11 +55,12 @@ sys.path.insert(1, str(ROOT / "tools"))  # run by path from elsewhere too (runpy
 
 import resident  # noqa: E402
 
+from logger.recording.topics import GAP_PERIODS  # noqa: E402  the daemon's own definition of a gap
+
 NS = 1_000_000_000
 DAEMON_PREFIXES = ("sampler-", "recorder", "health", "service", "status", "navigator", "MainThread")
 SIM_PREFIXES = ("sim-", "ublox-model")
 BENCH_PREFIX = "bench-"
-GAP_PERIODS = 2.5  # the daemon's own definition of a gap
 
 
 def thread_class(name: str) -> str:

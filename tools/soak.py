@@ -40,13 +40,13 @@ from typing import Any
 
 import resident  # tools/, beside this file
 
+from logger.recording.topics import GAP_PERIODS  # the daemon's own definition of a gap
 from sensors.sim.governor import FLOOR
 
 NS = 1_000_000_000
 SENSOR_TOPICS = {"/imu": 20.0, "/baro": 1.0, "/obd/speed": 2.0, "/gnss/fix": 1.0, "/pps": 1.0}
 WARM_UP_S = 120.0  # drive seconds after a start: receiver's first fix, clock lock, first opens
 RECOVERY_S = 25.0  # drive seconds after a fault ends for the sensor to come back (back-off up to 10 s, reopen)
-GAP_PERIODS = 2.5  # a silence longer than this many periods is a gap (the daemon's own definition)
 # The sampler logs one message per distinct text per real minute: faults of one kind must be further apart
 # than that to show in the log each time (the figures would otherwise blame the rate limit, not the fault).
 SAME_KIND_COOLDOWN_REAL_S = 65.0
@@ -462,10 +462,9 @@ def faults_of(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
     daemon's stop ended the process first) lasts to the segment's last word and counts as cut short by the stop."""
     done = {(e["kind"], e["start_ns"]) for e in events if e["ev"] == "fault"}
     out = [e for e in events if e["ev"] == "fault"]
-    timed = [e for e in events if "drive_ns" in e and "host_ns" in e]
+    last = max((e for e in events if "drive_ns" in e and "host_ns" in e), key=lambda x: x["drive_ns"], default=None)
     for e in events:
         if e["ev"] == "fault_start" and (e["kind"], e["start_ns"]) not in done:
-            last = max(timed, key=lambda x: x["drive_ns"], default=None)
             out.append({"ev": "fault", "kind": e["kind"], "start_ns": e["start_ns"],
                         "end_ns": max(e["start_ns"], last["drive_ns"]) if last else e["start_ns"],
                         "start_host_ns": e["start_host_ns"],

@@ -940,14 +940,11 @@ class NavEngine:
             sol.map(msg.gnss_time_ns, fix.t_ns, fix.t_mono_ns)
         self.last_readings.fix = fix
         v = fix.vel
-        if v is None or self.mode == "gnss" or v[0] * v[0] + v[1] * v[1] >= GNSS_STANDING_MPS**2:
-            self._fix_held.end()
-        elif self._fix_held.holds(fix.t_ns, self.stops.still) and self._standing() and self._noisy_chip():
-            # The same from the fixes' speed: a car without an OBD adapter, or this filter without its speed (the
-            # GNSS + IMU mode).
-            self.stops.learn(held=True)
-        if self.alignment is not None and fix.vel is not None and self.state is not None:
-            v = fix.vel
+        # The fixes' speed holds stops too: a car without an OBD adapter, or this filter without its speed (the
+        # GNSS + IMU mode).
+        self._held_reading(self._fix_held, fix.t_ns, v is not None and self.mode != "gnss"
+                           and v[0] * v[0] + v[1] * v[1] < GNSS_STANDING_MPS**2)
+        if self.alignment is not None and v is not None and self.state is not None:
             self.alignment.fix(fix.t_ns, (float(v[0]), float(v[1]), float(v[2]) if fix.vel_3d else self.state.vd))
         if self.mode == "gnss":
             self._gnss_row(fix)
@@ -1008,17 +1005,21 @@ class NavEngine:
             return
         self.counters.obd += 1
         new_run = self._obd.note(t_ns, speed_mps)
-        if speed_mps != 0.0:
-            self._obd_held.end()
-        elif self._obd_held.holds(t_ns, self.stops.still) and self._standing() and self._noisy_chip():
-            # A stop the OBD speed has held while the IMU never read still: a noisier part than the thresholds were
-            # set for teaches them its standstill here (before the start too, so that it levels).
-            self.stops.learn(held=True)
+        self._held_reading(self._obd_held, t_ns, speed_mps == 0.0)
         if self.state is None:
             return
         if new_run and self.n > RQ_ID:
             self._new_rounding_run()
         self._obd.update(self, t_ns, speed_mps, self._t_last or 0)
+
+    def _held_reading(self, held: HeldStop, t_ns: int, says_standing: bool) -> None:
+        """A reading of the OBD speed or a fix, which ``says_standing`` or not: a stop it holds while the IMU never
+        read still teaches the stop detector a noisier part's standstill (before the start too, so that it
+        levels), if the solution agrees the car stands and the chip measures that noisy (:meth:`_noisy_chip`)."""
+        if not says_standing:
+            held.end()
+        elif held.holds(t_ns, self.stops.still) and self._standing() and self._noisy_chip():
+            self.stops.learn(held=True)
 
     def _standing(self) -> bool:
         """Whether the solution, or before the start the last fix's velocity, agrees that the car stands (no word:

@@ -2,7 +2,7 @@
 
 Each verdict is one sentence with its figure: whether GNSS agrees with the IMU, how far the OBD speed reads
 off, whether the barometer's offset holds, whether the IMU offsets are within the datasheet, whether the IMU is
-far noisier than configured (a loose board), and whether the IMU is mounted the way the configuration says.
+far noisier than configured (a board that shakes), and whether the IMU is mounted the way the configuration says.
 """
 
 from __future__ import annotations
@@ -135,16 +135,18 @@ def offsets_verdict(engine: NavEngine) -> str:
 
 def noise_verdict(engine: NavEngine) -> str | None:
     """The IMU's white noise (imu_noise.py) when it measures CONSUMER_NOISE_RATIO times the configured densities or
-    more: on the logger's own board a chip loose in its mount, or a board on something that rattles, which the
-    operator can fix at the next stop; on a consumer-grade part what the part is. The filter has widened its process
-    noise to it, and stops are told by the vehicle's speed or the fixes (held stops). None when it is not so."""
+    more: on the logger's own board it shakes, loose in its mount or on something that vibrates (what the operator
+    can look at at the next stop: the noise alone cannot tell which); on a consumer-grade part what the part is.
+    The filter has widened its process noise to it, and stops are told by the vehicle's speed or the fixes (held
+    stops). None when it is not so."""
     ratio = engine.imu_noise_ratio()
     if ratio is None:
         return None
     ra, rg = ratio
     if max(ra, rg) < CONSUMER_NOISE_RATIO:
         return None
-    return (f"IMU {ra:.1f}x / {rg:.1f}x the configured noise (accel / gyro): a loose board or a consumer part"
+    return (f"IMU {ra:.1f}x / {rg:.1f}x the configured noise (accel / gyro): the board shakes (loose, or on something"
+            " that vibrates) or the part is consumer-grade"
             + ("; stops told by speed" if engine.stops.held_learned else ""))
 
 

@@ -63,7 +63,8 @@ TAPE_S = 180.0  # drive kept from the tape's start (the simulated drives' reopen
 TAPE_BYTES = 3_000_000  # memory the kept inputs may take, as estimated by _cost
 STILL_KEEP_S = 30.0  # of a standstill before the car first moves, the last this long is kept
 MOVING_MPS = 1.0  # a speed (OBD, GNSS or the filter's) above which the car has moved
-STANDING_MPS = 0.3  # an OBD or GNSS speed below which the car stands
+STANDING_MPS = 0.3  # an OBD or GNSS speed below which the car stands, for the tape (stops.GNSS_STANDING_MPS
+# is the stricter bound a fix must keep to teach the stop detector)
 CONFIRM_EVERY = 50  # inputs between two looks at whether the alignment confirmed the mounting in use
 # The tape must hold this much drive to be of use (a standstill's last STILL_KEEP_S and the half minute of driving
 # the forward axis takes to show): once RATE_SPAN_S of it shows that it would not fit TAPE_BYTES, it is let go

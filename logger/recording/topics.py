@@ -291,8 +291,8 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "repairs": ("integer", "times the covariance lost positive definiteness and was repaired"),
     "stopped": ("boolean", "the vehicle is standing still (zero-motion updates running)"),
     "imu_noise_x": ("number[2]?", "the IMU's white noise as the drive measures it over the configured densities, "
-                                  "accelerometer and gyro (3 or more: a loose board or a consumer part); null until "
-                                  "measured or with nav.imu_noise_from_drive off"),
+                                  "accelerometer and gyro (3 or more: a board that shakes or a consumer part); null "
+                                  "until measured or with nav.imu_noise_from_drive off"),
     "held_stops": ("integer", "stops held by the OBD speed or the fixes that taught the stop detector a standstill "
                               "it never read still (an IMU noisier than its thresholds)"),
     "mount_rpy_deg": ("number[3]?", "the IMU's mounting as the drive shows it: roll, pitch, yaw of the chip against "
