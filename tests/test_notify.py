@@ -317,3 +317,28 @@ def test_a_flapping_sensor_is_rate_limited_and_counted() -> None:
     assert len(problems) == 4, lines
     assert "appeared 2 more times, not logged" in problems[3]
     assert len([t for _, t in lines if t.startswith("resolved")]) == 4
+
+
+def test_the_service_loop_reports_from_the_health_loop_s_snapshot_while_it_is_fresh(
+        tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    """One snapshot a second serves both loops: the service loop's status line and journal take the health loop's
+    while it is at most SHARED_SNAPSHOT_NS old, and a snapshot of their own once it is older (that loop stopped)."""
+    from logger.runtime.daemon import SHARED_SNAPSHOT_NS
+
+    _, path = systemd
+    d = make_daemon(tmp_path, [TickSource("a")], path)
+    taken = [0]
+    snapshot = d.snapshot
+
+    def counted() -> dict[str, object]:
+        taken[0] += 1
+        return snapshot()
+
+    d.snapshot = counted  # type: ignore[method-assign]
+    own = d._recent_snapshot()  # no health snapshot yet
+    assert taken[0] == 1
+    d._health_snapshot = shared = snapshot()
+    assert d._recent_snapshot() is shared and taken[0] == 1
+    shared["t_mono_ns"] = d.tb.monotonic_ns() - SHARED_SNAPSHOT_NS - 1
+    fresh = d._recent_snapshot()
+    assert fresh is not shared and fresh is not own and taken[0] == 2

@@ -204,3 +204,20 @@ def test_a_sample_finished_over_half_a_period_late_is_counted_delayed_not_late()
     src = Scripted(tb, work_s=work, limit=50)
     s, _ = _run(src, 20.0)
     assert s.health.delayed == 1 and s.health.late == 0 and s.health.missed == 0
+
+
+def test_the_measured_rate_counts_the_window_s_samples_only() -> None:
+    """The rate over the last 10 s of the kept times (found by bisection): samples before the window do not count,
+    a window with fewer than two samples reads 0."""
+    from logger.runtime.sampler import SensorHealth
+
+    h = SensorHealth("imu", 1000.0)
+    ns = 1_000_000_000
+    h._recent.extend(range(0, 30 * ns, 4 * ns))  # 0.25 Hz for 30 s: only its last three within the window
+    h._recent.extend(range(30 * ns, 31 * ns, ns // 100))  # then 100 Hz for a second
+    now = 31 * ns
+    kept = [t for t in h._recent if t >= now - 10 * ns]
+    assert h.measured_rate_hz(now) == pytest.approx((len(kept) - 1) / ((kept[-1] - kept[0]) / 1e9))
+    assert h.measured_rate_hz(now, window_s=1.0) == pytest.approx(100.0)
+    assert h.measured_rate_hz(100 * ns) == 0.0  # nothing in the last 10 s
+    assert SensorHealth("baro", 1.0).measured_rate_hz(now) == 0.0

@@ -53,6 +53,9 @@ MISLABEL_SHOW_S = 600  # drive seconds a pairing found wrong stays a problem: th
 HEARTBEAT_BOUND_S = 60.0
 CLOCK = "clock"  # the clock's entry among the sensors' in Daemon.time_in_state
 SILENT = "silent"  # the row state of a running sensor from which nothing comes (a receiver without a fix: NO_FIX)
+# The service loop's status line and journal take the health loop's snapshot while it is this fresh (drive ns):
+# that loop takes one every drive second, and a second snapshot a second cost the daemon as much again.
+SHARED_SNAPSHOT_NS = 1_500_000_000
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
 
 
@@ -128,6 +131,7 @@ class Daemon:
         self.taps: list[Any] = [self.gnss_watch, *self.attachments.taps]
         self._observe = clock_observer(self.clock)  # what each record tells the clock (PPS, time messages)
         self._drop_history: deque[tuple[int, int]] = deque()
+        self._health_snapshot: dict[str, Any] | None = None  # the health loop's last, for the service loop
         # Service manager: READY, WATCHDOG, STATUS, STOPPING (no-ops outside systemd).
         self.notifier = notifier or Notifier.from_env()
         self.heartbeat_bound_s = HEARTBEAT_BOUND_S
@@ -303,6 +307,14 @@ class Daemon:
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
 
+    def _recent_snapshot(self) -> dict[str, Any]:
+        """The health loop's snapshot while it is fresh (:data:`SHARED_SNAPSHOT_NS`), else a new one (that loop
+        stopped or late: the service loop never reports from an old one)."""
+        snap = self._health_snapshot
+        if snap is not None and self.tb.monotonic_ns() - snap["t_mono_ns"] <= SHARED_SNAPSHOT_NS:
+            return snap
+        return self.snapshot()
+
     def _sensor_problem(self, s: Sampler, snap: dict[str, Any], now: int, no_fix: str | None) -> str:
         """What is wrong with one sensor now ("" when nothing), with its row's state made to say the same: a sensor
         whose thread runs but that delivers nothing is ``silent`` (and shows no current rate), a receiver that
@@ -339,7 +351,7 @@ class Daemon:
     def _health_loop(self) -> None:
         last = self.tb.monotonic_ns()
         while not self.tb.wait(self.stop_event, 1.0):
-            snap = self.snapshot()
+            snap = self._health_snapshot = self.snapshot()
             now = self.tb.monotonic_ns()
             self._count_time_in_state(snap, (now - last) / 1e9)
             last = now
@@ -433,7 +445,7 @@ class Daemon:
                     log.info("ready: %s", last_status)
                 healthy = True
             else:
-                snap = self.snapshot()
+                snap = self._recent_snapshot()
                 self._log_problem_changes(snap["problems"], snap["verdict"])
                 line = self._status_line(snap)
                 if line != last_status:
