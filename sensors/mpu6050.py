@@ -392,7 +392,6 @@ class Mpu6050:
         """
         if not self.fifo:
             raise RuntimeError("MPU-6050 driver was configured without the FIFO")
-        self._int_status()
         count_raw = self._read_block(FIFO_COUNTH, 2, "reading FIFO_COUNT")
         count = int.from_bytes(count_raw, "big")
         if self._overflow_seen or count >= FIFO_SIZE_BYTES:
@@ -407,6 +406,14 @@ class Mpu6050:
             # Each piece joins the buffer at once: a failure later in the loop keeps what was read.
             self._partial += self._read_block(FIFO_R_W, piece, "reading the FIFO")
             remaining -= piece
+        # INT_STATUS after the data, not before: a FIFO that overflowed since the last read is full (its count says
+        # so), but one that overflowed while its bytes were being read (a host stalled between FIFO_COUNT and the
+        # burst, the FIFO a frame or two short of full) lost its oldest bytes under the reader, and the bytes read
+        # are frames no longer (the chip drops bytes, not frames: 1024 is no multiple of 12). Read before, the flag
+        # said so one read late, once the misaligned batch had been delivered and recorded.
+        self._int_status()
+        if self._overflow_seen:
+            return self._recover_from_overflow(read_time_ns)
         whole = len(self._partial) // FIFO_FRAME_BYTES * FIFO_FRAME_BYTES
         frames = bytes(self._partial[:whole])
         del self._partial[:whole]

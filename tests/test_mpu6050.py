@@ -399,6 +399,43 @@ def test_fifo_overflow_is_detected_counted_and_recovered(rig) -> None:
     assert r.model.fifo_bytes_dropped > 0
 
 
+@pytest.mark.parametrize("burst", [True, False])
+def test_a_fifo_that_overflows_while_it_is_read_gives_no_misaligned_frames(rig, burst: bool) -> None:
+    """The host stalls between FIFO_COUNT and the burst with the FIFO 80 frames full: ten more come, the chip drops
+    its oldest bytes (not frames) under the reader, and the bytes read are frames no longer. The read reports the
+    overflow and delivers nothing; the reads after it give whole frames again (a ramp on gyro z, in order)."""
+    r = rig(MotionTrajectory(w0=(0.0, 0.0, -1.0), w_dot_z=0.5), errors=Mpu6050Errors.ideal())
+    d = r.driver(rate_hz=1000, fifo=True, fifo_burst=burst)
+    d.configure()
+    r.clock.advance(0.1)
+    d.read_fifo(r.clock.now_ns())
+    stall_s = [0.0]
+    read = r.model.read
+
+    def stalled(reg: int, n: int) -> bytes:
+        if reg == drv.FIFO_R_W and stall_s[0]:
+            r.clock.advance(stall_s[0])
+            stall_s[0] = 0.0
+        return read(reg, n)
+
+    r.model.read = stalled  # type: ignore[method-assign]
+    r.clock.advance(0.08)
+    stall_s[0] = 0.01
+    batch = d.read_fifo(r.clock.now_ns())
+    assert r.model.fifo_bytes_dropped > 0
+    assert batch.overflowed and len(batch) == 0
+    assert batch.lost_samples is not None and batch.lost_samples >= 80
+    gyro_z = []
+    for _ in range(4):
+        r.clock.advance(0.05)
+        after = d.read_fifo(r.clock.now_ns())
+        assert not after.overflowed and len(after) == 50
+        gyro_z.append(after.gyro_rps[:, 2])
+    z = np.concatenate(gyro_z)
+    assert np.all(np.diff(z) > 0)  # the ramp: every frame whole and in its place
+    assert z == pytest.approx(z[0] + np.arange(len(z)) * 0.5e-3, abs=math.radians(1 / 131))
+
+
 def test_overflow_loss_includes_frames_left_behind(rig) -> None:
     r = rig(errors=Mpu6050Errors.ideal())
     d = r.driver(rate_hz=1000, fifo=True)
@@ -480,8 +517,9 @@ def test_fifo_read_error_keeps_bytes_already_read(rig) -> None:
     r.clock.advance(0.1)
     d.read_fifo(r.clock.now_ns())
     r.clock.advance(0.05)
-    # INT_STATUS, FIFO_COUNT, two 32-byte pieces of the 600 waiting bytes, then the third piece fails.
-    r.adapter.fail_next(1, after=4)
+    # FIFO_COUNT, two 32-byte pieces of the 600 waiting bytes, then the third piece fails (INT_STATUS comes after
+    # the data).
+    r.adapter.fail_next(1, after=3)
     with pytest.raises(BusError, match="while reading the FIFO"):
         d.read_fifo(r.clock.now_ns())
     assert len(r.model.fifo) == 600 - 64
