@@ -54,7 +54,7 @@ def test_offer_never_blocks_and_counts_what_it_drops():
 
 
 def test_a_quarter_filled_queue_wakes_the_filter_thread():
-    """The filter thread takes its queue once a second (WAKE_S), and at once when offers fill a quarter of it: a
+    """The filter thread takes its queue every WAKE_S, and at once when offers fill a quarter of it: a
     fast simulated drive or a burst of reads is taken before the queue overflows."""
     nav = Navigator(NavParams(queue_size=40))  # no thread started: the wake-up is looked at, not acted on
     msg = {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0, -9.8], "gyro_rps": [0, 0, 0]}

@@ -4,9 +4,9 @@
 
 ``Navigator.take`` over a synthetic urban drive (``tests/test_nav_synth.records``: the drive's standing start,
 then driving; OBD at 2 Hz, barometer and fixes at 1 Hz) as the daemon feeds it: FIFO reads of max(10, rate / 25)
-samples, a wake-up a second, /nav/fix and /nav/state published. No threads, no simulator, no recorder: the
-thread's CPU clock around ``take`` alone, best of ``--repeat`` runs, each checkout in its own process and the
-runs alternated, so the ratio between two checkouts is measured in one go on the same host. The daemon
+samples, a wake-up every ``WAKE_S`` of drive, /nav/fix and /nav/state published. No threads, no simulator, no
+recorder: the thread's CPU clock around ``take`` alone, best of ``--repeat`` runs, each checkout in its own process
+and the runs alternated, so the ratio between two checkouts is measured in one go on the same host. The daemon
 benchmark (tools/bench_daemon.py) gives the navigator thread's share in the running daemon; this one isolates it
 from the host's noise (its other threads, the simulated devices) to compare two versions of the filter.
 """
@@ -32,7 +32,7 @@ def run_once(root: Path, rate_hz: float, seconds: float) -> dict[str, float]:
 
     from logger.nav.params import NavParams
     from logger.recording.topics import IMU_BATCH
-    from logger.runtime.navigator import Navigator
+    from logger.runtime.navigator import WAKE_S, Navigator
     from sensors.sim.scenarios import make_drive
 
     per_read = max(10, int(rate_hz / 25))
@@ -47,12 +47,13 @@ def run_once(root: Path, rate_hz: float, seconds: float) -> dict[str, float]:
     published: list[object] = []
     nav = Navigator(NavParams(), publish=published.append)
     chunk: list[tuple[str, dict[str, object]]] = []
-    end = items[0][0] + 1_000_000_000
+    wake_ns = int(WAKE_S * 1e9)
+    end = items[0][0] + wake_ns
     c0 = time.thread_time()
     for t, topic, m in items:
         if t >= end:
             nav.take(chunk)
-            chunk, end = [], end + 1_000_000_000
+            chunk, end = [], end + wake_ns
         chunk.append((topic, m))
     nav.take(chunk)
     cpu = time.thread_time() - c0

@@ -152,7 +152,7 @@ def bench_live(files: list[Path], seconds: float, start_s: float) -> None:
             offer_cpu += time.thread_time() - c0
             time.sleep(0.005)
         wall = time.perf_counter() - start
-        time.sleep(0.5)  # let the navigator finish its last batch before reading its CPU time
+        time.sleep(WAKE_S + 0.5)  # its next wake-up takes the last records: let it finish before reading its CPU
     finally:
         nav.stop()
     drive_s = (msgs[i - 1][0] - t_first) / 1e9
