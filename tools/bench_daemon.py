@@ -56,6 +56,7 @@ sys.path.insert(1, str(ROOT / "tools"))  # run by path from elsewhere too (runpy
 import resident  # noqa: E402
 
 from logger.recording.topics import GAP_PERIODS  # noqa: E402  the daemon's own definition of a gap
+from logger.runtime.navigator import WAKE_S  # noqa: E402
 
 NS = 1_000_000_000
 DAEMON_PREFIXES = ("sampler-", "recorder", "health", "service", "status", "navigator", "MainThread")
@@ -771,8 +772,9 @@ def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | Non
                  for r in plain]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "Live, the recorder and navigator threads cost more per record than the throughput benchmarks "
-              "below show: each wakes about once a second and takes what has arrived in one go, and a chunk is "
-              "closed and fsynced every second whatever the rate, so at low rates those fixed costs dominate:",
+              f"below show: the recorder wakes about once a second, the navigator every {WAKE_S:g} s, each takes what "
+              "has arrived in one go, and a chunk is closed and fsynced every second whatever the rate, so at low "
+              "rates those fixed costs dominate:",
               ""]
     for r in plain:
         c = live_costs(r)
