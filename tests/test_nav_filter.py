@@ -188,7 +188,7 @@ def test_a_phone_grade_imu_is_taught_its_standstill_by_a_stop_the_obd_speed_hold
     # not as configured: the stop's mean rate is no surer than the chip's noise makes it.
     assert engine.noise.gyro_arw > 3.0 * engine.params.gyro_arw
     assert max(rate_sigmas) * math.sqrt(0.5) > engine.params.gyro_arw * 3.0
-    # `logger status` says so: on the logger's own board a chip that noisy is a loose one.
+    # `logger status` says so (on the logger's own board a chip that noisy shakes).
     verdict = noise_verdict(engine)
     assert verdict is not None and "the configured noise" in verdict and verdict.endswith("stops told by speed")
     state = nav_state_record(engine, engine.t_last_ns or 0, 0)  # and /nav/state, for the office

@@ -56,7 +56,6 @@ sys.path.insert(1, str(ROOT / "tools"))  # run by path from elsewhere too (runpy
 import resident  # noqa: E402
 
 from logger.recording.topics import GAP_PERIODS  # noqa: E402  the daemon's own definition of a gap
-from logger.runtime.navigator import WAKE_S  # noqa: E402
 
 NS = 1_000_000_000
 DAEMON_PREFIXES = ("sampler-", "recorder", "health", "service", "status", "navigator", "MainThread")
@@ -725,6 +724,8 @@ def _memory_row(r: dict[str, Any]) -> str:
 def render(results: list[dict[str, Any]], board_runs: list[dict[str, Any]] | None = None) -> list[str]:
     """Markdown: CPU and memory per IMU rate, the per-thread split, and the sustained-rate verdicts; ``board_runs``,
     the same benchmark run with Debian 12's library versions (``tools/bench.py --board-python``): their memory."""
+    from logger.runtime.navigator import WAKE_S
+
     plain = [r for r in results if not r["profile"]]
     lines = ["| IMU rate | window | niceness | daemon threads | simulator (threads + inside daemon threads) "
              "| whole process | RSS at start -> end (growth) | peak RSS | of which the simulated drive "

@@ -36,7 +36,7 @@ from logger.nav.ekf import ErrorStateEkf
 from logger.nav.evidence import HeightEvidence, PositionEvidence, VelocityEvidence
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.history import SolutionHistory
-from logger.nav.imu_noise import CONSUMER_NOISE_RATIO, ImuNoiseMonitor, OffsetWander
+from logger.nav.imu_noise import CONSUMER_NOISE_RATIO, ImuNoiseMonitor, OffsetWander, consumer_grade
 from logger.nav.inputs import GnssObservation, SolutionEpoch
 from logger.nav.measurements import ROUNDING_VAR, Observation
 from logger.nav.mounting import SETTLED, MountAlignment, MountEstimate, forward_axis_deg, mount_matrix
@@ -1040,13 +1040,13 @@ class NavEngine:
 
     def _noisy_chip(self) -> bool:
         """Whether the IMU measures CONSUMER_NOISE_RATIO times noisier than its configured densities or more
-        (imu_noise.py: white noise, which a car shaken by people getting in or out does not add): a part whose
-        standstill the configured thresholds cannot tell, which a held stop may teach. A datasheet-grade chip
-        waits for a stop it reads still in, as before. Without the monitor (``imu_noise_from_drive`` off): yes."""
+        (imu_noise.consumer_grade: white noise, which a car shaken by people getting in or out does not add): a
+        part whose standstill the configured thresholds cannot tell, which a held stop may teach. A datasheet-grade
+        chip waits for a stop it reads still in, as before. Without the monitor (``imu_noise_from_drive`` off): yes."""
         if self.imu_noise is None:
             return True
         ratio = self.imu_noise_ratio()
-        return ratio is not None and max(ratio) > CONSUMER_NOISE_RATIO
+        return ratio is not None and consumer_grade(ratio)
 
     def _new_rounding_run(self) -> None:
         """A reading unlike the last one: its rounding is a new unknown, independent of the last run's. The

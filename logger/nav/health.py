@@ -14,7 +14,7 @@ import numpy as np
 
 from logger.nav.earth import G0
 from logger.nav.engine import NavEngine
-from logger.nav.imu_noise import CONSUMER_NOISE_RATIO
+from logger.nav.imu_noise import consumer_grade
 from logger.nav.mounting import FORWARD
 from logger.nav.state import BA_ID, BG_ID, DH_ID, SF_ID
 
@@ -140,11 +140,9 @@ def noise_verdict(engine: NavEngine) -> str | None:
     The filter has widened its process noise to it, and stops are told by the vehicle's speed or the fixes (held
     stops). None when it is not so."""
     ratio = engine.imu_noise_ratio()
-    if ratio is None:
+    if ratio is None or not consumer_grade(ratio):
         return None
     ra, rg = ratio
-    if max(ra, rg) < CONSUMER_NOISE_RATIO:
-        return None
     return (f"IMU {ra:.1f}x / {rg:.1f}x the configured noise (accel / gyro): the board shakes (loose, or on something"
             " that vibrates) or the part is consumer-grade"
             + ("; stops told by speed" if engine.stops.held_learned else ""))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -27,6 +28,13 @@ TAU_S = 30.0  # the average's memory, drive time
 # adds less on a bolted board (the simulated MPU-6050 of the matrix's tunnel drive read up to 1.9x while starting
 # off, then 1.0x; the simulated phone 6.6x).
 CONSUMER_NOISE_RATIO = 3.0
+
+
+def consumer_grade(ratio: Sequence[float]) -> bool:
+    """Whether measured noise over the configured densities (accelerometer, gyro: ``NavEngine.imu_noise_ratio``)
+    says a part CONSUMER_NOISE_RATIO times noisier or more on either: what lets a held stop teach the stop detector
+    and what ``logger status`` then says of the IMU."""
+    return max(ratio) >= CONSUMER_NOISE_RATIO
 MIN_S = 5.0  # before this much has been seen, the datasheet stands
 
 

@@ -108,9 +108,10 @@ class SensorHealth:
     _recent: deque[int] = field(default_factory=lambda: deque(maxlen=2048))
 
     def measured_rate_hz(self, now_ns: int, window_s: float = 10.0) -> float:
-        """Samples a second over the last ``window_s``. The times arrive in order (a copy taken at once, since the
-        sampler thread appends meanwhile), so the window's first one is found by bisection: at 1 kHz the 2048 kept
-        times were walked one by one at every snapshot, two a second."""
+        """Samples a second over the last ``window_s``. The times arrive in order (a FIFO read's stamp the clock
+        steered back moves the window's edge by a sample or so), so the window's first one is found by bisection
+        in a copy taken at once (the sampler thread appends meanwhile): at 1 kHz the 2048 kept times were walked one
+        by one at every snapshot."""
         recent = list(self._recent)
         first = bisect_left(recent, now_ns - int(window_s * 1e9))
         n = len(recent) - first
