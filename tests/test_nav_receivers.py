@@ -11,6 +11,7 @@ import pytest
 from test_nav_filter import errors, fed_with_upset, run
 from test_nav_synth import SynthErrors, records
 
+from logger.nav import policies
 from logger.nav.gnss_noise import DOP, NOMINAL, RECEIVER, AccuracyModel, CorrelatedGnssNoise, ScatterLearner
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.params import NavParams
@@ -412,3 +413,47 @@ def test_the_velocity_of_a_fix_whose_position_the_gate_refused_is_not_used(outag
     t_u, e_u, _ = errors(drive, upset.rows)
     t_o, e_o, _ = errors(drive, other.rows)
     assert len(t_u) == len(t_o) and np.abs(e_u - e_o).max() < 1e-9
+
+
+def _in_a_canyon(recs, start_s: float, end_s: float, high_m: float) -> list:
+    """The fixes of [start_s, end_s) as a street canyon's: heights ``high_m`` too high behind a vertical figure five
+    times the open sky's (the horizontal twice): reflections, which lengthen every path they take."""
+    out = []
+    for ts, topic, m in recs:
+        if topic == "/gnss/fix" and start_s <= (m["gnss_time_ns"] - T0) / NS < end_s:
+            m = {**m, "altitude": m["altitude"] + high_m, "v_acc_m": 5.0 * m["v_acc_m"], "h_acc_m": 2.0 * m["h_acc_m"]}
+        out.append((ts, topic, m))
+    return out
+
+
+def test_a_canyons_heights_are_left_to_the_barometer(outage_drive, monkeypatch):
+    """90 s of canyon fixes 8 m high behind five times the open sky's vertical figure: with a barometer the height
+    is held by it (the canyon's heights left out, counted) and stays within half a metre (0.38 m); taken in, they
+    moved it 0.83 m. Without a barometer (15 states) they are all there is and go in."""
+    drive, _ = outage_drive
+    recs = _in_a_canyon(records(drive, 270.0, seed=3), 60.0, 150.0, 8.0)
+
+    def worst_height(engine) -> float:
+        t, e, s = errors(drive, engine.rows)
+        assert (np.abs(e[:, 2]) <= 3.0 * s[:, 2]).all()
+        return float(np.abs(e[(t >= 60.0) & (t < 210.0), 2]).max())
+
+    held = run(recs)
+    assert held.counters.gnss_canyon_heights == 90 and held.counters.resets == 0
+    assert worst_height(held) < 0.5
+    no_baro = run(recs, mode="15")
+    assert no_baro.counters.gnss_canyon_heights == 0
+    monkeypatch.setattr(policies, "CANYON_HEIGHT_RATIO", math.inf)
+    taken = run(recs)
+    assert taken.counters.gnss_canyon_heights == 0
+    assert worst_height(taken) > 1.5 * worst_height(held)
+
+
+def test_a_long_canyon_checks_the_barometer_against_the_receiver_every_two_minutes(outage_drive):
+    """A canyon longer than CANYON_HEIGHT_HOLD_NS: a height goes in once that long has passed since the last one
+    did (the barometer's offset, which weather moves, is checked), and the canyon's heights are left out again."""
+    drive, _ = outage_drive
+    recs = _in_a_canyon(records(drive, 270.0, seed=3), 40.0, 260.0, 8.0)
+    engine = run(recs)
+    hold_s = policies.CANYON_HEIGHT_HOLD_NS / NS
+    assert 220 - math.ceil(220 / hold_s) <= engine.counters.gnss_canyon_heights < 220

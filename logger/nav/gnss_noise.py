@@ -66,6 +66,7 @@ class CorrelatedGnssNoise:
         self._t_last_ns: int | None = None
         self._dt_last = 0.0
         self.interval_s = 0.0  # the receiver's usual interval between fixes (0 until two have come)
+        self.vertical_over_floor = 1.0  # the last fix's vertical figure over the lowest of the window (sigmas)
 
     def factor(self, t_ns: int) -> float:
         """How much more slowly a correlated error averages out than a white one at this fix spacing."""
@@ -107,9 +108,12 @@ class CorrelatedGnssNoise:
         c = self.factor(t_ns)
         r = max(self.rate_factor(), self.floor_factor() if floor_correlated else 1.0)
         out = []
+        lows = []
         for value, floor, k in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), strict=True):
             low = floor.add(value)
+            lows.append(low)
             out.append(math.sqrt(k * (r * low * low + c * (value * value - low * low))))
+        self.vertical_over_floor = v_acc / lows[1] if lows[1] > 0.0 else 1.0
         return out[0] / math.sqrt(2.0), out[1], out[2]
 
 

@@ -4,8 +4,9 @@ One class per source of updates, each with the little state its policy needs, ac
 :class:`logger.nav.core.FilterCore` and the evidence rules it is given:
 
 - :class:`GnssPolicy`: a fix's noise from the receiver's accuracy (or its DOP), correlated over the multipath
-  time; fixes with too few satellites left out; rows far worse than what the filter knows left out; position and
-  velocity updates, with the position and velocity evidence;
+  time; fixes with too few satellites left out; rows far worse than what the filter knows left out; a street
+  canyon's heights left out while a barometer holds the height; position and velocity updates, with the position
+  and velocity evidence;
 - :class:`ObdPolicy`: the 1 km/h steps of PID 0x0D (repeats of one value weigh less and less) and the
   non-holonomic rows that go with the speed;
 - :class:`StopPolicy`: zero velocity and zero rate at a stop (Eq. 12), over the stop so far;
@@ -52,6 +53,13 @@ MIN_WHITE_VAR = 0.02**2  # (m/s)^2: the least white noise of a reading besides i
 NHC_MIN_SPEED_MPS = 1.0
 NHC_INTERVAL_NS = NS // 2
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
+# A fix whose vertical figure is this many times the lowest its receiver gave over the last few minutes is a street
+# canyon's: reflections make its height wrong one way for as long as the canyon lasts (the simulated receiver's
+# canyon heights ran 1.2-5.3 times their figure, high by 1.0-1.5 of it on average, docs/nav.md). While a
+# barometer holds the height its row is left out, for at most CANYON_HEIGHT_HOLD_NS since a fix's height last
+# went in: the barometer's offset, which weather moves, is then checked against the receiver again.
+CANYON_HEIGHT_RATIO = 3.0
+CANYON_HEIGHT_HOLD_NS = 120 * NS
 
 
 @dataclass
@@ -86,6 +94,7 @@ class GnssPolicy:
                                           params.gnss_floor_corr_s)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
+        self._height_in_ns: int | None = None  # the epoch of the last fix whose height went in
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
@@ -121,7 +130,7 @@ class GnssPolicy:
         fix_3d = (msg.fix_mode or 0) >= 3
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
                            math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
-                           fix_3d, fig)
+                           fix_3d, fig, self._noise.vertical_over_floor)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray,
                position: bool = True) -> str:
@@ -146,9 +155,15 @@ class GnssPolicy:
             snap, snap.dcm(), core.n)
         assert core.ekf is not None
         p_prior = [float(core.ekf.p[P_ID + i, P_ID + i]) for i in range(len(full_pos.z))]
-        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER)
-        ok = True if obs is None else core.apply(obs)
         last = self.last_readings
+        canyon = (fix.v_over_floor >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
+                  and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
+        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, height=not canyon)
+        ok = True if obs is None else core.apply(obs)
+        if canyon and len(full_pos.z) > 2:
+            core.counters.gnss_canyon_heights += 1
+        if ok and obs is not None and len(obs.z) == 3:
+            self._height_in_ns = t_e
         if ok:
             # Learnt from fixes the gate let in, and from those too weak to reach it (which nothing vetted: they may
             # only lower the scale, ScatterLearner.add). A filter that lost itself must not teach the model that the
@@ -195,8 +210,9 @@ class GnssPolicy:
                                 fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
 
     def _informative(self, core: FilterCore, obs: Observation, block: int,
-                     height_on_its_own: bool = False) -> Observation | None:
-        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO."""
+                     height_on_its_own: bool = False, height: bool = True) -> Observation | None:
+        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO (and
+        without its height when ``height`` is False)."""
         assert core.ekf is not None
         p = core.ekf.p
         keep = [i for i in range(min(2, len(obs.z)))
@@ -206,7 +222,8 @@ class GnssPolicy:
         # its height goes with it. A fix with guessed figures (no accuracy from the receiver) says nothing of a
         # canyon: a filter held tight horizontally by its speeds leaves its height to the fixes, judged alone
         # (the 15-state filter, without a barometer, drifted 64 m in height when it went with the horizontal).
-        if len(obs.z) > 2 and (keep or (height_on_its_own
+        # A canyon's height the barometer holds better is left out by the caller (CANYON_HEIGHT_RATIO).
+        if height and len(obs.z) > 2 and (keep or (height_on_its_own
                                         and obs.r[2] <= UNINFORMATIVE_RATIO * float(p[block + 2, block + 2]))):
             keep.append(2)
         if len(keep) < len(obs.z):
