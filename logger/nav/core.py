@@ -34,7 +34,7 @@ class EngineCounters:
     gnss_no_fix: int = 0
     gnss_few_sv: int = 0  # fixes left out for too few satellites
     gnss_skipped: int = 0  # GNSS rows (axes) that would add almost nothing but their bias
-    gnss_canyon_heights: int = 0  # fix heights left out as a street canyon's while the barometer held the height
+    gnss_canyon_heights: int = 0  # fix heights that would have gone in, left to the barometer as a street canyon's
     obd: int = 0
     baro: int = 0
     zupt: int = 0
@@ -62,8 +62,8 @@ class PreparedFix:
     s_vel: float  # velocity noise, m/s
     fix_3d: bool
     figures: FixFigures  # its accuracy figures and where they came from (receiver, dop or nominal)
-    # Its vertical figure over the lowest the receiver gave over the last FLOOR_WINDOW fixes (gnss_noise): a
-    # street canyon's is several times the open sky's.
+    # Its vertical figure over the receiver's usual one (gnss_noise.UsualFigure): a street canyon's is several
+    # times the open sky's.
     v_over_floor: float = 1.0
 
     @property

@@ -162,7 +162,9 @@ class HeightEvidence:
     a belief), and refusing the sensor would keep it off for the rest of the drive, with every later GNSS fix
     refused on its height as well. Or the barometer's offset moved (a sensor replaced, a pressure port knocked).
     Which of the two is widened (counted as ``reanchors``) before the barometer goes in:
-    - the receiver's heights are going in: the filter's height agrees with them, so the offset moved;
+    - the receiver's heights are going in: the filter's height agrees with them, so the offset moved (a street
+      canyon's heights left to the barometer count as going in: the filter's height is the one the receiver's last
+      heights left it, carried by the barometer and the IMU since, and a sudden disagreement is the offset's);
     - good 3D fixes come but are refused too: both, and the receiver's heights settle which one moved;
     - no receiver: the height, since the offset, which weather moves by centimetres a minute, is the firmer of
       the two (the height follows the barometer until fixes come back).

@@ -27,6 +27,7 @@ its speeds over seconds (:class:`SpeedScatter`), since a reflection spoils a Dop
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -55,6 +56,35 @@ class RunningMin:
         return q[0][1]
 
 
+class UsualFigure:
+    """A receiver's usual figure: the ``quantile`` of each second's lowest figure over the last ``window_s`` of
+    fixes. Not the lowest: one unusually good figure (a moment of RTK or SBAS) would make every ordinary one look
+    several times worse for as long as it is remembered. Per second of fixes, not per fix: a 10 Hz receiver's
+    window is as long as a 1 Hz receiver's."""
+
+    def __init__(self, window_s: int = 300, quantile: float = 0.2) -> None:
+        self.window_s = window_s
+        self.quantile = quantile
+        self._seconds: deque[tuple[int, float]] = deque()  # (second, its lowest figure), oldest first
+        self._sorted: list[float] = []  # the same figures in order
+
+    def add(self, t_ns: int, value: float) -> float:
+        """Takes the figure of a fix at ``t_ns``; returns the usual figure with it."""
+        sec = t_ns // 1_000_000_000
+        secs, order = self._seconds, self._sorted
+        if secs and sec <= secs[-1][0]:  # the same second (or a fix placed a little earlier): its lowest
+            if value < secs[-1][1]:
+                del order[bisect.bisect_left(order, secs[-1][1])]
+                bisect.insort(order, value)
+                secs[-1] = (secs[-1][0], value)
+        else:
+            secs.append((sec, value))
+            bisect.insort(order, value)
+            while secs[0][0] <= sec - self.window_s:
+                del order[bisect.bisect_left(order, secs.popleft()[1])]
+        return order[int(self.quantile * (len(order) - 1))]
+
+
 class CorrelatedGnssNoise:
     """Per-fix variances for position (per axis, from hAcc and vAcc) and velocity (from sAcc)."""
 
@@ -66,7 +96,6 @@ class CorrelatedGnssNoise:
         self._t_last_ns: int | None = None
         self._dt_last = 0.0
         self.interval_s = 0.0  # the receiver's usual interval between fixes (0 until two have come)
-        self.vertical_over_floor = 1.0  # the last fix's vertical figure over the lowest of the window (sigmas)
 
     def factor(self, t_ns: int) -> float:
         """How much more slowly a correlated error averages out than a white one at this fix spacing."""
@@ -108,12 +137,9 @@ class CorrelatedGnssNoise:
         c = self.factor(t_ns)
         r = max(self.rate_factor(), self.floor_factor() if floor_correlated else 1.0)
         out = []
-        lows = []
         for value, floor, k in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), strict=True):
             low = floor.add(value)
-            lows.append(low)
             out.append(math.sqrt(k * (r * low * low + c * (value * value - low * low))))
-        self.vertical_over_floor = v_acc / lows[1] if lows[1] > 0.0 else 1.0
         return out[0] / math.sqrt(2.0), out[1], out[2]
 
 

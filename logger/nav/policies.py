@@ -25,7 +25,7 @@ import numpy as np
 
 from logger.nav.core import EngineCounters, FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
-from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise
+from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise, UsualFigure
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
@@ -53,7 +53,7 @@ MIN_WHITE_VAR = 0.02**2  # (m/s)^2: the least white noise of a reading besides i
 NHC_MIN_SPEED_MPS = 1.0
 NHC_INTERVAL_NS = NS // 2
 UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis: the update would gain < 6 %
-# A fix whose vertical figure is this many times the lowest its receiver gave over the last few minutes is a street
+# A fix whose vertical figure is this many times its receiver's usual one (gnss_noise.UsualFigure) is a street
 # canyon's: reflections make its height wrong one way for as long as the canyon lasts (the simulated receiver's
 # canyon heights ran 1.2-5.3 times their figure, high by 1.0-1.5 of it on average, docs/nav.md). While a
 # barometer holds the height its row is left out, for at most CANYON_HEIGHT_HOLD_NS since a fix's height last
@@ -73,6 +73,7 @@ class LastReadings:
     pos_ok: tuple[int, float] = (0, math.inf)  # time and accuracy of the last fix whose position went in
     good_fix_ns: int = 0  # epoch of the last 3D fix from a receiver sure of itself, whether it went in
     height_in_ns: int = 0  # ... and of the last one whose height went in
+    height_held_ns: int = 0  # ... and of the last whose height was left to the barometer as a canyon's
 
     def obd_fresh(self, t_ns: int) -> bool:
         return self.obd is not None and t_ns - self.obd[0] <= OBD_FRESH_NS
@@ -95,6 +96,7 @@ class GnssPolicy:
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
         self._height_in_ns: int | None = None  # the epoch of the last fix whose height went in
+        self._usual_v = UsualFigure()  # the receiver's usual vertical figure, which a canyon's is measured against
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
@@ -130,7 +132,8 @@ class GnssPolicy:
         fix_3d = (msg.fix_mode or 0) >= 3
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
                            math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
-                           fix_3d, fig, self._noise.vertical_over_floor)
+                           fix_3d, fig, fig.v_model / usual_v if (usual_v := self._usual_v.add(t_e, fig.v_model)) > 0.0
+                           else 1.0)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray,
                position: bool = True) -> str:
@@ -158,10 +161,11 @@ class GnssPolicy:
         last = self.last_readings
         canyon = (fix.v_over_floor >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
                   and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
+        held = core.counters.gnss_canyon_heights
         obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, height=not canyon)
+        if core.counters.gnss_canyon_heights > held:
+            last.height_held_ns = t_e
         ok = True if obs is None else core.apply(obs)
-        if canyon and len(full_pos.z) > 2:
-            core.counters.gnss_canyon_heights += 1
         if ok and obs is not None and len(obs.z) == 3:
             self._height_in_ns = t_e
         if ok:
@@ -223,11 +227,16 @@ class GnssPolicy:
         # canyon: a filter held tight horizontally by its speeds leaves its height to the fixes, judged alone
         # (the 15-state filter, without a barometer, drifted 64 m in height when it went with the horizontal).
         # A canyon's height the barometer holds better is left out by the caller (CANYON_HEIGHT_RATIO).
-        if height and len(obs.z) > 2 and (keep or (height_on_its_own
+        held = 0
+        if len(obs.z) > 2 and (keep or (height_on_its_own
                                         and obs.r[2] <= UNINFORMATIVE_RATIO * float(p[block + 2, block + 2]))):
-            keep.append(2)
+            if height:
+                keep.append(2)
+            else:  # a canyon's height that would have gone in: the barometer holds the height instead
+                held = 1
+                core.counters.gnss_canyon_heights += 1
         if len(keep) < len(obs.z):
-            core.counters.gnss_skipped += len(obs.z) - len(keep)
+            core.counters.gnss_skipped += len(obs.z) - len(keep) - held
             if not keep:
                 return None
             obs = Observation(obs.name, obs.z[keep], obs.h[keep], obs.r[keep])
@@ -339,8 +348,10 @@ class BaroPolicy:
         s = core.state
         assert s is not None
         last = self.last_readings
+        # A canyon's height held by the barometer counts as the receiver's going in: the filter's height is the one
+        # the receiver's last heights left it, carried by the barometer and the IMU since (HeightEvidence).
         self.height.judge(core, BaroHeight(altitude_m, self.params.baro_sigma_m).observe(s, s.dcm(), core.n), t_ns,
-                          last.height_in_ns, last.good_fix_ns)
+                          max(last.height_in_ns, last.height_held_ns), last.good_fix_ns)
         # No fresh OBD speed: the vehicle still cannot slide sideways or lift off.
         if (self.stop.stopped is False and last.obd is not None and t_ns - last.obd[0] > OBD_FRESH_NS
                 and t_ns - last.nhc_ns > NHC_INTERVAL_NS and math.hypot(s.vn, s.ve) > NHC_MIN_SPEED_MPS
