@@ -64,7 +64,7 @@ class PreparedFix:
     figures: FixFigures  # its accuracy figures and where they came from (receiver, dop or nominal)
     # Its vertical figure over the receiver's usual one (gnss_noise.UsualFigure): a street canyon's is several
     # times the open sky's.
-    v_over_floor: float = 1.0
+    v_over_usual: float = 1.0
 
     @property
     def h_acc(self) -> float:

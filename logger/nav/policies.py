@@ -130,10 +130,10 @@ class GnssPolicy:
                 d = tu * float(np.hypot(moving[0], moving[1]))
                 sig_h, sig_v = math.hypot(sig_h, d), math.hypot(sig_v, tu * abs(float(moving[2])))
         fix_3d = (msg.fix_mode or 0) >= 3
+        usual_v = self._usual_v.add(t_e, fig.v_model)
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
                            math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
-                           fix_3d, fig, fig.v_model / usual_v if (usual_v := self._usual_v.add(t_e, fig.v_model)) > 0.0
-                           else 1.0)
+                           fix_3d, fig, fig.v_model / usual_v if usual_v > 0.0 else 1.0)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray,
                position: bool = True) -> str:
@@ -159,7 +159,7 @@ class GnssPolicy:
         assert core.ekf is not None
         p_prior = [float(core.ekf.p[P_ID + i, P_ID + i]) for i in range(len(full_pos.z))]
         last = self.last_readings
-        canyon = (fix.v_over_floor >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
+        canyon = (fix.v_over_usual >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
                   and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
         held = core.counters.gnss_canyon_heights
         obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, height=not canyon)
