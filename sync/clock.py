@@ -43,6 +43,10 @@ WALL_PATIENCE_NS = 60 * NS
 # the pulse before it. Read earlier than that by this clock (beyond this margin), the clock is whole seconds off.
 READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
 ANNOUNCEMENT_LEAD_NS = 1_500_000_000  # a TIM-TP comes at most this long before the edge it announces
+# A free-running stamp's bound when the system clock was not synchronised at start: none the logger can stand
+# behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
+# so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
+NO_BOUND_NS = 2**62
 
 
 class PpsClock(StampClock):
@@ -55,6 +59,7 @@ class PpsClock(StampClock):
         # A synchronised system clock (NTP) is checked against at the first lock: a chain of edges labelled with
         # the wrong second (messages that reached us seconds late) is consistent in itself and only this sees it.
         self.wall_trusted = wall_trusted
+        self._freerun_err_ns = self.s.freerun_err_ns if wall_trusted else NO_BOUND_NS
         self._wall = wall_ns
         self._wall_disagree_since: int | None = None
         self._mono = monotonic_ns
@@ -76,7 +81,6 @@ class PpsClock(StampClock):
         self._last_sample_ns: int | None = None
         self._slope_prior: float | None = None
         self._skew_prior = 1e-6
-        self._err_at_last_ns = float(self.s.freerun_err_ns)
         self._slew_from_ns: int | None = None  # board time the current slew started
         self._slew_ns = 0.0  # correction to be slewed out, ns
         self._slew_len_ns = 1
@@ -346,7 +350,7 @@ class PpsClock(StampClock):
             fit = self._fit
             if fit is None or (not self._locked_once and not self._restored):
                 n = len(t)
-                return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self.s.freerun_err_ns] * n,
+                return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self._freerun_err_ns] * n,
                               imu_cnt.tolist(), timer_cnt.tolist())
             last = self._last_sample_ns
             s = self.s
@@ -390,7 +394,7 @@ class PpsClock(StampClock):
         imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
         state = self._state_at(t_mono_ns)
         if state == FREERUN or self._fit is None:
-            return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self.s.freerun_err_ns, imu_cnt, timer_cnt)
+            return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self._freerun_err_ns, imu_cnt, timer_cnt)
         off = self._offset_at(t_mono_ns)
         return Stamp(t_mono_ns + round(off), state, max(1, round(self._err_at(t_mono_ns, state))), imu_cnt,
                      timer_cnt)
@@ -421,20 +425,22 @@ class PpsClock(StampClock):
         if self._saved_at is not None and now_ns - self._saved_at < self.s.save_interval_s * NS:
             return
         self._saved_at = now_ns
-        self.save(now_ns)
+        self.save()
 
-    def save(self, now_ns: int | None = None) -> None:
+    def save(self) -> None:
         """Write the frequency (and, for a restart on the same boot, the mapping) like chrony's driftfile."""
         if self.state_path is None or self._fit is None:
             return
-        now = self._mono() if now_ns is None else now_ns
         with self._lock:
             if self._last_sample_ns is None:
                 return
             ref = self._last_sample_ns
             state = {
                 "clock_id": self.clock_id, "ref_mono_ns": ref, "ref_offset_ns": round(self._offset_at(ref)),
-                "freq": self._current_slope(now), "skew": self._fit.skew / NS,
+                # The fit's own frequency, at the temperature it was fitted at (temp_degc): a restart on this boot
+                # corrects it for the temperature since, as this run does. The current slope, corrected already,
+                # was corrected twice (10-21 ms off after a warming 10 degC in holdover, just over the bound).
+                "freq": self._fit.slope / NS, "skew": self._fit.skew / NS,
                 "err_ns": round(self._err_at(ref, LOCKED)), "tempco": self.tempco.coefficient(),
                 "temp_degc": self._temp_at_fit,
             }

@@ -97,9 +97,14 @@ def fit_line(x: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None, sl
             break
         prior = slope_prior if len(idx) < MIN_SAMPLES_FOR_SLOPE else None
         _, _, res, _, _ = _wls(x[idx], y[idx], w[idx], x_ref, prior)
-        mad = float(np.median(np.abs(res - np.median(res))))
+        # Distances from the residuals' median, not from zero: an outlier shifts the least-squares line by its
+        # share, so every good sample's residual is that shift (31 us for an edge 2 ms late among 64), which the
+        # noise's MAD of a few microseconds would call an outlier too: all of them went, and the fit with them.
+        # Measured from the median, fewer than half can ever be beyond a multiple of the MAD.
+        med = float(np.median(res))
+        mad = float(np.median(np.abs(res - med)))
         scale = max(1.4826 * mad, min_sigma)
-        bad = np.abs(res) > OUTLIER_SIGMAS * scale if scale > 0 else np.zeros(len(idx), dtype=bool)
+        bad = np.abs(res - med) > OUTLIER_SIGMAS * scale if scale > 0 else np.zeros(len(idx), dtype=bool)
         if not bad.any():
             break
         keep[idx[bad]] = False

@@ -28,7 +28,8 @@ class SyncSettings:
     sigma_k: float = 4.0  # error bound = sigma_k * standard error + the allowances
     max_slew_ppm: float = 500.0
     min_sigma_ns: float = 500.0
-    freerun_err_ns: int = 10 * NS  # a board without RTC: its wall clock is only roughly right, if at all
+    # A free-running stamp's bound when the system clock was NTP-synchronised at start (clock.NO_BOUND_NS when not)
+    freerun_err_ns: int = 10 * NS
     save_interval_s: float = 300.0
 
     @classmethod
