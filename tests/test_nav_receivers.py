@@ -23,6 +23,7 @@ from logger.nav.gnss_noise import (
     UsualFigure,
 )
 from logger.nav.gnss_time import GnssEpochClock
+from logger.nav.health import HealthJudge
 from logger.nav.params import NavParams
 from logger.recording.records import feed_record, nav_feeder
 from sensors.sim.scenarios import make_drive
@@ -507,3 +508,23 @@ def test_a_barometer_that_jumps_in_a_canyon_has_its_offset_widened_not_the_heigh
     assert engine.counters.reanchors >= 1 and engine.counters.gnss_canyon_heights > 30
     t, e, _ = errors(drive, engine.rows)
     assert np.abs(e[(t >= 100.0) & (t < 200.0), 2]).max() < 0.6
+
+
+def test_a_silent_barometer_gets_no_verdict_on_its_offset(outage_drive):
+    """The barometer unplugged 100 s in: its offset stands still because nothing moves it, which "stable, +0.00
+    m/min" would have called good news. The operator reads that there is no barometer, and for how long."""
+    drive, _ = outage_drive
+    recs = [r for r in records(drive, 270.0, seed=3) if not (r[1] == "/baro" and r[0] >= T0 + 100 * NS)]
+    engine = NavEngine(NavParams(), record=False)
+    feed = nav_feeder(engine)
+    judge = HealthJudge()
+    said = {}
+    for ts, topic, msg in recs:
+        feed_record(feed, topic, msg)
+        t_s = (ts - T0) / NS
+        if topic == "/imu" and engine.state is not None and round(t_s * 20) % 200 == 0:  # every 10 s
+            said[round(t_s)] = judge.verdicts(engine, t_s)
+    assert any(v.startswith("barometer offset stable") for v in said[90])
+    late = said[max(said)]
+    assert not any(v.startswith("barometer offset") for v in late), late
+    assert any(v.startswith("no barometer for 1") and "runs without it" in v for v in late), late

@@ -260,6 +260,34 @@ def test_a_dead_recorder_stops_the_pings(tmp_path: Path, systemd: tuple[FakeSyst
         d.stop()
 
 
+def test_a_recorder_stuck_in_a_write_is_critical_in_the_status(tmp_path: Path, systemd: tuple[FakeSystemd, str],
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The writer blocks in a write that never returns (a hung SD card): its state still says "recording", but its
+    heartbeat stops, and the status says so (critical, the row "stalled") instead of "ok" while the queue fills;
+    an ended writer thread the same."""
+    import logger.runtime.daemon as daemon_module
+
+    monkeypatch.setattr(daemon_module, "HEARTBEAT_STALE_S", 1.0)
+    fake, path = systemd
+    d = make_daemon(tmp_path, [TickSource("a")], path)
+    release = threading.Event()
+    d.start()
+    try:
+        fake.wait_for("READY")
+        assert d.snapshot()["verdict"] == "ok"
+        d.recorder._drain = lambda: release.wait(30)  # type: ignore[method-assign]
+        wait_until(lambda: d.snapshot()["verdict"] == "critical", "the stuck writer noticed")
+        snap = d.snapshot()
+        assert snap["recorder"]["state"] == "stalled"
+        assert any(p.startswith("recorder: not responding for") for p in snap["problems"]), snap["problems"]
+    finally:
+        release.set()
+        d.stop()
+    assert not d.recorder.alive
+    snap = d.snapshot()
+    assert snap["verdict"] == "critical" and snap["recorder"]["state"] != "recording"
+
+
 # ---- problems into the journal ---------------------------------------------------------------------------------
 
 def test_each_problem_is_logged_when_it_appears_and_clears() -> None:

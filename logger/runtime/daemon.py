@@ -270,11 +270,24 @@ class Daemon:
         now = self.tb.monotonic_ns()
         sensors = [s.health.snapshot(now) for s in self.samplers]
         rec = self.recorder.status()
+        rec_section = dict(rec.__dict__)
         problems: list[str] = []
         critical = False
         if rec.state != "recording":
             problems.append(f"recorder: {rec.detail}")
             critical = True
+        else:
+            # "Recording" is what the writer last said of itself: a writer stuck in a write (a hung SD card) or
+            # ended says nothing more, and the queue fills behind it. Its heartbeat says whether it still runs.
+            silent_s = (now - self.recorder.heartbeat_mono_ns) / 1e9 / self.tb.scale  # real seconds
+            if not self.recorder.alive:
+                problems.append("recorder: its thread has ended; nothing is written")
+            elif silent_s > HEARTBEAT_STALE_S:
+                problems.append(f"recorder: not responding for {silent_s:.0f} s; nothing written since "
+                                f"({rec.queue_depth} records waiting)")
+            if problems:
+                rec_section["state"] = "stalled"
+                critical = True
         no_fix = self.gnss_watch.problem(now)
         for s, snap in zip(self.samplers, sensors, strict=True):
             problem = self._sensor_problem(s, snap, now, no_fix)
@@ -303,7 +316,7 @@ class Daemon:
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
             "sync": self._sync_section(now), "gnss": self.gnss_watch.section(now),
-            "recorder": rec.__dict__, "pace": self.tb.pace(),
+            "recorder": rec_section, "pace": self.tb.pace(),
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
 
