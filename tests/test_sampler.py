@@ -208,7 +208,8 @@ def test_a_sample_finished_over_half_a_period_late_is_counted_delayed_not_late()
 
 def test_the_measured_rate_counts_the_window_s_samples_only() -> None:
     """The rate over the last 10 s of the kept times (found by bisection): samples before the window do not count,
-    a window with fewer than two samples reads 0."""
+    a window without samples reads 0, one with one sample has no rate (None: "-" in the status, not 0.0), and a
+    sensor slower than a sample in 3.3 s is measured over three of its intervals."""
     from logger.runtime.sampler import SensorHealth
 
     h = SensorHealth("imu", 1000.0)
@@ -221,3 +222,9 @@ def test_the_measured_rate_counts_the_window_s_samples_only() -> None:
     assert h.measured_rate_hz(now, window_s=1.0) == pytest.approx(100.0)
     assert h.measured_rate_hz(100 * ns) == 0.0  # nothing in the last 10 s
     assert SensorHealth("baro", 1.0).measured_rate_hz(now) == 0.0
+    one = SensorHealth("baro", 1.0)
+    one._recent.append(now - ns)  # the first sample after an open
+    assert one.measured_rate_hz(now) is None and one.snapshot(now)["measured_rate_hz"] is None
+    slow = SensorHealth("baro", 0.1)  # the configuration allows a barometer every 10 s
+    slow._recent.extend([now - 25 * ns, now - 15 * ns, now - 5 * ns])
+    assert slow.measured_rate_hz(now) == pytest.approx(0.1)

@@ -107,23 +107,28 @@ class SensorHealth:
     last_incident_mono_ns: int | None = None
     _recent: deque[int] = field(default_factory=lambda: deque(maxlen=2048))
 
-    def measured_rate_hz(self, now_ns: int, window_s: float = 10.0) -> float:
-        """Samples a second over the last ``window_s``. The times arrive in order (a FIFO read's stamp the clock
-        steered back moves the window's edge by a sample or so), so the window's first one is found by bisection
-        in a copy taken at once (the sampler thread appends meanwhile): at 1 kHz the 2048 kept times were walked one
-        by one at every snapshot."""
+    def measured_rate_hz(self, now_ns: int, window_s: float = 10.0) -> float | None:
+        """Samples a second over the last ``window_s``, or over three of the configured intervals when those are
+        longer (a barometer at 0.1 Hz has one sample in 10 s, and a rate needs two). 0.0 when none came in it; None
+        when one did (the first after an open): no rate can be measured from one time, and it is not none. The
+        times arrive in order (a FIFO read's stamp the clock steered back moves the window's edge by a sample or
+        so), so the window's first one is found by bisection in a copy taken at once (the sampler thread appends
+        meanwhile): at 1 kHz the 2048 kept times were walked one by one at every snapshot."""
+        if self.rate_hz:
+            window_s = max(window_s, 3.0 / self.rate_hz)
         recent = list(self._recent)
         first = bisect_left(recent, now_ns - int(window_s * 1e9))
         n = len(recent) - first
-        if n < 2:
+        if n == 0:
             return 0.0
         span = recent[-1] - recent[first]
-        return (n - 1) / (span / 1e9) if span > 0 else 0.0
+        return (n - 1) / (span / 1e9) if n > 1 and span > 0 else None
 
     def snapshot(self, now_ns: int) -> dict[str, Any]:
         age = (now_ns - self.last_sample_mono_ns) / 1e9 if self.last_sample_mono_ns is not None else None
         return {"name": self.name, "state": self.state, "rate_hz": self.rate_hz,
-                "measured_rate_hz": round(self.measured_rate_hz(now_ns), 3), "last_sample_age_s": age,
+                "measured_rate_hz": None if (rate := self.measured_rate_hz(now_ns)) is None else round(rate, 3),
+                "last_sample_age_s": age,
                 "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
                 "delayed": self.delayed, "gaps": self.gaps, "reconnects": self.reconnects,
                 "last_error": self.last_error, "origin": self.origin,
