@@ -20,8 +20,9 @@ from logger.cli.status_view import render
 from logger.config import ConfigError, parse
 from logger.nav.params import NavParams
 from logger.runtime.daemon import Attachments
-from logger.runtime.navigator import Navigator, attach_navigator
+from logger.runtime.navigator import STALE_S, Navigator, attach_navigator
 from logger.runtime.sampler import Reading
+from logger.runtime.timebase import TimeBase
 from sensors.sim.scenarios import make_drive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,6 +104,17 @@ def test_navigator_thread_publishes_fixes_state_and_status():
     assert any(v.startswith("OBD speed reads") for v in sec["verdicts"])
     text = render({"verdict": "ok", "nav": sec})
     assert f"nav     {sec['lat_deg']:.7f} " in text and "\n        GNSS consistent with the IMU" in text
+    # Bound to a daemon whose board clock has gone on without IMU samples (the IMU unplugged): the position is
+    # shown as the past it is, without the verdicts drawn with it (they read as the present before). A daemon at
+    # 4x drive time: judged in real seconds.
+    last_mono = fixes[-1].payload["t_mono_ns"]
+    for scale, ahead_s, stale in ((1.0, 3.0, False), (1.0, STALE_S + 1.0, True), (4.0, 4 * STALE_S - 2.0, False)):
+        # As bind() leaves it, without starting the thread again.
+        nav._timebase = TimeBase(lambda a=ahead_s: last_mono + int(a * 1e9), scale=scale)
+        sec = nav.section()
+        assert sec["age_s"] == pytest.approx(ahead_s, abs=0.6)
+        said_old = [v for v in sec["verdicts"] if v.startswith("no new solution for")]
+        assert bool(said_old) == stale and (not stale or len(sec["verdicts"]) == 1), sec["verdicts"]
 
 
 def test_nav_configuration_is_checked_and_reaches_the_filter():

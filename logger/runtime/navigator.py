@@ -56,6 +56,7 @@ INPUT_TOPICS = frozenset((*NAV_INPUT_TOPICS, IMU_BATCH))  # live, a FIFO read co
 # core at 20 Hz, the daemon 0.51-0.57 against 0.58-0.62 % (tools/bench_daemon.py, three pairs of 150 s windows
 # alternated); the live solution in `logger status` is then up to two seconds old instead of one.
 WAKE_S = 2.0
+STALE_S = WAKE_S + 3.0  # a solution older than this (real seconds) is shown as the past it is
 HOLD_MAX_NS = 2_000_000_000  # a measurement waits for the IMU samples before it at most this long (record time)
 
 
@@ -96,6 +97,7 @@ class Navigator:
         self.rerun = NavRerun(params, self._make_engine, deferred=True)
         self.publish = publish
         self.monotonic_ns = monotonic_ns
+        self._timebase: Any = None  # the daemon's board clock (a TimeBase), once bound to it
         self.judge = HealthJudge()
         self._q: deque[tuple[str, dict[str, Any]]] = deque()
         self._q_lock = threading.Lock()  # the bound and the append together, for offers from many threads
@@ -165,6 +167,7 @@ class Navigator:
                 daemon.sink(r)
 
         self.publish = publish
+        self._timebase = daemon.tb
         self.start()
 
     def start(self) -> None:
@@ -387,6 +390,15 @@ class Navigator:
                 out.update(lat_deg=math.degrees(sol.lat_rad), lon_deg=math.degrees(sol.lon_rad), height_m=sol.h_m,
                            sigma_h_m=math.hypot(sol.sigma_ned[0], sol.sigma_ned[1])
                            if math.isfinite(sol.sigma_ned[0]) else None, source=sol.source)
+                tb = self._timebase
+                age_s = (tb.monotonic_ns() - sol.t_mono_ns) / 1e9 if tb is not None else None
+                out["age_s"] = None if age_s is None else round(age_s, 1)
+                # Judged in real seconds, as the thread wakes: a simulated drive at 4x is 4 s of drive per second.
+                if age_s is not None and age_s / tb.scale > STALE_S:
+                    # The filter moves with the IMU's samples: without them the last solution and the verdicts drawn
+                    # with it stay as they were, and would read as the present.
+                    out["verdicts"] = [f"no new solution for {age_s:.0f} s (no IMU samples reach the filter): the "
+                                       "position above is from then"]
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out
