@@ -288,6 +288,45 @@ def test_a_recorder_stuck_in_a_write_is_critical_in_the_status(tmp_path: Path, s
     assert snap["verdict"] == "critical" and snap["recorder"]["state"] != "recording"
 
 
+class FailingSource(TickSource):
+    """A sensor that answers, then stops answering (unplugged): its reads fail from ``fail`` on."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.fail = threading.Event()
+
+    def read(self) -> list[Reading]:
+        if self.fail.is_set():
+            raise BusError("no answer (no ACK): check wiring")
+        return super().read()
+
+    def open(self) -> None:
+        if self.fail.is_set():
+            raise BusError("no answer (no ACK): check wiring")
+
+
+def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    """A sensor that stopped answering just before the run was told to stop: the summary says it ended unwell,
+    with its error (each sampler says "stopped" once it has, which the summary read before)."""
+    from logger.runtime.summary import run_summary
+
+    fake, path = systemd
+    unplugged = FailingSource("flaky")
+    d = make_daemon(tmp_path, [TickSource("steady"), unplugged], path)
+    d.start()
+    try:
+        fake.wait_for("READY")
+        unplugged.fail.set()
+        wait_until(lambda: next(h for h in d.snapshot()["sensors"] if h["name"] == "flaky")["state"] != "ok",
+                   "the unplugged sensor noticed")
+    finally:
+        d.stop()
+    text = run_summary(d)
+    ended = [line for line in text.splitlines() if line.startswith("  ! flaky ended ")]
+    assert len(ended) == 1 and "no answer (no ACK): check wiring" in ended[0], text
+    assert not any(line.startswith("  ! steady") for line in text.splitlines()), text
+
+
 # ---- problems into the journal ---------------------------------------------------------------------------------
 
 def test_each_problem_is_logged_when_it_appears_and_clears() -> None:

@@ -121,6 +121,7 @@ class Daemon:
         self._batch_seq: dict[str, int] = {}  # a batch topic's next sample number (one sampler thread each)
         self._started_mono = 0
         self._stopped_mono: int | None = None
+        self.final_sensors: list[dict[str, Any]] | None = None  # the sensor rows when the run was told to stop
         self._threads: list[threading.Thread] = []
         self.status_server: Any = None
         self.startup_lines: list[str] = []
@@ -227,6 +228,10 @@ class Daemon:
     def stop(self) -> None:
         if self._stopped_mono is None:
             self._stopped_mono = self.tb.monotonic_ns()
+            if self._started.is_set():
+                # The sensors as they were when the run was told to stop (each says "stopped" once it has): what the
+                # summary says a sensor ended as.
+                self.final_sensors = self.snapshot()["sensors"]
         self.notifier.stopping("stopping: finishing the file")
         self.stop_event.set()
         for s in self.samplers:

@@ -42,13 +42,17 @@ def run_summary(daemon: Daemon) -> str:
             held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
                     else "")
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
-    end = daemon.ended_mono_ns  # the states as they were when the run was told to stop, not as the summary runs
-    for snap in (s.health.snapshot(end) for s in daemon.samplers):
+    # The rows as they were when the run was told to stop (a sampler says "stopped" once it has), with the daemon's
+    # own judgement in them (silent, stalled); the samplers' health at that time when the daemon never started.
+    end = daemon.ended_mono_ns
+    rows = daemon.final_sensors or [s.health.snapshot(end) for s in daemon.samplers]
+    for snap in rows:
         if snap["samples"] == 0:
             lines.append(f"  ! {snap['name']} never delivered" + (f": {snap['last_error']}" if snap["last_error"]
                                                                   else ""))
         elif snap["state"] not in ("ok", "stopped"):
-            lines.append(f"  ! {snap['name']} ended {snap['state']}: {snap['last_error']}")
+            why = snap["last_error"] or ""
+            lines.append(f"  ! {snap['name']} ended {snap['state']}" + (f": {why}" if why else ""))
         if snap["samples"]:
             spent = daemon.time_in_state.get(snap["name"], {})
             unwell = {k: v for k, v in spent.items() if k not in ("ok", "stopped", "starting")}
