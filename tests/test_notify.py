@@ -237,6 +237,7 @@ def test_ready_waits_for_the_first_open_but_not_forever(tmp_path: Path, systemd:
         assert t_ready - t0 >= 1.5  # not before the timeout, while the sensor was still opening
         assert fake.pings_between(t0, t_ready) >= 2  # start-up is not a hang
         assert d.samplers[0].health.state == "starting"
+        assert "slow: starting: opening the device" in d.snapshot()["problems"]  # not "starting: " and nothing
     finally:
         slow.open_gate.set()
         d.stop()

@@ -339,7 +339,9 @@ class Daemon:
         talks without a fix is ``no fix``."""
         if snap["state"] != "ok":
             snap["measured_rate_hz"] = None
-            return f"{snap['state']}: {snap['last_error']}"
+            if snap["last_error"]:
+                return f"{snap['state']}: {snap['last_error']}"
+            return "starting: opening the device" if snap["state"] == "starting" else snap["state"]
         if (now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale > HEARTBEAT_STALE_S:  # real seconds
             snap["state"], snap["measured_rate_hz"] = "stalled", None
             return "thread not responding"
