@@ -43,6 +43,7 @@ WALL_PATIENCE_NS = 60 * NS
 # the pulse before it. Read earlier than that by this clock (beyond this margin), the clock is whole seconds off.
 READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
 ANNOUNCEMENT_LEAD_NS = 1_500_000_000  # a TIM-TP comes at most this long before the edge it announces
+CONFIRM_EDGES = 4  # edges a fit needs to refuse one of them as an outlier (regress.MIN_SAMPLES_FOR_SLOPE + 1)
 # A free-running stamp's bound when the system clock was not synchronised at start: none the logger can stand
 # behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
 # so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
@@ -87,6 +88,10 @@ class PpsClock(StampClock):
         self._temp_at_fit: float | None = None
         self._comp_ns = 0.0  # integral of the temperature correction since the last sample
         self._comp_abs_ns = 0.0  # integral of the worst-case temperature term, for the bound
+        # After a gap the regression starts again from one edge, which nothing can check but the holdover it ends:
+        # their disagreement and the holdover's own bound stay in the bound until the fit has edges enough to refuse
+        # a late one (CONFIRM_EDGES). An edge served 0.3-0.5 ms late gave locked stamps that far off behind 13-39 us.
+        self._unconfirmed_ns = 0.0
         self._last_temp: tuple[int, float] | None = None
         self._saved_at: int | None = None
         self._restored = False
@@ -160,6 +165,7 @@ class PpsClock(StampClock):
         self._last_sample_ns = None
         self._slew_from_ns = None
         self._slew_ns = 0.0
+        self._unconfirmed_ns = 0.0
         self._wall_disagree_since = None
         self.labeller.restart_chain()
 
@@ -178,6 +184,7 @@ class PpsClock(StampClock):
             return
         state_before = self._state_at(edge_ns)
         predicted = self._offset_at(edge_ns) if state_before != FREERUN else None
+        bound_before = self._err_at(edge_ns, state_before) if predicted is not None else 0.0
         # chrony's "last offset": how far the published time was from this edge's GNSS time.
         self._last_offset_ns = round(predicted - offset) if predicted is not None else None
         gap_s = (edge_ns - self._last_sample_ns) / NS if self._last_sample_ns is not None else math.inf
@@ -213,10 +220,15 @@ class PpsClock(StampClock):
                 # Short dropouts (a shaded antenna, a bridge) are routine in a car: the journal keeps the long ones.
                 log.log(logging.INFO if gap_s >= 60.0 else logging.DEBUG,
                         "PPS back after %.1f s: holdover was %+.1f us off", gap_s, step / 1e3)
+            if gap_s > self.s.restart_window_after_s:
+                # The truth is within the holdover's bound of its prediction, which is |step| from the new fit.
+                self._unconfirmed_ns = abs(step) + bound_before
             # Whatever the new fit says, published time moves on continuously: slew the difference out.
             self._slew_from_ns = edge_ns
             self._slew_ns = step
             self._slew_len_ns = max(1, int(abs(step) / (self.s.max_slew_ppm * 1e-6)))
+        if len(self._edges) >= CONFIRM_EDGES:
+            self._unconfirmed_ns = 0.0
         self._consecutive += 1
         if self.on_sample is not None and self._locked_once:
             self.on_sample(true_board_ns, label_ns)
@@ -331,6 +343,7 @@ class PpsClock(StampClock):
         since = max(0.0, (t_ns - (self._last_sample_ns or t_ns)) / NS)
         if state == HOLDOVER or since > 0:
             err += self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
+        err += self._unconfirmed_ns
         if self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
@@ -364,6 +377,7 @@ class PpsClock(StampClock):
                 off = self._base_ns + (fit.offset_at_ref + fit.slope * u) + self._comp_ns
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
                 err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
+                err = err + self._unconfirmed_ns
                 return Stamps((t + np.rint(off).astype(np.int64)).tolist(), [LOCKED] * len(t),
                               np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(),
                               timer_cnt.tolist())
@@ -380,6 +394,7 @@ class PpsClock(StampClock):
             since = np.maximum(0.0, (t - (last if last is not None else t)) / NS)
             grow = ~locked | (since > 0)
             err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns), err)
+            err = err + self._unconfirmed_ns
             if self._slew_from_ns is not None:
                 left = 1.0 - (t - self._slew_from_ns) / self._slew_len_ns
                 part = np.minimum(1.0, left)

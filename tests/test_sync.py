@@ -77,6 +77,36 @@ def test_a_free_running_stamp_claims_a_bound_only_when_the_system_clock_was_sync
     assert {synced.stamp(6 * NS).state, unsynced.stamp(6 * NS).state} == {"freerun"}
 
 
+@pytest.mark.parametrize("late_ms", [0.3, 0.5, 1.0])
+def test_the_first_edge_after_an_outage_served_late_is_within_the_bound(late_ms: float) -> None:
+    """After a minute without PPS the fit starts again from one edge, which nothing but the holdover it ends can
+    check: served late, it was taken as the truth, and once the slew to it was over the bound was a locked one
+    (stamps 0.3-0.5 ms off behind 13-39 us until the next edges). The holdover's bound and its disagreement with
+    the edge stay in the bound until the fit has edges enough to refuse a late one."""
+    stream = make_stream(420, seed=5, swing_degc=0.0, outages=((300, 360),))
+    first = 360  # the first edge after the outage
+    edge = next(b for b, t, p in stream.events if t == "/pps" and p["seqno"] == first) + int(late_ms * 1e6)
+    stream.events = sorted(((edge, t, p) if t == "/pps" and p["seqno"] == first else (b, t, p)
+                            for b, t, p in stream.events), key=lambda e: e[0])
+    now = [0]
+    clock = PpsClock(SyncSettings(), monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    checked, relocked = 0, False
+    for board, topic, _ in feed(clock, stream.events):
+        now[0] = board
+        if not relocked and clock.counts["relocks"]:  # the late edge was just taken
+            relocked = True
+            for q in (edge + k * 100_000_000 for k in range(1, 10)):
+                assert clock.stamp(q).err_ns >= late_ms * 1e6, q
+        if topic == "/pps":  # stamps through each second
+            for q in (board + k * 100_000_000 for k in range(1, 10)):
+                st = clock.stamp(q)
+                if st.state != "freerun":
+                    assert abs(st.t_sync_ns - stream.true_unix_ns(q)) <= st.err_ns, (q, st)
+                    checked += 1
+    assert relocked and checked > 3000
+    assert clock.stamp(now[0]).err_ns < 100_000  # confirmed by the edges since: a locked bound again
+
+
 def test_runs_test_drops_a_stale_head() -> None:
     rng = np.random.default_rng(3)
     x = np.arange(64.0)
