@@ -396,9 +396,10 @@ class Navigator:
                 # Judged in real seconds, as the thread wakes: a simulated drive at 4x is 4 s of drive per second.
                 if age_s is not None and age_s / tb.scale > STALE_S:
                     # The filter moves with the IMU's samples: without them the last solution and the verdicts drawn
-                    # with it stay as they were, and would read as the present.
+                    # with it stay as they were, and would read as the present (fixes that come meanwhile only nudge
+                    # the position held at the last sample's time).
                     out["verdicts"] = [f"no new solution for {age_s:.0f} s (no IMU samples reach the filter): the "
-                                       "position above is from then"]
+                                       "position above is not current"]
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out
