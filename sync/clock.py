@@ -29,7 +29,7 @@ import numpy as np
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
-from sync.regress import LineFit, fit_line
+from sync.regress import MIN_SAMPLES_FOR_SLOPE, LineFit, fit_line
 from sync.settings import SyncSettings
 from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, Stamps, TrackingReport
 from sync.tempco import TempcoEstimator
@@ -43,7 +43,7 @@ WALL_PATIENCE_NS = 60 * NS
 # the pulse before it. Read earlier than that by this clock (beyond this margin), the clock is whole seconds off.
 READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
 ANNOUNCEMENT_LEAD_NS = 1_500_000_000  # a TIM-TP comes at most this long before the edge it announces
-CONFIRM_EDGES = 4  # edges a fit needs to refuse one of them as an outlier (regress.MIN_SAMPLES_FOR_SLOPE + 1)
+CONFIRM_EDGES = MIN_SAMPLES_FOR_SLOPE + 1  # edges a fit needs to refuse one of them as an outlier (fit_line)
 # A free-running stamp's bound when the system clock was not synchronised at start: none the logger can stand
 # behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
 # so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
@@ -184,11 +184,12 @@ class PpsClock(StampClock):
             return
         state_before = self._state_at(edge_ns)
         predicted = self._offset_at(edge_ns) if state_before != FREERUN else None
-        bound_before = self._err_at(edge_ns, state_before) if predicted is not None else 0.0
         # chrony's "last offset": how far the published time was from this edge's GNSS time.
         self._last_offset_ns = round(predicted - offset) if predicted is not None else None
         gap_s = (edge_ns - self._last_sample_ns) / NS if self._last_sample_ns is not None else math.inf
-        if predicted is not None and gap_s > self.s.restart_window_after_s:
+        restart = predicted is not None and gap_s > self.s.restart_window_after_s
+        bound_before = self._err_at(edge_ns, state_before) if restart else 0.0  # the holdover's, this edge ends
+        if restart:
             # After a long gap the old samples describe another temperature: start afresh, keep the frequency.
             self._slope_prior = self._current_slope(edge_ns)
             self._edges.clear()
@@ -220,7 +221,7 @@ class PpsClock(StampClock):
                 # Short dropouts (a shaded antenna, a bridge) are routine in a car: the journal keeps the long ones.
                 log.log(logging.INFO if gap_s >= 60.0 else logging.DEBUG,
                         "PPS back after %.1f s: holdover was %+.1f us off", gap_s, step / 1e3)
-            if gap_s > self.s.restart_window_after_s:
+            if restart:
                 # The truth is within the holdover's bound of its prediction, which is |step| from the new fit.
                 self._unconfirmed_ns = abs(step) + bound_before
             # Whatever the new fit says, published time moves on continuously: slew the difference out.

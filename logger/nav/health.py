@@ -78,24 +78,7 @@ class HealthJudge:
                 out.append(f"OBD speed reads {abs(high):.1f} % {word} (+-{sf_sigma * 100:.1f} %)")
             else:
                 out.append("OBD speed scale still being learned (needs GNSS velocity while driving)")
-            baro = engine.last_readings.baro
-            if baro is None or not engine.last_readings.baro_fresh(t_last or 0):
-                # An offset standing still says nothing then (no reading moved it): no verdict on it, and its trend
-                # starts again with the readings.
-                self._offset.clear()
-                since = "" if baro is None or not t_last else f" for {(t_last - baro[0]) / 1e9:.0f} s"
-                out.append(f"no barometer{since}: the height runs without it")
-            else:
-                self._offset.append((t_s, s.dh))
-                old = [(t, d) for t, d in self._offset if t_s - t >= 60.0]
-                if old:
-                    t0, d0 = old[-1]
-                    rate = (s.dh - d0) / (t_s - t0) * 60.0
-                    state = "drifting" if abs(rate) > BARO_DRIFT_M_PER_MIN else "stable"
-                    out.append(f"barometer offset {state}: {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), "
-                               f"{rate:+.2f} m/min")
-                else:
-                    out.append(f"barometer offset {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), trend after a minute")
+            out.append(self._baro_verdict(engine, t_s))
         out.append(offsets_verdict(engine))
         noisy = noise_verdict(engine)
         if noisy:
@@ -104,6 +87,25 @@ class HealthJudge:
         if engine.counters.resets:
             out.append(f"filter restarted from GNSS {engine.counters.resets} times (lost itself)")
         return out
+
+    def _baro_verdict(self, engine: NavEngine, t_s: float) -> str:
+        """The barometer's offset and its trend over a minute; without a barometer heard from, that there is none
+        (an offset nothing moves stands still: no verdict on it, and its trend starts again with the readings)."""
+        s, ekf, t_last = engine.state, engine.ekf, engine.t_last_ns
+        assert s is not None and ekf is not None
+        baro = engine.last_readings.baro
+        if baro is None or not engine.last_readings.baro_fresh(t_last or 0):
+            self._offset.clear()
+            since = "" if baro is None or not t_last else f" for {(t_last - baro[0]) / 1e9:.0f} s"
+            return f"no barometer{since}: the height runs without it"
+        self._offset.append((t_s, s.dh))
+        old = [(t, d) for t, d in self._offset if t_s - t >= 60.0]
+        if not old:
+            return f"barometer offset {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), trend after a minute"
+        t0, d0 = old[-1]
+        rate = (s.dh - d0) / (t_s - t0) * 60.0
+        state = "drifting" if abs(rate) > BARO_DRIFT_M_PER_MIN else "stable"
+        return f"barometer offset {state}: {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), {rate:+.2f} m/min"
 
 
 def offsets_verdict(engine: NavEngine) -> str:

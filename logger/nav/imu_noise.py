@@ -28,6 +28,7 @@ TAU_S = 30.0  # the average's memory, drive time
 # adds less on a bolted board (the simulated MPU-6050 of the matrix's tunnel drive read up to 1.9x while starting
 # off, then 1.0x; the simulated phone 6.6x).
 CONSUMER_NOISE_RATIO = 3.0
+MIN_S = 5.0  # before this much has been seen, the datasheet stands
 
 
 def consumer_grade(ratio: Sequence[float]) -> bool:
@@ -35,7 +36,6 @@ def consumer_grade(ratio: Sequence[float]) -> bool:
     says a part CONSUMER_NOISE_RATIO times noisier or more on either: what lets a held stop teach the stop detector
     and what ``logger status`` then says of the IMU."""
     return max(ratio) >= CONSUMER_NOISE_RATIO
-MIN_S = 5.0  # before this much has been seen, the datasheet stands
 
 
 class ImuNoiseMonitor(Deferred, BlockKeeper):

@@ -95,7 +95,9 @@ class GnssPolicy:
                                           params.gnss_floor_corr_s)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
-        self._height_in_ns: int | None = None  # the epoch of the last fix whose height went in
+        # The epoch of the last fix whose height went in, whatever its accuracy (LastReadings.height_in_ns counts
+        # a receiver's sure ones only): what the canyon hold is measured from.
+        self._height_in_ns: int | None = None
         self._usual_v = UsualFigure()  # the receiver's usual vertical figure, which a canyon's is measured against
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
@@ -161,10 +163,7 @@ class GnssPolicy:
         last = self.last_readings
         canyon = (fix.v_over_usual >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
                   and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
-        held = core.counters.gnss_canyon_heights
-        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, height=not canyon)
-        if core.counters.gnss_canyon_heights > held:
-            last.height_held_ns = t_e
+        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, t_e if canyon else None)
         ok = True if obs is None else core.apply(obs)
         if ok and obs is not None and len(obs.z) == 3:
             self._height_in_ns = t_e
@@ -213,10 +212,10 @@ class GnssPolicy:
             self.velocity.judge(core, obs, core.apply(obs), fix.t_ns,
                                 fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
 
-    def _informative(self, core: FilterCore, obs: Observation, block: int,
-                     height_on_its_own: bool = False, height: bool = True) -> Observation | None:
-        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO (and
-        without its height when ``height`` is False)."""
+    def _informative(self, core: FilterCore, obs: Observation, block: int, height_on_its_own: bool = False,
+                     canyon_ns: int | None = None) -> Observation | None:
+        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO; with
+        ``canyon_ns`` (a street canyon's fix, of that epoch) without its height, which the barometer holds instead."""
         assert core.ekf is not None
         p = core.ekf.p
         keep = [i for i in range(min(2, len(obs.z)))
@@ -230,11 +229,12 @@ class GnssPolicy:
         held = 0
         if len(obs.z) > 2 and (keep or (height_on_its_own
                                         and obs.r[2] <= UNINFORMATIVE_RATIO * float(p[block + 2, block + 2]))):
-            if height:
+            if canyon_ns is None:
                 keep.append(2)
             else:  # a canyon's height that would have gone in: the barometer holds the height instead
                 held = 1
                 core.counters.gnss_canyon_heights += 1
+                self.last_readings.height_held_ns = canyon_ns
         if len(keep) < len(obs.z):
             core.counters.gnss_skipped += len(obs.z) - len(keep) - held
             if not keep:

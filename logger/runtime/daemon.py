@@ -231,7 +231,7 @@ class Daemon:
             if self._started.is_set():
                 # The sensors as they were when the run was told to stop (each says "stopped" once it has): what the
                 # summary says a sensor ended as.
-                self.final_sensors = self.snapshot()["sensors"]
+                self.final_sensors = self._sensor_rows(self._stopped_mono)[0]
         self.notifier.stopping("stopping: finishing the file")
         self.stop_event.set()
         for s in self.samplers:
@@ -273,7 +273,6 @@ class Daemon:
     # ---- health ----------------------------------------------------------------------------------------------
     def snapshot(self) -> dict[str, Any]:
         now = self.tb.monotonic_ns()
-        sensors = [s.health.snapshot(now) for s in self.samplers]
         rec = self.recorder.status()
         rec_section = dict(rec.__dict__)
         problems: list[str] = []
@@ -288,19 +287,13 @@ class Daemon:
             if not self.recorder.alive:
                 problems.append("recorder: its thread has ended; nothing is written")
             elif silent_s > HEARTBEAT_STALE_S:
-                problems.append(f"recorder: not responding for {silent_s:.0f} s; nothing written since "
-                                f"({rec.queue_depth} records waiting)")
+                # Its heartbeat beats between drains: a writer stuck in one, not necessarily one that wrote nothing.
+                problems.append(f"recorder: not responding for {silent_s:.0f} s ({rec.queue_depth} records waiting)")
             if problems:
                 rec_section["state"] = "stalled"
                 critical = True
-        no_fix = self.gnss_watch.problem(now)
-        for s, snap in zip(self.samplers, sensors, strict=True):
-            problem = self._sensor_problem(s, snap, now, no_fix)
-            if problem:
-                problems.append(f"{snap['name']}: {problem}")
-            incident = s.health.recent_incident(now)
-            if incident is not None:
-                problems.append(f"{snap['name']}: {incident}")
+        sensors, sensor_problems = self._sensor_rows(now)
+        problems += sensor_problems
         no_raw = self.gnss_watch.raw_problem(now)
         if no_raw:
             problems.append(f"gnss: {no_raw}")
@@ -324,6 +317,21 @@ class Daemon:
             "recorder": rec_section, "pace": self.tb.pace(),
             **{name: fn() for name, fn in self.attachments.sections.items()},
         }
+
+    def _sensor_rows(self, now: int) -> tuple[list[dict[str, Any]], list[str]]:
+        """Each sensor's row with the daemon's judgement in it (silent, stalled, no fix), and the problems they
+        show."""
+        sensors = [s.health.snapshot(now) for s in self.samplers]
+        problems: list[str] = []
+        no_fix = self.gnss_watch.problem(now)
+        for s, snap in zip(self.samplers, sensors, strict=True):
+            problem = self._sensor_problem(s, snap, now, no_fix)
+            if problem:
+                problems.append(f"{snap['name']}: {problem}")
+            incident = s.health.recent_incident(now)
+            if incident is not None:
+                problems.append(f"{snap['name']}: {incident}")
+        return sensors, problems
 
     def _recent_snapshot(self) -> dict[str, Any]:
         """The health loop's snapshot while it is fresh (:data:`SHARED_SNAPSHOT_NS`), else a new one (that loop

@@ -398,8 +398,9 @@ class Navigator:
                     # The filter moves with the IMU's samples: without them the last solution and the verdicts drawn
                     # with it stay as they were, and would read as the present (fixes that come meanwhile only nudge
                     # the position held at the last sample's time).
-                    out["verdicts"] = [f"no new solution for {age_s:.0f} s (no IMU samples reach the filter): the "
-                                       "position above is not current"]
+                    # What is known is the filter's last sample, not why (an IMU gone silent, or this thread stuck).
+                    out["verdicts"] = [f"no new solution for {age_s:.0f} s (the filter integrated no IMU sample "
+                                       "since): the position above is not current"]
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out

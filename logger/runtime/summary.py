@@ -51,8 +51,8 @@ def run_summary(daemon: Daemon) -> str:
             lines.append(f"  ! {snap['name']} never delivered" + (f": {snap['last_error']}" if snap["last_error"]
                                                                   else ""))
         elif snap["state"] not in ("ok", "stopped"):
-            why = snap["last_error"] or ""
-            lines.append(f"  ! {snap['name']} ended {snap['state']}" + (f": {why}" if why else ""))
+            lines.append(f"  ! {snap['name']} ended {snap['state']}" + (f": {snap['last_error']}" if snap["last_error"]
+                                                                        else ""))
         if snap["samples"]:
             spent = daemon.time_in_state.get(snap["name"], {})
             unwell = {k: v for k, v in spent.items() if k not in ("ok", "stopped", "starting")}
