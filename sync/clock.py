@@ -48,6 +48,9 @@ CONFIRM_EDGES = MIN_SAMPLES_FOR_SLOPE + 1  # edges a fit needs to refuse one of 
 # behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
 # so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
 NO_BOUND_NS = 2**62
+# A missed edge's growth is put in the bound at this multiple: a frequency still changing (a temperature ramp, a
+# slew of the monotonic clock beginning) makes the next miss larger than a straight line through two predicts.
+MISS_GROWTH_MARGIN = 2.0
 
 
 class PpsClock(StampClock):
@@ -92,6 +95,14 @@ class PpsClock(StampClock):
         # their disagreement and the holdover's own bound stay in the bound until the fit has edges enough to refuse
         # a late one (CONFIRM_EDGES). An edge served 0.3-0.5 ms late gave locked stamps that far off behind 13-39 us.
         self._unconfirmed_ns = 0.0
+        # An edge the fit predicted worse than the bound it claimed (a rate step the regression has not followed:
+        # the newest edges look like outliers to it): how far beyond, and how fast the misses grow, stay in the
+        # bound until an edge falls within it again. Without them a 5 ppm step gave stamps 31 us off behind 13 us
+        # for 7 s, and CLOCK_MONOTONIC slewed by NTP at 500 ppm 1 ms behind 12 us.
+        self._miss_ns = 0.0
+        self._miss_growth = 0.0  # ns of miss per ns since the edge
+        self._good_miss: tuple[int, float] | None = None  # (board ns, miss) of the last edge within its bound
+        self._suspect_left = 0  # edges within their bounds still needed before the growth leaves the bound
         self._last_temp: tuple[int, float] | None = None
         self._saved_at: int | None = None
         self._restored = False
@@ -166,6 +177,7 @@ class PpsClock(StampClock):
         self._slew_from_ns = None
         self._slew_ns = 0.0
         self._unconfirmed_ns = 0.0
+        self._forget_misses()
         self._wall_disagree_since = None
         self.labeller.restart_chain()
 
@@ -189,6 +201,10 @@ class PpsClock(StampClock):
         gap_s = (edge_ns - self._last_sample_ns) / NS if self._last_sample_ns is not None else math.inf
         restart = predicted is not None and gap_s > self.s.restart_window_after_s
         bound_before = self._err_at(edge_ns, state_before) if restart else 0.0  # the holdover's, this edge ends
+        if predicted is not None and not restart:
+            self._judge_miss(edge_ns, state_before, abs(predicted - offset))
+        else:
+            self._forget_misses()
         if restart:
             # After a long gap the old samples describe another temperature: start afresh, keep the frequency.
             self._slope_prior = self._current_slope(edge_ns)
@@ -239,6 +255,34 @@ class PpsClock(StampClock):
             self._slew_ns = 0.0
             log.info("clock locked to GNSS time (%d PPS edges)", len(self._edges))
         self._maybe_save(edge_ns)
+
+    def _judge_miss(self, edge_ns: int, state_before: str, miss_ns: float) -> None:
+        """How far this edge was from the time published for it, against the bound claimed there without the
+        misses' own term: beyond it, the miss (with the edges' latency spread) and its growth go into the bound,
+        in place of what was claimed. The growth is measured
+        from the last edge within its bound (consecutive misses differ by their edges' jitter too: a 5 ppm ramp's
+        went 23.0, 32.3, 31.0 us) and stays in the bound until CONFIRM_EDGES edges in a row fall within theirs: the
+        fit that follows a rate step overshoots when the rate steps back, and one edge within a bound widened by
+        a slew said nothing of that (a 50 ppm pulse: 94 us off behind 68 us the second after such an edge)."""
+        claimed = self._err_at(edge_ns, state_before, with_misses=False)
+        good = self._good_miss
+        self._good_miss = (edge_ns, miss_ns)
+        if miss_ns <= claimed:
+            self._miss_ns = 0.0
+            self._suspect_left = max(0, self._suspect_left - 1)
+            if not self._suspect_left:
+                self._miss_growth = 0.0
+            return
+        self._good_miss = good
+        # The miss is read off an edge whose interrupt latency varies: the clock was off by up to that much more.
+        self._miss_ns = miss_ns - claimed + self.s.pps_latency_spread_ns
+        self._suspect_left = CONFIRM_EDGES
+        self._miss_growth = max(0.0, (miss_ns - good[1]) / (edge_ns - good[0])) if good is not None else 0.0
+
+    def _forget_misses(self) -> None:
+        self._miss_ns = self._miss_growth = 0.0
+        self._good_miss = None
+        self._suspect_left = 0
 
     def _agrees_with_wall(self, edge_ns: int) -> bool:
         """Before the first lock: GNSS time within half a second of a synchronised wall clock, or no such clock.
@@ -336,7 +380,7 @@ class PpsClock(StampClock):
                 return None  # before the first lock the pairing checks pairs against each other only
             return t_ns + round(self._offset_at(t_ns))
 
-    def _err_at(self, t_ns: int, state: str) -> float:
+    def _err_at(self, t_ns: int, state: str, with_misses: bool = True) -> float:
         fit = self._fit
         assert fit is not None
         x = (t_ns - self._fit_origin_ns) / NS
@@ -345,6 +389,8 @@ class PpsClock(StampClock):
         if state == HOLDOVER or since > 0:
             err += self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
         err += self._unconfirmed_ns
+        if with_misses and (self._miss_ns or self._miss_growth):
+            err += self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS
         if self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
@@ -379,6 +425,8 @@ class PpsClock(StampClock):
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
                 err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
                 err = err + self._unconfirmed_ns
+                if self._miss_ns or self._miss_growth:
+                    err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * (t - last))
                 return Stamps((t + np.rint(off).astype(np.int64)).tolist(), [LOCKED] * len(t),
                               np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(),
                               timer_cnt.tolist())
@@ -396,6 +444,8 @@ class PpsClock(StampClock):
             grow = ~locked | (since > 0)
             err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns), err)
             err = err + self._unconfirmed_ns
+            if self._miss_ns or self._miss_growth:
+                err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS)
             if self._slew_from_ns is not None:
                 left = 1.0 - (t - self._slew_from_ns) / self._slew_len_ns
                 part = np.minimum(1.0, left)

@@ -37,8 +37,12 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
                 latency_mean_us: float = 7.0, latency_sd_us: float = 2.0, timepulse: bool = True,
                 fixes: bool = True, double_edges: tuple[int, ...] = (), spurious: tuple[float, ...] = (),
                 late_fix_at: tuple[int, ...] = (), swing_period_s: float | None = None,
-                stall_until_s: float = 0.0, stall_s: float = 0.0, flag_late_reads: bool = False) -> Stream:
+                stall_until_s: float = 0.0, stall_s: float = 0.0, flag_late_reads: bool = False,
+                rate_pulse: tuple[float, float, float] | None = None) -> Stream:
     """A drive of ``duration_s`` true seconds; PPS (and time messages) missing inside ``outages`` (start, end).
+
+    ``rate_pulse`` (start s, length s, ppm): the board clock runs that much faster for a while, its temperature
+    unchanged, as CLOCK_MONOTONIC does while NTP (chrony) slews the system clock.
 
     ``stall_s``: messages before ``stall_until_s`` are seen that late; with ``flag_late_reads`` those late by half a
     second or more say so (``late_read``), as the receiver's source does when one read holds two seconds of them."""
@@ -48,8 +52,13 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
     def ambient(t: float) -> float:
         return 15.0 + 0.5 * swing_degc * (1 - math.cos(math.pi * t / (period / 2)))
 
+    def crystal(t: float) -> float:  # the oscillator's temperature: a rate pulse as degrees at 1 ppm/degC
+        if rate_pulse is not None and rate_pulse[0] <= t < rate_pulse[0] + rate_pulse[1]:
+            return ambient(t) + rate_pulse[2]
+        return ambient(t)
+
     osc = Oscillator(offset_ppm=offset_ppm, tempco_ppm_per_degc=1.0, reference_degc=25.0,
-                     ambient_degc=ambient, duration_s=duration_s + 10, board_start_ns=50 * NS, seed=rng)
+                     ambient_degc=crystal, duration_s=duration_s + 10, board_start_ns=50 * NS, seed=rng)
     s = Stream(osc)
     ev = s.events
     sigma2 = math.log1p((latency_sd_us / latency_mean_us) ** 2)
