@@ -51,6 +51,10 @@ NO_BOUND_NS = 2**62
 # A missed edge's growth is put in the bound at this multiple: a frequency still changing (a temperature ramp, a
 # slew of the monotonic clock beginning) makes the next miss larger than a straight line through two predicts.
 MISS_GROWTH_MARGIN = 2.0
+# The newest edges, this many in a row missed all one way by more than the interrupt latency's spread and on a line
+# of their own (residuals within half that spread), are a change of the board clock's rate or offset, not late
+# interrupts: the fit starts again from them. CONFIRM_EDGES: as many as a fit needs to refuse one of its own.
+CHANGE_EDGES = CONFIRM_EDGES
 
 
 class PpsClock(StampClock):
@@ -103,6 +107,8 @@ class PpsClock(StampClock):
         self._miss_growth = 0.0  # ns of miss per ns since the edge
         self._good_miss: tuple[int, float] | None = None  # (board ns, miss) of the last edge within its bound
         self._suspect_left = 0  # edges within their bounds still needed before the growth leaves the bound
+        # The newest edges' misses, ns: published time minus the edge's GNSS time.
+        self._recent_misses: deque[float] = deque(maxlen=CHANGE_EDGES)
         self._last_temp: tuple[int, float] | None = None
         self._saved_at: int | None = None
         self._restored = False
@@ -202,7 +208,7 @@ class PpsClock(StampClock):
         restart = predicted is not None and gap_s > self.s.restart_window_after_s
         bound_before = self._err_at(edge_ns, state_before) if restart else 0.0  # the holdover's, this edge ends
         if predicted is not None and not restart:
-            self._judge_miss(edge_ns, state_before, abs(predicted - offset))
+            self._judge_miss(edge_ns, state_before, predicted - offset)
         else:
             self._forget_misses()
         if restart:
@@ -224,6 +230,8 @@ class PpsClock(StampClock):
         self._last_sample_ns = edge_ns
         self.counts["samples"] += 1
         self._refit()
+        if self._follow_change():
+            self._forget_misses()  # the fit is now the edges that missed; the slew to it is in the bound
         self._temp_at_fit = self._last_temp[1] if self._last_temp else None
         self._comp_ns = 0.0
         self._comp_abs_ns = 0.0
@@ -256,7 +264,7 @@ class PpsClock(StampClock):
             log.info("clock locked to GNSS time (%d PPS edges)", len(self._edges))
         self._maybe_save(edge_ns)
 
-    def _judge_miss(self, edge_ns: int, state_before: str, miss_ns: float) -> None:
+    def _judge_miss(self, edge_ns: int, state_before: str, signed_ns: float) -> None:
         """How far this edge was from the time published for it, against the bound claimed there without the
         misses' own term: beyond it, the miss (with the edges' latency spread) and its growth go into the bound,
         in place of what was claimed. The growth is measured
@@ -265,6 +273,8 @@ class PpsClock(StampClock):
         fit that follows a rate step overshoots when the rate steps back, and one edge within a bound widened by
         a slew said nothing of that (a 50 ppm pulse: 94 us off behind 68 us the second after such an edge)."""
         claimed = self._err_at(edge_ns, state_before, with_misses=False)
+        self._recent_misses.append(signed_ns)
+        miss_ns = abs(signed_ns)
         good = self._good_miss
         self._good_miss = (edge_ns, miss_ns)
         if miss_ns <= claimed:
@@ -279,10 +289,42 @@ class PpsClock(StampClock):
         self._suspect_left = CONFIRM_EDGES
         self._miss_growth = max(0.0, (miss_ns - good[1]) / (edge_ns - good[0])) if good is not None else 0.0
 
+    def _follow_change(self) -> bool:
+        """Start the fit again from its newest edges when they are a change, not outliers: the last CHANGE_EDGES
+        missed by the published time all one way by more than the latency's spread, and on a line of their own
+        (within half of it). Not their bounds: a fit that mixes two rates has a bound to match. The regression
+        took them for outliers until so many had come that they tilted its line and no longer looked like any:
+        after a 500 ppm slew of CLOCK_MONOTONIC for 2 s (NTP) the fit mixed old and new edges (residuals of 200 us)
+        and the stamps swung between +1 ms and -0.4 ms for 10 s. Late interrupts of a busy board scatter."""
+        fit = self._fit
+        k = CHANGE_EDGES
+        recent, spread = self._recent_misses, self.s.pps_latency_spread_ns
+        if (fit is None or not self._locked_once or len(recent) < k or len(self._edges) <= k
+                or not (all(m > spread for m in recent) or all(m < -spread for m in recent))):
+            return False
+        x = (np.fromiter(self._edges, dtype=np.float64)[-k:] - float(self._edges[-1])) / NS
+        y = np.fromiter(self._offsets, dtype=np.float64)[-k:] - float(self._base_ns)
+        own = fit_line(x, y, min_sigma=self.s.min_sigma_ns)
+        if own.n_outliers or own.rms > 0.5 * spread:
+            return False
+        off_by = own.offset_at_ref - fit.offset(0.0)
+        edges, offsets = list(self._edges)[-k:], list(self._offsets)[-k:]
+        self._edges.clear()
+        self._offsets.clear()
+        self._edges.extend(edges)
+        self._offsets.extend(offsets)
+        self._refit()
+        log.log(logging.INFO if abs(off_by) >= 100_000 else logging.DEBUG,
+                "clock: the last %d PPS edges are %+.1f us off the fit, on a line of their own (%+.3f ppm): the "
+                "board clock's rate changed (NTP slewing it, a temperature step); fitting again from them",
+                k, off_by / 1e3, (own.slope - fit.slope) / NS * 1e6)
+        return True
+
     def _forget_misses(self) -> None:
         self._miss_ns = self._miss_growth = 0.0
         self._good_miss = None
         self._suspect_left = 0
+        self._recent_misses.clear()
 
     def _agrees_with_wall(self, edge_ns: int) -> bool:
         """Before the first lock: GNSS time within half a second of a synchronised wall clock, or no such clock.
