@@ -13,6 +13,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -287,6 +288,38 @@ def test_a_recorder_stuck_in_a_write_is_critical_in_the_status(tmp_path: Path, s
     assert not d.recorder.alive
     snap = d.snapshot()
     assert snap["verdict"] == "critical" and snap["recorder"]["state"] != "recording"
+
+
+def test_a_recorder_slowly_draining_a_backlog_is_not_called_stuck(tmp_path: Path, systemd: tuple[FakeSystemd, str],
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A writer catching up on a backlog at 4 ms a record (a slow card) is in one drain for seconds: its heartbeat
+    beat only between drains, so it read as stuck in the kernel ("not responding", critical, the watchdog no longer
+    pinged) while it wrote. It beats every HEARTBEAT_RECORDS records now."""
+    import logger.runtime.daemon as daemon_module
+
+    monkeypatch.setattr(daemon_module, "HEARTBEAT_STALE_S", 1.0)
+    fake, path = systemd
+    d = make_daemon(tmp_path, [TickSource("a")], path)
+    d.start()
+    try:
+        fake.wait_for("READY")
+        write = d.recorder._write
+
+        def slow(item: Any) -> None:
+            time.sleep(0.004)
+            write(item)
+        d.recorder._write = slow  # type: ignore[method-assign]
+        for i in range(1000):  # 4 s of writing, queued at once
+            assert d.recorder.submit("/a/backlog", {"i": i}, i, i)
+        d.recorder._wake.set()
+        seen = []
+        wait_until(lambda: seen.append(d.snapshot()) or d.recorder.status().queue_depth == 0, "the backlog written",
+                   timeout_s=30)
+        assert len(seen) > 10
+        assert all(s["recorder"]["state"] == "recording" for s in seen), [s["recorder"]["state"] for s in seen]
+        assert not any(p.startswith("recorder: not responding") for s in seen for p in s["problems"])
+    finally:
+        d.stop()
 
 
 class FailingSource(TickSource):

@@ -37,6 +37,10 @@ log = logging.getLogger(__name__)
 
 BATCH_WAIT_S = 1.0  # longest real time a record waits in the queue between flushes
 PROFILE = ""  # JSON messages with JSON schemas: no ROS profile
+# The writer's heartbeat beats in a drain too, every this many records: a catch-up of 20000 records on a slow card
+# takes longer than the daemon's staleness bounds, and between drains only it read as a writer stuck in the kernel
+# ("not responding", systemd's watchdog no longer pinged) while it wrote.
+HEARTBEAT_RECORDS = 64
 CHANNEL_TABLE_S = 60.0  # the channel table (files.CHANNEL_TABLE) is written again this often, s of drive
 
 
@@ -265,9 +269,13 @@ class Recorder:
 
     def _drain(self) -> None:
         """Write everything queued, oldest first (producers may go on appending meanwhile)."""
-        q = self._queue
+        q, write, n = self._queue, self._write, 0
         while q:
-            self._write(q.popleft())
+            write(q.popleft())
+            n += 1
+            if n == HEARTBEAT_RECORDS:
+                self.heartbeat_mono_ns = self._mono_ns()
+                n = 0
 
     def _write(self, item: tuple[str, Mapping[str, Any], int, int]) -> None:
         topic, payload, log_ns, pub_ns = item
