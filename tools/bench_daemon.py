@@ -296,8 +296,10 @@ class ThreadProfiles:
             self.profiles.append((threading.current_thread().name, profile))
         profile.enable()
 
-    def top(self, n: int = 20, thread: str | None = None) -> dict[str, Any]:
-        """The daemon threads' functions by own CPU time (one thread's, if named), and the same summed per module."""
+    def top(self, n: int = 20, thread: str | None = None, dump: Path | None = None) -> dict[str, Any]:
+        """The daemon threads' functions by own CPU time (one thread's, if named), and the same summed per module;
+        with ``dump``, the merged statistics are written there too (``python -m pstats FILE``: callers, cumulative
+        times)."""
         stats: pstats.Stats | None = None
         for name, profile in self.profiles:
             if thread_class(name) != "daemon" or (thread is not None and name != thread):
@@ -306,6 +308,8 @@ class ThreadProfiles:
             stats = pstats.Stats(profile) if stats is None else stats.add(profile)
         if stats is None:
             return {"functions": [], "modules": [], "total_s": 0.0}
+        if dump is not None:
+            stats.dump_stats(dump)
         raw = stats.stats  # type: ignore[attr-defined]
         total = sum(v[2] for v in raw.values()) or 1e-12
         rows = sorted(raw.items(), key=lambda kv: kv[1][2], reverse=True)
@@ -544,7 +548,7 @@ def writer_index(files: list[Path]) -> dict[str, float]:
 
 
 def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bool,
-        profile_thread: str | None = None) -> DaemonResult:
+        profile_thread: str | None = None, pstats_path: Path | None = None) -> DaemonResult:
     from logger.compose import build
     from logger.runtime import logs
 
@@ -657,7 +661,7 @@ def run(imu_rate: float, seconds: float, warmup_s: float, out: Path, profile: bo
     result.sustained = not any((imu.get("late", 1), imu.get("missed", 1), result.counters["recorder_dropped"],
                                 result.file["seq_missing"], result.file["fifo_lost"]))
     if profile:
-        result.profile_top = profiles.top(thread=profile_thread)
+        result.profile_top = profiles.top(thread=profile_thread, dump=pstats_path)
     return result
 
 
@@ -880,6 +884,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="cProfile every thread (slower: ranking only)")
     ap.add_argument("--profile-thread", metavar="NAME", help="with --profile, rank only this thread's functions "
                     "(sampler-imu, recorder, navigator, ...)")
+    ap.add_argument("--pstats", type=Path, metavar="FILE",
+                    help="with --profile, write the merged statistics there (python -m pstats FILE)")
     ap.add_argument("--nice", type=int, default=0,
                     help="run at this niceness (negative needs root): on a shared machine, keeps other jobs from "
                     "delaying the sampler threads as nothing would on the board")
@@ -896,7 +902,8 @@ def main(argv: list[str] | None = None) -> int:
     nice = set_niceness(args.nice)
     with tempfile.TemporaryDirectory(prefix="bench-daemon-") as tmp:
         out = args.out or Path(tmp)
-        result = asdict(run(args.imu_rate, args.seconds, args.warmup, out, args.profile, args.profile_thread))
+        result = asdict(run(args.imu_rate, args.seconds, args.warmup, out, args.profile, args.profile_thread,
+                                   args.pstats))
     result["nice"] = nice
     text = json.dumps(result, indent=1)
     if args.json:
