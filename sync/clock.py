@@ -29,7 +29,7 @@ import numpy as np
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
-from sync.regress import MIN_SAMPLES_FOR_SLOPE, LineFit, fit_line
+from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
 from sync.settings import SyncSettings
 from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, Stamps, TrackingReport
 from sync.tempco import TempcoEstimator
@@ -107,6 +107,11 @@ class PpsClock(StampClock):
         self._miss_growth = 0.0  # ns of miss per ns since the edge
         self._good_miss: tuple[int, float] | None = None  # (board ns, miss) of the last edge within its bound
         self._suspect_left = 0  # edges within their bounds still needed before the growth leaves the bound
+        self._suspect_slope: float | None = None  # the fit's slope when the misses began
+        self._prev_miss: tuple[int, float] | None = None  # (board ns, miss) of the edge before
+        # After a followed change: edges within the fit's own bound still needed before its doubt (how far the
+        # fit moved, in _unconfirmed_ns) leaves the bound. Four edges served equally late are a line of their own.
+        self._confirm_left = 0
         # The newest edges' misses, ns: published time minus the edge's GNSS time.
         self._recent_misses: deque[float] = deque(maxlen=CHANGE_EDGES)
         self._last_temp: tuple[int, float] | None = None
@@ -184,6 +189,7 @@ class PpsClock(StampClock):
         self._slew_ns = 0.0
         self._unconfirmed_ns = 0.0
         self._forget_misses()
+        self._confirm_left = 0
         self._wall_disagree_since = None
         self.labeller.restart_chain()
 
@@ -211,6 +217,7 @@ class PpsClock(StampClock):
             self._judge_miss(edge_ns, state_before, predicted - offset)
         else:
             self._forget_misses()
+            self._confirm_left = 0
         if restart:
             # After a long gap the old samples describe another temperature: start afresh, keep the frequency.
             self._slope_prior = self._current_slope(edge_ns)
@@ -248,46 +255,76 @@ class PpsClock(StampClock):
             if restart:
                 # The truth is within the holdover's bound of its prediction, which is |step| from the new fit.
                 self._unconfirmed_ns = abs(step) + bound_before
-            # Whatever the new fit says, published time moves on continuously: slew the difference out.
-            self._slew_from_ns = edge_ns
+            # Whatever the new fit says, published time moves on continuously: slew the difference out, from now
+            # (the edge is labelled when its time message comes, up to a second later: slewed from the edge, the
+            # part of the slew due meanwhile was one step, 135 us 0.27 s after an edge).
+            self._slew_from_ns = max(edge_ns, self._mono())
             self._slew_ns = step
             self._slew_len_ns = max(1, int(abs(step) / (self.s.max_slew_ppm * 1e-6)))
-        if len(self._edges) >= CONFIRM_EDGES:
+        if len(self._edges) >= CONFIRM_EDGES and not self._confirm_left:
             self._unconfirmed_ns = 0.0
         self._consecutive += 1
         if self.on_sample is not None and self._locked_once:
             self.on_sample(true_board_ns, label_ns)
         if not self._locked_once and len(self._edges) >= self.s.lock_samples and self._agrees_with_wall(edge_ns):
             self._locked_once = True
-            self._slew_from_ns = None
-            self._slew_ns = 0.0
+            if not self._restored:
+                # From free-running time the jump to GNSS time is the point of locking. From a mapping restored
+                # after a restart it is not: its holdover's disagreement with the fit goes on being slewed out
+                # (cancelled here, published time stepped back 2.8-11 ms at the lock).
+                self._slew_from_ns = None
+                self._slew_ns = 0.0
             log.info("clock locked to GNSS time (%d PPS edges)", len(self._edges))
         self._maybe_save(edge_ns)
 
     def _judge_miss(self, edge_ns: int, state_before: str, signed_ns: float) -> None:
-        """How far this edge was from the time published for it, against the bound claimed there without the
-        misses' own term: beyond it, the miss (with the edges' latency spread) and its growth go into the bound,
-        in place of what was claimed. The growth is measured
-        from the last edge within its bound (consecutive misses differ by their edges' jitter too: a 5 ppm ramp's
-        went 23.0, 32.3, 31.0 us) and stays in the bound until CONFIRM_EDGES edges in a row fall within theirs: the
-        fit that follows a rate step overshoots when the rate steps back, and one edge within a bound widened by
-        a slew said nothing of that (a 50 ppm pulse: 94 us off behind 68 us the second after such an edge)."""
-        claimed = self._err_at(edge_ns, state_before, with_misses=False)
+        """How far this edge was from the time published for it, against what the fit itself claimed there (its
+        bound without the misses' terms and without a followed change's doubt) or, if more, OUTLIER_SIGMAS of its
+        residuals (an edge whose interrupt latency varies more than the configured spread is no clock error).
+        Beyond it, the miss (with the latency's spread) and its growth go into the bound in place of the claim.
+
+        The growth is the largest of: since the last edge within its bound (consecutive misses differ by their
+        edges' jitter too: a 5 ppm ramp's went 23.0, 32.3, 31.0 us); since the edge before, when that one missed
+        too; and, after a gap, the whole miss in one second (a change late in a short outage showed its rate only
+        in its last seconds). It stays in the bound until CONFIRM_EDGES edges in a row fall within theirs if the
+        fit moved meanwhile (a fit that followed a rate step overshoots when the rate steps back: a 50 ppm pulse
+        had stamps 94 us off behind 68 us the second after an edge within its bound); if the fit did not move, the
+        miss was its edge's alone (an interrupt served late), and the next edge within its bound ends it (one edge
+        2 ms late held a bound of 5.6 ms for 5 s)."""
+        fit = self._fit
+        claimed = self._err_at(edge_ns, state_before, with_doubts=False)
+        if fit is not None:
+            claimed = max(claimed, OUTLIER_SIGMAS * max(fit.rms, self.s.min_sigma_ns))
         self._recent_misses.append(signed_ns)
         miss_ns = abs(signed_ns)
-        good = self._good_miss
-        self._good_miss = (edge_ns, miss_ns)
+        good, prev = self._good_miss, self._prev_miss
+        self._prev_miss = (edge_ns, miss_ns)
         if miss_ns <= claimed:
+            self._good_miss = (edge_ns, miss_ns)
             self._miss_ns = 0.0
-            self._suspect_left = max(0, self._suspect_left - 1)
+            if self._confirm_left:
+                self._confirm_left -= 1
+            if self._suspect_left:
+                self._suspect_left -= 1
+                moved = (fit is not None and self._suspect_slope is not None
+                         and abs(fit.slope - self._suspect_slope) > self.s.sigma_k * max(fit.skew, 1e-3))
+                if not moved:
+                    self._suspect_left = 0
             if not self._suspect_left:
                 self._miss_growth = 0.0
             return
-        self._good_miss = good
-        # The miss is read off an edge whose interrupt latency varies: the clock was off by up to that much more.
         self._miss_ns = miss_ns - claimed + self.s.pps_latency_spread_ns
+        if self._confirm_left:
+            self._confirm_left = CONFIRM_EDGES  # the followed change is not confirmed by an edge that misses it
+        if not self._suspect_left:
+            self._suspect_slope = fit.slope if fit is not None else None
         self._suspect_left = CONFIRM_EDGES
-        self._miss_growth = max(0.0, (miss_ns - good[1]) / (edge_ns - good[0])) if good is not None else 0.0
+        growths = [0.0]
+        if good is not None:
+            growths.append((miss_ns - good[1]) / (edge_ns - good[0]))
+        if prev is not None and edge_ns > prev[0]:
+            growths.append((miss_ns - prev[1]) / min(edge_ns - prev[0], NS))
+        self._miss_growth = max(growths)
 
     def _follow_change(self) -> bool:
         """Start the fit again from its newest edges when they are a change, not outliers: the last CHANGE_EDGES
@@ -314,6 +351,11 @@ class PpsClock(StampClock):
         self._edges.extend(edges)
         self._offsets.extend(offsets)
         self._refit()
+        # Until edges after them agree, what the fit moved by stays in the bound: four edges served equally late
+        # (an interrupt held off at a fixed phase) are a line of their own too, and following them without it
+        # claimed 13-61 us for stamps 0.1-1 ms off.
+        self._unconfirmed_ns = max(self._unconfirmed_ns, abs(off_by))
+        self._confirm_left = CONFIRM_EDGES
         log.log(logging.INFO if abs(off_by) >= 100_000 else logging.DEBUG,
                 "clock: the last %d PPS edges are %+.1f us off the fit, on a line of their own (%+.3f ppm): the "
                 "board clock's rate changed (NTP slewing it, a temperature step); fitting again from them",
@@ -322,8 +364,9 @@ class PpsClock(StampClock):
 
     def _forget_misses(self) -> None:
         self._miss_ns = self._miss_growth = 0.0
-        self._good_miss = None
+        self._good_miss = self._prev_miss = None
         self._suspect_left = 0
+        self._suspect_slope = None
         self._recent_misses.clear()
 
     def _agrees_with_wall(self, edge_ns: int) -> bool:
@@ -422,7 +465,7 @@ class PpsClock(StampClock):
                 return None  # before the first lock the pairing checks pairs against each other only
             return t_ns + round(self._offset_at(t_ns))
 
-    def _err_at(self, t_ns: int, state: str, with_misses: bool = True) -> float:
+    def _err_at(self, t_ns: int, state: str, with_doubts: bool = True) -> float:
         fit = self._fit
         assert fit is not None
         x = (t_ns - self._fit_origin_ns) / NS
@@ -430,9 +473,10 @@ class PpsClock(StampClock):
         since = max(0.0, (t_ns - (self._last_sample_ns or t_ns)) / NS)
         if state == HOLDOVER or since > 0:
             err += self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
-        err += self._unconfirmed_ns
-        if with_misses and (self._miss_ns or self._miss_growth):
-            err += self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS
+        if with_doubts:
+            err += self._unconfirmed_ns
+            if self._miss_ns or self._miss_growth:
+                err += self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS
         if self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
@@ -527,8 +571,14 @@ class PpsClock(StampClock):
                 tempco_ppm_per_degc=round(-k * 1e6, 4) if k is not None else None,
                 edges=self.counts["edges"], rejected=self.counts["rejected"], relocks=self.counts["relocks"])
 
+    def _in_doubt(self) -> bool:
+        """Whether the newest edges disagree with the fit (misses in the bound) or it is a change not yet confirmed:
+        a mapping saved then carried the change's transient rate, or lost what the bound knew of it, into the next
+        start (a 50 ppm pulse saved just after the fit followed it: 2.1 ms off 45 s after the restart)."""
+        return bool(self._miss_ns or self._miss_growth or self._unconfirmed_ns or self._confirm_left)
+
     def _maybe_save(self, now_ns: int) -> None:
-        if self.state_path is None or self._fit is None or not self._locked_once:
+        if self.state_path is None or self._fit is None or not self._locked_once or self._in_doubt():
             return
         if self._saved_at is not None and now_ns - self._saved_at < self.s.save_interval_s * NS:
             return
@@ -541,6 +591,9 @@ class PpsClock(StampClock):
             return
         with self._lock:
             if self._last_sample_ns is None:
+                return
+            if self._in_doubt():
+                log.debug("clock state not saved: the newest PPS edges disagree with the fit (the last save stands)")
                 return
             ref = self._last_sample_ns
             state = {
