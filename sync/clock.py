@@ -208,6 +208,11 @@ class PpsClock(StampClock):
             return
         state_before = self._state_at(edge_ns)
         predicted = self._offset_at(edge_ns) if state_before != FREERUN else None
+        # The edge is labelled when its time message comes, up to a second after it: the slew to the new fit starts
+        # then, from the time published then (from the edge, the part of it due meanwhile was a step: 47-79 us in
+        # 10 ms at a relock; and two records read together were stamped out of order by the slopes' difference).
+        slew_from = max(edge_ns, self._mono())
+        published_then = self._offset_at(slew_from) if predicted is not None else None
         # chrony's "last offset": how far the published time was from this edge's GNSS time.
         self._last_offset_ns = round(predicted - offset) if predicted is not None else None
         gap_s = (edge_ns - self._last_sample_ns) / NS if self._last_sample_ns is not None else math.inf
@@ -255,12 +260,11 @@ class PpsClock(StampClock):
             if restart:
                 # The truth is within the holdover's bound of its prediction, which is |step| from the new fit.
                 self._unconfirmed_ns = abs(step) + bound_before
-            # Whatever the new fit says, published time moves on continuously: slew the difference out, from now
-            # (the edge is labelled when its time message comes, up to a second later: slewed from the edge, the
-            # part of the slew due meanwhile was one step, 135 us 0.27 s after an edge).
-            self._slew_from_ns = max(edge_ns, self._mono())
-            self._slew_ns = step
-            self._slew_len_ns = max(1, int(abs(step) / (self.s.max_slew_ppm * 1e-6)))
+            # Whatever the new fit says, published time moves on continuously: slew the difference out.
+            assert published_then is not None
+            self._slew_from_ns = slew_from
+            self._slew_ns = published_then - self._offset_at(slew_from, slewed=False)
+            self._slew_len_ns = max(1, int(abs(self._slew_ns) / (self.s.max_slew_ppm * 1e-6)))
         if len(self._edges) >= CONFIRM_EDGES and not self._confirm_left:
             self._unconfirmed_ns = 0.0
         self._consecutive += 1
