@@ -322,6 +322,36 @@ def test_a_recorder_slowly_draining_a_backlog_is_not_called_stuck(tmp_path: Path
         d.stop()
 
 
+def test_records_of_one_read_share_their_stamp(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    """Fixes read together (a late read of several NMEA epochs) share their board time, and each one, observed
+    before it is stamped, may steer the clock: stamped one by one, a later epoch came out a few hundred ns before
+    the one read with it, and readers going by log time met the epochs out of order (export dropped them). One
+    read's records of a topic share one stamp, in the order read."""
+    from sync.stamp import FREERUN, Stamp, StampClock
+
+    class SteeredClock(StampClock):
+        """Each stamp of the same instant 300 ns earlier than the last: a clock refitted between two calls."""
+
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def stamp(self, t_mono_ns: int) -> Stamp:
+            self.calls += 1
+            return Stamp(t_mono_ns - 300 * self.calls, FREERUN, 1, 0, 0)
+
+    _, path = systemd
+    d = make_daemon(tmp_path, [TickSource("a")], path)
+    d.clock = SteeredClock()
+    written: list[tuple[str, dict[str, Any], int]] = []
+    d.recorder.submit = lambda topic, payload, log_ns, pub_ns: written.append((topic, payload, log_ns)) or True
+    for epoch in (0.7, 0.8, 0.9):
+        d.sink(Reading("/test/fix", {"epoch": epoch}, 5_000_000_000))
+    d.sink(Reading("/test/fix", {"epoch": 1.0}, 5_100_000_000))
+    stamps = [w[1]["t_sync_ns"] for w in written]
+    assert stamps[0] == stamps[1] == stamps[2] < stamps[3]
+    assert [w[2] for w in written] == stamps and [w[1]["epoch"] for w in written] == [0.7, 0.8, 0.9, 1.0]
+
+
 class FailingSource(TickSource):
     """A sensor that answers, then stops answering (unplugged): its reads fail from ``fail`` on."""
 

@@ -40,7 +40,7 @@ from logger.runtime.sampler import Reading, Sampler
 from logger.runtime.sources import Plan
 from logger.runtime.status_socket import StatusServer
 from logger.runtime.timebase import TimeBase, host_timebase
-from sync.stamp import FREERUN, FreeRunClock, StampClock
+from sync.stamp import FREERUN, FreeRunClock, Stamp, StampClock
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,11 @@ class Daemon:
         self.stop_event = threading.Event()
         self.samplers: list[Sampler] = []
         self._seq: dict[str, itertools.count[int]] = {}
+        # Per topic, the board time and stamp of its last record: records of one read (a burst of NMEA epochs read
+        # together) share their board time, and each one observed first steers the clock (a fix labels an edge):
+        # stamped one by one, the later ones came out a few hundred ns earlier than the ones before, and readers
+        # that go by log time met the epochs out of order (export dropped them as such).
+        self._last_stamp: dict[str, tuple[int, Stamp]] = {}
         self._batch_seq: dict[str, int] = {}  # a batch topic's next sample number (one sampler thread each)
         self._started_mono = 0
         self._stopped_mono: int | None = None
@@ -156,12 +161,15 @@ class Daemon:
         observe = self._observe.get(r.topic)
         if observe is not None:
             observe(payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
-        if r.stamped:
-            stamp = self.clock.stamp(r.t_mono_ns)
-            payload = stamped_record(r.t_mono_ns, stamp, next(seq), payload)
-            log_ns = stamp.t_sync_ns
+        last = self._last_stamp.get(r.topic)
+        if last is not None and last[0] == r.t_mono_ns:
+            stamp = last[1]
         else:
-            log_ns = self.clock.stamp(r.t_mono_ns).t_sync_ns
+            stamp = self.clock.stamp(r.t_mono_ns)
+            self._last_stamp[r.topic] = (r.t_mono_ns, stamp)
+        if r.stamped:
+            payload = stamped_record(r.t_mono_ns, stamp, next(seq), payload)
+        log_ns = stamp.t_sync_ns
         self.recorder.submit(r.topic, payload, log_ns, r.t_mono_ns)
         for tap in self.taps:
             tap.offer(r.topic, payload)
