@@ -1,8 +1,9 @@
-"""``logger nav-score TRAJECTORY.csv... DRIVE.mcap... [--reference REF.csv] [--plots DIR] [--json]``.
+"""``logger nav-score TRAJECTORY.csv... [DRIVE.mcap...] [--reference REF] [--plots DIR] [--json]``.
 
 Scores ``logger replay``'s trajectories against the truth a simulated drive recorded (or a reference trajectory):
 the paper's Table 9 per axis, the drift in each GNSS outage, the share within 3 sigma
-(:mod:`logger.exports.nav_score`).
+(:mod:`logger.exports.nav_score`). Exit 0 scored, 1 a trajectory with no row inside what it is scored against,
+2 a file that cannot be read or is not what its place asks for (one line naming it).
 """
 
 from __future__ import annotations
@@ -12,8 +13,23 @@ import json
 import sys
 from pathlib import Path
 
-from logger.exports.nav_score import NoTruth, format_score, load_reference, load_truth, plots, read_trajectory, score
-from logger.recording.drive import DriveFileError, drive_paths
+from logger.exports.nav_score import (
+    FOREIGN_M,
+    NoOverlap,
+    ScoreError,
+    Truth,
+    fix_distance,
+    format_score,
+    load_reference,
+    load_truth,
+    plots,
+    read_trajectory,
+    reference_outages,
+    score,
+)
+from logger.recording.drive import DriveFileError, cut_notes, drive_paths, open_drive
+
+PROG = "logger nav-score"
 
 
 def expand(paths: list[Path]) -> list[Path]:
@@ -28,43 +44,85 @@ def expand(paths: list[Path]) -> list[Path]:
     return out
 
 
+def sort_inputs(paths: list[Path]) -> tuple[list[Path], list[Path]]:
+    """Trajectory CSVs and the drive's MCAP files; ScoreError for anything else (a file silently left out would
+    be a score of less than was asked for, or of nothing)."""
+    csvs = [p for p in paths if p.suffix.lower() == ".csv"]
+    drives = [p for p in paths if p.suffix.lower() == ".mcap"]
+    other = [p for p in paths if p not in csvs and p not in drives]
+    if other:
+        raise ScoreError(f"{other[0]}: neither a trajectory CSV (logger replay's trajectory.csv) nor a drive's "
+                         "MCAP file")
+    if not csvs:
+        raise ScoreError("no trajectory to score: name logger replay's trajectory.csv (or its --out folder) "
+                         "before the drive")
+    return csvs, drives
+
+
+def load_against(reference: Path | None, drives: list[Path]) -> Truth:
+    """What the trajectories are scored against: the reference (with the outages of the drive named beside it),
+    or the drive's truth. A drive's file cut short is read up to the cut, said in a line."""
+    for note in cut_notes(open_drive(drives)):
+        print(note, file=sys.stderr)
+    if reference is None:
+        if not drives:
+            raise ScoreError("nothing to score against: name the simulated drive's MCAP files (or its folder), "
+                             "or a reference trajectory with --reference")
+        return load_truth(drives)
+    if reference.is_dir() and (reference / "trajectory.csv").is_file():
+        reference = reference / "trajectory.csv"
+    truth = load_reference(reference)
+    if drives:
+        truth.outages = reference_outages(drives)
+    return truth
+
+
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="logger nav-score",
+    ap = argparse.ArgumentParser(prog=PROG,
                                  description="score trajectories against a simulated drive's truth (Table 9)")
     ap.add_argument("trajectory", type=Path, nargs="+",
                     help="trajectory.csv files (or logger replay's --out folders), then the drive's MCAP files (or "
                          "the folder holding them)")
-    ap.add_argument("--reference", type=Path, help="score against this trajectory CSV instead of /truth")
+    ap.add_argument("--reference", type=Path,
+                    help="score against this trajectory instead of /truth: a trajectory CSV (or replay's --out "
+                         "folder) or an MCAP file's /nav/fix, joined on GNSS time (t_sync_ns); the drive, when "
+                         "named too, gives the GNSS outages")
     ap.add_argument("--plots", type=Path, help="folder for map.png and error.png")
     ap.add_argument("--json", action="store_true", help="print the scores as JSON")
     args = ap.parse_args(argv)
     try:
         named_paths = expand(args.trajectory)
-    except DriveFileError as exc:
-        print(f"logger nav-score: {exc}", file=sys.stderr)
-        return 2
-    missing = [str(p) for p in [*named_paths, *([args.reference] if args.reference else [])] if not p.is_file()]
-    if missing:
-        print(f"logger nav-score: no such file: {', '.join(missing)}", file=sys.stderr)
-        return 2
-    csvs = [p for p in named_paths if p.suffix == ".csv"]
-    drives = [p for p in named_paths if p.suffix == ".mcap"]
-    try:
-        truth = load_reference(args.reference) if args.reference else load_truth(drives)
-    except NoTruth as exc:
-        print(f"logger nav-score: {exc}", file=sys.stderr)
+        missing = [str(p) for p in [*named_paths, *([args.reference] if args.reference else [])] if not p.exists()]
+        if missing:
+            raise ScoreError(f"no such file: {', '.join(missing)}")
+        csvs, drives = sort_inputs(named_paths)
+        truth = load_against(args.reference, drives)
+        trajectories = {p: read_trajectory(p) for p in csvs}
+    except (ScoreError, DriveFileError) as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     named = {}
-    for p in csvs:
-        traj = read_trajectory(p)
-        named[p.parent.name or p.stem] = (traj, score(traj, truth))
+    status = 0
+    for p, traj in trajectories.items():
+        away = fix_distance(traj, truth)
+        if away is not None and away > FOREIGN_M:
+            print(f"{PROG}: {p}: its rows lie a median {away / 1000:.1f} km from the drive's own GNSS fixes at the "
+                  "same times: not this drive's trajectory, not scored", file=sys.stderr)
+            status = 1
+            continue
+        try:
+            named[p.parent.name or p.stem] = (traj, score(traj, truth))
+        except NoOverlap as exc:
+            print(f"{PROG}: {p}: {exc}", file=sys.stderr)
+            status = 1
     if args.json:
         print(json.dumps({k: {**s.table(), "max_h": s.max_h, "coverage": s.coverage, "outages": s.outages,
-                              "within_3sigma": s.within_3sigma} for k, (_, s) in named.items()}, indent=1))
+                              "within_3sigma": s.within_3sigma, "rows": s.rows, "rows_scored": s.n}
+                          for k, (_, s) in named.items()}, indent=1))
     else:
         for k, (_, s) in named.items():
             print(format_score(k, s))
-    if args.plots:
+    if args.plots and named:
         for p in plots(args.plots, named, truth):
             print(f"wrote {p}")
-    return 0
+    return status
