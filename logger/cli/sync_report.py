@@ -13,7 +13,7 @@ from pathlib import Path
 
 from logger.exports.plotting import PlotsUnavailable
 from logger.exports.sync_report import Drive, plots, render, report
-from logger.recording.drive import DriveFileError, drive_paths
+from logger.recording.drive import DriveFileError, cut_notes, drive_paths
 
 
 def main(argv: list[str]) -> int:
@@ -34,10 +34,11 @@ def main(argv: list[str]) -> int:
         return 2
     try:
         drive = Drive.load(paths)
-    except Exception as exc:  # the mcap package's reader raises its own kinds for a file it cannot read
-        print(f"logger sync-report: cannot read the drive ({type(exc).__name__}: {exc}); "
-              "`logger recover` may save a file cut short", file=sys.stderr)
+    except DriveFileError as exc:
+        print(f"logger sync-report: {exc}", file=sys.stderr)
         return 2
+    for note in cut_notes(drive.files):
+        print(note, file=sys.stderr)
     out = report(drive)
     print(json.dumps(out, indent=1) if args.json else render(out))
     if args.png_dir:

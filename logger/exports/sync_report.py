@@ -13,18 +13,20 @@
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import make_reader
 
 from logger.exports.plotting import pyplot
-from logger.recording.drive import imu_samples
-from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, SYNC, TRUTH_CLOCK
+from logger.exports.raw_stream import recorded_config
+from logger.recording.drive import DriveFile, DriveFileError, iter_messages, open_drive
+from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TRUTH_CLOCK
 
 SENSOR_TOPICS = (IMU, BARO, OBD_SPEED, GNSS_FIX, PPS)
+NEEDED = (IMU, PPS)
+"""What the report is made of: the IMU's counters (Table 6) and the PPS edges (Tables 6 and 7). A file without
+them (a trajectory of logger replay, a capture of other topics) has no time sync to report, not a table of zeros."""
 NS = 1_000_000_000
 
 
@@ -32,26 +34,28 @@ NS = 1_000_000_000
 class Drive:
     topics: dict[str, list[dict]]
     imu_rate_hz: float
+    files: list[DriveFile] = field(default_factory=list)
 
     @classmethod
     def load(cls, paths: list[Path]) -> Drive:
+        """The drive's sensor records through the project's one drive reader, so a file cut short is read up to
+        the cut as every other command reads it (a FIFO drive's /imu/batch comes as its /imu samples), and the
+        IMU rate its configuration recorded. DriveFileError, one line naming the file, for a file it cannot read
+        or one without the records the report needs (NEEDED)."""
+        files = open_drive(paths)
         topics: dict[str, list[dict]] = {}
-        rate = 20.0
-        for p in paths:
-            with open(p, "rb") as f:
-                reader = make_reader(f)
-                for _, channel, message in reader.iter_messages(topics=[*SENSOR_TOPICS, IMU_BATCH, TRUTH_CLOCK, SYNC],
-                                                                log_time_order=False):
-                    if channel.topic == IMU_BATCH:  # a FIFO-read IMU: its samples, as /imu records
-                        topics.setdefault(IMU, []).extend(imu_samples(json.loads(message.data)))
-                        continue
-                    topics.setdefault(channel.topic, []).append(json.loads(message.data))
-                for md in reader.iter_metadata():
-                    if md.name == "config" and "imu.rate_hz" in md.metadata:
-                        rate = float(md.metadata["imu.rate_hz"])
+        for m in iter_messages(files, (*SENSOR_TOPICS, TRUTH_CLOCK)):
+            topics.setdefault(m.topic, []).append(m.msg)
+        missing = [t for t in NEEDED if not topics.get(t)]
+        if missing:
+            names = ", ".join(str(f.path) for f in files)
+            raise DriveFileError(f"{names}: no {' or '.join(missing)} records: not a recorded drive's time sync "
+                                 "(the report needs the IMU's counters and the PPS edges)")
+        config = recorded_config(files)
+        rate = float(config["imu.rate_hz"]) if "imu.rate_hz" in config else 20.0
         for msgs in topics.values():
             msgs.sort(key=lambda m: m["t_mono_ns"])
-        return cls(topics, rate)
+        return cls(topics, rate, files)
 
 
 def truth_span(drive: Drive) -> tuple[int, int] | None:
