@@ -122,14 +122,15 @@ def test_a_trajectory_the_drive_does_not_cover_is_refused(tmp_path: Path, capsys
     assert code == 1 and err.count("\n") == 1 and "none of its 1001 rows" in err
 
 
-def test_another_drives_trajectory_is_refused_even_when_the_times_overlap(tmp_path: Path, capsys) -> None:
+def test_a_trajectory_far_from_the_drives_fixes_is_scored_with_a_warning(tmp_path: Path, capsys) -> None:
     """Two simulated drives can share their clocks' span: a trajectory kilometres from the drive's own GNSS
-    fixes is another drive's, not a score of kilometres."""
+    fixes is likely another drive's, and the user is told so; it is scored all the same (a filter that lost the
+    fixes and drifted looks the same, and its score is what shows it)."""
     elsewhere = drive(tmp_path / "elsewhere", lat_offset_deg=0.03)
     traj = trajectory(tmp_path / "rp" / "trajectory.csv", 110, 190)
     code, out, err = run(capsys, traj, elsewhere)
-    assert code == 1 and out == ""
-    assert err.count("\n") == 1 and "3.3 km from the drive's own GNSS fixes" in err and "not scored" in err
+    assert code == 0 and out
+    assert err.count("\n") == 1 and "3.3 km from the drive's own GNSS fixes" in err and "warning" in err
 
 
 @pytest.mark.parametrize(("content", "words"), [

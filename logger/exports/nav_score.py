@@ -28,9 +28,9 @@ from logger.recording.topics import GNSS_FIX, NAV_FIX, TRUTH_CLOCK, TRUTH_NAV
 
 OUTAGE_MIN_S = 5.0
 FOREIGN_M = 500.0
-"""A trajectory whose rows lie a median this far from the drive's own GNSS fixes at the same board times is not
-the drive's: its filter fused those fixes, which a receiver puts within metres, and its drift in an outage (no fix
-there) does not count. Two drives of the simulator can share their clocks' span, so time alone cannot tell."""
+"""A trajectory whose rows lie a median this far from the drive's own GNSS fixes at the same board times is likely
+not the drive's (its filter fused those fixes, which a receiver puts within metres; two drives of the simulator can
+share their clocks' span, so time alone cannot tell), or its filter lost them: warned about, scored all the same."""
 
 
 TRAJECTORY_COLUMNS = ("t_sync_ns", "lat_deg", "lon_deg", "height_m", "sn_m", "se_m", "sd_m")
@@ -112,7 +112,7 @@ class Truth:
 def fix_distance(traj: dict[str, np.ndarray], truth: Truth) -> float | None:
     """The median horizontal distance, m, of the trajectory from the drive's own valid GNSS fixes at their board
     times (within the rows' span); None where there is nothing to compare (a reference, no fix, no board time).
-    Beyond FOREIGN_M the trajectory is another drive's, whatever its times say."""
+    Beyond FOREIGN_M the trajectory is likely another drive's, whatever its times say."""
     t_mono = traj.get("t_mono_ns")
     if truth.clock_mono is None or t_mono is None or len(t_mono) < 2 or not len(truth.fixes):
         return None
