@@ -349,3 +349,38 @@ def test_gnss_decode_reads_a_recordings_raw_receiver_bytes(drive: Drive) -> None
 def test_gnss_decode_says_when_a_recording_has_no_raw_bytes(drive: Drive, tmp_path: Path) -> None:
     r = run("gnss-decode", str(drive.replay))  # logger replay's trajectory: no /gnss/raw
     assert r.returncode == 1 and "without /gnss/raw" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_every_thins_on_a_grid_and_never_breaks_the_track() -> None:
+    """``--every``: 1 Hz fixes stamped a few ns either side of whole seconds (as a receiver stamps them), one real
+    outage of 10 s. Thinned to 2 s and 5 s they keep one point per 2 s and 5 s and the track keeps its two segments
+    and its one gap: a point thinned away is no gap (it was one segment per point at 5 s, one per 3 s at 2 s)."""
+    from logger.exports.tracks import build_tracks
+    from logger.recording.drive import DriveFile, DriveMessage
+
+    t0 = 1_780_000_000 * 10**9
+    seconds = [k for k in range(120) if not 60 <= k < 70]
+
+    def fix(k: int) -> DriveMessage:
+        t = t0 + k * 10**9 + (3 if k % 2 else -4)
+        msg = {"fix_mode": 3, "fix_ok": True, "latitude": 37.5 + k * 1e-5, "longitude": 127.0, "altitude": 50.0,
+               "timestamp": {"sec": t // 10**9, "nsec": t % 10**9}}
+        return DriveMessage(t, "/gnss/fix", 0, msg)
+
+    def nav(k: int) -> DriveMessage:  # 5 Hz rows a microsecond either side of 200 ms apart
+        t = t0 + k * 200_000_000 + (1000 if k % 3 else -1000)
+        return DriveMessage(t, "/nav/fix", 0, {"latitude": 37.5, "longitude": 127.0, "altitude": 50.0, "t_sync_ns": t})
+
+    stream = sorted([fix(k) for k in seconds] + [nav(k) for k in range(300)], key=lambda m: m.log_time)
+    files = [DriveFile(Path("drive_0001.mcap"), "live", True)]
+    (whole, nav_whole) = build_tracks(stream, files, gap_s=3.0)
+    assert [len(s) for s in whole.segments] == [60, 50] and len(whole.gaps) == 1
+    for every in (2, 5):
+        (thin, nav_thin) = build_tracks(stream, files, gap_s=3.0, every_s=every)
+        assert len(thin.segments) == 2 and [round(g.duration_s) for g in thin.gaps] == [11]
+        assert [len(s) for s in thin.segments] == [60 // every, 50 // every]
+        for seg in thin.segments:
+            assert {round((b.t_ns - a.t_ns) / 1e9, 6) for a, b in itertools.pairwise(seg)} == {every}
+        assert thin.skipped["thinned out (--every)"] == 110 - 110 // every
+        assert len(nav_thin.segments) == 1 and len(nav_thin.points) == 60 // every
+        assert nav_whole.n_points == 300

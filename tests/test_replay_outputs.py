@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from test_nav_synth import records
 
+from logger.exports.tracks import GRID_TOLERANCE
 from logger.exports.trajectory import BLOCK_ROWS, CSV_HEADER, columns, fix_rows, nav_fix_json, write_csv, write_mcap
 from logger.nav.engine import TrajectoryRow
 from logger.nav.params import NavParams
@@ -105,20 +106,28 @@ def test_nav_fix_json_is_the_record_layers_json_to_the_byte() -> None:
     assert nav_fix_json(columns([]), "gnss", "gnss") == []
 
 
-def test_fix_rows_follow_the_live_navigators_rule() -> None:
+def test_fix_rows_keep_the_rate_asked() -> None:
+    """One row per tick of a grid of the period: 20 Hz rows microseconds either side of 50 ms apart give /nav/fix at
+    the rate asked, every interval a period (the rule "a period after the last written" made one in six 0.25 s at
+    5 Hz); with jitter of milliseconds still one row per tick, each the first that is due."""
     rnd = random.Random(3)
-    t = [0]
-    for _ in range(2000):  # 20 Hz with jitter
-        t.append(t[-1] + 50_000_000 + rnd.randint(-2_000_000, 2_000_000))
-    assert fix_rows(t, 0.0) == list(range(len(t)))
-    for hz in (5.0, 10.0, 1.0, 0.3):
-        period = int(1e9 / hz)
-        keep = fix_rows(t, hz)
-        assert keep[0] == 0
-        for a, b in itertools.pairwise(keep):
-            assert t[b] - t[a] >= period  # never closer than a period
-            assert all(t[i] - t[a] < period for i in range(a + 1, b))  # and the first row that is due
-        assert t[-1] - t[keep[-1]] < period
+    for jitter_ns in (2_000, 2_000_000):
+        t = [0]
+        for _ in range(2000):  # 20 Hz
+            t.append(50_000_000 * len(t) + rnd.randint(-jitter_ns, jitter_ns))
+        assert fix_rows(t, 0.0) == list(range(len(t)))
+        for hz in (5.0, 10.0, 1.0, 0.3):
+            period = round(1e9 / hz)
+            tol = int(period * GRID_TOLERANCE)
+            keep = fix_rows(t, hz)
+            assert keep[0] == 0
+            ticks = [(t[i] + tol) // period for i in keep]
+            assert ticks == list(range(len(keep)))  # every tick once: the rate asked
+            assert (t[-1] + tol) // period == ticks[-1]
+            for a, b in itertools.pairwise(keep):
+                assert all((t[i] + tol) // period == (t[a] + tol) // period for i in range(a + 1, b))  # first due
+                if jitter_ns < tol and period % 50_000_000 == 0:  # ticks on rows: every interval a period
+                    assert abs(t[b] - t[a] - period) <= 2 * jitter_ns
     sparse = list(range(0, 60 * 10**9, 10**9))  # GNSS-only rows, 1 Hz: every one is kept at 5 Hz
     assert fix_rows(sparse, 5.0) == list(range(len(sparse)))
     assert fix_rows([], 5.0) == []

@@ -69,7 +69,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--gap", type=float, default=3.0, metavar="S",
                    help="start a new segment after this many seconds without a position (default 3)")
     p.add_argument("--every", type=float, default=0.0, metavar="S",
-                   help="keep at most one point per S seconds of each track (default: every point)")
+                   help="keep one point per S seconds of each track, on a grid of S from each segment's start "
+                        "(default: every point)")
     p.add_argument("--gap-marks", action="store_true", help="KML: a placemark where each gap starts")
     return p.parse_args(argv)
 

@@ -141,10 +141,35 @@ def _label(topic: str, origin: str, f: DriveFile) -> str:
     return topic if origin == "live" else f"{topic} (replay: {f.path.name})"
 
 
+GRID_TOLERANCE = 0.01  # of the interval: how early a time may be and still count for the tick after it
+
+
+def next_due_ns(t_ns: int, anchor_ns: int, period_ns: int) -> int:
+    """The earliest time that is due after one kept at ``t_ns``, on a grid of ``period_ns`` from ``anchor_ns``.
+
+    Why a grid and not "a period after the last kept time": samples come close to a multiple of the period apart
+    but a hair either side of it (a receiver's epochs a few ns off whole seconds, IMU rows 50 ms +- us apart), and
+    a sample a hair short of a period after the last kept one would be passed over for the next, a whole sample
+    later: 1 Hz fixes thinned to 2 s kept one in 3 s, 20 Hz rows at 5 Hz one interval in six 0.25 s. On the grid
+    each tick keeps the first sample at or after it, or up to ``GRID_TOLERANCE`` of a period before it, so the rate
+    asked is the rate kept, whatever the jitter."""
+    tol_ns = int(period_ns * GRID_TOLERANCE)
+    tick = (t_ns - anchor_ns + tol_ns) // period_ns  # the tick t_ns counts for
+    return anchor_ns + (tick + 1) * period_ns - tol_ns
+
+
 class _Builder:
+    """One track, point by point: segments broken at gaps, points thinned to ``every_ns``.
+
+    Gaps are judged on every valid point, kept or thinned: a point thinned away is still a position the receiver
+    (or the filter) had, so the time since it, not since the last kept point, says whether the track broke. The
+    thinning is on a grid of ``every_ns`` anchored at each segment's first point (:func:`next_due_ns`)."""
+
     def __init__(self, track: Track, gap_ns: int, every_ns: int) -> None:
         self.track, self.gap_ns, self.every_ns = track, gap_ns, every_ns
-        self.last: TrackPoint | None = None
+        self.last: TrackPoint | None = None  # the last valid point, kept or thinned
+        self.anchor_ns = 0  # the thinning grid's origin: the segment's first point
+        self.due_ns = 0  # the earliest time the next kept point may have
         self.between: Counter[str] = Counter()
 
     def add(self, point: TrackPoint | str) -> None:
@@ -157,7 +182,7 @@ class _Builder:
             return
         last = self.last
         if last is None:
-            t.segments.append([point])
+            self._start(point)
         else:
             dt = point.t_ns - last.t_ns
             if dt <= 0:
@@ -168,14 +193,23 @@ class _Builder:
                 reason = (f"{n} message{'s' if n > 1 else ''} without a valid position "
                           f"({', '.join(self.between)})" if n else f"no message for {dt / 1e9:.1f} s")
                 t.gaps.append(Gap(last, point, n, reason))
-                t.segments.append([point])
-            elif dt < self.every_ns:
+                self._start(point)
+            elif point.t_ns < self.due_ns:
                 t.skipped["thinned out (--every)"] += 1
-                return
             else:
                 t.segments[-1].append(point)
+                self._kept(point)
         self.last = point
         self.between = Counter()
+
+    def _start(self, point: TrackPoint) -> None:
+        self.track.segments.append([point])
+        self.anchor_ns = point.t_ns
+        self._kept(point)
+
+    def _kept(self, point: TrackPoint) -> None:
+        if self.every_ns > 0:
+            self.due_ns = next_due_ns(point.t_ns, self.anchor_ns, self.every_ns)
 
 
 def build_tracks(messages: Iterable[DriveMessage], files: list[DriveFile], gap_s: float = 3.0,
