@@ -536,6 +536,25 @@ def test_gnss_decode_directory_is_one_line(capsys: pytest.CaptureFixture[str], t
     assert capsys.readouterr().err.count("\n") == 1
 
 
+def test_gnss_decode_of_what_is_no_capture_is_one_line_and_exit_1(capsys: pytest.CaptureFixture[str],
+                                                                    tmp_path: Path) -> None:
+    """An empty file, a text, a gpsd check file and another receiver's binary protocol hold no frame: not "0 fixes"
+    and exit 0, as if the receiver had sent nothing with a position."""
+    empty, text = tmp_path / "empty.log", tmp_path / "notes.txt"
+    empty.write_bytes(b"")
+    text.write_text("# a gpsd-style comment\nnot a receiver's output\n")
+    cases = [(empty, "is empty: no receiver output to decode"),
+             (text, "is not receiver output: no UBX, NMEA or RTCM3 frame in its 47 bytes"),
+             (DATA_DIR / "ublox-zoe-m8b-logbatch.log.chk", "is not receiver output"),
+             (DATA_DIR / "ublox-sirf1.log", "is not receiver output")]
+    for path, words in cases:
+        assert main([str(path)]) == 1, path
+        out, err = capsys.readouterr()
+        assert out == "" and err.startswith(f"logger gnss-decode: {path} {words}") and err.count("\n") == 1, err
+    assert main([str(DATA_DIR / "ublox-x20p.log")]) == 0  # frames without a fix: a capture, its 0 fixes said
+    assert "0 fixes, 553 frames" in capsys.readouterr().err
+
+
 def test_capture_comments_only_where_gpsd_puts_them() -> None:
     ubx_with_hash = b"\xb5\x62\x01\x02\x04\x00\n#\n#\x00\x00"
     capture = b"# header\n# more\n$GPGGA,1*00\n# note between sentences\n$GPRMC,2*00\n" + ubx_with_hash

@@ -158,6 +158,18 @@ def recorded_bytes(path: Path) -> list[bytes]:
     return [base64.b64decode(m.msg["data_b64"]) for m in iter_messages(files, [GNSS_RAW])]
 
 
+def not_receiver_output(result: DecodeResult, size: int) -> str | None:
+    """Why bytes that gave not one frame are no receiver capture (an empty file, a text, another receiver's binary
+    protocol), or None. Without it such a file read as a capture that happened to hold "0 fixes", exit 0, as if the
+    receiver had sent frames without a position. A capture with frames but no fix is still one: it says so."""
+    if result.frames_ok:
+        return None
+    if not size:
+        return "is empty: no receiver output to decode"
+    bad = f", {result.bad_checksum} with bad checksums (the wrong baud rate?)" if result.bad_checksum else ""
+    return f"is not receiver output: no UBX, NMEA or RTCM3 frame in its {size} bytes{bad}"
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="logger gnss-decode",
@@ -174,6 +186,7 @@ def main(argv: list[str]) -> int:
         reason = err.strerror or type(err).__name__
         print(f"logger gnss-decode: cannot read {args.file}: {reason}", file=sys.stderr)
         return 1
+    what = args.file
     if data.startswith(MCAP_MAGIC):
         try:
             pieces = recorded_bytes(Path(args.file))
@@ -185,8 +198,14 @@ def main(argv: list[str]) -> int:
                   "leaves none): nothing to decode", file=sys.stderr)
             return 1
         result = decode_pieces(pieces)
+        what, size = f"{args.file}'s {GNSS_RAW}", sum(map(len, pieces))
     else:
         result = decode_pieces([strip_capture_comments(data)])
+        size = len(data)
+    problem = not_receiver_output(result, size)
+    if problem:
+        print(f"logger gnss-decode: {what} {problem}", file=sys.stderr)
+        return 1
     for line in tpv_lines(result, args.json):
         print(line)  # a reader that stops early (head, less): logger.cli.run_subcommand ends it quietly
     print(
