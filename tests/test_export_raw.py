@@ -123,6 +123,9 @@ def test_convbin_reads_every_rawx_epoch_of_the_export(m8t_drive: tuple[bytes, li
     # the antenna height and receiver the drive recorded in its configuration
     assert "        1.2340        0.0000        0.0000                  ANTENNA: DELTA H/E/N" in header
     assert "7                   NEO-M8T             TIM 1.10            REC # / TYPE / VERS" in header
+    # Doppler and C/N0 as RXM-RAWX carries them, beside code and phase (RTKLIB's SNR mask works on S1C)
+    obs_types = [line[:60].split() for line in header.splitlines() if line[60:].strip() == "SYS / # / OBS TYPES"]
+    assert obs_types and all(t[1:] == ["4", "C1C", "L1C", "D1C", "S1C"] for t in obs_types), obs_types  # GPS, SBAS
     assert next(tmp_path.glob("*.ubx")).read_bytes() == data  # the .ubx keeps the unfinished tail
 
 
@@ -149,6 +152,30 @@ def test_without_convbin_rinex_says_how_to_install_it(m8t_drive: tuple[bytes, li
     assert r.stderr == ("logger export: --format rinex needs RTKLIB's convbin, which is not installed "
                         "(apt-get install rtklib)\n")
     assert not (tmp_path / "out").exists()
+
+
+def test_rinex_of_a_stream_without_raw_observations_is_one_line_before_convbin(tmp_path: Path) -> None:
+    """A receiver that sent no RXM-RAWX (an M8N, the default): refused before convbin, whose only answer was its
+    progress output as the error. Asked for RINEX alone nothing is left behind; asked for the .ubx too, it is kept
+    and the line says so."""
+    need_convbin()
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "rec", min_free_bytes=0), TOPICS)
+    rec.start()
+    gga = b"$GPGGA,092725.00,4717.11399,N,00833.91590,E,1,08,1.01,499.6,M,48.0,M,,*5B\r\n"
+    for k in range(5):
+        rec.submit(GNSS_RAW, raw_bytes_record(k * 10**9, gga, k * len(gga)), START_NS + k * 10**9, k * 10**9)
+    rec.stop()
+    files = [str(p) for p in (tmp_path / "rec").glob("*.mcap")]
+    why = ("logger export: no RINEX: /gnss/raw holds no raw observations (0 RXM-RAWX; record them with [gnss] "
+           "raw_observations = true on a receiver that has them: M8T, M8P, F9P, F9T)")
+    r = run("export", *files, "--out", str(tmp_path / "out"), "--format", "rinex")
+    assert r.returncode == 2 and r.stderr == f"{why}; nothing written\n", r.stderr
+    assert not (tmp_path / "out").exists()
+    r = run("export", *files, "--out", str(tmp_path / "both"), "--format", "ubx,rinex")
+    ubx = next((tmp_path / "both").glob("*.ubx"))
+    assert r.returncode == 2 and r.stderr == f"{why}; wrote only {ubx} and {ubx}.json\n", r.stderr
+    assert ubx.read_bytes() == gga * 5 and sorted(p.name for p in (tmp_path / "both").iterdir()) == [
+        ubx.name, f"{ubx.name}.json"]
 
 
 def test_lost_records_a_reopened_port_and_a_silence_are_noted_beside_the_stream(tmp_path: Path) -> None:

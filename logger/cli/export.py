@@ -41,7 +41,7 @@ RINEX_HEADER_KEYS = ("antenna_height_m", "receiver_name")  # [gnss] keys that go
 
 
 class UsageError(Exception):
-    """Bad arguments: one line for the user."""
+    """Bad arguments, or a drive without what they ask for: one line for the user."""
 
 
 def drive_name(paths: list[Path]) -> str:
@@ -159,10 +159,17 @@ def stream_summary(r: StreamReport) -> str:
                if r.unfinished_tail_bytes else ""))
 
 
-def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, config: Path | None) -> list[Path]:
-    """``ubx`` (and ``rinex``): the stream, its notes, and RTKLIB's RINEX of it; [] when the drive has no raw bytes."""
+def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, keep_ubx: bool,
+                  config: Path | None) -> list[Path]:
+    """``ubx`` (and ``rinex``): the stream, its notes, and RTKLIB's RINEX of it; [] when the drive has no raw bytes.
+
+    RINEX needs the receiver's raw observations (RXM-RAWX): a stream without any (an M8N, the default, sends none;
+    ``[gnss] raw_observations`` off) is refused before convbin is run, which would only fail with its progress
+    output for a message. When RINEX cannot be made, the ``.ubx`` and its notes are kept only if ``keep_ubx`` (the
+    user asked for ``ubx`` too), and the error says so; otherwise they were only convbin's input and are removed."""
     header = rinex_header(files, config) if rinex else None
     progress = Progress("logger export")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     ubx = out / f"{name}.ubx"
     try:
@@ -176,12 +183,23 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, con
     write_notes(notes, report)
     print(stream_summary(report))
     written = [ubx, notes]
-    if header is not None:
+    if header is None:
+        return written
+    try:
+        if not report.raw_epochs:
+            raise UsageError(f"no RINEX: {GNSS_RAW} holds no raw observations (0 RXM-RAWX; record them with [gnss] "
+                             "raw_observations = true on a receiver that has them: M8T, M8P, F9P, F9T)")
         result = to_rinex(ubx, out / f"{name}.obs", out / f"{name}.nav", *header, report.unfinished_tail_bytes)
-        print(f"rinex: {plural(result.epochs, 'observation epoch')} from {report.raw_epochs} RXM-RAWX"
-              + ("" if report.raw_epochs else " (the receiver sent no raw observations: [gnss] raw_observations)"))
-        written += [p for p in (result.obs, result.nav) if p.is_file()]
-    return written
+    except (UsageError, ConvbinError) as exc:
+        if keep_ubx:
+            raise type(exc)(f"{exc}; wrote only {ubx} and {notes}") from None
+        for p in written:
+            p.unlink()
+        if created and not any(out.iterdir()):
+            out.rmdir()
+        raise type(exc)(f"{exc}; nothing written") from None
+    print(f"rinex: {plural(result.epochs, 'observation epoch')} from {report.raw_epochs} RXM-RAWX")
+    return written + [p for p in (result.obs, result.nav) if p.is_file()]
 
 
 def main(argv: list[str]) -> int:
@@ -200,7 +218,7 @@ def main(argv: list[str]) -> int:
     if any(f in STREAM_FORMATS for f in formats):
         try:
             streamed = export_stream(files, args.out, drive_name([f.path for f in files]), "rinex" in formats,
-                                     args.config)
+                                     "ubx" in formats, args.config)
         except (DriveFileError, ConvbinError, UsageError) as exc:
             print(f"logger export: {exc}", file=sys.stderr)
             return 2

@@ -54,6 +54,9 @@ SILENCE_S = 3.0  # no bytes from the receiver for longer than this is a gap wort
 CONVBIN = "convbin"
 INSTALL_RTKLIB = "apt-get install rtklib"
 RINEX_VERSION = "3.04"
+# Doppler (-od) and C/N0 (-os) as well as code and phase: RXM-RAWX carries both, convbin drops them unless asked, and
+# without the C/N0 (S1C) RTKLIB's SNR mask has nothing to judge a satellite by.
+CONVBIN_OBS_TYPES = ("-od", "-os")
 CONVBIN_TIMEOUT_S = 600.0
 
 
@@ -210,8 +213,9 @@ def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_
              unfinished_tail_bytes: int = 0) -> RinexResult:
     """``convbin -r ubx`` of the stream into RINEX observations and navigation data, the header carrying the antenna
     height (ANTENNA: DELTA H/E/N) and, when set, the receiver (REC # / TYPE / VERS). A stream that ends inside a
-    frame is converted without that tail (see the module's note), from a copy of the same name."""
-    cmd = [convbin_path(), "-r", "ubx", "-v", RINEX_VERSION, "-hd", f"{antenna_height_m:.4f}/0/0",
+    frame is converted without that tail (see the module's note), from a copy of the same name. On failure nothing
+    of convbin's is left behind (a navigation file without its observations is no RINEX for RTKLIB)."""
+    cmd = [convbin_path(), "-r", "ubx", "-v", RINEX_VERSION, *CONVBIN_OBS_TYPES, "-hd", f"{antenna_height_m:.4f}/0/0",
            "-o", str(obs), "-n", str(nav)]
     if receiver_name:
         cmd += ["-hr", receiver_name]
@@ -227,9 +231,24 @@ def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_
         except (OSError, subprocess.TimeoutExpired) as exc:
             raise ConvbinError(f"{CONVBIN} could not be run: {exc}") from None
     if done.returncode != 0 or not obs.is_file():
-        said = " ".join((done.stderr or done.stdout).split())[-200:] or f"exit status {done.returncode}"
-        raise ConvbinError(f"{CONVBIN} failed on {ubx}: {said}")
+        for made in (obs, nav):
+            made.unlink(missing_ok=True)
+        said = convbin_said(done.stderr + "\n" + done.stdout)
+        raise ConvbinError(f"{CONVBIN} wrote no observations from {ubx} (exit status {done.returncode}"
+                           + (f": {said})" if said else ")"))
     return RinexResult(obs, nav, count_epochs(obs))
+
+
+def convbin_said(output: str) -> str:
+    """What convbin said that is not its progress: it echoes its files and prints a "scanning: ..." or ":" per block
+    it reads, which as an error message is a line of colons; the last other line, cut to 200 characters."""
+    said = ""
+    for line in output.replace("\r", "\n").splitlines():
+        line = " ".join(line.split())
+        if not line.strip(": ") or line.startswith(("scanning:", "input file", "->rinex")):
+            continue
+        said = line
+    return said[-200:]
 
 
 def count_epochs(obs: Path) -> int:
