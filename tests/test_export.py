@@ -384,3 +384,21 @@ def test_every_thins_on_a_grid_and_never_breaks_the_track() -> None:
         assert thin.skipped["thinned out (--every)"] == 110 - 110 // every
         assert len(nav_thin.segments) == 1 and len(nav_thin.points) == 60 // every
         assert nav_whole.n_points == 300
+
+
+def test_an_output_path_that_cannot_be_a_folder_is_one_line_before_the_work(tmp_path: Path) -> None:
+    """``--out`` a file, or a folder under a file: said at once in one line, exit 2, not a traceback after the drive
+    was read."""
+    drive = tmp_path / "drive.mcap"
+    write_mcap(drive, "/gnss/fix", [{"fix_mode": 3, "fix_ok": True, "latitude": 37.5, "longitude": 127.0,
+                                     "altitude": 50.0, "timestamp": {"sec": 1_780_000_000 + k, "nsec": 0}}
+                                    for k in range(3)])
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for out, words in ((afile, f"--out {afile}: exists and is not a folder"),
+                       (afile / "sub", f"--out {afile / 'sub'}: cannot be made, {afile} is a file and not a folder")):
+        for fmt in ("gpx", "ubx"):
+            r = run("export", str(drive), "--out", str(out), "--format", fmt)
+            assert r.returncode == 2 and r.stderr == f"logger export: {words}\n" and r.stdout == "", r.stderr
+    r = run("export", str(drive), "--out", str(tmp_path / "new" / "deeper"))
+    assert r.returncode == 0 and (tmp_path / "new" / "deeper").is_dir(), r.stderr

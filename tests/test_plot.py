@@ -176,3 +176,19 @@ def test_the_plots_find_the_outage_the_receiver_reported(recorded: tuple[Path, P
     spans = plot_cmd.no_fix_spans(fixes, fixes[0].log_time)
     assert [round(b - a) for a, b in spans if b - a > 5] == [pytest.approx(60, abs=3)], spans
     assert all(b - a <= 2 for a, b in spans if b - a <= 5)  # anything else: the receiver's first epoch at most
+
+
+def test_an_output_path_that_cannot_be_a_folder_is_one_line(tmp_path: Path) -> None:
+    need("matplotlib")  # looked for first: without it, that is the one line
+    drive = tmp_path / "drive.mcap"
+    with open(drive, "wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel("/baro", "json", w.register_schema("Baro", "jsonschema", b"{}"))
+        w.add_message(cid, log_time=1, publish_time=1, data=b"{}")
+        w.finish()
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    r = run("plot", str(drive), "--out", str(afile / "sub"))
+    assert r.returncode == 2 and r.stdout == "", r.stderr
+    assert r.stderr == f"logger plot: --out {afile / 'sub'}: cannot be made, {afile} is a file and not a folder\n"

@@ -201,6 +201,16 @@ def test_replay_refuses_a_rate_that_is_none(drive: list[str], tmp_path: Path) ->
         assert r.returncode == 2 and "--fix-hz" in r.stderr and not (tmp_path / "x").exists()
 
 
+def test_an_output_path_that_cannot_be_a_folder_is_refused_before_the_run(drive: list[str], tmp_path: Path) -> None:
+    """Said in one line before the filter runs (it was a traceback once the whole drive had been filtered)."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for out, words in ((afile, f"--out {afile}: exists and is not a folder"),
+                       (afile / "sub", f"--out {afile / 'sub'}: cannot be made, {afile} is a file and not a folder")):
+        r = replay(*drive, "--out", str(out))
+        assert r.returncode == 2 and r.stderr == f"logger replay: {words}\n" and r.stdout == "", r.stderr
+
+
 def test_write_mcap_takes_the_engines_publish_rate_unless_told(tmp_path: Path) -> None:
     from logger.nav.engine import NavEngine
 

@@ -12,6 +12,7 @@ into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RT
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections import Counter
 from pathlib import Path
@@ -42,6 +43,34 @@ RINEX_HEADER_KEYS = ("antenna_height_m", "receiver_name")  # [gnss] keys that go
 
 class UsageError(Exception):
     """Bad arguments, or a drive without what they ask for: one line for the user."""
+
+
+def out_folder_problem(out: Path, option: str = "--out") -> str | None:
+    """Why ``out`` cannot be (or become) the output folder, in a line naming it; None when it can. Checked before
+    the work (``export``, ``plot``, ``replay``), so that a file given as the folder, a folder under a file or one
+    that may not be written is said at once instead of a traceback once the drive was read (for ``replay``, after
+    the whole filter run). Nothing is created."""
+    if os.path.lexists(out) and not out.exists():
+        return f"{option} {out}: a link to nothing"
+    if out.exists():
+        if not out.is_dir():
+            return f"{option} {out}: exists and is not a folder"
+        if not os.access(out, os.W_OK | os.X_OK):
+            return f"{option} {out}: the folder may not be written to"
+        return None
+    for above in out.parents:  # the nearest that exists (a relative path ends at "."): the folder is made in it
+        if above.exists():
+            if not above.is_dir():
+                return f"{option} {out}: cannot be made, {above} is a file and not a folder"
+            if not os.access(above, os.W_OK | os.X_OK):
+                return f"{option} {out}: cannot be made, {above} may not be written to"
+            return None
+    return None
+
+
+def os_error_line(exc: OSError) -> str:
+    """An error writing the outputs in one line: what the system said and the path it said it of."""
+    return f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
 
 
 def drive_name(paths: list[Path]) -> str:
@@ -88,8 +117,9 @@ def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         raise UsageError(f"--gap {args.gap:g}: must be a positive number of seconds")
     if not 0 <= args.every < 1e6:
         raise UsageError(f"--every {args.every:g}: must be zero or a positive number of seconds")
-    if args.out.exists() and not args.out.is_dir():
-        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    problem = out_folder_problem(args.out)
+    if problem:
+        raise UsageError(problem)
     if args.config is not None and "rinex" not in formats:
         raise UsageError("--config is for --format rinex (the RINEX header's antenna height and receiver)")
     return formats, topics
@@ -225,6 +255,9 @@ def main(argv: list[str]) -> int:
         except ConfigError as exc:
             print("\n".join(f"logger export: {p}" for p in exc.problems), file=sys.stderr)
             return 2
+        except OSError as exc:  # the folder was checked first; what is left: a disk full, a folder changed meanwhile
+            print(f"logger export: {os_error_line(exc)}", file=sys.stderr)
+            return 2
         if not streamed:
             print(f"logger export: no {GNSS_RAW} messages in {', '.join(str(f) for f in args.files)}",
                   file=sys.stderr)
@@ -238,6 +271,9 @@ def main(argv: list[str]) -> int:
         chosen, written = export(files, args.out, formats, topics, args.height, args.gap, args.every, args.gap_marks)
     except DriveFileError as exc:
         print(f"logger export: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"logger export: {os_error_line(exc)}", file=sys.stderr)
         return 2
     names = ", ".join(str(f) for f in args.files)
     if not written:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from logger.cli.export import drive_name
+from logger.cli.export import drive_name, os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
@@ -221,8 +221,9 @@ def main(argv: list[str]) -> int:
     try:
         plt = pyplot()
         files = open_drive(args.files)
-        if args.out.exists() and not args.out.is_dir():
-            raise DriveFileError(f"--out {args.out}: exists and is not a folder")
+        problem = out_folder_problem(args.out)
+        if problem:
+            raise DriveFileError(problem)
         messages = list(iter_messages(files, (*STAMPED_TOPICS, SYNC, *EXPORT_TOPICS), progress))
     except (PlotsUnavailable, DriveFileError) as exc:
         progress.end()
@@ -240,16 +241,21 @@ def main(argv: list[str]) -> int:
     fixes = [m for m in messages if m.topic == GNSS_FIX]
     t0 = messages[0].log_time
     span_s = (messages[-1].log_time - t0) / 1e9
-    args.out.mkdir(parents=True, exist_ok=True)
-    name = drive_name([f.path for f in files])
-    progress.stage("drawing the map")
-    written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
-    if tim:
-        progress.stage("drawing the rates")
-        written.append(draw_rates(plt, tim, fixes, t0, span_s, args.out / f"{name}_rates.png"))
-    if tim or sync:
-        progress.stage("drawing the clock")
-        written.append(draw_sync(plt, sync, tim, fixes, t0, args.out / f"{name}_sync.png"))
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        name = drive_name([f.path for f in files])
+        progress.stage("drawing the map")
+        written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
+        if tim:
+            progress.stage("drawing the rates")
+            written.append(draw_rates(plt, tim, fixes, t0, span_s, args.out / f"{name}_rates.png"))
+        if tim or sync:
+            progress.stage("drawing the clock")
+            written.append(draw_sync(plt, sync, tim, fixes, t0, args.out / f"{name}_sync.png"))
+    except OSError as exc:  # the folder was checked first; what is left: a disk full, a folder changed meanwhile
+        progress.end()
+        print(f"logger plot: {os_error_line(exc)}", file=sys.stderr)
+        return 2
     progress.end()
     for tt in tim.values():
         print(tt.summary())

@@ -25,6 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from logger.cli.export import os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
@@ -101,6 +102,10 @@ def start_height(c: EngineCounters) -> str:
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
+    problem = out_folder_problem(args.out)  # before the filter run, which the folder would otherwise end
+    if problem:
+        print(f"logger replay: {problem}", file=sys.stderr)
+        return 2
     try:
         files = open_drive(args.files)
     except DriveFileError as exc:
@@ -155,13 +160,18 @@ def main(argv: list[str]) -> int:
               file=sys.stderr)
         return 1
     progress.stage("writing the trajectory")
-    args.out.mkdir(parents=True, exist_ok=True)
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
-    with no_cycle_collector():
-        write_csv(args.out / "trajectory.csv", rows)
-        if states is not None:
-            fixes = write_mcap(args.out / "trajectory.mcap", rows, engine, states, fix_hz)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        with no_cycle_collector():
+            write_csv(args.out / "trajectory.csv", rows)
+            if states is not None:
+                fixes = write_mcap(args.out / "trajectory.mcap", rows, engine, states, fix_hz)
+    except OSError as exc:  # checked before the run; what is left: a disk full, a folder changed meanwhile
+        progress.end()
+        print(f"logger replay: {os_error_line(exc)}", file=sys.stderr)
+        return 2
     progress.end()
     span = (rows[-1][0] - rows[0][0]) / 1e9 if len(rows) > 1 else 0.0
     if engine.mode == "gnss":
