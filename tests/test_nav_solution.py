@@ -293,6 +293,19 @@ def test_replay_fuses_the_solution_and_says_so(drive_with_ppk, tmp_path: Path):
         r.stderr.count("\n") == 1
     r = replay("--out", str(tmp_path / "out3"), "--gnss-solution", str(tmp_path / "missing.pos"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing.pos: No such file" in r.stderr
+    # A solution of the next day: no epoch of it goes in (in replace mode not even the receiver's positions), which
+    # is an error, not a trajectory; an earlier run's trajectory in the folder is left as it was.
+    next_day = tmp_path / "next_day.pos"
+    next_day.write_text("".join(line[:8] + f"{int(line[8:10]) + 1:02d}" + line[10:] if line[:1].isdigit() else line
+                                for line in pos.read_text().splitlines(keepends=True)))
+    for mode in ("replace", "add"):
+        r = replay("--out", str(tmp_path / "out"), "--gnss-solution", str(next_day), "--gnss-solution-mode", mode,
+                   "--no-mcap")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+        assert r.stderr.startswith(f"logger replay: --gnss-solution {next_day}: none of its 111 epochs was used "
+                                   "(111 after the drive's end): it spans "), r.stderr
+        assert r.stderr.endswith(f"; nothing written to {tmp_path / 'out'}\n")
+    assert (tmp_path / "out" / "trajectory.csv").stat().st_mtime_ns < next_day.stat().st_mtime_ns
 
 
 def test_a_filter_lost_with_a_solution_restarts_from_its_epochs(drive_with_ppk):

@@ -10,7 +10,8 @@ could not start on writes nothing and exits 1, with what the start waited for.
 ``--gnss-solution FILE.pos`` fuses a post-processed solution (RTKLIB's ``rnx2rtkp``/``rtkpost`` output, read by
 :mod:`logger.recording.rtklib_pos`): instead of the receiver's positions (``--gnss-solution-mode replace``, the
 default; its velocities still go in) or beside them (``add``). A file that cannot be read is one line naming it
-and the line, exit 2.
+and the line, exit 2; so is a solution none of whose epochs the filter used (another drive's or day's: the line
+gives both time spans), and nothing is written. An ``--out`` that cannot be a folder is refused before the run.
 """
 
 from __future__ import annotations
@@ -159,6 +160,13 @@ def main(argv: list[str]) -> int:
               f"{plural(c.gnss_fixes, 'GNSS fix', 'GNSS fixes')}: {why}; nothing written to {args.out}",
               file=sys.stderr)
         return 1
+    if solution is not None and (engine.solution is None or not engine.solution.used):
+        # Fused with nothing: in replace mode without any position update at all (the receiver's are left out), in
+        # add mode the receiver's alone. Either is not what was asked, and written it would replace a folder's
+        # trajectory from an earlier run: an error, nothing written.
+        print(f"logger replay: {unused_solution(solution, engine.solution, rows)}; nothing written to {args.out}",
+              file=sys.stderr)
+        return 2
     progress.stage("writing the trajectory")
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
@@ -216,3 +224,24 @@ def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) ->
     return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
             f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
             + (f"; not used: {'; '.join(left)}" if left else ""))
+
+
+def unused_solution(solution: SolutionFile, used: SolutionPolicy | None, rows: list[Any]) -> str:
+    """Why none of a solution's epochs went into the filter, with both time spans: a solution of another drive or
+    day is the usual cause, which the spans show at once."""
+    from logger.exports.formats import utc_iso
+
+    n = len(solution.epochs)
+    why = []
+    if used is not None:
+        if used.unjoined:
+            why.append(f"{used.unjoined} with no receiver fix near them")
+        if used.before_start:
+            why.append(f"{used.before_start} before the filter started")
+        if used.pending:
+            why.append(f"{len(used.pending)} after the drive's end")
+    span = (f"{utc_iso(solution.epochs[0].gnss_time_ns)} to {utc_iso(solution.epochs[-1].gnss_time_ns)}"
+            if solution.epochs else "no epoch")
+    return (f"--gnss-solution {solution.path}: none of its {plural(n, 'epoch')} was used"
+            + (f" ({', '.join(why)})" if why else "")
+            + f": it spans {span}, the filter {utc_iso(rows[0][0])} to {utc_iso(rows[-1][0])}")
