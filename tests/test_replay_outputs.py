@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from test_nav_synth import records
 
-from logger.exports.tracks import GRID_TOLERANCE
 from logger.exports.trajectory import BLOCK_ROWS, CSV_HEADER, columns, fix_rows, nav_fix_json, write_csv, write_mcap
 from logger.nav.engine import TrajectoryRow
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat, euler_from_dcm
 from logger.recording.drive import read_messages
+from logger.recording.intervals import GRID_TOLERANCE
 from logger.recording.records import nav_fix_record
 from sensors.sim.scenarios import make_drive
 

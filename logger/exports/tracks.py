@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from logger.recording.drive import DriveFile, DriveMessage
+from logger.recording.intervals import next_due_ns
 from logger.recording.topics import GNSS_FIX, NAV_FIX
 
 EXPORT_TOPICS = (GNSS_FIX, NAV_FIX)
@@ -141,29 +142,13 @@ def _label(topic: str, origin: str, f: DriveFile) -> str:
     return topic if origin == "live" else f"{topic} (replay: {f.path.name})"
 
 
-GRID_TOLERANCE = 0.01  # of the interval: how early a time may be and still count for the tick after it
-
-
-def next_due_ns(t_ns: int, anchor_ns: int, period_ns: int) -> int:
-    """The earliest time that is due after one kept at ``t_ns``, on a grid of ``period_ns`` from ``anchor_ns``.
-
-    Why a grid and not "a period after the last kept time": samples come close to a multiple of the period apart
-    but a hair either side of it (a receiver's epochs a few ns off whole seconds, IMU rows 50 ms +- us apart), and
-    a sample a hair short of a period after the last kept one would be passed over for the next, a whole sample
-    later: 1 Hz fixes thinned to 2 s kept one in 3 s, 20 Hz rows at 5 Hz one interval in six 0.25 s. On the grid
-    each tick keeps the first sample at or after it, or up to ``GRID_TOLERANCE`` of a period before it, so the rate
-    asked is the rate kept, whatever the jitter."""
-    tol_ns = int(period_ns * GRID_TOLERANCE)
-    tick = (t_ns - anchor_ns + tol_ns) // period_ns  # the tick t_ns counts for
-    return anchor_ns + (tick + 1) * period_ns - tol_ns
-
-
 class _Builder:
     """One track, point by point: segments broken at gaps, points thinned to ``every_ns``.
 
     Gaps are judged on every valid point, kept or thinned: a point thinned away is still a position the receiver
     (or the filter) had, so the time since it, not since the last kept point, says whether the track broke. The
-    thinning is on a grid of ``every_ns`` anchored at each segment's first point (:func:`next_due_ns`)."""
+    thinning is on a grid of ``every_ns`` anchored at each segment's first point
+    (:func:`logger.recording.intervals.next_due_ns`)."""
 
     def __init__(self, track: Track, gap_ns: int, every_ns: int) -> None:
         self.track, self.gap_ns, self.every_ns = track, gap_ns, every_ns

@@ -24,7 +24,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from logger.exports.tracks import next_due_ns
 from logger.nav import boresight
 from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow, forward_axis_turned
 from logger.nav.inputs import SolutionEpoch
@@ -32,6 +31,7 @@ from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
 from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
+from logger.recording.intervals import next_due_ns
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
 from logger.recording.records import NAV_INPUT_TOPICS, follows_on, nav_fix_record, nav_state_record
@@ -260,7 +260,7 @@ def write_csv(path: Path, rows: Sequence[TrajectoryRow]) -> None:
 
 def fix_rows(t_ns: Sequence[int], hz: float) -> list[int]:
     """The rows ``/nav/fix`` is written for at ``hz``: the first row, then the first row at (or a hair before) each
-    tick of a grid of the period from it (:func:`logger.exports.tracks.next_due_ns`), so that ``hz`` asked is
+    tick of a grid of the period from it (:func:`logger.recording.intervals.next_due_ns`), so that ``hz`` asked is
     ``hz`` written. "The first row at least a period after the last one written" on 20 Hz rows 50 ms +- us apart
     passed over a row a microsecond short of the period, one interval in six 0.25 s: 4.83 Hz for 5. Rows sparser
     than the grid (GNSS-only, an outage) are each written. ``hz`` 0 (or less): every row."""
