@@ -369,3 +369,24 @@ def test_a_folder_stands_for_one_drive_and_several_are_told_apart(tmp_path: Path
     with pytest.raises(DriveFileError, match="without recorded MCAP files"):
         (tmp_path / "empty").mkdir()
         drive_paths([tmp_path / "empty"])
+
+
+def test_files_of_two_drives_named_one_by_one_are_refused_as_a_folder_of_two_is(tmp_path: Path) -> None:
+    """A shell's ``drives/drive_*.mcap`` over two cars' files was merged into one track and filtered as one drive:
+    files named one by one are held to the folder's rule (part numbers rising in name order), in any order given."""
+    from logger.recording.drive import DriveFileError, drive_paths
+
+    a = [tmp_path / "a" / f"drive_20261204T10000{i}Z_000{i + 1}.mcap" for i in range(3)]
+    b = [tmp_path / "b" / "drive_20261205T090000Z_0001.mcap"]
+    for f in a + b:
+        f.parent.mkdir(exist_ok=True)
+        f.write_bytes(b"")
+    assert drive_paths([a[2], a[0], a[1]]) == [a[2], a[0], a[1]]  # one drive's, in any order
+    with pytest.raises(DriveFileError, match=r"^files of 2 drives \(files drive_20261204T100000Z_0001.mcap, "
+                                             r"drive_20261205T090000Z_0001.mcap each begin one\): name the files"):
+        drive_paths([*a, *b])
+    with pytest.raises(DriveFileError, match="files of 2 drives"):
+        drive_paths([tmp_path / "a", *b])  # a folder and a file of another drive
+    with pytest.raises(DriveFileError, match="named twice"):
+        drive_paths([a[0], a[1], tmp_path / "a" / ".." / "a" / a[0].name])
+    assert len(drive_paths([*a, *b], one_drive=False)) == 4  # logger info takes any files

@@ -183,15 +183,31 @@ def drive_stem(path: Path) -> str:
     return _PART.sub("", path.stem)
 
 
+def drive_starts(files: list[Path]) -> list[Path]:
+    """The files that begin a drive, in name order: the first daemon file, and every one whose part number does
+    not rise over the one before it (another start's 0001, or a later drive after an earlier one's last parts).
+    Files without a part number (a replay's output) begin none."""
+    parts = [(f, n) for f in sorted(files, key=lambda f: f.name) if (n := part_number(f)) is not None]
+    return [f for i, (f, n) in enumerate(parts) if i == 0 or n <= parts[i - 1][1]]
+
+
+def _several(starts: list[Path]) -> str:
+    shown = ", ".join(f.name for f in starts[:FOLDER_DRIVES_SHOWN]) + (", ..." if len(starts) > FOLDER_DRIVES_SHOWN
+                                                                      else "")
+    return f"{len(starts)} drives (files {shown} each begin one): name the files of one drive"
+
+
 def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Path]:
     """The files a user named, a folder standing for the drive the daemon wrote into it (``logger run --out``).
 
     A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). In that
     order a drive's part numbers rise; a file whose part number does not rise over the one before it (another
-    start's 0001, or a later drive after an earlier one's last parts) begins another drive. Mixing drives would
-    join unrelated trajectories, so a folder of several is an error naming the files that begin them (unless
-    ``one_drive`` is false: ``logger info`` takes any files), as is a folder without MCAP files. Files are passed
-    through as named.
+    start's 0001, or a later drive after an earlier one's last parts) begins another drive (:func:`drive_starts`).
+    Mixing drives would join unrelated trajectories (two cars' tracks as one, filtered as one drive), so a folder
+    of several is an error naming the files that begin them, and so are files named one by one (a shell's
+    ``drives/drive_*.mcap`` over two drives) that are not one drive's by the same rule, or a file named twice
+    (its messages would be read twice) -- unless ``one_drive`` is false: ``logger info`` takes any files. A folder
+    without MCAP files is an error too.
     """
     out: list[Path] = []
     for p in map(Path, paths):
@@ -201,14 +217,20 @@ def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Pat
         found = [f for f in sorted(p.glob("*.mcap")) if f.is_file()]
         if not found:
             raise DriveFileError(f"{p}: a folder without recorded MCAP files")
-        parts = [(f, part_number(f)) for f in found]
-        parts = [(f, n) for f, n in parts if n is not None]
-        starts = [f.name for i, (f, n) in enumerate(parts) if i == 0 or n <= parts[i - 1][1]]
+        starts = drive_starts(found)
         if one_drive and len(starts) > 1:
-            shown = ", ".join(starts[:FOLDER_DRIVES_SHOWN]) + (", ..." if len(starts) > FOLDER_DRIVES_SHOWN else "")
-            raise DriveFileError(f"{p}: a folder of {len(starts)} drives (files {shown} each begin one): name "
-                                 "the files of one drive")
+            raise DriveFileError(f"{p}: a folder of {_several(starts)}")
         out += found
+    if one_drive:
+        seen: set[Path] = set()
+        for f in out:
+            key = f.resolve() if f.exists() else f
+            if key in seen:
+                raise DriveFileError(f"{f}: named twice (its messages would be read twice)")
+            seen.add(key)
+        starts = drive_starts(out)
+        if len(starts) > 1:
+            raise DriveFileError(f"files of {_several(starts)}")
     return out
 
 
