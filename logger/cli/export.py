@@ -30,7 +30,15 @@ from logger.exports.raw_stream import (
     write_ubx,
 )
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
-from logger.recording.drive import DriveFile, DriveFileError, cut_notes, drive_stem, iter_messages, open_drive
+from logger.recording.drive import (
+    DriveFile,
+    DriveFileError,
+    cut_notes,
+    damage_notes,
+    drive_stem,
+    iter_messages,
+    open_drive,
+)
 from logger.recording.topics import GNSS_RAW
 from logger.words import plural
 from sensors.ublox_config import RAW_MESSAGES
@@ -264,6 +272,8 @@ def main(argv: list[str]) -> int:
             return 2
         formats = [f for f in formats if f in TRACK_FORMATS]
         if not formats:
+            for line in damage_notes(files):
+                print(f"logger export: {line}", file=sys.stderr)
             for p in streamed:
                 print(f"wrote {p}")
             return 0
@@ -275,6 +285,8 @@ def main(argv: list[str]) -> int:
     except OSError as exc:
         print(f"logger export: {os_error_line(exc)}", file=sys.stderr)
         return 2
+    for line in damage_notes(files):  # damaged chunks skipped whole; what is written is the rest (exit 0)
+        print(f"logger export: {line}", file=sys.stderr)
     names = ", ".join(str(f) for f in args.files)
     if not written:
         if not chosen:

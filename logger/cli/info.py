@@ -2,8 +2,9 @@
 
 Per-topic counts, rates and gaps (by :mod:`logger.recording.intervals`, the rule ``logger plot`` uses too) come
 from the message indexes, so the chunks need not be
-decompressed: a day's file is summarised in seconds on the board. A file that was not closed cleanly is
-walked record by record instead, and says so.
+decompressed for them: a day's file is summarised in seconds on the board. Each chunk is still decompressed once to
+check its CRC, since a damaged chunk in a cleanly closed file is one every reader skips (``Damaged:``, with the
+messages it held and when). A file that was not closed cleanly is walked record by record instead, and says so.
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from mcap.records import Channel, MessageIndex, Metadata
+from mcap.records import Channel, Chunk, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
 from logger.recording.drive import DriveFileError, drive_paths
-from logger.recording.files import McapFileError, is_finished, walk
+from logger.recording.files import Loss, McapFileError, chunk_fault, describe_losses, is_finished, walk
 from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS
 
@@ -58,6 +59,9 @@ class FileInfo:
     topics: list[TopicInfo]
     note: str = ""
     silent: list[str] = field(default_factory=list)  # configured sensors of which the file holds no record
+    damaged_chunks: int = 0  # chunks whose CRC (or decompression) fails: every reader skips them whole
+    lost_messages: int = 0  # the messages they held (counted in no topic above)
+    damage: str = ""  # the two above, and when, in words; empty for a file whose chunks all hold
 
 
 def inspect(path: str | os.PathLike[str]) -> FileInfo:
@@ -69,11 +73,25 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     schemas: dict[int, str] = {}
     config: dict[str, str] = {}  # the daemon's configuration, as the file's "config" metadata keeps it
     note = ""
+    losses: list[Loss] = []
     if finished:
         try:
             with open(p, "rb") as f:
+                bad: Loss | None = None  # the chunk just read, when it failed: its message indexes count its loss
                 for record in StreamReader(f, emit_chunks=True, record_size_limit=max(p.stat().st_size, 1)).records:
-                    if isinstance(record, MessageIndex):
+                    if isinstance(record, Chunk):
+                        # Each chunk decompressed and its CRC checked (the indexes alone cannot tell a damaged one):
+                        # 16 ms more for a 600 s drive (44 -> 60 ms, 600 chunks): a cleanly closed file is not simply
+                        # "cleanly" when readers will skip some of it.
+                        fault, _ = chunk_fault(record.compression, record.data, record.uncompressed_size,
+                                               record.uncompressed_crc)
+                        bad = Loss(0, chunks=1, reason=fault, first_ns=record.message_start_time,
+                                   last_ns=record.message_end_time) if fault else None
+                        if bad is not None:
+                            losses.append(bad)
+                    elif isinstance(record, MessageIndex) and bad is not None:
+                        bad.messages += len(record.records)  # in no topic's count: no reader gets them
+                    elif isinstance(record, MessageIndex):
                         times[record.channel_id].extend(t for t, _ in record.records)
                     elif isinstance(record, Channel):
                         channels[record.id] = record
@@ -85,6 +103,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
             finished = False
             note = f"index unreadable ({type(exc).__name__}); walked the records instead"
             times.clear()
+            losses.clear()
     if not finished:
         found = walk(p)
         channels = dict(found.channels)
@@ -92,6 +111,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
         for m in found.messages:
             times[m.channel_id].append(m.log_time)
         config = next((dict(m.metadata) for m in found.metadata if m.name == "config"), config)
+        losses = found.damage()
         if found.stopped_at and not note:
             note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
     topics = []
@@ -104,7 +124,12 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     end = max(all_times) if all_times else None
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
     silent = silent_sensors(config, {t.topic: t.count for t in topics})
-    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note, silent)
+    damage = ""
+    if losses:
+        damage = (f"{describe_losses(losses)}: every reader skips {'it' if len(losses) == 1 else 'them'} and reads the "
+                  f"rest; `logger recover {p}` rewrites the file without {'it' if len(losses) == 1 else 'them'}")
+    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note, silent,
+                    sum(x.chunks for x in losses), sum(x.messages for x in losses), damage)
 
 
 def _utc(ns: int | None) -> str:
@@ -117,12 +142,16 @@ def render(info: FileInfo) -> str:
     lines = [
         f"File:      {info.path}",
         f"Size:      {info.size_bytes / 1e6:.1f} MB",
-        f"Closed:    {'cleanly' if info.closed_cleanly else 'NO (cut short)'}",
+        f"Closed:    {'cleanly' if info.closed_cleanly else 'NO (cut short)'}"
+        + (f", but {info.damaged_chunks} chunk{'s' if info.damaged_chunks != 1 else ''} damaged"
+           if info.damaged_chunks else ""),
         f"Start:     {_utc(info.start_ns)}",
         f"End:       {_utc(info.end_ns)}",
         f"Duration:  {info.duration_s:.1f} s",
         f"Messages:  {info.messages}",
     ]
+    if info.damage:
+        lines.append(f"Damaged:   {info.damage}")
     if info.note:
         lines.append(f"Note:      {info.note}")
     if info.silent:

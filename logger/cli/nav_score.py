@@ -27,7 +27,7 @@ from logger.exports.nav_score import (
     reference_outages,
     score,
 )
-from logger.recording.drive import DriveFileError, cut_notes, drive_paths, open_drive
+from logger.recording.drive import DriveFileError, cut_notes, damage_notes, drive_paths, open_drive
 
 PROG = "logger nav-score"
 
@@ -101,6 +101,8 @@ def main(argv: list[str]) -> int:
     except (ScoreError, DriveFileError) as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
+    for line in damage_notes(drives):  # damaged chunks of the truth skipped whole: scored on the rest
+        print(f"{PROG}: {line}", file=sys.stderr)
     named = {}
     status = 0
     for p, traj in trajectories.items():

@@ -29,7 +29,7 @@ from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
-from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, iter_messages, open_drive
+from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, damage_notes, iter_messages, open_drive
 from logger.recording.records import NO_FIX, fix_name
 from logger.recording.topics import GNSS_FIX, SYNC
 from logger.words import plural
@@ -229,7 +229,7 @@ def main(argv: list[str]) -> int:
         progress.end()
         print(f"logger plot: {exc}", file=sys.stderr)
         return 2
-    for line in cut_notes(files):
+    for line in cut_notes(files) + damage_notes(files):
         print(f"logger plot: {line}", file=sys.stderr)
     if not messages:
         print(f"logger plot: nothing to plot in {', '.join(map(str, args.files))}: no sensor, /sync or position "

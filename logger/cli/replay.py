@@ -31,7 +31,7 @@ from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
-from logger.recording.drive import DriveFileError, cut_notes, open_drive
+from logger.recording.drive import DriveFileError, cut_notes, damage_notes, open_drive
 from logger.words import plural
 
 if TYPE_CHECKING:
@@ -146,13 +146,22 @@ def main(argv: list[str]) -> int:
         from logger.nav.smoother import SmoothingReport
 
         smoothing = SmoothingReport()
-    with no_cycle_collector():
-        engine, rows = run_filter([f.path for f in files], params, args.smooth, states, progress, smoothing,
-                                  solution.epochs if solution is not None else (), args.gnss_solution_mode == "replace",
-                                  refilter=not args.one_pass, notes=notes)
+    try:
+        with no_cycle_collector():
+            engine, rows = run_filter([f.path for f in files], params, args.smooth, states, progress, smoothing,
+                                      solution.epochs if solution is not None else (),
+                                      args.gnss_solution_mode == "replace", refilter=not args.one_pass, notes=notes)
+    except DriveFileError as exc:  # a file that turned out unreadable once read: one line, nothing written
+        progress.end()
+        print(f"logger replay: {exc}", file=sys.stderr)
+        return 2
     t1 = time.perf_counter()
     c = engine.counters
     progress.end()
+    # Damaged chunks were skipped whole and the rest filtered: said before the result, which is still written
+    # (exit 0), since the drive's other minutes are worth as much as before.
+    for line in damage_notes(files):
+        print(f"logger replay: {line}", file=sys.stderr)
     if not rows:
         # An empty trajectory is no result: say what the start waited for, write nothing, fail.
         why = engine.waiting_for() or "the filter produced no solution"

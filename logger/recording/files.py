@@ -5,17 +5,27 @@ unfinished file (power cut, ``kill -9``, full disk) still holds every chunk that
 index-based readers see nothing in it, so recovery walks the records from the start, keeps every chunk whose CRC
 checks out, and writes them again into a finished, indexed file. Recovery writes beside the original and
 renames over it only once the copy is complete and synced, so a crash during recovery loses nothing either.
+
+What the walk could not keep is kept as :class:`Loss` records (where, how many chunks, how many messages, when),
+so recovery and the readers say what damage cost: a lost chunk's message index records (written right after it)
+count its messages, and a finished file's statistics count everything its damage hid.
 """
 
 from __future__ import annotations
 
+import bisect
 import io
+import itertools
 import mmap
 import os
 import struct
+import time
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import lz4.frame
+import zstandard
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -25,6 +35,8 @@ from logger.recording.mcap_writer import (
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
+    OP_MESSAGE_INDEX,
+    OP_STATISTICS,
     RECORD_HEAD,
     McapWriter,
 )
@@ -57,6 +69,124 @@ def is_finished(path: str | os.PathLike[str]) -> bool:
 
 
 @dataclass
+class Loss:
+    """One place a reader could not read: a damaged chunk skipped whole, damaged bytes walked past up to the next
+    good chunk, or the cut at the end. Kept so that what was lost is told (chunks, messages, when), not only that
+    something was."""
+
+    at: int  # the byte where it starts
+    chunks: int = 0  # chunks known lost in it
+    messages: int = 0  # messages they held, all topics (their message indexes, or the file's statistics, tell)
+    exact: bool = True  # ``messages`` is all that was lost here; False: at least that many (nothing told the rest)
+    cut: bool = False  # the file ends in it (a power loss), rather than going on past damage
+    reason: str = ""  # why a chunk was skipped: its CRC, its compression, a record in it
+    first_ns: int | None = None  # the log-time span lost: no later than this ...
+    last_ns: int | None = None  # ... and no earlier than this (the chunk's own times, or its good neighbours')
+
+
+def utc_text(t_ns: int | None) -> str:
+    """A log time as the loss lines print it (to the tenth of a second: chunks span about one)."""
+    if t_ns is None:
+        return "?"
+    return time.strftime("%H:%M:%S", time.gmtime(t_ns // 1_000_000_000)) + f".{(t_ns // 100_000_000) % 10}"
+
+
+SPANS_SHOWN = 3
+
+
+def describe_losses(losses: list[Loss]) -> str:
+    """What the losses cost, in one clause: ``2 damaged chunks skipped (CRC mismatch), 130 messages lost, at
+    09:44:50.1-09:44:51.1, 09:50:02.0-09:50:03.0 UTC``; empty for none."""
+    if not losses:
+        return ""
+    chunks = sum(x.chunks for x in losses)
+    messages = sum(x.messages for x in losses)
+    exact = all(x.exact for x in losses)
+    reasons = sorted({x.reason for x in losses if x.reason})
+    what = (f"{'' if exact else 'at least '}{chunks} damaged chunk{'s' if chunks != 1 else ''} skipped" if chunks
+            else f"damaged bytes skipped at byte {losses[0].at}")
+    if reasons:
+        what += f" ({', '.join(reasons)})"
+    if messages or exact:
+        what += f", {'' if exact else 'at least '}{messages} message{'s' if messages != 1 else ''} lost"
+    else:
+        what += ", messages lost: unknown"
+    spans = [f"{utc_text(x.first_ns)}-{utc_text(x.last_ns)}" for x in losses]
+    shown = ", ".join(spans[:SPANS_SHOWN]) + (", ..." if len(spans) > SPANS_SHOWN else "")
+    return f"{what}, at {shown} UTC"
+
+
+def chunk_fault(compression: str, data: bytes | memoryview, size: int, crc: int) -> tuple[str, bytes | None]:
+    """A chunk's records decompressed and checked against its CRC (MCAP: ``uncompressed_crc`` over the
+    decompressed records, 0 when the writer did not compute one): ("", records) when they hold, (why, None) when
+    not. The CRC is what tells a flipped byte from a value: without it a damaged chunk that still decompresses
+    (zstd's frames carry no checksum by default; lz4's none either) gives other numbers in valid JSON."""
+    try:
+        if compression == "zstd":
+            raw = zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
+        elif compression == "lz4":
+            raw = lz4.frame.decompress(bytes(data))
+        elif compression == "":
+            raw = bytes(data)
+        else:
+            return f"compression {compression!r}", None
+    except Exception:  # whatever a damaged frame makes the decompressor raise
+        return "does not decompress", None
+    if len(raw) != size:
+        return "wrong size", None
+    if crc and zlib.crc32(raw) != crc:
+        return "CRC mismatch", None
+    return "", raw
+
+
+def indexed_messages(buf: bytes | memoryview | mmap.mmap, pos: int) -> int | None:
+    """Messages listed by the message index records at ``pos`` (the writer puts them right after their chunk):
+    how many a lost chunk held. None when no index record is there."""
+    n = 0
+    seen = False
+    while pos + 9 + 6 <= len(buf) and buf[pos] == OP_MESSAGE_INDEX:
+        _, length = RECORD_HEAD.unpack_from(buf, pos)
+        (entries,) = struct.unpack_from("<I", buf, pos + 9 + 2)
+        if length != 6 + entries or entries % 16 or pos + 9 + length > len(buf):
+            break
+        n += entries // 16
+        seen = True
+        pos += 9 + length
+    return n if seen else None
+
+
+@dataclass(frozen=True)
+class Statistics:
+    messages: int
+    chunks: int
+
+
+def summary_statistics(buf: bytes | memoryview | mmap.mmap) -> Statistics | None:
+    """The message and chunk counts of a finished file's statistics record, when its summary's CRC holds (or the
+    writer left it 0): what a reader compares its count with, to know what damage cost even where a lost chunk's
+    own index went with it. None for an unfinished file or a damaged summary."""
+    size = len(buf)
+    foot = size - len(MAGIC) - FOOTER_LEN
+    if foot < len(MAGIC) or bytes(buf[size - len(MAGIC):]) != MAGIC or buf[foot] != OP_FOOTER:
+        return None
+    start, _offsets, crc = struct.unpack_from("<QQI", buf, foot + 9)
+    if not len(MAGIC) <= start <= foot:
+        return None
+    if crc and zlib.crc32(buf[start:foot + 9 + 16]) != crc:
+        return None
+    pos = start
+    while pos + 9 <= foot:
+        op, length = RECORD_HEAD.unpack_from(buf, pos)
+        if pos + 9 + length > foot:
+            return None
+        if op == OP_STATISTICS and length >= 38:
+            messages, _s, _c, _a, _m, chunks = struct.unpack_from("<QHIIII", buf, pos + 9)
+            return Statistics(messages, chunks)
+        pos += 9 + length
+    return None
+
+
+@dataclass
 class Salvage:
     """What a record walk of a possibly truncated file found."""
 
@@ -70,6 +200,14 @@ class Salvage:
     profile: str = ""
     library: str = ""  # the header's writer: a recovered file keeps it (a replay's output stays a replay's)
     magic: bool = True
+    losses: list[Loss] = field(default_factory=list)  # every damage and cut the walk met, in file order
+    good_chunks: list[tuple[int, int, int]] = field(default_factory=list)  # (offset, first, last log time)
+    statistics: Statistics | None = None  # the finished file's own counts, when its summary holds
+
+    def damage(self) -> list[Loss]:
+        """The losses other than the cut at the end: what a reader of an unfinished file has to tell besides
+        the cut it tells anyway."""
+        return [x for x in self.losses if not x.cut]
 
 
 OP_MAX = 0x11  # the walk's bound on an opcode byte that can start a record
@@ -91,8 +229,10 @@ def walk(path: str | os.PathLike[str]) -> Salvage:
         raise McapFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
     try:
         _walk_mapped(buf, found)
+        found.statistics = summary_statistics(buf)
     finally:
         buf.close()
+    _account(found)
     _name_orphans(found)
     if not found.magic and found.chunks_ok == 0:
         raise McapFileError(f"{path}: not an MCAP file (no MCAP magic at the start, and no readable chunk)")
@@ -108,22 +248,113 @@ def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
         record = _record_at(buf, pos, found) if pos > 0 else None
         if record is None:
             _, length = RECORD_HEAD.unpack_from(buf, pos)
-            if pos + 9 + length > size and 0 < buf[pos] <= OP_MAX:
+            loss = Loss(pos, cut=pos + 9 + length > size and 0 < buf[pos] <= OP_MAX)
+            found.losses.append(loss)
+            if loss.cut:
                 found.stopped_at = found.stopped_at or f"cut at byte {size} in a record from byte {pos}"
             else:
                 found.stopped_at = found.stopped_at or f"damaged at byte {pos}"
-            nxt = _next_chunk(buf, pos + 1)
+            if buf[pos] == OP_CHUNK and pos + 9 + CHUNK_HEAD.size + 12 <= size and \
+                    _chunk_lengths_agree(buf, pos, length):
+                _count_lost_chunk(buf, pos, length, loss)
+            elif pos > 0:
+                loss.exact = False  # bytes that were not a chunk's: a chunk whose head they hid may be gone too
+            nxt = _next_chunk(buf, pos + 1, found, loss)
             if nxt is None:
+                if not loss.cut and pos + 9 + length < size:
+                    loss.exact = False  # nothing readable after it: what followed is lost, uncounted
                 return
+            if not loss.exact:
+                _scan_indexes(buf, pos + 1, nxt, found, loss)
             pos = nxt
             continue
         op, pos = record
         if op in (OP_DATA_END, OP_FOOTER):
             if buf[size - len(MAGIC):] != MAGIC:  # the data are whole; the summary after them was cut
                 found.stopped_at = found.stopped_at or f"cut at byte {size}, after the data"
+                found.losses.append(Loss(size, cut=True, reason="after the data"))
             return
     if pos < size and not found.stopped_at:
         found.stopped_at = f"cut at byte {size}"
+        found.losses.append(Loss(pos, cut=True))
+
+
+def _count_lost_chunk(buf: mmap.mmap, pos: int, length: int, loss: Loss) -> None:
+    """Add the chunk at ``pos`` (whose lengths agree, but whose records fail) to ``loss``: one chunk, and the
+    messages its index records list when they follow it whole."""
+    loss.chunks += 1
+    if pos + 9 + CHUNK_HEAD.size <= len(buf):  # its own times, checked against its neighbours' in _account
+        first, last, _, _ = CHUNK_HEAD.unpack_from(buf, pos + 9)
+        loss.first_ns = first if loss.first_ns is None else min(loss.first_ns, first)
+        loss.last_ns = last if loss.last_ns is None else max(loss.last_ns, last)
+    end = pos + 9 + length
+    n = indexed_messages(buf, end) if end <= len(buf) else None
+    if n is None:
+        loss.exact = False
+    else:
+        loss.messages += n
+
+
+def _scan_indexes(buf: mmap.mmap, lo: int, hi: int, found: Salvage, loss: Loss) -> None:
+    """Damaged bytes between ``lo`` and the next good chunk at ``hi`` whose chunk heads were hit (a zeroed page):
+    the message index records the writer put after each of those chunks often survive, and tell what they held.
+    A candidate counts only when it parses whole, names a known channel and lists rising offsets; each run of
+    them is one chunk. The count stays a lower bound (``exact`` false): an index may have gone with the damage."""
+    pos = buf.find(bytes([OP_MESSAGE_INDEX]), lo, hi)
+    messages, runs, last_end = 0, 0, -1
+    while 0 <= pos < hi:
+        step = 1
+        if pos + 9 + 6 <= hi:
+            _, length = RECORD_HEAD.unpack_from(buf, pos)
+            cid, entries = struct.unpack_from("<HI", buf, pos + 9)
+            if length == 6 + entries and entries and entries % 16 == 0 and pos + 9 + length <= hi and \
+                    cid in found.channels:
+                offsets = struct.unpack_from(f"<{entries // 8}Q", buf, pos + 15)[1::2]
+                if all(a < b for a, b in itertools.pairwise(offsets)):
+                    messages += entries // 16
+                    runs += pos != last_end
+                    last_end = pos + 9 + length
+                    step = 9 + length
+        pos = buf.find(bytes([OP_MESSAGE_INDEX]), pos + step, hi)
+    loss.messages += messages
+    loss.chunks = max(loss.chunks, runs)
+
+
+def _account(found: Salvage) -> None:
+    """Each loss's time span from the good chunks around it, and, for a finished file whose statistics hold, the
+    exact count: the statistics know every chunk and message written, whatever the damage hid."""
+    starts = [c[0] for c in found.good_chunks]
+    for loss in found.losses:
+        i = bisect.bisect_left(starts, loss.at)
+        prev = found.good_chunks[i - 1] if i > 0 else None
+        nxt = found.good_chunks[i] if i < len(found.good_chunks) else None
+        first, last = loss.first_ns, loss.last_ns
+        # The lost chunks' own times when their heads were read and fall within their good neighbours' (a head is
+        # not under the CRC: a damaged one gives any times), else the gap between the neighbours.
+        if first is None or last is None or first > last or (prev is not None and first < prev[1]) or \
+                (nxt is not None and last > nxt[2]) or loss.chunks > 1:
+            loss.first_ns = prev[2] if prev is not None else None
+            loss.last_ns = nxt[1] if nxt is not None else None
+    stats = found.statistics
+    if stats is None:
+        return
+    missing_chunks = stats.chunks - found.chunks_ok
+    missing_messages = stats.messages - len(found.messages)
+    if missing_chunks <= 0 and missing_messages <= 0:
+        return
+    if not found.losses:  # a damage the walk passed over without noticing (a record it could skip)
+        found.losses.append(Loss(len(MAGIC), exact=False))
+    if len(found.losses) == 1:
+        only = found.losses[0]
+        only.chunks = max(only.chunks, missing_chunks)
+        only.messages, only.exact = missing_messages, True
+    else:  # the statistics give the total, not where: the last loss takes what the indexes did not place
+        rest = missing_messages - sum(x.messages for x in found.losses)
+        last = found.losses[-1]
+        last.messages += max(rest, 0)
+        last.chunks += max(missing_chunks - sum(x.chunks for x in found.losses), 0)
+        for x in found.losses:
+            x.exact = True
 
 
 def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | None:
@@ -149,6 +380,7 @@ def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | No
                 found.chunks_bad += 1
                 return None
             found.chunks_ok += 1
+            found.good_chunks.append((pos, record.message_start_time, record.message_end_time))
             for r in inner:
                 _keep(found, r)
         else:
@@ -156,8 +388,9 @@ def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | No
     return op, end
 
 
-def _next_chunk(buf: mmap.mmap, start: int) -> int | None:
-    """The offset of the next chunk record that parses with its CRC right, from ``start`` on."""
+def _next_chunk(buf: mmap.mmap, start: int, found: Salvage, loss: Loss) -> int | None:
+    """The offset of the next chunk record that parses with its CRC right, from ``start`` on. A chunk met on the
+    way whose lengths add up but whose CRC fails is a damaged chunk, counted (bad, and in ``loss``)."""
     tries = 0
     pos = buf.find(bytes([OP_CHUNK]), start)
     while pos >= 0 and pos + 9 + CHUNK_HEAD.size <= len(buf) and tries < RESYNC_LIMIT:
@@ -168,6 +401,8 @@ def _next_chunk(buf: mmap.mmap, start: int) -> int | None:
             probe = Salvage()
             if _record_at(buf, pos, probe) is not None:
                 return pos
+            found.chunks_bad += 1
+            _count_lost_chunk(buf, pos, length, loss)
         pos = buf.find(bytes([OP_CHUNK]), pos + 1)
     return None
 
@@ -229,13 +464,30 @@ class RecoveryReport:
     chunks_bad: int
     dropped_orphans: int  # messages whose channel record was lost with the cut
     reason: str
+    losses: tuple[Loss, ...] = ()  # what was lost, where and when (files.describe_losses says it)
+
+    def lost(self) -> str:
+        """What the recovery could not keep, in one clause, the cut told apart from the damage; empty: nothing."""
+        damage = [x for x in self.losses if not x.cut]
+        cut = [x for x in self.losses if x.cut]
+        parts = [describe_losses(damage)] if damage else []
+        for c in cut[:1]:
+            if c.reason:
+                parts.append(f"cut at byte {c.at}, {c.reason}: only the index was lost")
+            else:
+                parts.append(f"cut at byte {c.at}" + (f" (after {utc_text(c.first_ns)} UTC)" if c.first_ns else "")
+                             + (", its unfinished last chunk lost" if c.chunks else ""))
+        return "; ".join(parts)
 
 
 def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
-            compression: str = "zstd") -> RecoveryReport:
-    """Rewrite what survives of ``path`` into a finished file (``out``, or in place)."""
+            compression: str = "zstd", found: Salvage | None = None) -> RecoveryReport:
+    """Rewrite what survives of ``path`` into a finished file (``out``, or in place); ``found``: the file's walk,
+    when the caller has made it already (``logger recover`` walks a cleanly closed file to see whether it is
+    damaged)."""
     src = Path(path)
-    found = walk(src)
+    if found is None:
+        found = walk(src)
     dst = Path(out) if out is not None else src
     tmp = dst.with_name(dst.name + ".recovering")
     try:
@@ -246,7 +498,7 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
     os.replace(tmp, dst)
     _fsync_dir(dst.parent)
     return RecoveryReport(dst, len(found.messages) - orphans, found.chunks_ok, found.chunks_bad, orphans,
-                          found.stopped_at)
+                          found.stopped_at, tuple(found.losses))
 
 
 def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str) -> int:
