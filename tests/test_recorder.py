@@ -355,6 +355,12 @@ def test_a_folder_stands_for_one_drive_and_several_are_told_apart(tmp_path: Path
     for n in names:
         (one / n).write_bytes(b"")
     assert [p.name for p in drive_paths([one])] == names
+    # Named by two clocks that disagree (the system clock's 2026 at start, GNSS time's 2018 after): one drive.
+    two_clocks = tmp_path / "two-clocks"
+    two_clocks.mkdir()
+    for n in ("drive_20261204T100000Z_0001.mcap", "drive_20181025T205603Z_0002.mcap"):
+        (two_clocks / n).write_bytes(b"")
+    assert len(drive_paths([two_clocks])) == 2
     assert part_number(one / names[1]) == 2 and drive_stem(one / names[1]) == "drive_20261204T110000Z"
     for folder, files in (("restarted", ["drive_20261204T100000Z_0001.mcap", "drive_20261204T110000Z_0001.mcap"]),
                           ("pruned", ["drive_20261203T100000Z_0005.mcap", "drive_20261203T110000Z_0006.mcap",

@@ -358,8 +358,16 @@ def drive_stem(path: Path) -> str:
 def drive_starts(files: list[Path]) -> list[Path]:
     """The files that begin a drive, in name order: the first daemon file, and every one whose part number does
     not rise over the one before it (another start's 0001, or a later drive after an earlier one's last parts).
-    Files without a part number (a replay's output) begin none."""
+    Files without a part number (a replay's output) begin none.
+
+    Unless the part numbers are one unbroken run, each once (0001, 0002, ...): those are one drive's whatever the
+    names' order. A file is named by its start time, and a board whose synchronised system clock and GNSS time
+    disagree (GNSS wins after a minute) names its first file by the one and the next by the other: a drive's 0002
+    of 2018 before its 0001 of 2026 was taken for a second drive."""
     parts = [(f, n) for f in sorted(files, key=lambda f: f.name) if (n := part_number(f)) is not None]
+    numbers = sorted(n for _, n in parts)
+    if numbers and numbers == list(range(numbers[0], numbers[0] + len(numbers))):
+        return [min(parts, key=lambda fn: fn[1])[0]]
     return [f for i, (f, n) in enumerate(parts) if i == 0 or n <= parts[i - 1][1]]
 
 
@@ -374,7 +382,8 @@ def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Pat
 
     A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). In that
     order a drive's part numbers rise; a file whose part number does not rise over the one before it (another
-    start's 0001, or a later drive after an earlier one's last parts) begins another drive (:func:`drive_starts`).
+    start's 0001, or a later drive after an earlier one's last parts) begins another drive, unless the numbers are
+    one unbroken run (:func:`drive_starts`).
     Mixing drives would join unrelated trajectories (two cars' tracks as one, filtered as one drive), so a folder
     of several is an error naming the files that begin them, and so are files named one by one (a shell's
     ``drives/drive_*.mcap`` over two drives) that are not one drive's by the same rule, or a file named twice
