@@ -164,6 +164,7 @@ def test_the_next_start_on_a_full_disk_keeps_the_cut_file_and_says_why(original,
     filler.unlink()  # room again: the next start recovers it
     (line,) = recover_unfinished(small_disk)
     assert line.startswith(f"recovered {cut.name}"), line
+    assert "cut at byte" in line  # what was lost said, as `logger recover` says it (a bad-chunk count before)
     with open(cut, "rb") as f:
         kept = {(ch.topic, m.log_time) for _, ch, m in make_reader(f).iter_messages()}
     assert _intact(chunks, cut_at, len(data) + 1) <= kept

@@ -93,8 +93,9 @@ def recover_unfinished(out_dir: Path) -> list[str]:
         except McapFileError as exc:
             lines.append(f"could not recover {path.name}: {exc}")
             continue
+        lost = report.lost()  # the same clause as `logger recover` gives: what was cut, what was damaged
         lines.append(f"recovered {path.name}: {report.messages} messages from {report.chunks_ok} chunks"
-                     + (f" ({report.chunks_bad} corrupt chunks skipped)" if report.chunks_bad else ""))
+                     + (f"; {lost}" if lost else "; nothing lost"))
     for stale in out_dir.glob("*.mcap.recovering"):
         stale.unlink(missing_ok=True)  # a recovery cut short; its source is still there and was redone above
     return lines
