@@ -125,6 +125,52 @@ def test_full_queue_is_a_counted_drop_not_a_block(tmp_path: Path) -> None:
     assert rec.status().dropped == {"/a": 15}
 
 
+def test_a_write_stuck_on_a_stalled_card_blocks_neither_the_status_nor_the_sensors(tmp_path: Path) -> None:
+    """A frozen filesystem holds the writer in write(), and the stream's lock with it: status() asked the stream
+    for its size while holding the recorder's lock, and submit() needs that lock to count a drop, so the status
+    socket and every sensor thread stopped with the card (fsfreeze for 50 s: the whole daemon silent). The size is
+    the writer's own count now."""
+    import threading
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05, queue_size=20), TOPICS)
+    rec.start()
+    stuck, release = threading.Event(), threading.Event()
+    try:
+        assert rec.submit("/a", {"x": 0}, 1, 1)
+        assert wait_until(lambda: rec.status().file_bytes > 0, 10.0)
+        stream = rec._stream
+        write, tell = stream.write, stream.tell
+
+        def frozen_write(data: bytes) -> int:
+            stuck.set()
+            release.wait(30)
+            return write(data)
+
+        def frozen_tell() -> int:  # the BufferedWriter's own lock, held by the write above
+            release.wait(30)
+            return tell()
+        stream.write, stream.tell = frozen_write, frozen_tell
+        for i in range(1, 200):  # enough to close a chunk and reach the stream
+            rec.submit("/a", {"x": i, "pad": "x" * 200}, i + 1, i + 1)
+            if stuck.is_set():
+                break
+            time.sleep(0.002)
+        assert stuck.wait(10)
+        done = threading.Event()
+
+        def ask() -> None:
+            rec.status()
+            for i in range(50):  # the queue fills: each a counted drop, never a wait
+                rec.submit("/a", {"x": i}, 10_000 + i, 10_000 + i)
+            done.set()
+        threading.Thread(target=ask, daemon=True).start()
+        assert done.wait(5), "status() or submit() waited for the stuck write"
+        assert rec.status().dropped.get("/a", 0) > 0
+    finally:
+        release.set()
+        rec.stop()
+
+
 def test_writer_takes_records_in_batches_without_waiting_for_the_flush(tmp_path: Path) -> None:
     from logger.recording.recorder import BATCH_WAIT_S
 

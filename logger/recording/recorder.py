@@ -161,6 +161,10 @@ class Recorder:
         self._thread: threading.Thread | None = None
         self._writer: McapWriter | None = None
         self._stream: Any = None
+        # The open (or last) file's size as of its last flush, kept by the writer thread: status() must not ask the
+        # stream, whose tell() waits for a write stuck on a stalled card, while holding the lock that submit() needs
+        # to count a drop (a frozen filesystem froze every sensor thread and the status socket).
+        self._file_bytes = 0
         self._path: Path | None = None
         self._channels: dict[str, int] = {}
         # (name, content) -> schema id: two topics may share a schema's name (foxglove.LocationFix) but not its fields
@@ -210,7 +214,7 @@ class Recorder:
             return RecorderStatus(
                 state=self._state, detail=self._detail,
                 file=str(self._path) if self._path else None,
-                file_bytes=self._stream.tell() if self._stream is not None and not self._stream.closed else 0,
+                file_bytes=self._file_bytes,
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
                 unrecorded=dict(self._unrecorded),
@@ -362,7 +366,7 @@ class Recorder:
         self._kept_on_disk(True)
         if self._channels and self._now() - self._table_written >= CHANNEL_TABLE_S:
             self._write_channel_table()
-        size = self._stream.tell()
+        size = self._file_bytes = self._stream.tell()
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
             self._close_file()
@@ -450,6 +454,7 @@ class Recorder:
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
             self._files.append(path)
+            self._file_bytes = 0
         if self._synced_unix_ns is not None and start_unix is None:
             self._unnamed.append((path, start_mono, self._sequence))
         self._channels.clear()
@@ -506,6 +511,7 @@ class Recorder:
             stream.flush()
             os.fsync(stream.fileno())
             self._kept_on_disk(True)
+            self._file_bytes = stream.tell()
         except OSError as exc:
             log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
             self._kept_on_disk(False)
