@@ -115,6 +115,12 @@ def test_config_check_command(tmp_path: Path, capsys) -> None:
     assert len(err) == 2 and "imu.bus must be an integer" in err[0] and "imu.rat_hz" in err[1]
     p.write_text(GOOD)
     assert main(["config", "check", str(p)]) == 0
+    # A file for a simulated run holds what it changes only: a board needs its ports, a simulated run does not.
+    capsys.readouterr()
+    p.write_text("[recorder]\nrotate_duration_s = 600\n")
+    assert main(["config", "check", str(p)]) == 1
+    assert "obd.port is required" in capsys.readouterr().err
+    assert main(["config", "check", "--sim", str(p)]) == 0
 
 
 def test_run_refuses_a_bad_config_with_one_line_per_problem(tmp_path: Path, capsys) -> None:

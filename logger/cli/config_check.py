@@ -13,9 +13,12 @@ def main(argv: list[str]) -> int:
     sub = parser.add_subparsers(dest="action", required=True)
     check = sub.add_parser("check", help="validate a configuration file; exit 1 listing every problem")
     check.add_argument("file", metavar="FILE")
+    check.add_argument("--sim", action="store_true",
+                       help="check it as `logger run --sim --config FILE` takes it: sensors not configured are "
+                            "simulated, so no device ports are required (a file of [sim] or [recorder] alone)")
     args = parser.parse_args(argv)
     try:
-        cfg = load(args.file)
+        cfg = load(args.file, sim=args.sim)
     except ConfigError as exc:
         for line in exc.problems:
             print(line, file=sys.stderr)
