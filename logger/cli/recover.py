@@ -25,7 +25,7 @@ def main(argv: list[str]) -> int:
     try:
         found = None
         if is_finished(args.file):
-            found = walk(args.file)
+            found = walk(args.file, keep_messages=False)  # where the chunks lie, not their messages
             if not found.losses and not args.force:
                 print(f"{args.file}: closed cleanly and every chunk's CRC holds: nothing to recover")
                 return 0

@@ -6,6 +6,11 @@ index-based readers see nothing in it, so recovery walks the records from the st
 checks out, and writes them again into a finished, indexed file. Recovery writes beside the original and
 renames over it only once the copy is complete and synced, so a crash during recovery loses nothing either.
 
+Recovery holds no message: its walk keeps where each good chunk lies (and the schema, channel and metadata
+records), and the copy reads the chunks again one at a time. An hour's cut file at 500 Hz (178 MB, 2 million
+messages) took 1.2 GB when the walk kept every message, more than the board has, so the daemon died at every
+start recovering it; now recovery's memory is one source chunk, one chunk of the copy and a few bytes a chunk.
+
 What the walk could not keep is kept as :class:`Loss` records (where, how many chunks, how many messages, when),
 so recovery and the readers say what damage cost: a lost chunk's message index records (written right after it)
 count its messages, and a finished file's statistics count everything its damage hid.
@@ -14,6 +19,7 @@ count its messages, and a finished file's statistics count everything its damage
 from __future__ import annotations
 
 import bisect
+import contextlib
 import io
 import itertools
 import mmap
@@ -21,6 +27,8 @@ import os
 import struct
 import time
 import zlib
+from array import array
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +59,11 @@ FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary 
 
 class McapFileError(Exception):
     """A file is not an MCAP file at all, or cannot be read; the message names the file."""
+
+
+class RecoveryCancelled(Exception):
+    """A walk or recovery stopped when its ``cancel`` said so (the daemon stopping while it recovers in the
+    background): nothing was replaced and no partial copy is left, so the next start does it again."""
 
 
 def is_finished(path: str | os.PathLike[str]) -> bool:
@@ -192,7 +205,10 @@ class Salvage:
 
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
-    messages: list[Message] = field(default_factory=list)
+    messages: list[Message] = field(default_factory=list)  # only when the walk keeps them (``keep_messages``)
+    keep_messages: bool = True
+    message_count: int = 0  # messages in the good chunks (and outside chunks), kept or not
+    channel_messages: dict[int, int] = field(default_factory=dict)  # channel id -> messages: orphans are counted
     metadata: list[Metadata] = field(default_factory=list)
     chunks_ok: int = 0
     chunks_bad: int = 0
@@ -202,6 +218,9 @@ class Salvage:
     magic: bool = True
     losses: list[Loss] = field(default_factory=list)  # every damage and cut the walk met, in file order
     good_chunks: list[tuple[int, int, int]] = field(default_factory=list)  # (offset, first, last log time)
+    # Where the walk found messages, in file order: each good chunk's (and each message outside a chunk's) start
+    # and end offset, flat, 16 bytes a record: what recovery copies from, reading each again in turn.
+    pieces: array[int] = field(default_factory=lambda: array("q"))
     statistics: Statistics | None = None  # the finished file's own counts, when its summary holds
 
     def damage(self) -> list[Loss]:
@@ -214,12 +233,19 @@ OP_MAX = 0x11  # the walk's bound on an opcode byte that can start a record
 RESYNC_LIMIT = 1 << 16  # candidate records tried after a damage before the walk gives up on the rest
 
 
-def walk(path: str | os.PathLike[str]) -> Salvage:
+def walk(path: str | os.PathLike[str], keep_messages: bool = True,
+         cancel: Callable[[], bool] | None = None) -> Salvage:
     """Collect every complete, CRC-valid record of a file: past a flipped byte or a zeroed page it looks for the
     next chunk that parses with its CRC right and goes on from there; a cut ends it.
 
-    The file is mapped, not read: a day's file on a 512 MB board stays in the page cache, not on the heap."""
-    found = Salvage()
+    ``keep_messages=False`` (recovery) counts the messages and notes where they lie (``pieces``) instead of keeping
+    them: a reader wants the messages, recovery only their place, and on the board the messages of an hour at
+    500 Hz do not fit. ``cancel`` is asked now and then; when it says so the walk raises
+    :class:`RecoveryCancelled`.
+
+    The file is mapped, not read: a day's file on a 512 MB board stays in the page cache, not on the heap, and the
+    pages behind the walk are let go of as it goes (they stay cached), so they do not count in its resident set."""
+    found = Salvage(keep_messages=keep_messages)
     try:
         with open(path, "rb") as f:
             if os.fstat(f.fileno()).st_size == 0:
@@ -228,7 +254,7 @@ def walk(path: str | os.PathLike[str]) -> Salvage:
     except OSError as exc:
         raise McapFileError(f"{path}: cannot open ({exc.strerror or exc})") from exc
     try:
-        _walk_mapped(buf, found)
+        _walk_mapped(buf, found, cancel)
         found.statistics = summary_statistics(buf)
     finally:
         buf.close()
@@ -239,12 +265,35 @@ def walk(path: str | os.PathLike[str]) -> Salvage:
     return found
 
 
-def _walk_mapped(buf: mmap.mmap, found: Salvage) -> None:
+RELEASE_BYTES = 16 << 20  # the walk lets go of the mapped pages behind it every this many bytes
+CANCEL_EVERY = 64  # records walked (chunks, mostly) between two questions to ``cancel``
+
+
+def _release(buf: mmap.mmap, upto: int) -> int:
+    """Drop the mapping's pages before ``upto`` from the process (they stay in the page cache, and come back if
+    touched again); returns where the next release starts from. Without it a walk's resident set grows by the
+    whole file, which is no memory the kernel cannot take back, but is what the board's figures and a cgroup's
+    accounting show."""
+    end = upto - upto % mmap.PAGESIZE
+    if end > 0 and hasattr(mmap, "MADV_DONTNEED"):
+        with contextlib.suppress(OSError, ValueError):
+            buf.madvise(mmap.MADV_DONTNEED, 0, end)
+    return upto
+
+
+def _walk_mapped(buf: mmap.mmap, found: Salvage, cancel: Callable[[], bool] | None = None) -> None:
     size = len(buf)
     found.magic = buf[:len(MAGIC)] == MAGIC
     pos = len(MAGIC) if found.magic else 0
     record = None
-    while pos + 9 <= size:
+    released = 0
+    for n in itertools.count():
+        if pos + 9 > size:
+            break
+        if n % CANCEL_EVERY == 0 and cancel is not None and cancel():
+            raise RecoveryCancelled()
+        if pos - released >= RELEASE_BYTES:
+            released = _release(buf, pos)
         record = _record_at(buf, pos, found) if pos > 0 else None
         if record is None:
             _, length = RECORD_HEAD.unpack_from(buf, pos)
@@ -339,7 +388,7 @@ def _account(found: Salvage) -> None:
     if stats is None:
         return
     missing_chunks = stats.chunks - found.chunks_ok
-    missing_messages = stats.messages - len(found.messages)
+    missing_messages = stats.messages - found.message_count
     if missing_chunks <= 0 and missing_messages <= 0:
         return
     if not found.losses:  # a damage the walk passed over without noticing (a record it could skip)
@@ -357,6 +406,14 @@ def _account(found: Salvage) -> None:
             x.exact = True
 
 
+def _parse_record(raw: bytes) -> object:
+    """The one record in ``raw`` (opcode, length, body), its CRCs checked; raises whatever a damaged record makes
+    the parser raise."""
+    # One record on its own: the reader raises at the end of the slice after it, so only the first is taken.
+    return next(iter(StreamReader(io.BytesIO(raw), skip_magic=True, emit_chunks=True, validate_crcs=True,
+                                  record_size_limit=len(raw)).records))
+
+
 def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | None:
     """Parse the record at ``pos`` into ``found``; (opcode, end) or None when it does not parse (or a chunk's CRC
     is wrong: counted as a bad chunk)."""
@@ -365,26 +422,27 @@ def _record_at(buf: mmap.mmap, pos: int, found: Salvage) -> tuple[int, int] | No
     if not 0 < op <= OP_MAX or end > len(buf):
         return None
     try:
-        # One record on its own: the reader raises at the end of the slice after it, so only the first is taken.
-        records = [next(iter(StreamReader(io.BytesIO(buf[pos:end]), skip_magic=True, emit_chunks=True,
-                                          validate_crcs=True, record_size_limit=length + 9).records))]
+        record = _parse_record(buf[pos:end])
     except Exception:  # whatever a damaged record makes the parser raise
         if op == OP_CHUNK:
             found.chunks_bad += 1
         return None
-    for record in records:
-        if isinstance(record, Chunk):
-            try:
-                inner = breakup_chunk(record, validate_crc=True)
-            except Exception:
-                found.chunks_bad += 1
-                return None
-            found.chunks_ok += 1
-            found.good_chunks.append((pos, record.message_start_time, record.message_end_time))
-            for r in inner:
-                _keep(found, r)
-        else:
-            _keep(found, record)
+    if isinstance(record, Chunk):
+        try:
+            inner = breakup_chunk(record, validate_crc=True)
+        except Exception:
+            found.chunks_bad += 1
+            return None
+        found.chunks_ok += 1
+        found.good_chunks.append((pos, record.message_start_time, record.message_end_time))
+        if any(isinstance(r, Message) for r in inner):
+            found.pieces.extend((pos, end))
+        for r in inner:
+            _keep(found, r)
+    else:
+        if isinstance(record, Message):
+            found.pieces.extend((pos, end))
+        _keep(found, record)
     return op, end
 
 
@@ -398,7 +456,7 @@ def _next_chunk(buf: mmap.mmap, start: int, found: Salvage, loss: Loss) -> int |
         if pos + 9 + length <= len(buf) and length >= CHUNK_HEAD.size + 12 and \
                 _chunk_lengths_agree(buf, pos, length):
             tries += 1
-            probe = Salvage()
+            probe = Salvage(keep_messages=False)
             if _record_at(buf, pos, probe) is not None:
                 return pos
             found.chunks_bad += 1
@@ -423,7 +481,10 @@ def _keep(found: Salvage, record: object) -> None:
     elif isinstance(record, Channel):
         found.channels[record.id] = record
     elif isinstance(record, Message):
-        found.messages.append(record)
+        found.message_count += 1
+        found.channel_messages[record.channel_id] = found.channel_messages.get(record.channel_id, 0) + 1
+        if found.keep_messages:
+            found.messages.append(record)
     elif isinstance(record, Metadata):
         found.metadata.append(record)
     elif type(record).__name__ == "Header":
@@ -480,32 +541,60 @@ class RecoveryReport:
         return "; ".join(parts)
 
 
+RECOVERY_CHUNK_BYTES = 4 * 1024 * 1024  # the copy's chunks: few index records, each compressed well
+
+
 def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
-            compression: str = "zstd", found: Salvage | None = None) -> RecoveryReport:
+            compression: str = "zstd", found: Salvage | None = None,
+            cancel: Callable[[], bool] | None = None) -> RecoveryReport:
     """Rewrite what survives of ``path`` into a finished file (``out``, or in place); ``found``: the file's walk,
     when the caller has made it already (``logger recover`` walks a cleanly closed file to see whether it is
-    damaged)."""
+    damaged). ``cancel`` is asked between chunks: :class:`RecoveryCancelled` then, with the source untouched and
+    no copy left.
+
+    The walk keeps no message (``keep_messages=False``); the copy takes the good chunks from the source again,
+    one at a time, so what recovery holds does not grow with the file."""
     src = Path(path)
     if found is None:
-        found = walk(src)
+        found = walk(src, keep_messages=False, cancel=cancel)
     dst = Path(out) if out is not None else src
     tmp = dst.with_name(dst.name + ".recovering")
     try:
-        orphans = _rewrite(found, src, tmp, compression)
+        _rewrite(found, src, tmp, compression, cancel)
     except BaseException:
         tmp.unlink(missing_ok=True)  # a full disk: the source is untouched, and no half copy takes its space
         raise
     os.replace(tmp, dst)
     _fsync_dir(dst.parent)
-    return RecoveryReport(dst, len(found.messages) - orphans, found.chunks_ok, found.chunks_bad, orphans,
+    orphans = sum(n for cid, n in found.channel_messages.items() if cid not in found.channels)
+    return RecoveryReport(dst, found.message_count - orphans, found.chunks_ok, found.chunks_bad, orphans,
                           found.stopped_at, tuple(found.losses))
 
 
-def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str) -> int:
-    """Write what the walk found into ``tmp`` as a finished file; returns the messages without a channel."""
+def _messages_at(source: io.BufferedReader, src: Path, at: int, end: int) -> list[Message]:
+    """The messages of the good chunk (or the message) the walk found at ``at``, read again from the source and
+    checked again as the walk checked it: a file that changed since (which nothing should write to) is refused
+    rather than copied as it is now."""
+    source.seek(at)
+    raw = source.read(end - at)
+    try:
+        if len(raw) != end - at:
+            raise ValueError("shorter")
+        record = _parse_record(raw)
+        inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
+    except Exception as exc:  # whatever the parser raises for bytes that are no longer what the walk read
+        raise McapFileError(f"{src}: changed while it was recovered (the record at byte {at} no longer "
+                            "reads as it did)") from exc
+    return [r for r in inner if isinstance(r, Message)]
+
+
+def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str,
+             cancel: Callable[[], bool] | None = None) -> int:
+    """Write what the walk found into ``tmp`` as a finished file; returns the messages without a channel. The
+    messages come from ``found.messages`` when the walk kept them, else from the source, a chunk at a time."""
     orphans = 0
-    with open(tmp, "wb") as f:
-        writer = McapWriter(f, compression=compression, chunk_size=4 * 1024 * 1024)
+    with open(tmp, "wb") as f, open(src, "rb") as source:
+        writer = McapWriter(f, compression=compression, chunk_size=RECOVERY_CHUNK_BYTES)
         writer.start(profile=found.profile, library=found.library)
         schema_ids: dict[int, int] = {}
         for sid, schema in sorted(found.schemas.items()):
@@ -517,12 +606,20 @@ def _rewrite(found: Salvage, src: Path, tmp: Path, compression: str) -> int:
         for m in found.metadata:
             if m.name != CHANNEL_TABLE:
                 writer.add_metadata(m.name, dict(m.metadata))
-        for msg in found.messages:
-            cid = channel_ids.get(msg.channel_id)
-            if cid is None:
-                orphans += 1
-                continue
-            writer.add_message(cid, msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        if found.keep_messages:
+            batches: Iterator[list[Message]] = iter([found.messages])
+        else:
+            pieces = found.pieces
+            batches = (_messages_at(source, src, pieces[i], pieces[i + 1]) for i in range(0, len(pieces), 2))
+        for batch in batches:
+            if cancel is not None and cancel():
+                raise RecoveryCancelled()
+            for msg in batch:
+                cid = channel_ids.get(msg.channel_id)
+                if cid is None:
+                    orphans += 1
+                    continue
+                writer.add_message(cid, msg.log_time, msg.data, msg.publish_time, msg.sequence)
         writer.add_metadata("recovery", {
             "source": src.name, "chunks_recovered": str(found.chunks_ok),
             "chunks_corrupt": str(found.chunks_bad), "cut": found.stopped_at or "none"})
