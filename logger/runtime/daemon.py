@@ -1,12 +1,16 @@
 """The daemon: wires sensors, clock, recorder and status together, and shuts down cleanly.
 
-Start order matters for data safety: unfinished files from a previous crash are recovered first, then the
-recorder opens its file (a bad output folder fails here, before any sensor is touched), then the sampler
-threads start. Stop order is the reverse, and the recorder drains its queue before finishing the file.
+Start order matters for data safety: the files a previous crash left unfinished are listed first, then the
+recorder opens its new file (a bad output folder fails here, before any sensor is touched), the sampler threads
+and the status server start, and only then are the listed files recovered, in a thread of their own: recovering
+an hour's file takes minutes on the board's one core, and a drive must not go unrecorded (nor ``logger status``
+say "not running") meanwhile. Stop order is the reverse, and the recorder drains its queue before finishing the
+file; a recovery still running is given up (the file is kept as it was, for the next start).
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import itertools
 import logging
@@ -21,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.config import Config
-from logger.recording.files import McapFileError, is_finished, recover
+from logger.recording.files import McapFileError, RecoveryCancelled, is_finished, recover
 from logger.recording.recorder import Recorder
 from logger.recording.records import (
     NO_FIX,
@@ -74,31 +78,55 @@ class Attachments:
     backlogs: list[Callable[[], tuple[int, int]]] = field(default_factory=list)
 
 
-def recover_unfinished(out_dir: Path) -> list[str]:
-    """Recover every file a crash left unfinished; returns one line per file for the log."""
-    lines = []
-    for path in sorted(out_dir.glob("*.mcap")):
-        if is_finished(path):
-            continue
-        try:
-            report = recover(path)
-        except OSError as exc:
-            if exc.errno == errno.ENOSPC:
-                lines.append(f"could not recover {path.name}: no space left on the disk for its recovered copy "
-                             f"({path.stat().st_size / 1e6:.1f} MB at most); it is kept as it was, for "
-                             "`logger recover` once there is room")
-            else:
-                lines.append(f"could not recover {path.name}: {exc.strerror or exc}")
-            continue
-        except McapFileError as exc:
-            lines.append(f"could not recover {path.name}: {exc}")
-            continue
-        lost = report.lost()  # the same clause as `logger recover` gives: what was cut, what was damaged
-        lines.append(f"recovered {path.name}: {report.messages} messages from {report.chunks_ok} chunks"
-                     + (f"; {lost}" if lost else "; nothing lost"))
+def unfinished_files(out_dir: Path) -> list[Path]:
+    """The MCAP files in ``out_dir`` that were not finished: what a crash left for recovery. Listed before the
+    recorder opens its own (unfinished while it records), so that recovery can never take the file being
+    written."""
+    return [path for path in sorted(out_dir.glob("*.mcap")) if not is_finished(path)]
+
+
+def recover_file(path: Path, cancel: Callable[[], bool] | None = None, reserve_bytes: int = 0) -> str:
+    """Recover one unfinished file in place; returns its line for the log (what was kept and lost, or why not).
+
+    ``reserve_bytes``: free space the copy must leave (the recorder's minimum, while it records beside the
+    recovery): the drive being recorded comes first, and the cut file is readable as it is meanwhile (the drive
+    reader reads up to the cut). ``cancel``: asked between chunks; the file is then kept as it was."""
+    try:
+        size = path.stat().st_size
+        if reserve_bytes:
+            st = os.statvfs(path.parent)
+            free = st.f_bavail * st.f_frsize
+            if free - size < reserve_bytes:
+                return (f"did not recover {path.name}: its copy (up to {size / 1e6:.1f} MB) would leave less than "
+                        f"the {reserve_bytes / 1e6:.0f} MB the recording needs free ({free / 1e6:.0f} MB free); it "
+                        "is kept as it was (readable as it is), for the next start or `logger recover`")
+        report = recover(path, cancel=cancel)
+    except RecoveryCancelled:
+        return f"recovery of {path.name} stopped with the daemon: it is kept as it was, for the next start"
+    except OSError as exc:
+        if exc.errno == errno.ENOSPC:
+            return (f"could not recover {path.name}: no space left on the disk for its recovered copy "
+                    f"({path.stat().st_size / 1e6:.1f} MB at most); it is kept as it was, for "
+                    "`logger recover` once there is room")
+        return f"could not recover {path.name}: {exc.strerror or exc}"
+    except McapFileError as exc:
+        return f"could not recover {path.name}: {exc}"
+    lost = report.lost()  # the same clause as `logger recover` gives: what was cut, what was damaged
+    return (f"recovered {path.name}: {report.messages} messages from {report.chunks_ok} chunks"
+            + (f"; {lost}" if lost else "; nothing lost"))
+
+
+def remove_stale_copies(out_dir: Path) -> None:
+    """Delete the copies of recoveries cut short (``*.mcap.recovering``): their sources are still there, whole,
+    and are recovered again."""
     for stale in out_dir.glob("*.mcap.recovering"):
-        stale.unlink(missing_ok=True)  # a recovery cut short; its source is still there and was redone above
-    return lines
+        stale.unlink(missing_ok=True)
+
+
+def recover_unfinished(out_dir: Path) -> list[str]:
+    """Recover every file a crash left unfinished, one after the other; returns one line per file for the log."""
+    remove_stale_copies(out_dir)
+    return [recover_file(path) for path in unfinished_files(out_dir)]
 
 
 class Daemon:
@@ -130,7 +158,9 @@ class Daemon:
         self.final_sensors: list[dict[str, Any]] | None = None  # the sensor rows when the run was told to stop
         self._threads: list[threading.Thread] = []
         self.status_server: Any = None
-        self.startup_lines: list[str] = []
+        self.startup_lines: list[str] = []  # the recovery thread's lines, one per cut file, as they are logged
+        self._recovery: threading.Thread | None = None
+        self._recovering: tuple[str, int] | None = None  # (name, bytes) of the file the recovery thread is on
         # Consumers of the stamped records besides the recorder (the navigator): ``offer`` must never block.
         # the receiver's fix, satellites and accuracy for the status, and its raw observations when asked for
         self.gnss_watch = GnssWatch(raw_asked=bool(cfg["gnss"]["raw_observations"]) and cfg["gnss"]["configure"]
@@ -195,11 +225,11 @@ class Daemon:
 
     # ---- life cycle ---------------------------------------------------------------------------------------
     def start(self) -> None:
-        self._start_thread("service", self._service_loop)  # pings during a long recovery at start, too
+        self._start_thread("service", self._service_loop)  # pings while the sensors' first opens wait, too
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        self.startup_lines = recover_unfinished(self.out_dir)
-        for line in self.startup_lines:
-            log.warning(line)
+        # Listed before the recorder opens its file, recovered after everything has started (_recover_cut_files).
+        cut = unfinished_files(self.out_dir)
+        remove_stale_copies(self.out_dir)
         self._started_mono = self.tb.monotonic_ns()
         path = self.recorder.start()
         log.info("recording to %s", path or self.recorder.status().detail)
@@ -218,6 +248,40 @@ class Daemon:
             log.error("status socket %s unavailable (%s); `logger status` will not work", self.status_socket,
                       exc.strerror or exc)
         self._started.set()
+        if cut:
+            # Not one of self._threads: it ends when it is done, which is no hang for the watchdog to see.
+            self._recovery = threading.Thread(target=self._recover_cut_files, args=(cut,), name="recovery",
+                                              daemon=True)
+            self._recovery.start()
+
+    def _recover_cut_files(self, files: list[Path]) -> None:
+        """Recover what the last run left unfinished while this one records (``files``, listed before the
+        recorder opened its own), each file's line logged as it is done and the file shown in the status while
+        it is recovered. At the lowest CPU priority the host gives a thread: the sensors' and the writer's
+        threads share the board's one core with it and must keep their schedule."""
+        with contextlib.suppress(OSError, AttributeError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only (Linux)
+        reserve = self.recorder.settings.min_free_bytes
+        for i, path in enumerate(files):
+            if self.stop_event.is_set():
+                line = (f"{len(files) - i} cut file{'s' if len(files) - i != 1 else ''} left unrecovered by the "
+                        f"stop, for the next start: {', '.join(p.name for p in files[i:])}")
+                self.startup_lines.append(line)
+                log.warning(line)
+                return
+            if path in self.recorder.files():  # cannot be (listed before it opened one); never recover it
+                continue
+            with contextlib.suppress(OSError):
+                self._recovering = (path.name, path.stat().st_size)
+            try:
+                line = recover_file(path, self.stop_event.is_set, reserve)
+            except Exception:  # a bug must not end the recording: the file stays as it was
+                log.exception("recovering %s failed", path.name)
+                continue
+            finally:
+                self._recovering = None
+            self.startup_lines.append(line)
+            log.warning(line)
 
     def _start_thread(self, name: str, target: Callable[..., None], *args: Any) -> None:
         t = threading.Thread(target=target, args=args, name=name, daemon=True)
@@ -243,6 +307,10 @@ class Daemon:
                 self.final_sensors = self._sensor_rows(self._stopped_mono)[0]
         self.notifier.stopping("stopping: finishing the file")
         self.stop_event.set()
+        if self._recovery is not None:
+            self._recovery.join(10.0)  # it gives up between two chunks
+            if self._recovery.is_alive():
+                log.error("the recovery of a cut file did not stop within 10 s")
         for s in self.samplers:
             s.join(5.0)
             if s.is_alive():
@@ -318,6 +386,10 @@ class Daemon:
         recent = dropped - self._drop_history[0][1]
         if recent:
             problems.append(f"recorder: {recent} records dropped in the last minute (queue full: writer too slow)")
+        recovering = self._recovering
+        if recovering is not None:
+            problems.append(f"recovery: recovering {recovering[0]} ({recovering[1] / 1e6:.0f} MB), cut short by the "
+                            "last run; recording goes on")
         verdict = "critical" if critical else ("degraded" if problems else "ok")
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
@@ -461,8 +533,9 @@ class Daemon:
         """READY=1 once started up; then WATCHDOG=1 every half timeout, but only while no thread is stale.
 
         Runs on the host's clock, not the drive's: systemd's watchdog counts real seconds. Until READY the
-        pings go on unconditionally (recovering a large crashed file may take minutes; TimeoutStartSec bounds
-        that phase). A stale thread stops the pings, and systemd restarts the service.
+        pings go on unconditionally (a sensor's first open may wait for its device; TimeoutStartSec bounds
+        that phase). A stale thread stops the pings, and systemd restarts the service. The recovery of the last
+        run's cut files, which may take minutes, runs after READY in a thread the watchdog does not wait for.
         """
         interval = self.notifier.watchdog_interval_s
         # Once a second of drive, so that the journal sees what `logger status` sees (a simulated drive at 60x

@@ -1,0 +1,130 @@
+"""The daemon records while it recovers the last run's cut files, and says so.
+
+Recovering an hour's cut file takes minutes on the board's one core. The daemon used to do it before the recorder,
+the sensors and the status server started: nothing was recorded meanwhile and `logger status` said "not running".
+Now the file is listed first, everything starts, and a thread recovers it; the status names it, systemd's
+watchdog goes on being pinged, its line reaches the log, and a stop gives it up with the file kept as it was.
+The recovery is held back by a gate here, standing in for a long one.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_notify import FakeSystemd, TickSource, make_daemon, wait_until
+from test_recovery_memory import cut_file
+
+import logger.runtime.daemon as daemon_module
+from logger.recording.files import RecoveryCancelled, is_finished
+from logger.runtime.daemon import recover_file
+from logger.runtime.status_socket import fetch
+
+
+@pytest.fixture
+def systemd(tmp_path: Path) -> Any:
+    fake = FakeSystemd(str(tmp_path / "notify.sock"))
+    yield fake, str(tmp_path / "notify.sock")
+    fake.close()
+
+
+class GatedRecovery:
+    """``recover`` held until ``gate`` is set (or the stop cancels it); the paths it was asked for. It gives up
+    waiting after ``hold_s``, so that a daemon that recovers before starting (the old order) fails the test
+    instead of hanging it."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, hold_s: float = 8.0) -> None:
+        self.gate = threading.Event()
+        self.asked: list[Path] = []
+        self.hold_s = hold_s
+        self.real = daemon_module.recover
+        monkeypatch.setattr(daemon_module, "recover", self)
+
+    def __call__(self, path: Path, *args: Any, cancel: Callable[[], bool] | None = None, **kw: Any) -> Any:
+        self.asked.append(Path(path))
+        give_up = time.monotonic() + self.hold_s
+        while not self.gate.wait(0.02) and time.monotonic() < give_up:
+            if cancel is not None and cancel():
+                raise RecoveryCancelled()
+        return self.real(path, *args, cancel=cancel, **kw)
+
+
+def test_the_daemon_records_and_answers_while_it_recovers_a_cut_file(
+        tmp_path: Path, systemd: Any, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    fake, notify = systemd
+    drives = tmp_path / "drives"
+    drives.mkdir()
+    cut = drives / "drive_20261206T040000Z_0001.mcap"
+    kept = cut_file(cut, 500)
+    (drives / "drive_20261206T040000Z_0001.mcap.recovering").write_bytes(b"a copy cut short")
+    gated = GatedRecovery(monkeypatch)
+    caplog.set_level(logging.INFO)
+    d = make_daemon(tmp_path, [TickSource("a")], notify, watchdog_usec=200_000)
+    d.heartbeat_bound_s = 5.0
+    d.start()
+    try:
+        fake.wait_for("READY", timeout_s=5)
+        ready_at = time.monotonic()
+        assert not gated.gate.is_set() and gated.asked == [cut]  # the recorder's new file is never recovered
+        snap = fetch(tmp_path / "status.sock")  # answers: not "not running"
+        assert any(p.startswith(f"recovery: recovering {cut.name} (") for p in snap["problems"]), snap["problems"]
+        assert snap["recorder"]["state"] == "recording" and Path(snap["recorder"]["file"]) != cut
+        assert not list(drives.glob("*.recovering")), "the stale copy was not removed before recovering"
+        wait_until(lambda: fake.pings_between(ready_at, time.monotonic()) >= 5, "pings during the recovery")
+        wait_until(lambda: d.recorder.status().written.get("/test/a", 0) >= 5, "records written meanwhile")
+        assert "RecoveryCancelled" not in caplog.text
+        gated.gate.set()
+        wait_until(lambda: any(r.getMessage().startswith(f"recovered {cut.name}: {len(kept)} messages")
+                               for r in caplog.records), "the recovered file's line in the log")
+        assert is_finished(cut) and d.startup_lines[0].startswith(f"recovered {cut.name}")
+        wait_until(lambda: not any(p.startswith("recovery:") for p in d.snapshot()["problems"]),
+                   "the recovery's problem cleared")
+        done_at = time.monotonic()
+        wait_until(lambda: fake.pings_between(done_at, time.monotonic()) >= 3, "pings once the recovery ended")
+        assert d.recorder.status().state == "recording"
+    finally:
+        gated.gate.set()
+        d.stop()
+
+
+def test_a_stop_gives_the_recovery_up_and_keeps_the_file(
+        tmp_path: Path, systemd: Any, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    _, notify = systemd
+    drives = tmp_path / "drives"
+    drives.mkdir()
+    first, second = drives / "drive_20261206T040000Z_0001.mcap", drives / "drive_20261206T050000Z_0001.mcap"
+    cut_file(first, 200)
+    cut_file(second, 200)
+    before = first.read_bytes()
+    gated = GatedRecovery(monkeypatch, hold_s=30.0)
+    caplog.set_level(logging.INFO)
+    d = make_daemon(tmp_path, [TickSource("a")], notify)
+    d.start()
+    try:
+        wait_until(lambda: gated.asked == [first], "the recovery on the first file")
+    finally:
+        t0 = time.monotonic()
+        d.stop()
+    assert time.monotonic() - t0 < 15  # not the 30 s the recovery would have held it
+    assert first.read_bytes() == before and not is_finished(first) and not is_finished(second)
+    assert not list(drives.glob("*.recovering"))
+    text = caplog.text
+    assert f"recovery of {first.name} stopped with the daemon" in text
+    assert f"1 cut file left unrecovered by the stop, for the next start: {second.name}" in text
+
+
+def test_a_recovery_that_would_take_the_recordings_room_waits(tmp_path: Path) -> None:
+    """Beside a live recording, the copy must leave the recorder's minimum free: the new drive comes first, and
+    the cut file is readable as it is."""
+    cut = tmp_path / "drive_20261206T040000Z_0001.mcap"
+    cut_file(cut, 100)
+    before = cut.read_bytes()
+    line = recover_file(cut, reserve_bytes=1 << 60)
+    assert line.startswith(f"did not recover {cut.name}: its copy (up to "), line
+    assert cut.read_bytes() == before and not list(tmp_path.glob("*.recovering"))
+    assert recover_file(cut).startswith(f"recovered {cut.name}: 100 messages")
