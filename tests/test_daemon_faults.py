@@ -129,7 +129,7 @@ def test_each_fault_is_reported_while_it_lasts_and_the_sensor_comes_back(running
         wait_for("disk-full reported", lambda: fetch(sock)["recorder"]["state"] == "disk-full")
         snap = fetch(sock)
         assert snap["verdict"] == "critical"
-        assert any("recording stopped" in p and "MiB free" in p for p in snap["problems"])
+        assert any(p.startswith("recorder: not recording: disk full (") and " free, " in p for p in snap["problems"])
         time.sleep(1.0)
 
     others_keep_logging(daemon, "", disk_full)

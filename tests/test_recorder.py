@@ -178,17 +178,19 @@ def test_writer_takes_records_in_batches_without_waiting_for_the_flush(tmp_path:
     rec.start()
     try:
         rec.submit("/a", {"x": 0}, 1, 1)  # wakes nobody: written at the writer's next batch, long before a flush
-        assert wait_until(lambda: rec.status().written.get("/a") == 1, 10 * BATCH_WAIT_S + 5.0)
+        # Handed to the writer (buffered), not yet on disk: "written" waits for an fsync.
+        assert wait_until(lambda: rec.status().buffered.get("/a") == 1, 10 * BATCH_WAIT_S + 5.0)
+        assert rec.status().written == {}
         # A quarter of the queue waiting wakes the writer before the batch interval: nothing is refused.
         for i in range(1, 1001):
             rec.submit("/a", {"x": i}, i + 1, i + 1)
             if i % 100 == 0:
                 wait_until(lambda: rec.status().queue_depth < 200, 10.0)
         assert rec.status().dropped == {}
-        assert wait_until(lambda: rec.status().written.get("/a") == 1001, 10.0)
+        assert wait_until(lambda: rec.status().buffered.get("/a") == 1001, 10.0)
     finally:
         rec.stop()
-    assert rec.status().state == "stopped"
+    assert rec.status().state == "stopped" and rec.status().written == {"/a": 1001}  # on disk once finished
     (path,) = tmp_path.glob("*.mcap")
     assert len(_read_all(path)) == 1001
 
@@ -198,7 +200,7 @@ def test_disk_below_minimum_free_stops_recording_with_a_clear_state(tmp_path: Pa
     rec = Recorder(RecorderSettings(out_dir=tmp_path, min_free_bytes=free * 2), TOPICS)
     assert rec.start() is None
     st = rec.status()
-    assert st.state == "disk-full" and "below the" in st.detail
+    assert st.state == "disk-full" and st.detail.startswith("not recording: disk full (") and "minimum" in st.detail
     assert not rec.submit("/a", {"x": 1}, 1, 1)
     rec.stop()
     assert list(tmp_path.glob("*.mcap")) == []
@@ -279,14 +281,14 @@ def test_first_record_of_each_topic_is_announced_once_when_written(tmp_path: Pat
     topics = {**TOPICS, "/b": TopicSpec("/b", "test.B", {"type": "object"}, "test")}
     rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), topics)
     firsts: list[tuple[str, int]] = []
-    rec.on_first_record = lambda topic: firsts.append((topic, sum(rec.status().written.values())))
+    rec.on_first_record = lambda topic: firsts.append((topic, sum(rec.status().buffered.values())))
     path = rec.start()
     for i in range(50):
         rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
     rec.submit("/b", {}, 1_700_000_000_000_000_100, 100)
     rec.stop()
     assert path is not None
-    # Each topic once, and only after its record was counted as written.
+    # Each topic once, and only after its record was handed to the writer (counted written once an fsync keeps it).
     assert firsts == [("/a", 1), ("/b", 51)]
 
 
@@ -383,10 +385,22 @@ def test_a_disk_full_while_opening_leaves_no_empty_file(tmp_path: Path, monkeypa
     assert rec.start() is None
     try:
         st = rec.status()
-        assert st.state == "disk-full" and "No space left on device" in st.detail, st
+        assert st.state == "disk-full" and st.detail.startswith("not recording: disk full ("), st
         assert list(tmp_path.glob("*.mcap")) == []
     finally:
         rec.stop()
+
+
+def _run_file(path: Path, run: str, part: int) -> None:
+    """A finished MCAP file holding only the recorder's run record."""
+    from logger.recording.mcap_writer import McapWriter
+    from logger.recording.recorder import RUN_METADATA
+
+    with open(path, "wb") as f:
+        w = McapWriter(f)
+        w.start(profile="", library="vehicle-logger")
+        w.add_metadata(RUN_METADATA, {"run": run, "part": str(part)})
+        w.finish()
 
 
 def test_a_folder_stands_for_one_drive_and_several_are_told_apart(tmp_path: Path) -> None:
@@ -401,12 +415,29 @@ def test_a_folder_stands_for_one_drive_and_several_are_told_apart(tmp_path: Path
     for n in names:
         (one / n).write_bytes(b"")
     assert [p.name for p in drive_paths([one])] == names
-    # Named by two clocks that disagree (the system clock's 2026 at start, GNSS time's 2018 after): one drive.
+    # Named by two clocks that disagree (the system clock's 2026 at start, GNSS time's 2018 after): one drive by
+    # the run id its files carry.
     two_clocks = tmp_path / "two-clocks"
     two_clocks.mkdir()
-    for n in ("drive_20261204T100000Z_0001.mcap", "drive_20181025T205603Z_0002.mcap"):
-        (two_clocks / n).write_bytes(b"")
+    for n, part in (("drive_20261204T100000Z_0001.mcap", 1), ("drive_20181025T205603Z_0002.mcap", 2)):
+        _run_file(two_clocks / n, "5c0ffee1", part)
     assert len(drive_paths([two_clocks])) == 2
+    # Without run ids (files of an older recorder) the names decide: a start killed before the clock locked left a
+    # boot-named 0001, the next start's first file was numbered 0002 and dated; numbers in one unbroken run no
+    # longer merge them.
+    crashed = tmp_path / "crashed"
+    crashed.mkdir()
+    for n in ("drive_boot-3a79384f_0001.mcap", "drive_20261206T051345Z_0002.mcap"):
+        (crashed / n).write_bytes(b"")
+    with pytest.raises(DriveFileError, match="a folder of 2 drives"):
+        drive_paths([crashed])
+    # Two runs whose names look like one drive's parts are two drives.
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    _run_file(runs / "drive_20261206T051345Z_0001.mcap", "aaaaaaaa", 1)
+    _run_file(runs / "drive_20261206T052000Z_0002.mcap", "bbbbbbbb", 2)
+    with pytest.raises(DriveFileError, match="a folder of 2 drives"):
+        drive_paths([runs])
     assert part_number(one / names[1]) == 2 and drive_stem(one / names[1]) == "drive_20261204T110000Z"
     for folder, files in (("restarted", ["drive_20261204T100000Z_0001.mcap", "drive_20261204T110000Z_0001.mcap"]),
                           ("pruned", ["drive_20261203T100000Z_0005.mcap", "drive_20261203T110000Z_0006.mcap",
@@ -442,3 +473,43 @@ def test_files_of_two_drives_named_one_by_one_are_refused_as_a_folder_of_two_is(
     with pytest.raises(DriveFileError, match="named twice"):
         drive_paths([a[0], a[1], tmp_path / "a" / ".." / "a" / a[0].name])
     assert len(drive_paths([*a, *b], one_drive=False)) == 4  # logger info takes any files
+
+
+def test_a_failed_open_takes_no_part_number_and_every_file_says_its_run(tmp_path: Path, monkeypatch) -> None:
+    """Opens that fail (a full disk) took part numbers: a restart's first file was _0005 and one run jumped from
+    _0001 to _0011, which the drive reader took for one drive with an earlier start's files. Now a part number goes
+    to a file actually started, and every file carries its run id and part in a metadata record written at open,
+    so a file cut short (kill -9) has it too."""
+    import errno
+
+    import logger.recording.recorder as recorder_module
+    from logger.recording.drive import run_identity
+
+    monkeypatch.setattr(recorder_module, "os", FsyncFails(errno.ENOSPC, "No space left on device"))
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.0)
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02, rotate_duration_s=1.0), TOPICS)
+    assert rec.start() is None
+    try:
+        for i in range(3):  # each record finds no file and makes the writer try again: three failed opens
+            rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
+        assert wait_until(lambda: sum(rec.status().unrecorded.values()) == 3, 20.0)
+        assert list(tmp_path.glob("*.mcap")) == []
+        monkeypatch.undo()
+        monkeypatch.setattr(recorder_module, "RETRY_S", 0.0)
+        assert wait_until(lambda: rec.status().state == "recording", 20.0), rec.status()
+        first = Path(rec.status().file or "")
+        assert first.name.endswith("_0001.mcap"), first.name
+        rec.submit("/a", {"x": 9}, 1_700_000_000_000_000_009, 9)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 9, 20.0)
+        cut = tmp_path / "cut.bin"
+        cut.write_bytes(first.read_bytes())  # as a kill -9 leaves it
+        assert not is_finished(cut) and run_identity(cut) == (rec.run_id, 1)
+        cut.unlink()
+        rec.submit("/a", {"x": 10}, 1_700_000_000_000_000_009 + 2 * 10**9, 10)  # rotated: part 2, not 12
+    finally:
+        rec.stop()
+    names = sorted((p.name for p in tmp_path.glob("*.mcap")), key=lambda n: n[-9:])  # the first named by the wall
+    assert [n[-9:] for n in names] == ["0001.mcap", "0002.mcap"], names
+    assert sorted(run_identity(tmp_path / n) for n in names) == [(rec.run_id, 1), (rec.run_id, 2)]
+    recover(tmp_path / names[0], tmp_path / "recovered.mcap")  # recovery keeps the run record
+    assert run_identity(tmp_path / "recovered.mcap") == (rec.run_id, 1)

@@ -160,3 +160,32 @@ def test_the_daemon_names_files_from_its_clock_not_the_wall(tmp_path: Path, wall
         d.stop()
     (dated,) = (tmp_path / "drives").glob("*.mcap")
     assert dated.name.startswith("drive_2026") and is_finished(dated)
+
+
+def test_a_restart_in_the_same_boot_begins_its_own_0001_and_is_another_drive(tmp_path: Path,
+                                                                              wall_clock_in_1970: None) -> None:
+    """A start killed before the clock locked leaves its boot-named 0001; the next start in the same boot found that
+    name taken, took 0002 (later dated ..._0002), and the drive reader merged the two starts as one drive. Now the
+    new start's first file is its own 0001, its name tagged with its run id while the boot name is taken, and each
+    file carries its run id: two drives, whatever the names."""
+    from logger.recording.drive import DriveFileError, drive_paths, part_number, run_identity
+
+    clock = GnssClock()
+    crashed = tmp_path / boot_safe_file_name("drive", read_boot_id(), 1)
+    first = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS, synced_unix_ns=clock.synced)
+    assert first.start() == crashed
+    first.submit("/a", {"x": 1}, 1, 1)
+    first.stop()  # stands for the kill: its boot-named file stays
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.05), TOPICS, synced_unix_ns=clock.synced)
+    path = rec.start()
+    assert path is not None and path.name == f"drive_boot-{read_boot_id()}_run-{rec.run_id}_0001.mcap", path
+    assert part_number(path) == 1 and run_identity(path) == (rec.run_id, 1)
+    rec.submit("/a", {"x": 2}, 2, 2)
+    clock.lock()
+    wait_until("dated", lambda: not path.exists())
+    rec.stop()
+    (dated,) = [p for p in tmp_path.glob("*.mcap") if p != crashed]
+    assert DATED_NAME.match(dated.name) and dated.name.endswith("_0001.mcap"), dated.name  # no tag needed now
+    assert run_identity(dated) == (rec.run_id, 1) and run_identity(crashed) == (first.run_id, 1)
+    with pytest.raises(DriveFileError, match="a folder of 2 drives"):
+        drive_paths([tmp_path])

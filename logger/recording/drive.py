@@ -51,8 +51,10 @@ from logger.recording.mcap_writer import (
     OP_HEADER,
     OP_MESSAGE,
     OP_MESSAGE_INDEX,
+    OP_METADATA,
     RECORD_HEAD,
 )
+from logger.recording.recorder import RUN_METADATA
 from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 from logger.words import plural
@@ -355,20 +357,95 @@ def drive_stem(path: Path) -> str:
     return _PART.sub("", path.stem)
 
 
-def drive_starts(files: list[Path]) -> list[Path]:
-    """The files that begin a drive, in name order: the first daemon file, and every one whose part number does
-    not rise over the one before it (another start's 0001, or a later drive after an earlier one's last parts).
-    Files without a part number (a replay's output) begin none.
+RUN_HEAD_BYTES = 16 * 1024  # the run record follows the header (a few dozen bytes) in the recorder's files
 
-    Unless the part numbers are one unbroken run, each once (0001, 0002, ...): those are one drive's whatever the
-    names' order. A file is named by its start time, and a board whose synchronised system clock and GNSS time
-    disagree (GNSS wins after a minute) names its first file by the one and the next by the other: a drive's 0002
-    of 2018 before its 0001 of 2026 was taken for a second drive."""
-    parts = [(f, n) for f in sorted(files, key=lambda f: f.name) if (n := part_number(f)) is not None]
-    numbers = sorted(n for _, n in parts)
-    if numbers and numbers == list(range(numbers[0], numbers[0] + len(numbers))):
-        return [min(parts, key=lambda fn: fn[1])[0]]
-    return [f for i, (f, n) in enumerate(parts) if i == 0 or n <= parts[i - 1][1]]
+
+def _string_map(buf: bytes, pos: int, end: int) -> dict[str, str]:
+    total = _I.unpack_from(buf, pos)[0]
+    pos += 4
+    stop = pos + total
+    if stop > end:
+        raise ValueError("map runs past its record")
+    out = {}
+    while pos < stop:
+        n = _I.unpack_from(buf, pos)[0]
+        key = buf[pos + 4:pos + 4 + n].decode()
+        pos += 4 + n
+        n = _I.unpack_from(buf, pos)[0]
+        out[key] = buf[pos + 4:pos + 4 + n].decode()
+        pos += 4 + n
+    return out
+
+
+def run_identity(path: Path) -> tuple[str, int] | None:
+    """(run id, part number) of a file the recorder wrote, from its ``drive`` metadata record; None for a file
+    without one (written before run ids, by another tool, or unreadable).
+
+    The recorder writes that record right after the header, outside any chunk, so it is in the first bytes of a
+    file cut short as of a finished one, and recovery copies it into the rewritten file (before its first chunk):
+    reading the file's head is enough, not its summary, and costs one small read per file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(RUN_HEAD_BYTES)
+    except OSError:
+        return None
+    if not head.startswith(MAGIC):
+        return None
+    pos = len(MAGIC)
+    while pos + 9 <= len(head):
+        op, length = RECORD_HEAD.unpack_from(head, pos)
+        body, nxt = pos + 9, pos + 9 + length
+        if nxt > len(head) or op == OP_DATA_END:
+            return None
+        if op == OP_METADATA:
+            try:
+                n = _I.unpack_from(head, body)[0]
+                name = head[body + 4:body + 4 + n].decode()
+                if name == RUN_METADATA:
+                    fields = _string_map(head, body + 4 + n, nxt)
+                    run, part = fields.get("run", ""), fields.get("part", "")
+                    return (run, int(part)) if run and part.isdigit() else None
+            except (struct.error, UnicodeDecodeError, ValueError):
+                return None
+        pos = nxt
+    return None
+
+
+def drive_starts(files: list[Path]) -> list[Path]:
+    """The files that begin a drive, in name order.
+
+    Files that carry a run id (:func:`run_identity`, every file of a recorder since run ids) are grouped by it:
+    a run is one daemon start, so one drive, whatever its files' names say (a board whose system clock and GNSS
+    time disagree names its first file 2026 and the next 2018; a restart in the same boot may find its first
+    name taken), and its lowest part begins it; a part met twice in a run (a copy) begins another, so that it
+    is refused rather than read twice.
+
+    Files without a run id go by their names: in name order, the first daemon file and every one whose part
+    number does not rise over the one before it (another start's 0001, or a later drive after an earlier one's
+    last parts) begin a drive. Such files are not merged when their names' order disagrees with their numbers:
+    a start killed before the clock locked left a boot-named 0001, and the next start's first file was numbered
+    0002 by an older recorder, so "numbers in one unbroken run" does not make one drive. Files without a part
+    number (a replay's output) begin none."""
+    named: list[tuple[Path, int]] = []
+    runs: dict[str, set[int]] = {}
+    starts: dict[str, tuple[int, Path]] = {}
+    extra: list[Path] = []
+    for f in sorted(files, key=lambda f: f.name):
+        ident = run_identity(f)
+        if ident is None:
+            if (n := part_number(f)) is not None:
+                named.append((f, n))
+            continue
+        run, part = ident
+        if part in runs.setdefault(run, set()):
+            extra.append(f)
+            continue
+        runs[run].add(part)
+        if run not in starts or part < starts[run][0]:
+            starts[run] = (part, f)
+    out = [f for i, (f, n) in enumerate(named) if i == 0 or n <= named[i - 1][1]]
+    out += [f for _, f in starts.values()] + extra
+    return sorted(out, key=lambda f: f.name)
 
 
 def _several(starts: list[Path]) -> str:
@@ -380,10 +457,10 @@ def _several(starts: list[Path]) -> str:
 def drive_paths(paths: Iterable[str | Path], one_drive: bool = True) -> list[Path]:
     """The files a user named, a folder standing for the drive the daemon wrote into it (``logger run --out``).
 
-    A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). In that
-    order a drive's part numbers rise; a file whose part number does not rise over the one before it (another
-    start's 0001, or a later drive after an earlier one's last parts) begins another drive, unless the numbers are
-    one unbroken run (:func:`drive_starts`).
+    A folder gives its MCAP files in name order (a ``logger replay`` output among them is read as such). Files
+    with a run id are one drive per run; for files without one, a drive's part numbers rise in name order and a
+    file whose part number does not rise over the one before it (another start's 0001, or a later drive after an
+    earlier one's last parts) begins another drive (:func:`drive_starts`).
     Mixing drives would join unrelated trajectories (two cars' tracks as one, filtered as one drive), so a folder
     of several is an error naming the files that begin them, and so are files named one by one (a shell's
     ``drives/drive_*.mcap`` over two drives) that are not one drive's by the same rule, or a file named twice

@@ -54,18 +54,28 @@ class RecorderStatus:
     file_bytes: int
     files_done: int
     free_bytes: int | None
+    # Records per topic on disk (fsynced): a record handed to the writer is counted here only once an fsync kept it.
     written: dict[str, int] = field(default_factory=dict)
     # Topics whose records each hold several samples (a FIFO read's /imu/batch, its stamps a list): the samples
     # written, what an operator counts by, beside the records.
     samples: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
-    unrecorded: dict[str, int] = field(default_factory=dict)
+    unrecorded: dict[str, int] = field(default_factory=dict)  # arrived while recording was stopped
+    # Handed to the writer but not yet fsynced (on disk at the next flush, or lost if it fails) ...
+    buffered: dict[str, int] = field(default_factory=dict)
+    # ... and handed to the writer but never on disk: the chunk they were in was lost to an I/O error (disk full,
+    # a read-only remount, a deleted file).
+    lost: dict[str, int] = field(default_factory=dict)
     queue_depth: int = 0
     queue_size: int = 0
     # Per topic, the board time (t_mono_ns) of the newest record the last flush put on disk: what a power cut
     # now would keep. Everything of that topic up to it survives a kill; what came later waits for the next flush.
     on_disk_mono_ns: dict[str, int] = field(default_factory=dict)
     state_since_mono_ns: int = 0  # when the recorder entered its present state (the watchdog's "failing for")
+    # Drive time spent not recording since start (disk-full or failed, the present spell included): what the
+    # run's summary and the status row say, since "recorded 200 s" over 50 s of a full disk is not true.
+    down_s: float = 0.0
+    out_dir: str = ""  # the folder the files go to: named once, files by their names
 
 
 def _json_default(value: Any) -> Any:
@@ -106,6 +116,40 @@ def read_boot_id() -> str:
     return digits[:8] if len(digits) >= 8 else os.urandom(4).hex()
 
 
+# Every file carries this metadata record, written at open before any chunk (so a file cut short has it too):
+# {"run": a random id per recorder start, "part": its part number}. The drive reader groups files by run, so two
+# starts are two drives whatever their names say (logger.recording.drive.run_identity).
+RUN_METADATA = "drive"
+DOWN_STATES = ("disk-full", "failed")  # the recorder runs but writes nothing (it retries every RETRY_S)
+RETRY_S = 5.0
+
+
+def new_run_id() -> str:
+    """Eight random hex digits: one daemon start's files, told apart from every other start's."""
+    return os.urandom(4).hex()
+
+
+def size_text(n: int) -> str:
+    """A size a reader can use: ``984 KiB``, ``50 MiB``, ``3.4 GiB`` (binary units, as the configuration's MiB);
+    never ``0 MiB`` for a disk with 984 KiB left."""
+    for unit, shift in (("GiB", 30), ("MiB", 20)):
+        if n >= 10 << shift:
+            return f"{n / (1 << shift):.0f} {unit}"
+        if n >= 1 << shift:
+            return f"{n / (1 << shift):.1f} {unit}"
+    return f"{n >> 10} KiB" if n >= 1 << 10 else f"{n} bytes"
+
+
+def run_tagged_name(name: str, run_id: str) -> str:
+    """``name`` with the run id before its part number (``drive_boot-3a79384f_0001.mcap`` ->
+    ``drive_boot-3a79384f_run-5c0ffee1_0001.mcap``): the name for a file whose plain name another start's file
+    holds (a crash in the same boot left its boot-named 0001), so that the folder shows two starts' 0001s, not a
+    0002 that reads as the crashed start's second part."""
+    stem, dot, suffix = name.rpartition(".")
+    head, _, part = stem.rpartition("_")
+    return f"{head}_run-{run_id}_{part}{dot}{suffix}"
+
+
 def boot_safe_file_name(prefix: str, boot_id: str, sequence: int) -> str:
     """A name that needs no wall clock, for files started before time is known (a board without an RTC).
 
@@ -136,6 +180,8 @@ class Recorder:
         # the time is known get a boot-safe name and are renamed once it is; without it, the wall clock names.
         self._synced_unix_ns = synced_unix_ns
         self._boot_id = read_boot_id()
+        self.run_id = new_run_id()
+        self._tag_names = False  # once a name collided, this run's names all carry its run id
         self._unnamed: list[tuple[Path, int, int]] = []  # (path, start monotonic ns, sequence) awaiting a date
         # A deque behind one short lock (bound and append together, so the bound is exact with many producers):
         # unlike queue.Queue it does not notify the writer on every record.
@@ -147,8 +193,12 @@ class Recorder:
         self._lock = threading.Lock()
         self._dropped: Counter[str] = Counter()  # queue full: the writer could not keep up
         self._unrecorded: Counter[str] = Counter()  # arrived while recording was stopped (disk full, I/O error)
-        self._written: Counter[str] = Counter()
+        self._written: Counter[str] = Counter()  # on disk (an fsync kept them)
         self._samples: Counter[str] = Counter()
+        self._pending: Counter[str] = Counter()  # handed to the writer since the last fsync
+        self._pending_samples: Counter[str] = Counter()
+        self._lost: Counter[str] = Counter()  # handed to the writer, never on disk (an I/O error)
+        self._down_ns = 0  # drive time in DOWN_STATES before the present state
         self._newest_written: dict[str, int] = {}  # topic -> t_mono_ns of its newest record handed to the writer
         # Called from the writer thread with a topic the first time one of its records is written (start-up timing).
         self.on_first_record: Callable[[str], None] | None = None
@@ -171,7 +221,7 @@ class Recorder:
         self._schemas: dict[tuple[str, bytes], int] = {}
         self._file_started_mono = 0.0
         self._first_log_ns: int | None = None
-        self._sequence = 0
+        self._sequence = 0  # the part number of the last file actually started (a failed open takes none)
         self._files_done = 0
         self._files: list[Path] = []  # every file this recorder started, by its current name
         self._free: int | None = None
@@ -211,15 +261,19 @@ class Recorder:
 
     def status(self) -> RecorderStatus:
         with self._lock:
+            down = self._down_ns
+            if self._state in DOWN_STATES:
+                down += self._mono_ns() - self._state_since
             return RecorderStatus(
                 state=self._state, detail=self._detail,
                 file=str(self._path) if self._path else None,
                 file_bytes=self._file_bytes,
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
-                unrecorded=dict(self._unrecorded),
+                unrecorded=dict(self._unrecorded), buffered=dict(self._pending), lost=dict(self._lost),
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
-                on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since)
+                on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since,
+                down_s=max(0, down) / 1e9, out_dir=str(self.settings.out_dir))
 
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
@@ -301,18 +355,18 @@ class Recorder:
             channel = self._channel(topic)
             self._writer.add_message(channel, log_ns, data, pub_ns)
         except OSError as exc:
-            self._io_failed(exc)
             with self._lock:
-                self._dropped[topic] += 1
+                self._pending[topic] += 1  # handed over: lost with the rest of what was not yet on disk
+            self._io_failed(exc)
             return
         if self._first_log_ns is None:
             self._first_log_ns = log_ns
         self._newest_written[topic] = pub_ns
         stamps = payload.get("t_sync_ns")
         with self._lock:
-            self._written[topic] += 1
+            self._pending[topic] += 1  # written once the next fsync keeps it (_kept_on_disk)
             if stamps.__class__ is list:  # a batch record: its samples' stamps
-                self._samples[topic] += len(stamps)
+                self._pending_samples[topic] += len(stamps)
         if topic not in self._topics_written:
             self._topics_written.add(topic)
             if self.on_first_record is not None:
@@ -360,7 +414,7 @@ class Recorder:
             return
         lost = self._file_lost()
         if lost:  # what was just flushed went to a file nobody can find: it is not on disk in any useful sense
-            self._io_failed(OSError(errno.ENOENT, lost), lost)
+            self._io_failed(OSError(errno.ENOENT, lost[1]), *lost)
             self._next_retry = self._now()  # a new file (in a recreated folder) at the next flush
             return
         self._kept_on_disk(True)
@@ -369,33 +423,40 @@ class Recorder:
         size = self._file_bytes = self._stream.tell()
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
+            name = self._path.name if self._path else "?"
             self._close_file()
-            self._set_state("disk-full", f"recording stopped: {self._free >> 20} MiB free on "
-                            f"{self.settings.out_dir}, below the {self.settings.min_free_bytes >> 20} MiB minimum")
-            log.error(self._detail)
-            self._next_retry = self._now() + 5.0
+            self._set_state("disk-full", self._disk_full_detail())
+            log.error("recording stopped: %s free in %s, below the %s minimum; %s finished, retrying every %.0f s",
+                      size_text(self._free), self.settings.out_dir, size_text(self.settings.min_free_bytes), name,
+                      RETRY_S)
+            self._next_retry = self._now() + RETRY_S
             return
         if size >= self.settings.rotate_size_bytes:
             self._rotate()
 
-    def _file_lost(self) -> str:
-        """Why the open file cannot be found where it is written ("" when it can): deleted, or its folder deleted or
-        replaced. Writes and fsyncs to an unlinked file succeed, so only this check notices."""
+    def _file_lost(self) -> tuple[str, str] | None:
+        """Why the open file cannot be found where it is written (None when it can): deleted, or its folder deleted
+        or replaced; as (the problem, short and the same on every retry; the event for the log, with the folder).
+        Writes and fsyncs to an unlinked file succeed, so only this check notices."""
         assert self._stream is not None
+        out = self.settings.out_dir
+        name = self._path.name if self._path else "the open file"
         try:  # the folder first: deleting it deletes the file too, and the folder is the news
-            d = os.stat(self.settings.out_dir)
+            d = os.stat(out)
         except FileNotFoundError:
-            return f"the output folder {self.settings.out_dir} was deleted while recording"
+            return "the output folder was deleted", f"the output folder {out} was deleted while recording"
         except OSError as exc:
-            return f"the output folder {self.settings.out_dir} cannot be checked: {exc.strerror or exc}"
+            why = exc.strerror or str(exc)
+            return f"the output folder cannot be checked: {why}", f"the output folder {out} cannot be checked: {why}"
         if self._dir_id is not None and (d.st_dev, d.st_ino) != self._dir_id:
-            return f"the output folder {self.settings.out_dir} was replaced while recording"
+            return "the output folder was replaced", f"the output folder {out} was replaced while recording"
         try:
             if os.fstat(self._stream.fileno()).st_nlink == 0:
-                return f"{self._path} was deleted while being written"
+                return "its file was deleted", f"{name} was deleted from {out} while being written"
         except OSError as exc:
-            return f"{self._path} cannot be checked: {exc.strerror or exc}"
-        return ""
+            why = exc.strerror or str(exc)
+            return f"its file cannot be checked: {why}", f"{name} in {out} cannot be checked: {why}"
+        return None
 
     def _rotate(self) -> None:
         self._close_file()
@@ -408,18 +469,32 @@ class Recorder:
             return None
         return st.f_bavail * st.f_frsize
 
+    def _disk_full_detail(self) -> str:
+        """The disk-full state's line, the same while the disk stays full (whichever way it was found: the minimum
+        reached at a flush, ENOSPC in a write or an open), so the journal keeps it one problem; no file name."""
+        free = "free space unknown" if self._free is None else f"{size_text(self._free)} free"
+        minimum = (f", {size_text(self.settings.min_free_bytes)} minimum" if self.settings.min_free_bytes > 0
+                   else "")
+        return f"not recording: disk full ({free}{minimum})"
+
     def _check_space_and_open(self) -> None:
+        """Start the next file, or say why not (and retry in RETRY_S). The part number is taken only by a file
+        actually started: a drive's parts run 0001, 0002, ... from each start, which the name rule of the drive
+        reader relies on for files without a run id."""
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
-            self._set_state("disk-full", f"not recording: {self._free >> 20} MiB free on {self.settings.out_dir}, "
-                            f"below the {self.settings.min_free_bytes >> 20} MiB minimum")
-            self._next_retry = self._now() + 5.0
+            if self._state not in DOWN_STATES:
+                log.error("not recording: %s free in %s, below the %s minimum; retrying every %.0f s",
+                          size_text(self._free), self.settings.out_dir, size_text(self.settings.min_free_bytes),
+                          RETRY_S)
+            self._set_state("disk-full", self._disk_full_detail())
+            self._next_retry = self._now() + RETRY_S
             return
-        self._sequence += 1
+        part = self._sequence + 1
         start_mono = self._mono_ns()
         start_unix = self._synced_unix_ns(start_mono) if self._synced_unix_ns is not None else None
         out = self.settings.out_dir
-        path = out / self._name_at_open(start_unix)
+        path = out / self._name_at_open(start_unix, part)
         stream = None
         try:
             if not out.is_dir() and out.parent.is_dir():
@@ -427,13 +502,15 @@ class Recorder:
                 # storage that vanished must not be replaced by the root filesystem).
                 out.mkdir()
                 log.warning("the output folder %s was missing: made it again", out)
-            while path.exists():
-                self._sequence += 1
-                path = out / self._name_at_open(start_unix)
+            if path.exists():  # another start's file (a crash in this boot left its boot-named 0001)
+                self._tag_names = True
+                path = out / self._name_at_open(start_unix, part)
             stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
             writer = McapWriter(stream, chunk_size=self.settings.chunk_size_bytes,
                                 compression=self.settings.compression)
             writer.start(profile=PROFILE, library="vehicle-logger")
+            # First after the header, outside any chunk: a reader finds it in the file's first bytes, cut or not.
+            writer.add_metadata(RUN_METADATA, {"run": self.run_id, "part": str(part)})
             for name_, data in self.metadata.items():
                 writer.add_metadata(name_, data)
             stream.flush()
@@ -446,17 +523,26 @@ class Recorder:
                 with contextlib.suppress(OSError):
                     path.unlink()
             full = exc.errno == errno.ENOSPC
-            self._set_state("disk-full" if full else "failed", f"cannot open {path}: {exc.strerror or exc}")
-            log.error(self._detail)
-            self._next_retry = self._now() + 5.0
+            if self._state not in DOWN_STATES:  # each retry's failure is not news: the state says it lasts
+                log.error("cannot open %s in %s: %s; retrying every %.0f s", path.name, out, exc.strerror or exc,
+                          RETRY_S)
+            else:
+                log.debug("cannot open %s: %s", path.name, exc.strerror or exc)
+            if full:
+                self._free = self._free_bytes()
+                self._set_state("disk-full", self._disk_full_detail())
+            else:
+                self._set_state("failed", f"not recording: {exc.strerror or exc}")  # as a failed write says it
+            self._next_retry = self._now() + RETRY_S
             return
+        self._sequence = part
         self._dir_id = (d.st_dev, d.st_ino)
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
             self._files.append(path)
             self._file_bytes = 0
         if self._synced_unix_ns is not None and start_unix is None:
-            self._unnamed.append((path, start_mono, self._sequence))
+            self._unnamed.append((path, start_mono, part))
         self._channels.clear()
         self._schemas.clear()
         self._first_log_ns = None
@@ -465,12 +551,14 @@ class Recorder:
         self._set_state("recording", f"writing {path.name}")
 
     # ---- file names on a board that boots without knowing the time ------------------------------------------
-    def _name_at_open(self, start_unix_ns: int | None) -> str:
+    def _name_at_open(self, start_unix_ns: int | None, part: int) -> str:
         if self._synced_unix_ns is None:
-            return self._file_name(self.settings.prefix, self._first_log_ns, self._sequence)
-        if start_unix_ns is None:
-            return boot_safe_file_name(self.settings.prefix, self._boot_id, self._sequence)
-        return self._file_name(self.settings.prefix, start_unix_ns, self._sequence)
+            name = self._file_name(self.settings.prefix, self._first_log_ns, part)
+        elif start_unix_ns is None:
+            name = boot_safe_file_name(self.settings.prefix, self._boot_id, part)
+        else:
+            name = self._file_name(self.settings.prefix, start_unix_ns, part)
+        return run_tagged_name(name, self.run_id) if self._tag_names else name
 
     def _name_files_when_time_known(self) -> None:
         """Rename this run's boot-named files (the open one included) to their start time, once it is known.
@@ -486,6 +574,8 @@ class Recorder:
                 still.append((old, start_mono, sequence))
                 continue
             new = old.with_name(self._file_name(self.settings.prefix, unix_ns, sequence))
+            if new.exists():  # another start's file of that second: this run's name says which run it is
+                new = old.with_name(run_tagged_name(new.name, self.run_id))
             try:
                 if new.exists():
                     raise FileExistsError(errno.EEXIST, "a file of that name exists", str(new))
@@ -513,7 +603,8 @@ class Recorder:
             self._kept_on_disk(True)
             self._file_bytes = stream.tell()
         except OSError as exc:
-            log.error("could not finish %s (%s); it will be recovered at the next start", path, exc.strerror or exc)
+            log.error("could not finish %s in %s (%s); it will be recovered at the next start",
+                      path.name if path else "?", self.settings.out_dir, exc.strerror or exc)
             self._kept_on_disk(False)
         finally:
             try:
@@ -528,14 +619,21 @@ class Recorder:
             self.on_file_closed(path)
 
     def _kept_on_disk(self, kept: bool) -> None:
-        """After an fsync: what was handed to the writer is on disk, or (it failed) it is not and never will be."""
-        if kept:
-            with self._lock:
+        """After an fsync: what was handed to the writer is on disk, and counted written; or (it failed) it is not
+        and never will be: counted lost, since the chunk it was in is gone (recovery keeps only flushed chunks)."""
+        with self._lock:
+            if kept:
                 self._on_disk.update(self._newest_written)
-        else:
+                self._written.update(self._pending)
+                self._samples.update(self._pending_samples)
+            else:
+                self._lost.update(self._pending)
+            self._pending.clear()
+            self._pending_samples.clear()
+        if not kept:
             self._newest_written = dict(self._on_disk)
 
-    def _io_failed(self, exc: BaseException, reason: str = "") -> None:
+    def _io_failed(self, exc: BaseException, problem: str = "", event: str = "") -> None:
         """A write failed: leave the file as it is (recovery keeps every flushed chunk) and stop writing until the
         next retry (a new file then)."""
         path = self._path
@@ -548,21 +646,31 @@ class Recorder:
             self._writer = None
             self._stream = None
         self._kept_on_disk(False)
+        name = path.name if path else "?"
         if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
-            self._set_state("disk-full", f"recording stopped: disk full while writing {path}")
-        elif reason:
-            self._set_state("failed", f"recording stopped: {reason}")
+            self._free = self._free_bytes()
+            self._set_state("disk-full", self._disk_full_detail())
+            what = "disk full"
+        elif problem:
+            self._set_state("failed", f"not recording: {problem}")
+            what = problem
         elif isinstance(exc, OSError):
-            self._set_state("failed", f"recording stopped: {exc.strerror or exc} while writing {path}")
+            self._set_state("failed", f"not recording: {exc.strerror or exc}")
+            what = str(exc.strerror or exc)
         else:
-            self._set_state("failed", f"recording stopped: {type(exc).__name__}: {exc} while writing {path}")
-        log.error(self._detail)
-        self._next_retry = self._now() + 5.0
+            self._set_state("failed", f"not recording: {type(exc).__name__}: {exc}")
+            what = f"{type(exc).__name__}: {exc}"
+        where = event or f"{what} while writing {name} in {self.settings.out_dir}"
+        log.error("recording stopped: %s; what was not yet flushed is lost; retrying every %.0f s", where, RETRY_S)
+        self._next_retry = self._now() + RETRY_S
 
     def _set_state(self, state: str, detail: str) -> None:
         with self._lock:
             if state != self._state:
-                self._state_since = self._mono_ns()
+                now = self._mono_ns()
+                if self._state in DOWN_STATES:
+                    self._down_ns += now - self._state_since
+                self._state_since = now
             self._state, self._detail = state, detail
 
 

@@ -26,7 +26,7 @@ from typing import Any
 
 from logger.config import Config
 from logger.recording.files import McapFileError, RecoveryCancelled, is_finished, recover
-from logger.recording.recorder import Recorder
+from logger.recording.recorder import RETRY_S, Recorder
 from logger.recording.records import (
     NO_FIX,
     clock_observer,
@@ -232,7 +232,11 @@ class Daemon:
         remove_stale_copies(self.out_dir)
         self._started_mono = self.tb.monotonic_ns()
         path = self.recorder.start()
-        log.info("recording to %s", path or self.recorder.status().detail)
+        if path is not None:
+            log.info("recording to %s", path)
+        else:  # the recorder said why (disk full, read-only, ...) in its own line; this one says what follows
+            log.warning("started without recording into %s (%s); the recorder tries again every %.0f s",
+                        self.out_dir, self.recorder.status().detail, RETRY_S)
         for plan in self.plans:
             s = Sampler(plan.source, self.sink, self.tb, plan.rate_hz, self.stop_event, plan.expected_hz)
             self.samplers.append(s)
