@@ -40,3 +40,25 @@ def test_prune_forgets_refilled_buckets_first_then_all_but_the_kept() -> None:
     lim.prune(100.0, keep={"third"})  # nothing has refilled: everything but the kept goes
     assert lim.allow("third", 100.0) == (False, 0)
     assert lim.allow("flapping", 100.0) == (True, 0)  # forgotten, with its held-back count
+
+
+def test_a_problem_that_lasts_is_never_said_to_be_resolved() -> None:
+    """The review's disk-full spell: the recorder's line named a file that changed at every retry (boot name, then
+    dated name) and its free space changed unit; the journal said "resolved" while the disk was still full. And a
+    write failure followed by open failures with another cause is one problem changing its wording."""
+    from logger.runtime.journal import ProblemJournal
+
+    assert problem_key("recorder: disk full (984 KiB free, 256 MiB minimum)") == problem_key(
+        "recorder: disk full (1.2 MiB free, 256 MiB minimum)")
+    assert problem_key("cannot open drive_boot-3a79384f_0001.mcap: No space") == problem_key(
+        "cannot open drive_20261206T051912Z_0002.mcap: No space")
+    j = ProblemJournal()
+    lines = j.update(["recorder: not recording: disk full (984 KiB free)", "imu: silent"], 0.0)
+    assert [t for _, t in lines] == ["problem: recorder: not recording: disk full (984 KiB free)",
+                                     "problem: imu: silent"]
+    assert j.update(["recorder: not recording: disk full (2.1 MiB free)", "imu: silent"], 1.0) == []
+    lines = j.update(["recorder: not recording: Read-only file system", "imu: silent"], 5.0)
+    assert [t for _, t in lines] == ["changed: recorder: not recording: Read-only file system (was: recorder: not "
+                                     "recording: disk full (2.1 MiB free); for 5 s)"]
+    lines = j.update(["imu: silent"], 9.0)
+    assert [t for _, t in lines] == ["resolved: recorder: not recording: Read-only file system (lasted 9 s)"]

@@ -473,3 +473,51 @@ def test_the_service_loop_reports_from_the_health_loop_s_snapshot_while_it_is_fr
     shared["t_mono_ns"] = d.tb.monotonic_ns() - SHARED_SNAPSHOT_NS - 1
     fresh = d._recent_snapshot()
     assert fresh is not shared and fresh is not own and taken[0] == 2
+
+
+def test_a_full_disk_is_one_line_that_lasts_and_the_summary_and_status_say_the_time_lost(
+        tmp_path: Path, systemd: tuple[FakeSystemd, str], caplog: pytest.LogCaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The review's disk-full runs: the start-up line read "recording to not recording: ...", the problem named the
+    absolute path (2-3 lines on 80x24) and changed at every retry (the journal said "resolved" while still full),
+    the summary said "recorded 200.0 s of drive" over 50 s without a file, the status row "0 dropped"."""
+    import logger.recording.recorder as recorder_module
+    from logger.cli.status_view import render
+    from logger.runtime.summary import run_summary
+
+    monkeypatch.setattr(recorder_module, "RETRY_S", 0.1)
+    fake, path = systemd
+    d = make_daemon(tmp_path, [TickSource("steady")], path)
+    d.recorder.settings.min_free_bytes = 1 << 62  # full from the start
+    caplog.set_level(logging.INFO)
+    journal = ProblemJournal()
+    said: list[str] = []
+    d.start()
+    try:
+        fake.wait_for("READY")
+        assert "started without recording into" in caplog.text and "recording to not" not in caplog.text
+        wait_until(lambda: d.recorder.status().down_s >= 1.5 and d.recorder.status().unrecorded, "a spell without disk")
+        for second in range(3):
+            snap = d.snapshot()
+            said += [t for _, t in journal.update(snap["problems"], float(second))]
+            time.sleep(0.15)  # retries in between
+        (problem,) = [p for p in snap["problems"] if p.startswith("recorder:")]
+        assert problem.startswith("recorder: not recording: disk full (") and str(tmp_path) not in problem, problem
+        assert len(said) == 1 and said[0].startswith("problem: recorder: not recording: disk full"), said
+        screen = render(snap, 80, 24).splitlines()
+        assert all(len(line) < 80 for line in screen)
+        assert f"! {problem}" in screen  # one line
+        rec_rows = [line for line in screen if line.startswith("rec ")]
+        assert rec_rows and rec_rows[0].startswith("rec     disk-full ") and "no file started" in rec_rows[0], screen
+        assert any(line.startswith("        not recorded for ") for line in screen), screen
+        d.recorder.settings.min_free_bytes = 0
+        wait_until(lambda: d.recorder.status().state == "recording", "recording once there is room")
+        wait_until(lambda: d.recorder.status().written, "records on disk")
+    finally:
+        d.stop()
+    text = run_summary(d)
+    head = text.splitlines()[0]
+    assert " s of a " in head and " s run into 1 file" in head, head
+    assert any(line.startswith("  ! not recording for ") for line in text.splitlines()), text
+    (f,) = d.recorder.files()
+    assert f.name.endswith("_0001.mcap")  # the failed opens took no part number

@@ -513,3 +513,33 @@ def test_a_failed_open_takes_no_part_number_and_every_file_says_its_run(tmp_path
     assert sorted(run_identity(tmp_path / n) for n in names) == [(rec.run_id, 1), (rec.run_id, 2)]
     recover(tmp_path / names[0], tmp_path / "recovered.mcap")  # recovery keeps the run record
     assert run_identity(tmp_path / "recovered.mcap") == (rec.run_id, 1)
+
+
+def test_written_counts_only_what_reached_the_disk_and_a_failed_write_is_counted_lost(tmp_path: Path,
+                                                                                    monkeypatch) -> None:
+    """After an I/O error (a read-only remount, a full disk) the summary and the status counted the lost chunk's
+    records as written: a record is written once an fsync kept it, and lost when the write it was in failed."""
+    import errno
+
+    import logger.recording.recorder as recorder_module
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    rec.start()
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        assert wait_until(lambda: rec.status().written == {"/a": 1}, 20.0)
+        monkeypatch.setattr(recorder_module, "os", FsyncFails(errno.EROFS, "Read-only file system"))
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        rec.submit("/a", {"x": 3}, 1_700_000_000_000_000_003, 3000)
+        assert wait_until(lambda: rec.status().state == "failed", 20.0)
+        st = rec.status()
+        assert st.written == {"/a": 1} and st.lost == {"/a": 2} and st.buffered == {}, st
+        assert st.detail == "not recording: Read-only file system"  # no path, the same on every retry
+        rec.submit("/a", {"x": 4}, 1_700_000_000_000_000_004, 4000)  # while down: not recorded
+        assert wait_until(lambda: rec.status().unrecorded == {"/a": 1}, 20.0)
+        assert wait_until(lambda: rec.status().down_s > 0.0, 20.0)
+    finally:
+        monkeypatch.undo()
+        rec.stop()
+    # (The fake fails only the fsync, so the page cache still held those bytes; a real failed write keeps nothing.)
+    assert rec.status().written == {"/a": 1} and rec.status().lost == {"/a": 2}

@@ -116,3 +116,23 @@ def test_long_ages_keep_their_unit_and_a_silent_receiver_is_not_shown_as_fixed()
     text = render(snap)
     assert "gnss    nothing from the receiver for 40 s (its last report: 3D)" in text
     assert "18 satellites" not in text
+
+
+def test_the_rec_row_says_where_recording_stopped_and_sizes_a_reader_can_use() -> None:
+    """The review's disk-full screen: `rec disk-full drive_..._0001.mcap, 0.0 MB` for a 396 KiB file no longer
+    written, "0.0 GB free" with 984 KiB left, "0 dropped" while 80 s went unrecorded."""
+    import copy
+
+    snap = copy.deepcopy(BUSY)
+    snap["t_mono_ns"] = 100_000_000_000
+    snap["recorder"].update(state="disk-full", file_bytes=405_504, free_bytes=984 * 1024,
+                            state_since_mono_ns=55_000_000_000, down_s=80.0, unrecorded={"/imu": 1600},
+                            lost={"/imu": 40})
+    screen = render(snap, width=80).split("\n")
+    assert max(map(len, screen)) <= 79
+    i = next(i for i, line in enumerate(screen) if line.startswith("rec "))
+    assert screen[i] == "rec     disk-full 45 s, stopped at drive_20261201T220721Z_0001.mcap 396 KiB"
+    assert screen[i + 1] == "        984 KiB free, nothing is being written"
+    assert "        not recorded for 80 s: 1600 records; 40 lost in failed writes" in screen
+    snap["recorder"].update(state="recording", free_bytes=3_100_000_000, file_bytes=123_400_000)
+    assert "rec     recording drive_20261201T220721Z_0001.mcap 118 MiB, 2.9 GiB free" in render(snap).split("\n")

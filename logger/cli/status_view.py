@@ -34,8 +34,11 @@ rows below the table:
   clock    state (locked to PPS, holdover, freerun), error bound of the
            stamps, offset and frequency of the board clock, last PPS
   nav      filter position and its 1-sigma, then its plain verdicts
-  rec      file, size, free disk; records written and dropped, queue,
-           and how far back everything is on disk (what a power cut loses)
+  rec      state, the file being written (or where it stopped), size,
+           free disk; records on disk and dropped (queue full), queue, and
+           how far back everything is on disk (what a power cut loses);
+           time not recording since start (disk full, write errors), the
+           records that came meanwhile, and those lost in a failed write
   sim      a simulated drive's pace now against the --time-scale asked for
            (it slows when the daemon falls behind), and on average
 exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""
@@ -51,6 +54,18 @@ def age(s: float | None) -> str:
     if s < 600:
         return f"{s:.0f} s"
     return f"{s / 60:.0f} min" if s < 6000 else f"{s / 3600:.1f} h"
+
+
+def size(n: float) -> str:
+    """A size a reader can use, in the configuration's binary units: ``984 KiB``, ``50 MiB``, ``3.4 GiB``; never
+    ``0.0 GB free`` on a small card nor ``0 MiB`` with 984 KiB left (recorder.size_text says the same; the view
+    reads the snapshot only and imports no record code)."""
+    for unit, shift in (("GiB", 30), ("MiB", 20)):
+        if n >= 10 << shift:
+            return f"{n / (1 << shift):.0f} {unit}"
+        if n >= 1 << shift:
+            return f"{n / (1 << shift):.1f} {unit}"
+    return f"{int(n) >> 10} KiB" if n >= 1 << 10 else f"{int(n)} bytes"
 
 
 def duration(s: float) -> str:
@@ -193,15 +208,34 @@ def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
     if not rec:
         return
     free = rec.get("free_bytes")
-    name = str(rec.get("file") or "-").rsplit("/", 1)[-1]
-    sc.add(LINE, f"rec     {rec.get('state', '?')} {name}, {rec.get('file_bytes', 0) / 1e6:.1f} MB, "
-                 + (f"{free / 1e9:.1f} GB free" if free is not None else "free disk unknown"))
+    free_text = f"{size(free)} free" if free is not None else "free disk unknown"
+    state = rec.get("state", "?")
+    name = str(rec.get("file") or "").rsplit("/", 1)[-1]
+    held = f"{name} {size(rec.get('file_bytes', 0))}" if name else "no file"
+    if state in ("recording", "stalled"):
+        sc.add(LINE, f"rec     {state} {held}, {free_text}")
+    else:
+        # Not writing: the file named is where recording stopped (finished or cut), not one still growing; how long
+        # the state has lasted comes from the snapshot's clock.
+        since = rec.get("state_since_mono_ns")
+        lasted = (f" {age((snap['t_mono_ns'] - since) / 1e9)}" if since and snap.get("t_mono_ns") else "")
+        sc.add(LINE, f"rec     {state}{lasted}, " + (f"stopped at {held}" if name else "no file started"))
+        sc.add(LINE, f"        {free_text}, nothing is being written")
     dropped = sum((rec.get("dropped") or {}).values())
     on_disk = rec.get("on_disk_mono_ns") or {}
     at_risk = (f", on disk up to {(snap['t_mono_ns'] - max(on_disk.values())) / 1e9:.1f} s ago"
                if on_disk and snap.get("t_mono_ns") else "")
-    sc.add(DETAIL, f"        {sum((rec.get('written') or {}).values())} written, {dropped} dropped, "
+    sc.add(DETAIL, f"        {sum((rec.get('written') or {}).values())} on disk, {dropped} dropped, "
                    f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}{at_risk}")
+    down = rec.get("down_s") or 0.0
+    unrecorded = sum((rec.get("unrecorded") or {}).values())
+    lost = sum((rec.get("lost") or {}).values())
+    if down >= 1.0 or unrecorded or lost:
+        # Since start: the time the recorder wrote nothing, the records that came meanwhile, and those lost with a
+        # failed write (the row above counts only what is on disk).
+        head = f"not recorded for {age(down)}: {unrecorded} records" if down >= 1.0 or unrecorded else ""
+        tail = f"{lost} lost in failed writes" if lost else ""
+        sc.add(LINE, "        " + "; ".join(p for p in (head, tail) if p))
 
 
 def _pace(sc: Screen, pace: dict[str, Any] | None) -> None:

@@ -1,8 +1,10 @@
 """The journal's side of health: each problem logged when it appears and when it clears, flapping ones rate-limited.
 
 One rate limiter serves every place that logs a recurring fault (the daemon's status problems, a sensor thread's
-errors), and one rule says when two lines are the same fault: their text with the numbers masked ("no sample for
-4.2 s" and "no sample for 5.1 s" are one problem while it lasts).
+errors), and one rule says when two lines are the same fault: their text with the numbers (and a size's unit) and
+file names masked ("no sample for 4.2 s" and "no sample for 5.1 s" are one problem while it lasts, "984 KiB free" and
+"1.2 MiB free" too). A component whose one problem turns into another in the same second ("recorder: not recording:
+Input/output error" then "... Read-only file system") is said to have changed, not to be resolved: it never was.
 """
 
 from __future__ import annotations
@@ -13,12 +15,19 @@ import re
 PROBLEM_LOG_REPEAT_S = 60.0  # a problem that comes and goes is logged at most this often (on average)
 STILL_EVERY_S = 60.0  # a problem that lasts is said again this often, with how long it has lasted
 MAX_KEYS = 256
-_NUMBERS = re.compile(r"\d+(?:\.\d+)?")
+_NUMBERS = re.compile(r"\d+(?:\.\d+)?(?: ?(?:[KMGT]iB|[kMGT]B|bytes)\b)?")
+_FILES = re.compile(r"[\w.-]+\.mcap\b")  # a file renamed while the problem lasts (boot name -> dated name)
 
 
 def problem_key(text: str) -> str:
-    """What stays of a problem's line while it lasts: the line with every number masked."""
-    return _NUMBERS.sub("#", text)
+    """What stays of a problem's line while it lasts: the line with every number (with its unit, for a size)
+    and every file name masked."""
+    return _NUMBERS.sub("#", _FILES.sub("FILE", text))
+
+
+def subject(text: str) -> str:
+    """Whose problem a line is: what comes before its first ": " (``recorder``, ``imu``)."""
+    return text.split(": ", 1)[0]
 
 
 class RateLimiter:
@@ -81,6 +90,7 @@ class ProblemJournal:
         """The lines to log for this second's problems, as (logging level, text)."""
         out: list[tuple[int, str]] = []
         current = {problem_key(p): p for p in problems}
+        self._carry_changes(current, now_s, out)
         for key, text in current.items():
             if key in self._active:
                 _, announced, since, said = self._active[key]
@@ -100,3 +110,20 @@ class ProblemJournal:
                 out.append((logging.INFO, f"resolved: {text} (lasted {now_s - since:.0f} s)"))
         self._limiter.prune(now_s, set(self._active))  # bounded whatever the problems say
         return out
+
+    def _carry_changes(self, current: dict[str, str], now_s: float, out: list[tuple[int, str]]) -> None:
+        """A component's only problem gone and its only new one there in the same update: the problem changed its
+        wording (the recorder's write failure, then its retries' open failure). Said once as a change, its
+        ``since`` kept, so the journal never says "resolved" for something that lasts."""
+        gone = [k for k in self._active if k not in current]
+        new = [k for k in current if k not in self._active]
+        for who in {subject(current[k]) for k in new}:
+            old_keys = [k for k in gone if subject(self._active[k][0]) == who]
+            new_keys = [k for k in new if subject(current[k]) == who]
+            if len(old_keys) != 1 or len(new_keys) != 1:
+                continue
+            old_text, announced, since, _ = self._active.pop(old_keys[0])
+            text = current[new_keys[0]]
+            if announced:
+                out.append((logging.WARNING, f"changed: {text} (was: {old_text}; for {now_s - since:.0f} s)"))
+            self._active[new_keys[0]] = (text, announced, since, now_s)

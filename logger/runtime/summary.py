@@ -22,15 +22,19 @@ def run_summary(daemon: Daemon) -> str:
     span_s = daemon.run_span_s
     files = daemon.recorder.files()
     sizes = [p.stat().st_size if p.exists() else 0 for p in files]
-    lines = [f"logger: recorded {span_s:.1f} s of drive into {plural(len(files), 'file')}, "
-             f"{sum(sizes) / 1e6:.1f} MB"]
+    rec = daemon.recorder.status()
+    # The time the recorder was down (disk full, write errors) is not recorded drive: "recorded 200 s" over 50 s of
+    # a full disk was not true.
+    down_s = min(rec.down_s, span_s)
+    run = (f"recorded {span_s - down_s:.1f} s of a {span_s:.1f} s run" if down_s >= DOWN_SHOWN_S
+           else f"recorded {span_s:.1f} s of drive")
+    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(sizes) / 1e6:.1f} MB"]
     for p, size in zip(files, sizes, strict=True):
         if not p.exists():
             lines.append(f"  {p}  (gone)")
         else:
             note = "" if is_finished(p) else "  (not finished: `logger recover` it)"
             lines.append(f"  {p}  {size / 1e6:.1f} MB{note}")
-    rec = daemon.recorder.status()
     written = rec.written
     if written:
         width = max(len(t) for t in written)
@@ -42,6 +46,7 @@ def run_summary(daemon: Daemon) -> str:
             held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
                     else "")
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
+    lines += [f"  ! {line}" for line in recorder_losses(rec.down_s, rec.unrecorded, rec.lost, rec.dropped)]
     # The rows as they were when the run was told to stop (a sampler says "stopped" once it has), with the daemon's
     # own judgement in them (silent, stalled); the samplers' health at that time when the daemon never started.
     end = daemon.ended_mono_ns
@@ -73,6 +78,27 @@ def run_summary(daemon: Daemon) -> str:
         lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/",
                   f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
     return "\n".join(lines)
+
+
+DOWN_SHOWN_S = 1.0  # recorder downtime below this is not worth a line (a rotation's open is not downtime)
+
+
+def recorder_losses(down_s: float, unrecorded: dict[str, int], lost: dict[str, int],
+                    dropped: dict[str, int]) -> list[str]:
+    """What the run's files lack, one line each: the time the recorder was not recording and the records that came
+    meanwhile, the records lost in a failed write (handed to the writer, never on disk), the records dropped for a
+    full queue. The topic table counts only what is on disk."""
+    out = []
+    n_unrec = sum(unrecorded.values())
+    if down_s >= DOWN_SHOWN_S or n_unrec:
+        out.append(f"not recording for {down_s:.0f} s of the run (disk full or write errors: see the log); "
+                   f"{plural(n_unrec, 'record')} came meanwhile and were not recorded")
+    if sum(lost.values()):
+        out.append(f"{plural(sum(lost.values()), 'record')} lost in failed writes (handed to the writer, never on "
+                   "disk)")
+    if sum(dropped.values()):
+        out.append(f"{plural(sum(dropped.values()), 'record')} dropped (the recorder's queue was full)")
+    return out
 
 
 RATE_HELD = 0.99  # a periodic sensor that let more than 1 % of its periods pass unsampled fell behind ...
