@@ -19,6 +19,7 @@ from __future__ import annotations
 import calendar
 import datetime as dt
 import math
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -72,6 +73,10 @@ class GnssFix:
     pdop: float | None
     hdop: float | None = None  # horizontal and vertical DOPs, where the receiver gives them (NAV-DOP, GGA, GSA)
     vdop: float | None = None
+    # The epoch is 23:59:60 UTC, an inserted leap second (the receiver's second field read 60). Unix time has no
+    # such second: ``time_utc_ns`` is then POSIX's value for it, that of the 00:00:00 that follows, so the flag is
+    # what tells the two epochs (and the clock, which second a PPS edge marks) apart.
+    leap_second: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +174,26 @@ def _ubx_utc_ns(msg: Any) -> int | None:
         int(msg.hour), int(msg.min), int(_attr(msg, "second", "sec")),
         int(msg.nano),
     )
+
+
+def _ubx_leap(msg: Any) -> bool:
+    """Whether a UBX message's UTC second is 60: the epoch is an inserted leap second (23:59:60)."""
+    return _int(_attr(msg, "second", "sec")) == 60
+
+
+_LEAP_TOD = re.compile(r"(\d\d)(\d\d)60(\.\d+)?")
+
+
+def _leap_time_of_day(raw: bytes, kind: str) -> float | None:
+    """The time of day (s, 86400 and up) of an NMEA sentence stamped hhmm60: an inserted leap second, which
+    pynmeagps cannot parse (it gives no time at all), so the sentence would be lost with its epoch. Only 23:59:60
+    is one (a leap second ends a UTC day); anything else stays a garbled time."""
+    fields = raw.split(b"*", 1)[0].decode("ascii", "replace").split(",")
+    index = 5 if kind == "GLL" else 1
+    m = _LEAP_TOD.fullmatch(fields[index]) if len(fields) > index else None
+    if m is None or (m.group(1), m.group(2)) != ("23", "59"):
+        return None
+    return 86_400.0 + (float(m.group(3)) if m.group(3) else 0.0)
 
 
 def _ubx_llh(msg: Any) -> tuple[float, float, float, float]:
@@ -273,7 +298,7 @@ class GnssDecoder:
                     return []
                 return self._push_ubx(msg)
             if frame.kind == KIND_NMEA:
-                return self._push_nmea(msg)
+                return self._push_nmea(msg, frame.raw)
         except _CONTENT_ERRORS:
             self.rejected += 1  # checksum-valid nonsense; the decoder's state stays usable
         return []
@@ -451,6 +476,7 @@ class GnssDecoder:
         week: int | None = None
         time_utc: int | None = None
         time_valid = False
+        leap = False
         mode = 0
         fix_ok = False
 
@@ -462,6 +488,7 @@ class GnssDecoder:
             if _flag(pvt, "validDate") and _flag(pvt, "validTime"):
                 time_utc = _ubx_utc_ns(pvt)
                 time_valid = time_utc is not None and _flag(pvt, "fullyResolved")
+                leap = time_utc is not None and _ubx_leap(pvt)
             if mode >= 2 and not _flag(pvt, "invalidLlh"):
                 lat, lon, hae, msl = _ubx_llh(pvt)
                 vel = (pvt.velN / 1000.0, pvt.velE / 1000.0, pvt.velD / 1000.0)
@@ -525,6 +552,7 @@ class GnssDecoder:
         if timeutc is not None and time_utc is None and _flag(timeutc, "validUTC"):
             time_utc = _ubx_utc_ns(timeutc)
             time_valid = time_utc is not None
+            leap = time_utc is not None and _ubx_leap(timeutc)
         if week is None:
             week = self._week_for(itow, time_utc)
         if mode == 1:
@@ -550,6 +578,7 @@ class GnssDecoder:
             pdop=pdop,
             hdop=hdop,
             vdop=vdop,
+            leap_second=leap,
         )
 
     def _fix_from_hnr(self, msg: Any) -> GnssFix | None:
@@ -576,6 +605,7 @@ class GnssDecoder:
             time_valid=time_valid,
             fix_mode=mode,
             fix_ok=_flag(msg, "GPSfixOK", "gpsFixOk"),
+            leap_second=time_utc is not None and _ubx_leap(msg),
             lat_deg=lat,
             lon_deg=lon,
             height_hae_m=hae,
@@ -590,18 +620,24 @@ class GnssDecoder:
 
     # ---- NMEA
 
-    def _push_nmea(self, msg: Any) -> list[GnssItem]:
+    def _push_nmea(self, msg: Any, raw: bytes = b"") -> list[GnssItem]:
         if self._ubx_solutions:
             return []  # the same receiver also sends UBX solutions: those are the better copy
         kind = str(_attr(msg, "msgID", default=""))
         ident = str(_attr(msg, "talker", default="")) + kind
         items: list[GnssItem] = []
         tod = _attr(msg, "time")
-        if kind in _TIMED_SENTENCES and not isinstance(tod, dt.time):
-            self.rejected += 1  # a garbled time field: the sentence cannot be placed in an epoch
-            return items
+        key: float | None = None
         if isinstance(tod, dt.time):
             key = tod.hour * 3600 + tod.minute * 60 + tod.second + tod.microsecond / 1e6
+        elif kind in _TIMED_SENTENCES:
+            # 23:59:60 (a leap second) is the one time pynmeagps does not parse; its epoch is a fix like any other,
+            # keyed past 23:59:59 (86400 s and up), which dates it on the day it ends and orders it before 00:00:00.
+            key = _leap_time_of_day(raw, kind)
+            if key is None:
+                self.rejected += 1  # a garbled time field: the sentence cannot be placed in an epoch
+                return items
+        if key is not None:
             if self._nmea is None and key == self._nmea_done:
                 self._nmea_ender = ident  # the burst went on after where we thought it ended
                 return items
@@ -686,8 +722,10 @@ class GnssDecoder:
             status_ok = _attr(gll, "status") == "A"
         quality = _int(_attr(gga, "quality")) if gga is not None else None
         if gns is not None and quality is None:
+            # posMode has a character per constellation (GPS, GLONASS, Galileo, BeiDou, ...): a fix by any of them is
+            # a fix, not only one that GPS (the first character) takes part in ("NA": GLONASS alone).
             pos_mode = str(_attr(gns, "posMode", default=""))
-            quality = 0 if not pos_mode or pos_mode[0] == "N" else 1
+            quality = 0 if not pos_mode.strip("N") else 1
 
         lat = _num(_attr(pos, "lat"))
         lon = _num(_attr(pos, "lon"))
@@ -707,6 +745,10 @@ class GnssDecoder:
             msl = _num(_attr(src, "alt"))
             sep = _num(_attr(src, "sep"))
         hae = msl + sep if msl is not None and sep is not None else None
+        if mode == 3 and msl is None and hae is None:
+            # GSA says 3D, but no height reached us (the epoch's GGA lost to a bad checksum, or a receiver that sends
+            # RMC and GSA only): what we have is a position without a height, a 2D fix, and no height is made up.
+            mode = 2
 
         speed = course = None
         if rmc is not None:
@@ -732,6 +774,7 @@ class GnssDecoder:
 
         date = self._date_of(burst, tod_s)
         time_utc = None
+        leap = tod_s >= 86_400.0  # 23:59:60: POSIX gives it the Unix time of the 00:00:00 after it
         if date is not None:
             whole = int(tod_s)
             time_utc = (calendar.timegm(date.timetuple()) + whole) * NS_PER_S + round((tod_s - whole) * 1e9)
@@ -764,4 +807,5 @@ class GnssDecoder:
             pdop=_num(_attr(gsa, "PDOP")) if gsa is not None else None,
             hdop=hdop,
             vdop=_num(_attr(gsa, "VDOP")) if gsa is not None else None,
+            leap_second=leap and time_utc is not None,
         )

@@ -29,3 +29,6 @@ class FixEpoch:
     gnss_time_ns: int  # the epoch, Unix ns UTC (only solutions whose time is valid are epochs)
     itow_ms: int | None  # GPS time of week of the epoch, ms (UBX receivers): gives GPS-UTC with gnss_time_ns
     late_read: bool = False  # read together with a later second's messages: when it arrived is not known
+    # The epoch is 23:59:60 UTC, an inserted leap second: gnss_time_ns is POSIX's value for it (the 00:00:00 after
+    # it), and the clock learns from it that the next second repeats that Unix second.
+    leap_second: bool = False

@@ -220,8 +220,22 @@ def test_a_fix_without_vertical_velocity_or_any_optional_value_validates() -> No
                     height_hae_m=None, height_msl_m=None, vel_ned_mps=None, num_sv=None, pdop=None)
     record = location_fix(bare, 1_000)
     nullable = {k for k, v in TOPICS[GNSS_FIX].schema["properties"].items() if "null" in v["type"]}
-    assert {k for k, v in record.items() if v is None} == nullable  # every optional value of the topic is null here
+    # every optional value of the topic is null here, but the altitude of no position (0, as latitude and longitude)
+    # and the leap second flag (absent but on 23:59:60)
+    assert {k for k, v in record.items() if v is None} == nullable - {"altitude", "leap_second"}
+    assert "leap_second" not in record and record["altitude"] == 0.0
     validate(GNSS_FIX, record)
+
+
+@needs_jsonschema
+def test_a_position_without_a_height_records_none_and_validates() -> None:
+    """An NMEA epoch without GGA (RMC + GSA): 0 m recorded as its height was taken for one, 600 m off."""
+    record = location_fix(nmea_fix(fix_mode=2, height_hae_m=None, height_msl_m=None), 1_000)
+    assert (record["altitude"], record["height_msl_m"], record["fix_mode"]) == (None, None, 2)
+    validate(GNSS_FIX, record)
+    leap = location_fix(nmea_fix(leap_second=True), 1_000)
+    assert leap["leap_second"] is True
+    validate(GNSS_FIX, leap)
 
 
 @needs_jsonschema

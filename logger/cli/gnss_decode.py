@@ -87,18 +87,20 @@ def decode_pieces(pieces: Iterable[bytes]) -> DecodeResult:
     )
 
 
-def iso_time_ms(time_ns: int) -> str:
-    """Unix ns -> ISO-8601 UTC rounded to the millisecond, e.g. 2007-12-23T23:11:20.000Z."""
-    ms = (time_ns + NS_PER_MS // 2) // NS_PER_MS
+def iso_time_ms(time_ns: int, leap_second: bool = False) -> str:
+    """Unix ns -> ISO-8601 UTC rounded to the millisecond, e.g. 2007-12-23T23:11:20.000Z; ``leap_second``: the
+    epoch is 23:59:60 (whose Unix time is the following 00:00:00's), printed as the receiver named it."""
+    ms = (time_ns + NS_PER_MS // 2) // NS_PER_MS - (1000 if leap_second else 0)
     stamp = dt.datetime(1970, 1, 1, tzinfo=dt.UTC) + dt.timedelta(milliseconds=ms)
-    return stamp.strftime("%Y-%m-%dT%H:%M:%S.") + f"{ms % 1000:03d}Z"
+    text = stamp.strftime("%Y-%m-%dT%H:%M:%S.") + f"{ms % 1000:03d}Z"
+    return text[:17] + "60" + text[19:] if leap_second else text
 
 
 def fix_to_tpv(fix: GnssFix) -> dict[str, object]:
     """A fix as a gpsd-style TPV object: gpsd's key names where the meaning is the same."""
     tpv: dict[str, object] = {"class": "TPV", "source": fix.source}
     if fix.time_utc_ns is not None:
-        tpv["time"] = iso_time_ms(fix.time_utc_ns)
+        tpv["time"] = iso_time_ms(fix.time_utc_ns, fix.leap_second)
     tpv["mode"] = fix.fix_mode
     tpv["fixOk"] = fix.fix_ok
     tpv["timeValid"] = fix.time_valid
@@ -132,7 +134,7 @@ def fix_to_tpv(fix: GnssFix) -> dict[str, object]:
 
 def fix_to_text(fix: GnssFix) -> str:
     """One fixed-width line per fix for a person reading a terminal."""
-    when = iso_time_ms(fix.time_utc_ns) if fix.time_utc_ns is not None else "-" * 24
+    when = iso_time_ms(fix.time_utc_ns, fix.leap_second) if fix.time_utc_ns is not None else "-" * 24
     mode = {0: "?", 1: "NO", 2: "2D", 3: "3D"}.get(fix.fix_mode, "?")
     ok = "ok" if fix.fix_ok else "--"
     if fix.lat_deg is None or fix.lon_deg is None:

@@ -118,7 +118,9 @@ def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[
     sec_ns = fix.time_utc_ns if fix.time_utc_ns is not None else 0
     lat = fix.lat_deg if fix.lat_deg is not None else 0.0
     lon = fix.lon_deg if fix.lon_deg is not None else 0.0
-    alt = fix.height_hae_m if fix.height_hae_m is not None else 0.0
+    # A position without a height (an NMEA epoch whose GGA did not come) records no height: 0 m would be taken for
+    # one by whatever reads the record (the filter, the exports), 600 m off for a car at 600 m.
+    alt = fix.height_hae_m if fix.height_hae_m is not None else (0.0 if fix.lat_deg is None else None)
     cov_type = 0
     cov = [0.0] * 9
     if fix.h_acc_m is not None and fix.v_acc_m is not None:
@@ -138,6 +140,7 @@ def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[
         "vel_ned_mps": vel, "h_acc_m": fix.h_acc_m, "v_acc_m": fix.v_acc_m, "s_acc_mps": fix.s_acc_mps,
         "num_sv": fix.num_sv, "pdop": fix.pdop, "hdop": fix.hdop,
         "vdop": fix.vdop, "source": fix.source, "late_read": late_read,
+        **({"leap_second": True} if fix.leap_second else {}),
     }
 
 
@@ -190,7 +193,8 @@ def time_announcement(payload: dict[str, Any]) -> TimeAnnouncement | None:
 def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
     """A ``/gnss/fix`` record as the clock's input; None while the receiver's time is not valid."""
     t = payload.get("gnss_time_ns")
-    return None if t is None else FixEpoch(t, payload.get("itow_ms"), bool(payload.get("late_read")))
+    return None if t is None else FixEpoch(t, payload.get("itow_ms"), bool(payload.get("late_read")),
+                                           bool(payload.get("leap_second")))
 
 
 def clock_observer(clock: StampClock) -> dict[str, ClockInput]:

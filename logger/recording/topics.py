@@ -120,6 +120,8 @@ LOCATION_FIX_FIELDS: dict[str, Field] = {
 
 GNSS_FIX_FIELDS: dict[str, Field] = {
     **LOCATION_FIX_FIELDS,
+    "altitude": ("number?", "height above the WGS-84 ellipsoid, m; null for a position without a height (a 2D fix "
+                            "whose receiver sent none: NMEA RMC without GGA); 0 when there is no position either"),
     "gnss_time_ns": ("integer?", "the receiver's epoch time, Unix ns UTC, null while not valid"),
     "itow_ms": ("integer?", "GPS time of week of the epoch, ms (UBX receivers)"),
     "fix_mode": ("integer", "1 no fix, 2 2D, 3 3D, 0 a position without a mode (gpsd's convention)"),
@@ -137,6 +139,8 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     "vdop": ("number?", "vertical dilution of precision (UBX NAV-DOP, NMEA GSA, gpsd SKY)"),
     "source": ("string", "messages the fix was built from, e.g. NAV-PVT, NMEA, or gpsd (its TPV and SKY reports)"),
     "late_read": LATE_READ,
+    "leap_second": ("boolean?", "true for the epoch 23:59:60 UTC, an inserted leap second: gnss_time_ns and timestamp "
+                                "are then POSIX's Unix time for it, that of the 00:00:00 after it (absent otherwise)"),
 }
 
 TOPICS: dict[str, TopicSpec] = {}
