@@ -21,7 +21,7 @@ import calendar
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sensors.ublox_decode import GnssFix
@@ -127,15 +127,22 @@ def sky_used(sky: Mapping[str, Any] | None) -> int | None:
     return None
 
 
-def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -> GnssFix:
-    """One epoch's TPV (and SKY, when one came with it) as the fix the serial receiver would give.
+def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None, gst: Mapping[str, Any] | None = None,
+                 receiver_figures: bool = False) -> GnssFix:
+    """One epoch's TPV (and SKY and GST, when they came with it) as the fix the serial receiver would give.
 
     ``fix_mode`` is gpsd's ``mode`` (0 unknown, 1 no fix, 2 2D, 3 3D), and gpsd reports a position only
-    with a 2D or 3D fix, so that is also the fix's validity. Heights: ``altHAE``, else ``altMSL`` plus
-    ``geoidSep``; mean sea level from ``altMSL``, else the older ``alt``. Velocity: ``velN/E/D`` when gpsd has
-    them, else speed and track over ground with ``climb`` upwards (down velocity NaN when there is none, as
-    for NMEA). Accuracies: ``eph`` (else epx and epy combined), ``epv``, ``eps``, which gpsd passes through
-    from the receiver where it reports them (u-blox hAcc, vAcc, sAcc).
+    with a 2D or 3D fix, so that is also the fix's validity; a 3D fix without any height is a 2D one to us (no
+    height is made up). Heights: ``altHAE``, else ``altMSL`` plus ``geoidSep``; mean sea level from ``altMSL``,
+    else the older ``alt``. Velocity: ``velN/E/D`` when gpsd has them, else speed and track over ground with
+    ``climb`` upwards (down velocity NaN when there is none, as for NMEA).
+
+    Accuracies are the receiver's own 1-sigma figures or nothing, as on the serial path, because the filter weighs
+    a receiver's figures as they are and guesses by its own DOP model: a GST report's ``lat``, ``lon``, ``alt``
+    (the NMEA GST standard deviations, as the serial path takes them); else, with ``receiver_figures`` (gpsd's
+    u-blox driver, which passes hAcc, vAcc and sAcc on as ``eph``, ``epv``, ``eps``), those. Otherwise gpsd's
+    figures are its own DOP x UERE model at 95 % (17 m for HDOP 0.9 where the receiver said 2.5 m): guesses,
+    left out (None), so the filter's DOP model, which learns the receiver's scatter, takes the fix instead.
     """
     mode = integer(tpv.get("mode"))
     mode = mode if mode in (0, 1, 2, 3) else 0
@@ -152,6 +159,8 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -
         hae = msl + sep
     if msl is None and hae is not None and sep is not None:
         msl = hae - sep
+    if mode == 3 and hae is None and msl is None:
+        mode = 2  # gpsd's mode from the receiver's GSA, but no height came with it
     vel: tuple[float, float, float] | None = None
     vn, ve, vd = number(tpv.get("velN")), number(tpv.get("velE")), number(tpv.get("velD"))
     climb = number(tpv.get("climb"))
@@ -163,10 +172,12 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -
         if speed is not None:
             track = math.radians(number(tpv.get("track")) or 0.0)
             vel = (speed * math.cos(track), speed * math.sin(track), down)
-    h_acc = number(tpv.get("eph"))
-    epx, epy = number(tpv.get("epx")), number(tpv.get("epy"))
-    if h_acc is None and epx is not None and epy is not None:
-        h_acc = math.hypot(epx, epy)
+    h_acc = v_acc = s_acc = None
+    g_lat, g_lon = (number(gst.get("lat")), number(gst.get("lon"))) if gst is not None else (None, None)
+    if gst is not None and g_lat is not None and g_lon is not None:
+        h_acc, v_acc = math.hypot(g_lat, g_lon), number(gst.get("alt"))
+    elif receiver_figures:
+        h_acc, v_acc, s_acc = number(tpv.get("eph")), number(tpv.get("epv")), number(tpv.get("eps"))
     if not fixed:
         lat = lon = hae = msl = None
         vel = None
@@ -184,8 +195,8 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -
         height_msl_m=msl,
         vel_ned_mps=vel,
         h_acc_m=h_acc,
-        v_acc_m=number(tpv.get("epv")),
-        s_acc_mps=number(tpv.get("eps")),
+        v_acc_m=v_acc,
+        s_acc_mps=s_acc,
         num_sv=sky_used(sky),
         pdop=number(sky.get("pdop")) if sky is not None else None,
         hdop=number(sky.get("hdop")) if sky is not None else None,
@@ -195,12 +206,14 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None) -
 
 @dataclass
 class _Epoch:
-    """The objects of one epoch so far: TPVs merged field by field (later ones win), the SKY if any."""
+    """The objects of one epoch so far: TPVs merged field by field (later ones win), the SKY and GST if any."""
 
     key: int | None  # TPV time, Unix ns; None for a TPV without time (no fix, time not known yet)
     tpv: dict[str, Any] = field(default_factory=dict)
     sky: dict[str, Any] | None = None
     last_ns: int = 0  # arrival of its latest object
+    first_ns: int = 0  # arrival of its first TPV
+    gst: dict[str, Any] | None = None
 
 
 @dataclass
@@ -209,21 +222,43 @@ class EpochCounters:
 
     tpv: int = 0
     sky: int = 0
+    gst: int = 0
     epochs: int = 0
     late: int = 0  # TPVs of an epoch already reported
     stale_sky: int = 0  # SKYs with an older time than the epoch they went with
-    other: int = 0  # objects of other classes (VERSION, DEVICES, TOFF, PPS, GST, ATT, ...)
+    other: int = 0  # objects of other classes (VERSION, DEVICES, TOFF, PPS, ATT, ...)
+
+
+DAY_NS = 86_400 * NS_PER_S
+# gpsd (3.22) stamps a leap second, 23:59:60, with the Unix time of the 00:00:00 after it: two epochs, a second
+# apart, under one time. A TPV of a midnight second arriving this long after the first of that time is the second.
+LEAP_REPEAT_NS = 600_000_000
+UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
+
+
+def _midnight_second(key: int | None) -> bool:
+    """Whether a time falls in the first second of a UTC day, the second a leap second's repeat lands in."""
+    return key is not None and key % DAY_NS < NS_PER_S
 
 
 class GpsdEpochs:
-    """TPV and SKY objects -> one fix per epoch: ``push`` returns what an object completes, ``poll`` what the
-    settle time completes, ``flush`` the rest. Each fix comes with the arrival time of its epoch's last TPV."""
+    """TPV, SKY and GST objects -> one fix per epoch: ``push`` returns what an object completes, ``poll`` what the
+    settle time completes, ``flush`` the rest. Each fix comes with the arrival time of its epoch's last TPV.
+
+    DEVICE and DEVICES objects say which gpsd driver reads each receiver (whose accuracy figures are the
+    receiver's own only with the u-blox driver, :func:`fix_from_tpv`) and its cycle. TPVs without a time (gpsd
+    without a fix) carry nothing to tell epochs apart but their arrival: one record per cycle, as the serial path
+    records one per epoch, never one for a whole outage."""
 
     def __init__(self, settle_ns: int = 300_000_000) -> None:
         self.settle_ns = settle_ns
         self._open: _Epoch | None = None
         self._sky: tuple[int | None, dict[str, Any]] | None = None  # a SKY waiting for its TPV: (time, object)
+        self._gst: tuple[int | None, dict[str, Any]] | None = None  # a GST waiting for its TPV
         self._done: int | None = None  # time of the last epoch reported
+        self._done_first_ns = 0  # arrival of its first TPV
+        self._drivers: dict[str, str] = {}  # device path -> gpsd driver
+        self._cycles: dict[str, float] = {}  # device path -> the receiver's cycle, s
         self.counters = EpochCounters()
 
     def push(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
@@ -234,7 +269,17 @@ class GpsdEpochs:
         if kind == "SKY":
             self.counters.sky += 1
             return self._skyview(msg)
+        if kind == "GST":
+            self.counters.gst += 1
+            self._noise(msg)
+            return []
         self.counters.other += 1
+        if kind == "DEVICE":
+            self._device(msg)
+        elif kind == "DEVICES" and isinstance(msg.get("devices"), list):
+            for device in msg["devices"]:
+                if isinstance(device, Mapping):
+                    self._device(device)
         return []
 
     def poll(self, t_ns: int) -> list[tuple[GnssFix, int]]:
@@ -250,24 +295,66 @@ class GpsdEpochs:
     def flush(self) -> list[tuple[GnssFix, int]]:
         return self._finish()
 
+    def _device(self, device: Mapping[str, Any]) -> None:
+        path, driver, cycle = device.get("path"), device.get("driver"), number(device.get("cycle"))
+        if not isinstance(path, str):
+            return
+        if isinstance(driver, str) and driver:
+            self._drivers[path] = driver
+        if cycle is not None and cycle > 0:
+            self._cycles[path] = cycle
+
+    def _of_device(self, table: Mapping[str, Any], tpv: Mapping[str, Any]) -> Any:
+        """A TPV's device's entry: by its ``device``, else the one gpsd has when it has one (old or replayed logs)."""
+        device = tpv.get("device")
+        if isinstance(device, str) and device in table:
+            return table[device]
+        values = set(table.values())
+        return values.pop() if len(values) == 1 else None
+
+    def _untimed_ns(self, tpv: Mapping[str, Any]) -> int:
+        """How long TPVs without a time may still belong to one epoch: half the receiver's cycle, at most the
+        settle time (gpsd reports such a TPV per sentence, all within an epoch's burst)."""
+        cycle = self._of_device(self._cycles, tpv)
+        return self.settle_ns if cycle is None else min(self.settle_ns, round(cycle * NS_PER_S / 2))
+
     def _tpv(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
         key = parse_time_ns(msg.get("time"))
         out: list[tuple[GnssFix, int]] = []
-        if self._open is not None and self._open.key == key:
-            self._open.tpv.update(msg)
-            self._open.last_ns = t_ns
-            return out
-        if key is not None and self._done == key:
+        open_ = self._open
+        leap = False
+        if open_ is not None and open_.key == key:
+            if key is None and t_ns - open_.first_ns >= self._untimed_ns(msg):
+                pass  # another cycle's report without a time: an epoch of its own
+            elif _midnight_second(key) and t_ns - open_.first_ns >= LEAP_REPEAT_NS:
+                leap = True  # the open epoch was 23:59:60 under 00:00:00's time; this is 00:00:00
+            else:
+                open_.tpv.update(msg)
+                open_.last_ns = t_ns
+                return out
+        elif key is not None and self._done == key and not (
+                _midnight_second(key) and t_ns - self._done_first_ns >= LEAP_REPEAT_NS):
             self.counters.late += 1  # a TPV completing an epoch that was already reported
             return out
-        out += self._finish()
-        epoch = _Epoch(key, dict(msg), None, t_ns)
+        out += self._finish(leap_second=leap)
+        epoch = _Epoch(key, dict(msg), None, t_ns, t_ns)
         pending = self._sky
         if pending is not None and (pending[0] is None or key is None or pending[0] <= key):
             epoch.sky = pending[1]
         self._sky = None
+        if self._gst is not None and self._gst[0] == key:
+            epoch.gst = self._gst[1]
+        self._gst = None
         self._open = epoch
         return out
+
+    def _noise(self, msg: Mapping[str, Any]) -> None:
+        """A GST report (the receiver's NMEA GST): it goes with the epoch of its time, before or after its TPV."""
+        key = parse_time_ns(msg.get("time"))
+        if self._open is not None and key is not None and key == self._open.key:
+            self._open.gst = dict(msg)
+        else:
+            self._gst = (key, dict(msg))
 
     def _skyview(self, msg: Mapping[str, Any]) -> list[tuple[GnssFix, int]]:
         key = parse_time_ns(msg.get("time"))
@@ -289,10 +376,15 @@ class GpsdEpochs:
             self._sky = (key, dict(msg))
         return []
 
-    def _finish(self) -> list[tuple[GnssFix, int]]:
+    def _finish(self, leap_second: bool = False) -> list[tuple[GnssFix, int]]:
         epoch, self._open = self._open, None
         if epoch is None:
             return []
         self._done = epoch.key
+        self._done_first_ns = epoch.first_ns
         self.counters.epochs += 1
-        return [(fix_from_tpv(epoch.tpv, epoch.sky), epoch.last_ns)]
+        fix = fix_from_tpv(epoch.tpv, epoch.sky, epoch.gst,
+                           receiver_figures=self._of_device(self._drivers, epoch.tpv) == UBLOX_DRIVER)
+        if leap_second and fix.time_utc_ns is not None:
+            fix = replace(fix, leap_second=True)
+        return [(fix, epoch.last_ns)]

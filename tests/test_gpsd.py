@@ -56,6 +56,9 @@ T0 = 1_700_000_000 * NS  # 2023-11-14T22:13:20Z
 
 
 
+UBLOX_DEVICE = {"class": "DEVICE", "path": "/dev/ttyACM0", "driver": "u-blox", "cycle": 1.0}
+
+
 def iso(unix_ns: int) -> str:
     ms = unix_ns // 1_000_000
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(ms // 1000)) + f".{ms % 1000:03d}Z"
@@ -94,7 +97,8 @@ def test_gpsd_time_in_both_of_its_formats() -> None:
 
 def test_a_tpv_fills_the_fields_of_a_serial_fix() -> None:
     t = T0 + 7 * NS
-    fix = fix_from_tpv(tpv(t, eph=1.5, epv=2.5, eps=0.3, climb=0.5), sky(t, used=11))
+    # gpsd's u-blox driver passes the receiver's hAcc, vAcc and sAcc on as eph, epv and eps
+    fix = fix_from_tpv(tpv(t, eph=1.5, epv=2.5, eps=0.3, climb=0.5), sky(t, used=11), receiver_figures=True)
     assert (fix.source, fix.fix_mode, fix.fix_ok, fix.time_utc_ns, fix.time_valid) == ("gpsd", 3, True, t, True)
     assert (fix.lat_deg, fix.lon_deg, fix.height_hae_m, fix.height_msl_m) == (37.5, 127.0, 60.0, 35.0)
     assert fix.vel_ned_mps is not None
@@ -107,7 +111,8 @@ def test_a_tpv_fills_the_fields_of_a_serial_fix() -> None:
     fix = fix_from_tpv(tpv(t, velN=1.0, velE=2.0, velD=-0.25, altHAE=None, altMSL=None, alt=30.0, geoidSep=20.0,
                            epx=3.0, epy=4.0))
     assert fix.vel_ned_mps == (1.0, 2.0, -0.25) and fix.num_sv is None and fix.pdop is None and fix.hdop is None
-    assert (fix.height_msl_m, fix.height_hae_m, fix.h_acc_m) == (30.0, 50.0, 5.0)
+    # epx and epy are gpsd's DOP model at 95 %, with any driver: no accuracy of the receiver's
+    assert (fix.height_msl_m, fix.height_hae_m, fix.h_acc_m) == (30.0, 50.0, None)
     # no fix: gpsd's position (if any) is not one, and its time is not valid
     fix = fix_from_tpv(tpv(t, mode=1))
     assert (fix.fix_mode, fix.fix_ok, fix.time_valid, fix.lat_deg, fix.vel_ned_mps) == (1, False, False, None, None)
@@ -152,6 +157,7 @@ def test_watch_request_fits_gpsd_and_names_the_device_when_it_can() -> None:
 def test_one_fix_per_epoch_whatever_the_order_of_its_reports() -> None:
     e = GpsdEpochs(settle_ns=300_000_000)
     t1, t2, t3 = T0 + NS, T0 + 2 * NS, T0 + 3 * NS
+    e.push({"class": "DEVICES", "devices": [UBLOX_DEVICE]}, 0)
     out = e.push(sky(t1, used=7), 0)  # SKY first (u-blox binary)
     out += e.push(tpv(t1, lat=1.0), 10)
     out += e.push({"class": "TPV", "time": iso(t1), "mode": 3, "lat": 1.5, "eph": 2.0}, 20)  # completes the first
@@ -404,7 +410,7 @@ def replayed() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[str,
     for log in REPLAYED:
         lines = (DATA_DIR / (log + ".chk")).read_text(encoding="utf-8", errors="replace").splitlines()
         expected = merged_tpvs(lines)
-        with SimGpsd() as server:
+        with SimGpsd(devices=[UBLOX_DEVICE]) as server:  # gpsd names its driver in reply to ?WATCH
             src = GpsdSource(*server.address, None, host_timebase())
             src.open()
             try:

@@ -17,12 +17,14 @@ from logger.recording.records import location_fix, pps_record
 from logger.recording.topics import GNSS_FIX, PPS
 from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
-from sensors.errors import NoData
+from sensors.errors import BusError, NoData
 from sensors.gpsd import GpsdClient
 from sensors.gpsd_decode import GpsdEpochs, pps_report
 from sync.realtime import RealtimeMap
 
 NS = 1_000_000_000
+DAY_S = 86_400
+LEAP_EDGE_GAP_NS = 500_000_000  # a midnight second's repeat this long after its first edge is the next edge
 READ_WAIT_S = 0.2  # longest wait for gpsd per read, host seconds: the thread's heartbeat and stop latency
 SETTLE_S = 0.3  # an epoch is complete when its reports stopped coming for this long (drive time)
 QUIET_S = 3.0  # this long without a record, gpsd's own word on a missing receiver becomes the sensor's state
@@ -89,25 +91,43 @@ class GpsdSource(_GpsdConnection):
         super().__init__(host, port, device, tb)
         self.settle_ns = round(settle_s * NS)
         self.epochs: Any = None
+        # Epochs still being collected when the connection ended (gpsd restarted, the socket closed): complete as
+        # far as gpsd got, so they are recorded with the next read instead of lost with the old assembler.
+        self._carried: list[Reading] = []
 
     def open(self) -> None:
         self._connect()
         self.epochs = GpsdEpochs(self.settle_ns)
 
     def read(self) -> list[Reading]:
-        wait_s = READ_WAIT_S
+        carried, self._carried = self._carried, []
+        wait_s = 0.0 if carried else READ_WAIT_S
         due = self.epochs.due_ns()
         if due is not None:  # wake up when the open epoch is due, not a whole wait later
             wait_s = min(wait_s, max(0.0, (due - self.tb.monotonic_ns()) / NS / self.tb.scale))
-        messages = self.client.read(wait_s)
+        try:
+            messages = self.client.read(wait_s)
+        except BusError:
+            self._carried = carried  # close() adds the open epoch; the next connection's first read records them
+            raise
         t = self.tb.monotonic_ns()
         done = []
         for msg in messages:
             done += self.epochs.push(msg, t)
         done += self.epochs.poll(t)
-        out = [Reading(GNSS_FIX, location_fix(fix, t_fix), t_fix) for fix, t_fix in done]
+        out = carried + self._readings(done)
         self._quiet(t, bool(out))
         return out
+
+    def close(self) -> None:
+        if self.epochs is not None:
+            self._carried += self._readings(self.epochs.flush())
+            self.epochs = None
+        super().close()
+
+    @staticmethod
+    def _readings(done: list[tuple[Any, int]]) -> list[Reading]:
+        return [Reading(GNSS_FIX, location_fix(fix, t_fix), t_fix) for fix, t_fix in done]
 
 
 class GpsdPpsSource(_GpsdConnection):
@@ -128,6 +148,7 @@ class GpsdPpsSource(_GpsdConnection):
         self.map: Any = None
         self._seqno = 0  # across reconnects, like a kernel line's sequence number
         self._last_second: int | None = None
+        self._last_mono: int | None = None  # the last edge recorded, monotonic ns
 
     def open(self) -> None:
         self._connect()
@@ -143,11 +164,20 @@ class GpsdPpsSource(_GpsdConnection):
             if rep is None:
                 continue
             second = rep.real_ns // NS
-            if self._last_second is not None and second <= self._last_second:
+            repeat = self._last_second is not None and second == self._last_second
+            if self._last_second is not None and second < self._last_second:
                 continue  # a second already reported
+            if repeat and second % DAY_S:
+                continue  # the same edge reported again
             mono = self.map.to_monotonic(rep.clock_ns)
             if mono is None:
                 continue  # counted by the map; a step shows as this sensor's incident
+            if repeat and (self._last_mono is None or mono - self._last_mono < LEAP_EDGE_GAP_NS):
+                continue  # the same edge again, not the next second's
+            # A midnight second reported again for an edge a second later is a leap second: gpsd names 23:59:60 and
+            # the 00:00:00 after it by one Unix second (POSIX). Both edges go to the clock, which knows the second
+            # from the first (its prediction) and takes the repeat for what it is (sync.pairing).
+            self._last_mono = mono
             lost = second - self._last_second - 1 if self._last_second is not None else 0
             self._last_second = second
             out.append(Reading(PPS, pps_record(self._seqno, lost if 0 < lost <= 3600 else 0, rep.edge_gnss_ns),
