@@ -75,6 +75,9 @@ class PpsClock(StampClock):
         mono = monotonic_ns()
         self._freerun_offset_ns = wall_ns() - mono
         self.labeller = EdgeLabeller(self.s.pps_latency_ns)
+        # Leap seconds: the fit runs in the labeller's continuous scale; a stamp becomes Unix time on the way out.
+        self.labeller.now_ns = monotonic_ns
+        self.labeller.slew_ppm = self.s.max_slew_ppm
         self.paper = PaperCounters(self.s.imu_rate_hz)
         self.tempco = TempcoEstimator()
         self.state_path = state_path
@@ -154,23 +157,25 @@ class PpsClock(StampClock):
         with self._lock:
             label = self.labeller.timepulse_unix_ns(announcement)
             if label is not None:
-                self._check_read_after(label - ANNOUNCEMENT_LEAD_NS, t_mono_ns, "time pulse announcement", label)
+                self._check_read_after(self.labeller.to_cont(label) - ANNOUNCEMENT_LEAD_NS, t_mono_ns,
+                                       "time pulse announcement", label)
             self._take(self.labeller.on_timepulse(announcement, t_mono_ns, self._predict_unix_ns))
 
     def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:
         """A navigation solution for a valid GNSS second arrived (at ``t_mono_ns``, after that second's pulse)."""
         with self._lock:
-            self._check_read_after(epoch.gnss_time_ns, t_mono_ns, "fix", epoch.gnss_time_ns)
+            self._check_read_after(self.labeller.to_cont(epoch.gnss_time_ns, epoch.leap_second), t_mono_ns, "fix",
+                                   epoch.gnss_time_ns)
             self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
 
-    def _check_read_after(self, earliest_unix_ns: int, t_mono_ns: int, what: str, epoch_unix_ns: int) -> None:
+    def _check_read_after(self, earliest_ns: int, t_mono_ns: int, what: str, epoch_unix_ns: int) -> None:
         """A message cannot be read before the GNSS time it could first be sent: when this clock says it was,
         the edges were paired with the wrong seconds (a host that read every message late as the chain began,
         then caught up). Every sample is as wrong as the stamps since: drop them and pair again, freerunning."""
         if self._fit is None or self._state_at(t_mono_ns) == FREERUN:
             return
-        now_unix = t_mono_ns + self._offset_at(t_mono_ns)
-        early_ns = earliest_unix_ns - now_unix
+        now = t_mono_ns + self._offset_at(t_mono_ns)  # both in the labeller's continuous scale
+        early_ns = earliest_ns - now
         if early_ns <= READ_BEFORE_EPOCH_MARGIN_NS:
             return
         self.counts["mislabels"] += 1
@@ -269,7 +274,7 @@ class PpsClock(StampClock):
             self._unconfirmed_ns = 0.0
         self._consecutive += 1
         if self.on_sample is not None and self._locked_once:
-            self.on_sample(true_board_ns, label_ns)
+            self.on_sample(true_board_ns, self.labeller.to_unix_plain(label_ns))
         if not self._locked_once and len(self._edges) >= self.s.lock_samples and self._agrees_with_wall(edge_ns):
             self._locked_once = True
             if not self._restored:
@@ -517,8 +522,9 @@ class PpsClock(StampClock):
                 err = err + self._unconfirmed_ns
                 if self._miss_ns or self._miss_growth:
                     err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * (t - last))
-                return Stamps((t + np.rint(off).astype(np.int64)).tolist(), [LOCKED] * len(t),
-                              np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(),
+                unix, leap_err = self.labeller.publish_many(t + np.rint(off).astype(np.int64))
+                return Stamps(unix.tolist(), [LOCKED] * len(t),
+                              np.maximum(1, np.rint(err + leap_err)).astype(np.int64).tolist(), imu_cnt.tolist(),
                               timer_cnt.tolist())
             # _state_at, per sample
             fresh = (t - last) <= self.s.holdover_after_s * NS if last is not None else np.zeros(len(t), bool)
@@ -543,8 +549,9 @@ class PpsClock(StampClock):
                 err = np.where(left > 0, err + abs(self._slew_ns) * part, err)
             states = ([LOCKED] * len(t) if locked.all() else
                       [HOLDOVER] * len(t) if not locked.any() else [LOCKED if k else HOLDOVER for k in locked.tolist()])
-            return Stamps((t + np.rint(off).astype(np.int64)).tolist(), states,
-                          np.maximum(1, np.rint(err)).astype(np.int64).tolist(), imu_cnt.tolist(), timer_cnt.tolist())
+            unix, leap_err = self.labeller.publish_many(t + np.rint(off).astype(np.int64))
+            return Stamps(unix.tolist(), states, np.maximum(1, np.rint(err + leap_err)).astype(np.int64).tolist(),
+                          imu_cnt.tolist(), timer_cnt.tolist())
 
     def _stamp(self, t_mono_ns: int) -> Stamp:
         imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
@@ -552,8 +559,8 @@ class PpsClock(StampClock):
         if state == FREERUN or self._fit is None:
             return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self._freerun_err_ns, imu_cnt, timer_cnt)
         off = self._offset_at(t_mono_ns)
-        return Stamp(t_mono_ns + round(off), state, max(1, round(self._err_at(t_mono_ns, state))), imu_cnt,
-                     timer_cnt)
+        unix, leap_err = self.labeller.publish(t_mono_ns + round(off))
+        return Stamp(unix, state, max(1, round(self._err_at(t_mono_ns, state) + leap_err)), imu_cnt, timer_cnt)
 
     # ---- reporting and persistence ----------------------------------------------------------------------------
     def report(self, now_ns: int | None = None) -> TrackingReport:
@@ -601,7 +608,9 @@ class PpsClock(StampClock):
                 return
             ref = self._last_sample_ns
             state = {
-                "clock_id": self.clock_id, "ref_mono_ns": ref, "ref_offset_ns": round(self._offset_at(ref)),
+                # Unix time, as a later run (which knows of no leap yet) takes it
+                "clock_id": self.clock_id, "ref_mono_ns": ref,
+                "ref_offset_ns": self.labeller.to_unix_plain(ref + round(self._offset_at(ref))) - ref,
                 # The fit's own frequency, at the temperature it was fitted at (temp_degc): a restart on this boot
                 # corrects it for the temperature since, as this run does. The current slope, corrected already,
                 # was corrected twice (10-21 ms off after a warming 10 degC in holdover, just over the bound).
