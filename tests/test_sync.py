@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -643,3 +644,79 @@ def test_a_fifo_reads_stamps_at_once_are_the_stamps_of_each_sample(seed: int) ->
     empty = clock.stamp_many([])  # a read that brought nothing: nothing stamped, in any state
     assert empty.t_sync_ns == empty.state == empty.err_ns == empty.imu_cnt == empty.timer_cnt == []
     assert clock.report().relocks == 1
+
+
+# ---- leap seconds -----------------------------------------------------------------------------------------------
+# A positive leap second, 2016-12-31 23:59:60 UTC. The board's clock is true SI time; an edge every SI second, the
+# fix of its second 150 ms after it. Edge k is the k-th second after T0 = 23:59:00; k = 60 is 23:59:60. Published
+# stamps are Unix time: POSIX's for the leap second (23:59:60.x is 00:00:00.x's Unix time), then the second the
+# Unix scale lost is slewed out at max_slew_ppm, the part left in the bound.
+LEAP_T0 = 1_483_228_740  # 2016-12-31T23:59:00Z
+LEAP_MIDNIGHT_NS = (LEAP_T0 + 60) * NS
+
+
+def posix_truth_ns(k: int, frac_ns: int) -> int:
+    """The POSIX Unix time frac_ns into the k-th second after LEAP_T0: 23:59:60 repeats the 00:00:00 after it."""
+    return (LEAP_T0 + (k if k <= 60 else k - 1)) * NS + frac_ns
+
+
+def leap_run(mode: str, seconds: int, check: list[int]) -> tuple[PpsClock, list[tuple[int, int, object]]]:
+    """``mode``: "flagged" (the decoders: 23:59:60 is a fix with leap_second), "dropped" (a receiver that skips
+    23:59:60: no fix for its edge) or "gpsd" (gpsd's PPS reports, which name 23:59:60 and 00:00:00 by one second)."""
+    from sync.inputs import FixEpoch
+    mono0 = 1000 * NS
+    now = [mono0]
+    clk = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: now[0] - mono0 + LEAP_T0 * NS)
+    stamps: list[tuple[int, int, object]] = []  # (k, true POSIX time, stamp)
+    for k in range(seconds):
+        edge = mono0 + k * NS + 7_000
+        now[0] = edge
+        label = posix_truth_ns(k, 0)
+        if mode == "gpsd":
+            clk.on_edge(edge, label)
+        else:
+            clk.on_edge(edge)
+            now[0] = edge + 150_000_000
+            if not (mode == "dropped" and k == 60):
+                clk.on_fix_epoch(FixEpoch(label, None, False, k == 60), now[0])
+        if k in check:
+            for frac in (100_000_000, 500_000_000, 900_000_000):
+                now[0] = max(now[0], mono0 + k * NS + frac)
+                stamps.append((k, posix_truth_ns(k, frac), clk.stamp(mono0 + k * NS + frac)))
+    return clk, stamps
+
+
+@pytest.mark.parametrize("mode", ["flagged", "dropped", "gpsd"])
+def test_a_leap_second_is_never_a_second_off_behind_a_small_bound_and_the_clock_relocks(mode: str) -> None:
+    clk, stamps = leap_run(mode, 2300, check=[*range(40, 130), 1000, 2099, 2101, 2299])
+    for k, truth, stamp in stamps:
+        assert abs(stamp.t_sync_ns - truth) <= stamp.err_ns, (mode, k, stamp)
+    published = [stamp.t_sync_ns for _, _, stamp in stamps]
+    assert all(b > a for a, b in itertools.pairwise(published))  # never steps back
+    last = {k: stamp for k, _, stamp in stamps}  # the stamp 0.9 s into each second
+    assert last[69].state == "locked" and last[129].state == "locked"  # relocked (was holdover for good)
+    assert last[129].err_ns > 900_000_000  # the second is slewed out over 2000 s, the rest in the bound
+    assert last[2299].state == "locked" and last[2299].err_ns < 50_000  # slewed out: microseconds again
+    assert abs(last[2299].t_sync_ns - posix_truth_ns(2299, 900_000_000)) < 20_000
+    assert clk.counts["rejected"] <= 2 and len(clk.labeller.leaps) == 1
+    if mode == "flagged":  # known before it ended: no edge refused, no bound but the slew's
+        assert clk.counts["rejected"] == 0
+        assert all(stamp.err_ns < 50_000 for k, _, stamp in stamps if k == 60)  # 23:59:60 itself: POSIX's time, exact
+
+
+def test_a_month_end_without_a_leap_second_stays_exact() -> None:
+    from sync.inputs import FixEpoch
+    mono0 = 1000 * NS
+    now = [mono0]
+    clk = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: now[0] - mono0 + LEAP_T0 * NS)
+    for k in range(120):  # no leap: 00:00:00 follows 23:59:59
+        edge = mono0 + k * NS + 7_000
+        now[0] = edge
+        clk.on_edge(edge)
+        now[0] = edge + 150_000_000
+        clk.on_fix_epoch(FixEpoch((LEAP_T0 + k) * NS, None), now[0])
+        stamp = clk.stamp(mono0 + k * NS + 500_000_000)
+        if k >= 20:
+            assert stamp.state == "locked" and abs(stamp.t_sync_ns - ((LEAP_T0 + k) * NS + 500_000_000)) < 20_000
+            assert stamp.err_ns < 50_000
+    assert clk.labeller.leaps == [] and clk.counts["rejected"] == 0
