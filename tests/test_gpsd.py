@@ -40,7 +40,7 @@ from logger.runtime.gpsd_sources import GpsdPpsSource, GpsdSource
 from logger.runtime.sampler import Reading, Sampler, wait_until
 from logger.runtime.status_socket import fetch
 from logger.runtime.timebase import TimeBase, host_timebase
-from sensors.errors import DeviceNotFound, NoData
+from sensors.errors import DeviceNotFound, NoData, SensorError
 from sensors.gpsd import MAX_LINE_BYTES, GpsdClient, LineSplitter, watch_command
 from sensors.gpsd_decode import GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
 from sensors.sim.clock import ManualClock
@@ -611,3 +611,95 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
         (m0, t0), (m1, t1) = clock[i - 1], clock[i]
         errors.append(abs(m["t_sync_ns"] - (t0 + (t1 - t0) * (m["t_mono_ns"] - m0) / (m1 - m0))))
     assert len(errors) > 500 and max(errors) < 20_000, (len(errors), max(errors))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What a review found (an NMEA receiver through gpsd 3.22; captures and outputs in tests/data/gnss-review)
+
+NMEA_DEVICE = {"class": "DEVICE", "path": "/dev/ttyACM0", "driver": "NMEA0183", "cycle": 1.0}
+
+
+def gst(t_ns: int, **fields: Any) -> dict[str, Any]:
+    obj: dict[str, Any] = {"class": "GST", "device": "/dev/ttyACM0", "time": iso(t_ns), "rms": 1.2, "major": 2.1,
+                           "minor": 1.4, "orient": 30.0, "lat": 1.5, "lon": 2.0, "alt": 3.0}
+    obj.update(fields)
+    return obj
+
+
+def test_accuracies_are_the_receivers_1_sigma_or_none_never_gpsds_95_percent_guess() -> None:
+    # gpsd 3.22's TPVs of an NMEA receiver with GST sigmas 1.5 / 2.0 / 3.0 m: eph 17.1 and epv 27.6 (its DOP model)
+    t = T0 + 5 * NS
+    e = GpsdEpochs()
+    e.push({"class": "DEVICES", "devices": [NMEA_DEVICE]}, 0)
+    out = e.push(tpv(t, eph=17.1, epv=27.6, epx=8.0, epy=9.0, eps=0.8), 10) + e.push(gst(t), 20)
+    out += e.push(tpv(t, eph=17.1, epv=27.6), 30) + e.flush()
+    (fix, _), = out
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps) == (2.5, 3.0, None)  # GST, as the serial path takes it
+    assert e.counters.gst == 1
+    # no GST: gpsd's figures are guesses, left to the filter's DOP model (the SKY's DOPs stay)
+    (fix, _), = e.push(tpv(t + NS, eph=17.1, epv=27.6, eps=0.8), 40) + e.push(sky(t + NS), 50) + e.flush()
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps, fix.hdop) == (None, None, None, 0.9)
+    # a GST before its TPV goes with it too
+    (fix, _), = e.push(gst(t + 2 * NS, lat=0.3, lon=0.4, alt=0.9), 60) + e.push(tpv(t + 2 * NS), 70) + e.flush()
+    assert (fix.h_acc_m, fix.v_acc_m) == (0.5, 0.9)
+    # gpsd's u-blox driver: eph, epv, eps are the receiver's hAcc, vAcc, sAcc
+    u = GpsdEpochs()
+    u.push(UBLOX_DEVICE, 0)
+    (fix, _), = u.push(tpv(t, eph=1.1, epv=1.9, eps=0.2), 10) + u.flush()
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps) == (1.1, 1.9, 0.2)
+
+
+def test_gpsds_leap_second_tpv_stamped_midnight_is_an_epoch_of_its_own() -> None:
+    # gpsd 3.22 (tests/data/gnss-review/leap.nmea through gpsfake): 23:59:59, then 23:59:60 and 00:00:00 both
+    # stamped 2026-01-01T00:00:00.000Z a second apart
+    midnight = calendar.timegm((2026, 1, 1, 0, 0, 0)) * NS
+    for poll in (False, True):  # the second midnight TPV while the first epoch is open, or after it was reported
+        e = GpsdEpochs()
+        out = e.push(tpv(midnight - NS, lat=48.11749), 0)
+        out += e.push(tpv(midnight, lat=48.1175), NS)
+        if poll:
+            out += e.poll(NS + 400_000_000)
+        out += e.push(tpv(midnight, lat=48.11751), 2 * NS) + e.push(tpv(midnight + NS, lat=48.11752), 3 * NS)
+        out += e.flush()
+        assert [(f.time_utc_ns - midnight, f.lat_deg) for f, _ in out] == [
+            (-NS, 48.11749), (0, 48.1175), (0, 48.11751), (NS, 48.11752)], poll
+        assert [f.leap_second for f, _ in out] == [False, not poll, False, False]
+    # a TPV of a midnight completing its epoch (within the burst) is no second epoch
+    e = GpsdEpochs()
+    out = e.push(tpv(midnight), 0) + e.push(tpv(midnight, epv=3.0), 200_000_000) + e.flush()
+    assert len(out) == 1
+
+
+def test_no_fix_tpvs_without_time_are_one_record_per_cycle() -> None:
+    # gpsd reports no fix as mode-1 TPVs without a time; at 5 Hz they came closer than the settle time and a whole
+    # outage was one record
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 0.2}, 0)
+    out = []
+    for k in range(50):
+        out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, k * NS // 5)
+        out += e.poll(k * NS // 5 + NS // 10)
+    out += e.push(tpv(T0 + 10 * NS), 10 * NS) + e.flush()
+    assert [f.fix_mode for f, _ in out] == [1] * 50 + [3]
+
+
+def test_the_epoch_open_when_gpsd_closes_the_socket_is_recorded() -> None:
+    server = SimGpsd(devices=[UBLOX_DEVICE]).start()
+    src = GpsdSource(*server.address, None, host_timebase(), settle_s=5.0)  # nothing completes by settling
+    try:
+        src.open()
+        assert server.wait_for_watchers()
+        server.publish(tpv(T0 + NS))
+        server.publish(tpv(T0 + 2 * NS))  # completes the first; the second stays open
+        got = read_until(src.read, lambda o: len(o) >= 1)
+        server.stop()  # gpsd restarted: the socket closes with the epoch of T0 + 2 s still open
+        with pytest.raises(SensorError):
+            read_until(src.read, lambda o: False, timeout_s=5.0)
+        src.close()
+        server.start()
+        src.open()
+        got += read_until(src.read, lambda o: len(o) >= 1)
+    finally:
+        src.close()
+        server.stop()
+    assert [r.payload["gnss_time_ns"] for r in got] == [T0 + NS, T0 + 2 * NS]
