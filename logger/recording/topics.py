@@ -130,8 +130,9 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     "height_msl_m": ("number?", "height above mean sea level, m"),
     "vel_ned_mps": ("number?[3]?", "velocity north, east, down, m/s; null when the receiver gives none, down null "
                                    "when it gives only speed and course (NMEA, HNR-PVT, gpsd without climb)"),
-    "h_acc_m": ("number?", "horizontal accuracy estimate, m"),
-    "v_acc_m": ("number?", "vertical accuracy estimate, m"),
+    "h_acc_m": ("number?", "the receiver's horizontal accuracy estimate (1 sigma), m; null where only a guess exists "
+                           "(gpsd's DOP model for an NMEA receiver without GST)"),
+    "v_acc_m": ("number?", "the receiver's vertical accuracy estimate (1 sigma), m; null likewise"),
     "s_acc_mps": ("number?", "speed accuracy estimate, m/s"),
     "num_sv": ("integer?", "satellites used in the solution"),
     "pdop": ("number?", "position dilution of precision"),
