@@ -159,8 +159,8 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None, g
         hae = msl + sep
     if msl is None and hae is not None and sep is not None:
         msl = hae - sep
-    if mode == 3 and hae is None and msl is None:
-        mode = 2  # gpsd's mode from the receiver's GSA, but no height came with it
+    if mode == 3 and hae is None and msl is None and lat is not None:
+        mode = 2  # a position, but no height came with it (gpsd's mode is the receiver's GSA)
     vel: tuple[float, float, float] | None = None
     vn, ve, vd = number(tpv.get("velN")), number(tpv.get("velE")), number(tpv.get("velD"))
     climb = number(tpv.get("climb"))

@@ -745,7 +745,7 @@ class GnssDecoder:
             msl = _num(_attr(src, "alt"))
             sep = _num(_attr(src, "sep"))
         hae = msl + sep if msl is not None and sep is not None else None
-        if mode == 3 and msl is None and hae is None:
+        if mode == 3 and msl is None and hae is None and lat is not None:
             # GSA says 3D, but no height reached us (the epoch's GGA lost to a bad checksum, or a receiver that sends
             # RMC and GSA only): what we have is a position without a height, a 2D fix, and no height is made up.
             mode = 2
