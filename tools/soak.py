@@ -310,9 +310,14 @@ def sample_loop(daemon: Any, journal: Journal, every_real_s: float) -> None:
     """RSS, threads and counters: once the daemon is ready (a short worker still gets one), then periodically."""
     daemon.ready.wait(120)
     while not daemon.stop_event.is_set():
+        threads = sorted(t.name for t in threading.enumerate() if t.is_alive())
         snap = daemon.snapshot()
+        if daemon.stop_event.is_set():
+            # The stop came while this sample was taken: its threads may be the stopping ones (the service loop
+            # ends at once), which read as a thread missing at the end. The sample before is the last.
+            return
         journal.write(ev="sample", host_ns=time.monotonic_ns(), drive_ns=int(daemon.tb.monotonic_ns()),
-                      rss_kb=resident.rss_kb(), threads=sorted(t.name for t in threading.enumerate() if t.is_alive()),
+                      rss_kb=resident.rss_kb(), threads=threads,
                       stale=daemon.stale_threads(), verdict=snap["verdict"], problems=snap["problems"],
                       recorder=snap["recorder"]["state"], queue=snap["recorder"]["queue_depth"],
                       sensors={s["name"]: {k: s[k] for k in ("state", "samples", "errors", "late", "missed", "gaps")}

@@ -323,7 +323,7 @@ def _walk_mapped(buf: mmap.mmap, found: Salvage, cancel: Callable[[], bool] | No
                 found.stopped_at = found.stopped_at or f"cut at byte {size}, after the data"
                 found.losses.append(Loss(size, cut=True, reason="after the data"))
             return
-    if pos < size and not found.stopped_at:
+    if not found.stopped_at:  # no DataEnd, no footer: cut, even exactly at a record's end (pos == size)
         found.stopped_at = f"cut at byte {size}"
         found.losses.append(Loss(pos, cut=True))
 
