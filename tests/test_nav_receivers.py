@@ -395,7 +395,7 @@ def test_real_receivers_nmea_reaches_the_filter_as_a_horizontal_velocity_with_fi
                 assert p is None
                 continue
             assert p is not None and math.isfinite(p.sigma[0]) and 0.0 < p.h_acc < 100.0, (log, fix)
-            assert p.fix_3d == (fix.fix_mode == 3)  # a 2D fix's height (recorded as 0 without one) is not used
+            assert p.fix_3d == (fix.fix_mode == 3)  # a 2D fix goes in horizontally (its height, if any, unused)
             prepared += 1
             sources[p.figures.source] = sources.get(p.figures.source, 0) + 1
             if p.vel is not None:

@@ -99,13 +99,19 @@ class GnssPolicy:
         # a receiver's sure ones only): what the canyon hold is measured from.
         self._height_in_ns: int | None = None
         self._usual_v = UsualFigure()  # the receiver's usual vertical figure, which a canyon's is measured against
+        self._last_height: float | None = None  # the last 3D fix's height, a 2D fix's stand-in for its offsets
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
-        if (not msg.fix_ok or (msg.fix_mode or 1) < 2 or msg.lat_deg is None or msg.lon_deg is None
-                or msg.height_m is None):
+        fix_3d = (msg.fix_mode or 0) >= 3 and msg.height_m is not None
+        if not msg.fix_ok or (msg.fix_mode or 1) < 2 or msg.lat_deg is None or msg.lon_deg is None:
             counters.gnss_no_fix += 1
             return None
+        # A 2D fix (a held height, or none recorded: an epoch without GGA) goes in horizontally; its height is only
+        # the radius of the north/east offsets, for which the last 3D fix's (or 0 m, a few ppm of it) does.
+        height = msg.height_m if fix_3d else (self._last_height if self._last_height is not None else 0.0)
+        if fix_3d:
+            self._last_height = msg.height_m
         counters.gnss_fixes += 1
         p = self.params
         t_sync = msg.t_sync_ns
@@ -131,10 +137,9 @@ class GnssPolicy:
             if moving is not None:
                 d = tu * float(np.hypot(moving[0], moving[1]))
                 sig_h, sig_v = math.hypot(sig_h, d), math.hypot(sig_v, tu * abs(float(moving[2])))
-        fix_3d = (msg.fix_mode or 0) >= 3
         usual_v = self._usual_v.add(t_e, fig.v_model)
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
-                           math.radians(msg.lon_deg), msg.height_m, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
+                           math.radians(msg.lon_deg), height, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
                            fix_3d, fig, fig.v_model / usual_v if usual_v > 0.0 else 1.0)
 
     def update(self, core: FilterCore, fix: PreparedFix, num_sv: int | None, gyro_raw: np.ndarray,
