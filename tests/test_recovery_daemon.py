@@ -21,6 +21,7 @@ from test_notify import FakeSystemd, TickSource, make_daemon, wait_until
 from test_recovery_memory import cut_file
 
 import logger.runtime.daemon as daemon_module
+from logger.cli.status_view import render
 from logger.recording.files import RecoveryCancelled, is_finished
 from logger.runtime.daemon import recover_file
 from logger.runtime.status_socket import fetch
@@ -72,7 +73,9 @@ def test_the_daemon_records_and_answers_while_it_recovers_a_cut_file(
         ready_at = time.monotonic()
         assert not gated.gate.is_set() and gated.asked == [cut]  # the recorder's new file is never recovered
         snap = fetch(tmp_path / "status.sock")  # answers: not "not running"
-        assert any(p.startswith(f"recovery: recovering {cut.name} (") for p in snap["problems"]), snap["problems"]
+        assert snap["recorder"]["recovering"].startswith(f"{cut.name} ("), snap["recorder"]
+        assert not any("recover" in p for p in snap["problems"]), snap["problems"]  # no problem of this run's
+        assert f"recovering {cut.name} (" in render(snap)
         assert snap["recorder"]["state"] == "recording" and Path(snap["recorder"]["file"]) != cut
         assert not list(drives.glob("*.recovering")), "the stale copy was not removed before recovering"
         wait_until(lambda: fake.pings_between(ready_at, time.monotonic()) >= 5, "pings during the recovery")

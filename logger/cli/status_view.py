@@ -227,6 +227,8 @@ def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
                if on_disk and snap.get("t_mono_ns") else "")
     sc.add(DETAIL, f"        {sum((rec.get('written') or {}).values())} on disk, {dropped} dropped, "
                    f"queue {rec.get('queue_depth', 0)}/{rec.get('queue_size', 0)}{at_risk}")
+    if rec.get("recovering"):
+        sc.add(LINE, f"        recovering {rec['recovering']}")
     down = rec.get("down_s") or 0.0
     unrecorded = sum((rec.get("unrecorded") or {}).values())
     lost = sum((rec.get("lost") or {}).values())

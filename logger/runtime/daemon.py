@@ -390,11 +390,12 @@ class Daemon:
         recent = dropped - self._drop_history[0][1]
         if recent:
             problems.append(f"recorder: {recent} records dropped in the last minute (queue full: writer too slow)")
+        verdict = "critical" if critical else ("degraded" if problems else "ok")
         recovering = self._recovering
         if recovering is not None:
-            problems.append(f"recovery: recovering {recovering[0]} ({recovering[1] / 1e6:.0f} MB), cut short by the "
-                            "last run; recording goes on")
-        verdict = "critical" if critical else ("degraded" if problems else "ok")
+            # Shown, not a problem: the last run's cut file is being made whole while this run records as it should
+            # (as a problem it made `logger status` say degraded, exit 1, for the minutes a board's recovery takes).
+            rec_section["recovering"] = f"{recovering[0]} ({recovering[1] / 1e6:.0f} MB), cut short by the last run"
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
