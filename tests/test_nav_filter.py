@@ -590,16 +590,22 @@ def test_levelling_widens_the_accelerometer_prior_by_what_gravity_says():
 
 
 def test_a_fix_record_without_a_position_is_no_fix() -> None:
-    """Whatever its flags say, a solution without latitude, longitude or height is not a fix: counted, not used."""
+    """Whatever its flags say, a solution without latitude or longitude is not a fix: counted, not used. One
+    without a height (an epoch whose GGA never came: the record's altitude null) is a 2D fix: its position goes in
+    horizontally, and a GNSS-only row holds the last 3D fix's height, not 0 m."""
     engine = NavEngine(NavParams(mode="gnss"), record=True)
     full = {"t_sync_ns": 1_700_000_000 * 10**9, "t_mono_ns": 10**9, "gnss_time_ns": None, "sync_state": "locked",
             "fix_ok": True, "fix_mode": 3, "latitude": 48.1, "longitude": 11.5, "altitude": 520.0,
             "vel_ned_mps": [1.0, 0.0, None], "h_acc_m": 2.0, "v_acc_m": 3.0}
-    for missing in ("latitude", "longitude", "altitude"):
+    for missing in ("latitude", "longitude"):
         engine.gnss(gnss_observation({k: v for k, v in full.items() if k != missing}))
-    assert (engine.counters.gnss_no_fix, engine.counters.gnss_fixes, len(engine.rows)) == (3, 0, 0)
+    assert (engine.counters.gnss_no_fix, engine.counters.gnss_fixes, len(engine.rows)) == (2, 0, 0)
     engine.gnss(gnss_observation(full))
     assert (engine.counters.gnss_fixes, len(engine.rows)) == (1, 1)
+    later = {**full, "t_sync_ns": full["t_sync_ns"] + 10**9, "t_mono_ns": 2 * 10**9, "latitude": 48.10001}
+    engine.gnss(gnss_observation({k: v for k, v in later.items() if k != "altitude"}))
+    assert (engine.counters.gnss_fixes, len(engine.rows)) == (2, 2)
+    assert engine.rows[-1][4] == 520.0 and abs(math.degrees(engine.rows[-1][2]) - 48.10001) < 1e-9
 
 
 def _reopening_core(p0: np.ndarray) -> Any:
