@@ -224,15 +224,21 @@ def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) ->
     """What became of the solution's epochs, in one line."""
     counts = ", ".join(f"{n} {q}" for q, n in solution.counts().items())
     took = ", ".join(f"{n} {q}" for q, n in used.used.items()) or "none"
+    left = not_used(used)
+    return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
+            f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
+            + (f"; not used: {'; '.join(left)}" if left else ""))
+
+
+def not_used(used: SolutionPolicy) -> list[str]:
+    """The solution's epochs the filter did not take, by why: the one wording of the summary and of the error."""
     left = ([f"{used.unjoined} placed more than {MAX_LATE_S:g} s behind the filter (no receiver fix with a time "
              "near them)"] if used.unjoined else [])
     if used.before_start:
         left.append(f"{used.before_start} before the filter started")
     if used.pending:
         left.append(f"{len(used.pending)} after the drive's end")
-    return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
-            f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
-            + (f"; not used: {'; '.join(left)}" if left else ""))
+    return left
 
 
 def unused_solution(solution: SolutionFile, used: SolutionPolicy | None, rows: list[Any]) -> str:
@@ -241,16 +247,9 @@ def unused_solution(solution: SolutionFile, used: SolutionPolicy | None, rows: l
     from logger.exports.formats import utc_iso
 
     n = len(solution.epochs)
-    why = []
-    if used is not None:
-        if used.unjoined:
-            why.append(f"{used.unjoined} with no receiver fix near them")
-        if used.before_start:
-            why.append(f"{used.before_start} before the filter started")
-        if used.pending:
-            why.append(f"{len(used.pending)} after the drive's end")
+    why = not_used(used) if used is not None else []
     span = (f"{utc_iso(solution.epochs[0].gnss_time_ns)} to {utc_iso(solution.epochs[-1].gnss_time_ns)}"
             if solution.epochs else "no epoch")
     return (f"--gnss-solution {solution.path}: none of its {plural(n, 'epoch')} was used"
-            + (f" ({', '.join(why)})" if why else "")
+            + (f" ({'; '.join(why)})" if why else "")
             + f": it spans {span}, the filter {utc_iso(rows[0][0])} to {utc_iso(rows[-1][0])}")

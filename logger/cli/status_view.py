@@ -12,7 +12,7 @@ from __future__ import annotations
 import textwrap
 from typing import Any
 
-from logger.words import plural
+from logger.words import plural, size_text
 from sync.stamp import FREERUN
 
 # Priorities: lines of a higher number are dropped first when the screen is short.
@@ -54,18 +54,6 @@ def age(s: float | None) -> str:
     if s < 600:
         return f"{s:.0f} s"
     return f"{s / 60:.0f} min" if s < 6000 else f"{s / 3600:.1f} h"
-
-
-def size(n: float) -> str:
-    """A size a reader can use, in the configuration's binary units: ``984 KiB``, ``50 MiB``, ``3.4 GiB``; never
-    ``0.0 GB free`` on a small card nor ``0 MiB`` with 984 KiB left (recorder.size_text says the same; the view
-    reads the snapshot only and imports no record code)."""
-    for unit, shift in (("GiB", 30), ("MiB", 20)):
-        if n >= 10 << shift:
-            return f"{n / (1 << shift):.0f} {unit}"
-        if n >= 1 << shift:
-            return f"{n / (1 << shift):.1f} {unit}"
-    return f"{int(n) >> 10} KiB" if n >= 1 << 10 else f"{int(n)} bytes"
 
 
 def duration(s: float) -> str:
@@ -208,10 +196,10 @@ def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
     if not rec:
         return
     free = rec.get("free_bytes")
-    free_text = f"{size(free)} free" if free is not None else "free disk unknown"
+    free_text = f"{size_text(free)} free" if free is not None else "free disk unknown"
     state = rec.get("state", "?")
     name = str(rec.get("file") or "").rsplit("/", 1)[-1]
-    held = f"{name} {size(rec.get('file_bytes', 0))}" if name else "no file"
+    held = f"{name} {size_text(rec.get('file_bytes', 0))}" if name else "no file"
     if state in ("recording", "stalled"):
         sc.add(LINE, f"rec     {state} {held}, {free_text}")
     else:

@@ -31,6 +31,7 @@ from logger.recording.files import CHANNEL_TABLE
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import TopicSpec
+from logger.words import size_text
 from sync.wallclock import boot_id
 
 log = logging.getLogger(__name__)
@@ -127,17 +128,6 @@ RETRY_S = 5.0
 def new_run_id() -> str:
     """Eight random hex digits: one daemon start's files, told apart from every other start's."""
     return os.urandom(4).hex()
-
-
-def size_text(n: int) -> str:
-    """A size a reader can use: ``984 KiB``, ``50 MiB``, ``3.4 GiB`` (binary units, as the configuration's MiB);
-    never ``0 MiB`` for a disk with 984 KiB left."""
-    for unit, shift in (("GiB", 30), ("MiB", 20)):
-        if n >= 10 << shift:
-            return f"{n / (1 << shift):.0f} {unit}"
-        if n >= 1 << shift:
-            return f"{n / (1 << shift):.1f} {unit}"
-    return f"{n >> 10} KiB" if n >= 1 << 10 else f"{n} bytes"
 
 
 def run_tagged_name(name: str, run_id: str) -> str:
