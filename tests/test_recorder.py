@@ -393,8 +393,8 @@ def test_a_disk_full_while_opening_leaves_no_empty_file(tmp_path: Path, monkeypa
 
 def _run_file(path: Path, run: str, part: int) -> None:
     """A finished MCAP file holding only the recorder's run record."""
+    from logger.recording.files import RUN_METADATA
     from logger.recording.mcap_writer import McapWriter
-    from logger.recording.recorder import RUN_METADATA
 
     with open(path, "wb") as f:
         w = McapWriter(f)
@@ -493,7 +493,9 @@ def test_a_failed_open_takes_no_part_number_and_every_file_says_its_run(tmp_path
         for i in range(3):  # each record finds no file and makes the writer try again: three failed opens
             rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, i)
         assert wait_until(lambda: sum(rec.status().unrecorded.values()) == 3, 20.0)
-        assert list(tmp_path.glob("*.mcap")) == []
+        # The writer keeps trying (RETRY_S 0): a file exists for the instant between an attempt's open and its
+        # removal, so the check is that none is left behind, which a file kept by each attempt would never give.
+        assert wait_until(lambda: not list(tmp_path.glob("*.mcap")), 20.0), list(tmp_path.glob("*.mcap"))
         monkeypatch.undo()
         monkeypatch.setattr(recorder_module, "RETRY_S", 0.0)
         assert wait_until(lambda: rec.status().state == "recording", 20.0), rec.status()

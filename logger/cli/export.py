@@ -12,11 +12,11 @@ into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RT
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from collections import Counter
 from pathlib import Path
 
+from logger.cli.outputs import drive_name, os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.config import SCHEMA, ConfigError, load
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
@@ -35,7 +35,6 @@ from logger.recording.drive import (
     DriveFileError,
     cut_notes,
     damage_notes,
-    drive_stem,
     iter_messages,
     open_drive,
 )
@@ -51,39 +50,6 @@ RINEX_HEADER_KEYS = ("antenna_height_m", "receiver_name")  # [gnss] keys that go
 
 class UsageError(Exception):
     """Bad arguments, or a drive without what they ask for: one line for the user."""
-
-
-def out_folder_problem(out: Path, option: str = "--out") -> str | None:
-    """Why ``out`` cannot be (or become) the output folder, in a line naming it; None when it can. Checked before
-    the work (``export``, ``plot``, ``replay``), so that a file given as the folder, a folder under a file or one
-    that may not be written is said at once instead of a traceback once the drive was read (for ``replay``, after
-    the whole filter run). Nothing is created."""
-    if os.path.lexists(out) and not out.exists():
-        return f"{option} {out}: a link to nothing"
-    if out.exists():
-        if not out.is_dir():
-            return f"{option} {out}: exists and is not a folder"
-        if not os.access(out, os.W_OK | os.X_OK):
-            return f"{option} {out}: the folder may not be written to"
-        return None
-    for above in out.parents:  # the nearest that exists (a relative path ends at "."): the folder is made in it
-        if above.exists():
-            if not above.is_dir():
-                return f"{option} {out}: cannot be made, {above} is a file and not a folder"
-            if not os.access(above, os.W_OK | os.X_OK):
-                return f"{option} {out}: cannot be made, {above} may not be written to"
-            return None
-    return None
-
-
-def os_error_line(exc: OSError) -> str:
-    """An error writing the outputs in one line: what the system said and the path it said it of."""
-    return f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
-
-
-def drive_name(paths: list[Path]) -> str:
-    """The name of the outputs: the first file's stem without the rotation number (``drive_..._0001``)."""
-    return drive_stem(paths[0]) or "drive"
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from logger.cli.export import drive_name, os_error_line, out_folder_problem
+from logger.cli.outputs import drive_name, os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot

@@ -26,7 +26,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from logger.cli.export import os_error_line, out_folder_problem
+from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
 from logger.nav.params import MODES, NavParams

@@ -34,6 +34,7 @@ from mcap.reader import make_reader
 
 from logger.recording.files import (
     MAGIC,
+    RUN_METADATA,
     Loss,
     McapFileError,
     Statistics,
@@ -54,7 +55,6 @@ from logger.recording.mcap_writer import (
     OP_METADATA,
     RECORD_HEAD,
 )
-from logger.recording.recorder import RUN_METADATA
 from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 from logger.words import plural

@@ -53,6 +53,10 @@ from logger.recording.topics import TOPICS
 # Metadata the recorder writes outside the chunks: channel id -> topic, so recovery can name the messages of a
 # channel whose record was in a damaged chunk.
 CHANNEL_TABLE = "vehicle-logger.channels"
+# Every file carries this metadata record, written at open before any chunk (so a file cut short has it too):
+# {"run": a random id per recorder start, "part": its part number}. The drive reader groups files by run, so two
+# starts are two drives whatever their names say (logger.recording.drive.run_identity).
+RUN_METADATA = "drive"
 
 FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary offset start, summary crc
 

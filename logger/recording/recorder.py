@@ -27,7 +27,7 @@ from typing import Any
 
 import ujson
 
-from logger.recording.files import CHANNEL_TABLE
+from logger.recording.files import CHANNEL_TABLE, RUN_METADATA
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
 from logger.recording.topics import TopicSpec
@@ -117,10 +117,6 @@ def read_boot_id() -> str:
     return digits[:8] if len(digits) >= 8 else os.urandom(4).hex()
 
 
-# Every file carries this metadata record, written at open before any chunk (so a file cut short has it too):
-# {"run": a random id per recorder start, "part": its part number}. The drive reader groups files by run, so two
-# starts are two drives whatever their names say (logger.recording.drive.run_identity).
-RUN_METADATA = "drive"
 DOWN_STATES = ("disk-full", "failed")  # the recorder runs but writes nothing (it retries every RETRY_S)
 RETRY_S = 5.0
 
