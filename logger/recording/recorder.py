@@ -30,6 +30,7 @@ import ujson
 from logger.recording.files import CHANNEL_TABLE, RUN_METADATA
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
+from logger.recording.storage import storage_problem
 from logger.recording.topics import TopicSpec
 from logger.words import size_text
 from sync.wallclock import boot_id
@@ -264,7 +265,8 @@ class Recorder:
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
         """Open the first file (so a bad output folder fails at start) and start the writer thread."""
-        self.settings.out_dir.mkdir(parents=True, exist_ok=True)
+        if storage_problem(self.settings.out_dir) is None:  # else _check_space_and_open says why it records nothing
+            self.settings.out_dir.mkdir(parents=True, exist_ok=True)
         self._check_space_and_open()
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
         self._thread.start()
@@ -467,6 +469,13 @@ class Recorder:
         """Start the next file, or say why not (and retry in RETRY_S). The part number is taken only by a file
         actually started: a drive's parts run 0001, 0002, ... from each start, which the name rule of the drive
         reader relies on for files without a run id."""
+        missing = storage_problem(self.settings.out_dir)
+        if missing is not None:
+            if self._state not in DOWN_STATES or self._detail != f"not recording: {missing}":
+                log.error("%s; retrying every %.0f s", missing, RETRY_S)
+            self._set_state("failed", f"not recording: {missing}")
+            self._next_retry = self._now() + RETRY_S
+            return
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
             if self._state not in DOWN_STATES:
@@ -484,10 +493,14 @@ class Recorder:
         stream = None
         try:
             if not out.is_dir() and out.parent.is_dir():
-                # Deleted under a running recorder: made again where it was (not when its parent went too: a
-                # storage that vanished must not be replaced by the root filesystem).
+                # Deleted under a running recorder, or not there yet on a card that was not mounted at the start:
+                # made where it belongs (not when its parent went too, and not on a mount point whose storage is
+                # not mounted, storage_problem above: the root filesystem must not stand in for the storage).
                 out.mkdir()
-                log.warning("the output folder %s was missing: made it again", out)
+                if self._dir_id is not None:
+                    log.warning("the output folder %s was missing: made it again", out)
+                else:
+                    log.info("made the output folder %s", out)
             if path.exists():  # another start's file (a crash in this boot left its boot-named 0001)
                 self._tag_names = True
                 path = out / self._name_at_open(start_unix, part)

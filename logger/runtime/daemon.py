@@ -36,6 +36,7 @@ from logger.recording.records import (
     sync_record,
 )
 from logger.recording.settings import RecorderSettings
+from logger.recording.storage import storage_problem
 from logger.recording.topics import HEALTH, SYNC, TOPICS
 from logger.runtime.gnss_watch import GnssWatch
 from logger.runtime.journal import ProblemJournal
@@ -226,7 +227,8 @@ class Daemon:
     # ---- life cycle ---------------------------------------------------------------------------------------
     def start(self) -> None:
         self._start_thread("service", self._service_loop)  # pings while the sensors' first opens wait, too
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        if storage_problem(self.out_dir) is None:  # else the recorder says why it records nothing, and waits
+            self.out_dir.mkdir(parents=True, exist_ok=True)
         # Listed before the recorder opens its file, recovered after everything has started (_recover_cut_files).
         cut = unfinished_files(self.out_dir)
         remove_stale_copies(self.out_dir)
