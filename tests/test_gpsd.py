@@ -1,7 +1,8 @@
 """gpsd as the GNSS source: its JSON over TCP, recorded as the same /gnss/fix and /pps records.
 
 Everything talks to a real TCP server on 127.0.0.1 speaking gpsd's protocol (sensors/sim/gpsd.py), fed by hand,
-by replaying gpsd 3.27's own decoding of real u-blox captures, or by the simulated receiver of a whole drive.
+by replaying gpsd 3.27's own decoding of real u-blox captures, or by the simulated receiver of a whole drive; and
+to a real gpsd (Debian 12's 3.22) decoding real captures that gpsfake feeds it on a pty.
 """
 
 from __future__ import annotations
@@ -473,6 +474,147 @@ def test_replayed_reports_equal_our_own_decoding_of_the_capture(replayed, log: s
         assert abs(a["height_msl_m"] - b["height_msl_m"]) <= 5e-5
         # gpsd's speed is the receiver's ground speed, ours the norm of its N and E velocity: each to 1 mm/s
         assert abs(math.hypot(*a["vel_ned_mps"][:2]) - math.hypot(*b["vel_ned_mps"][:2])) <= 0.0015
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# A real gpsd: Debian's gpsd 3.22 fed the captures by gpsfake (a pty), read by the source as on a board
+
+
+GPSFAKE_CAPTURES = ["ublox-8.log", "ublox-neo-m8p.log", "ublox-neo-m9n-nmea.log"]  # UBX and NMEA, 1 and 4 Hz
+
+
+def _gpsfake_missing() -> bool:
+    if shutil.which("gpsfake") is None or shutil.which("gpsd") is None:
+        return True
+    # gpsfake is a script of the system's Python: without python3-gps it fails at its first import.
+    return subprocess.run(["gpsfake", "-h"], capture_output=True).returncode != 0
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RawWatcher(threading.Thread):
+    """A second client of the same gpsd: the JSON lines it sends, as they come (what our source was given)."""
+
+    def __init__(self, port: int) -> None:
+        super().__init__(daemon=True)
+        import socket
+
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=60.0)
+        self.sock.sendall(b'?WATCH={"enable":true,"json":true};\n')
+        self.lines: list[str] = []
+
+    def run(self) -> None:
+        buf = b""
+        try:
+            while chunk := self.sock.recv(65536):
+                buf += chunk
+                *done, buf = buf.split(b"\n")
+                self.lines += [line.decode(errors="replace") for line in done]
+        except OSError:
+            pass
+        finally:
+            self.sock.close()
+
+
+def _connect(src: GpsdSource, port: int) -> RawWatcher:
+    """Our source and a raw watcher on gpsfake's gpsd, once it listens (gpsfake starts it after making its pty,
+    and feeds the capture once a client is there: the first epochs may reach one client before the other)."""
+    end = time.monotonic() + 10.0
+    while True:
+        try:
+            watcher = RawWatcher(port)
+            break
+        except OSError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.1)
+    watcher.start()
+    src.open()
+    return watcher
+
+
+@pytest.fixture(scope="module")
+def through_gpsd() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[str, Any]]]]:
+    """Per capture: what a real gpsd reported of it (merged per epoch, as a raw client saw it) and our records of
+    it, by epoch time. gpsfake feeds the capture to gpsd on a pty, a packet every 10 ms, once (``-1``); ``-b``
+    keeps gpsd from probing or reconfiguring the "receiver" (a log cannot answer). Fed faster than real time gpsd
+    reports fewer epochs than the capture holds (its cycle detection runs on arrival times): what it reported is
+    what is compared. The source reads until gpsd goes away with the end of the capture."""
+    if _gpsfake_missing():
+        pytest.skip("gpsd (gpsfake, with python3-gps) is not installed")
+    out = {}
+    for log in GPSFAKE_CAPTURES:
+        port = _free_port()
+        fake = subprocess.Popen(["gpsfake", "-1", "-q", "-c", "0.01", "-P", str(port), "--options=-b",
+                                 str(DATA_DIR / log)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        src = GpsdSource("127.0.0.1", port, None, host_timebase())
+        got: list[Reading] = []
+        try:
+            watcher = _connect(src, port)
+            end, quiet_since = time.monotonic() + 60.0, None
+            while time.monotonic() < end:
+                try:
+                    new = src.read()
+                except SensorError:  # gpsd gone with the end of the capture, or its device closed
+                    break
+                got += new
+                if new or fake.poll() is None:
+                    quiet_since = None
+                elif quiet_since is None:
+                    quiet_since = time.monotonic()
+                elif time.monotonic() - quiet_since > 2.0:  # the capture fed and nothing more for 2 s
+                    break
+            watcher.join(10.0)
+        finally:
+            src.close()
+            fake.kill()
+            fake.wait()
+        records: dict[int, dict[str, Any]] = {}
+        for r in got:
+            ts = r.payload["timestamp"]
+            key = ts["sec"] * NS + ts["nsec"]
+            if key == 0:  # a report without a time (gpsd's first 2D fix of ublox-8.log): compared by time below
+                continue
+            assert key not in records, (log, key)  # one record per epoch
+            records[key] = r.payload
+        out[log] = (merged_tpvs(watcher.lines), records)
+    return out
+
+
+@pytest.mark.parametrize("log", GPSFAKE_CAPTURES)
+def test_a_real_gpsds_reports_of_a_capture_are_recorded_as_our_own_decoding_of_it(through_gpsd, log: str) -> None:
+    """gpsd 3.22 (Debian 12's) decodes the capture itself, as on a board where gpsd owns the receiver: every
+    epoch it reported (from the first both clients saw) is recorded once, with its values, and with the fix our
+    own decoder makes of the same bytes."""
+    reported, records = through_gpsd[log]
+    assert len(records) > 5
+    first = min(records)
+    assert set(records) == {k for k in reported if k >= first}
+    for key, g in reported.items():
+        if key < first or g["mode"] < 2:
+            continue
+        assert (records[key]["latitude"], records[key]["longitude"]) == (g["lat"], g["lon"])
+    serial = decode_pieces([strip_capture_comments((DATA_DIR / log).read_bytes())])
+    mine = {}
+    for fix in serial.fixes:
+        if fix.time_utc_ns is not None and fix.source != "HNR-PVT":
+            mine.setdefault((fix.time_utc_ns + 500_000) // 1_000_000 * 1_000_000, location_fix(fix, 0))
+    common = set(records) & set(mine)
+    assert len(common) >= len(records) - 1
+    for key in common:
+        a, b = records[key], mine[key]
+        assert a["source"] == "gpsd" and a["fix_mode"] == b["fix_mode"], key
+        if a["fix_mode"] < 2:
+            continue
+        assert a["gnss_time_ns"] == key
+        # gpsd prints 9 decimals of a degree
+        assert abs(a["latitude"] - b["latitude"]) <= 5e-10 and abs(a["longitude"] - b["longitude"]) <= 5e-10
 
 
 # ---------------------------------------------------------------------------------------------------------------
