@@ -453,14 +453,20 @@ def test_replayed_reports_are_recorded_as_gpsd_gave_them(replayed, log: str) -> 
         assert vd == (-g["climb"] if "climb" in g and "velD" not in g else vd)
 
 
-@pytest.mark.parametrize("log", REPLAYED)
-def test_replayed_reports_equal_our_own_decoding_of_the_capture(replayed, log: str) -> None:
-    _, records = replayed[log]
+def our_decoding(log: str) -> dict[int, dict[str, Any]]:
+    """Our own decoder's /gnss/fix records of a capture, by epoch time to the millisecond (gpsd's resolution)."""
     serial = decode_pieces([strip_capture_comments((DATA_DIR / log).read_bytes())])
-    mine = {}
+    mine: dict[int, dict[str, Any]] = {}
     for fix in serial.fixes:
         if fix.time_utc_ns is not None and fix.source != "HNR-PVT":
             mine.setdefault((fix.time_utc_ns + 500_000) // 1_000_000 * 1_000_000, location_fix(fix, 0))
+    return mine
+
+
+@pytest.mark.parametrize("log", REPLAYED)
+def test_replayed_reports_equal_our_own_decoding_of_the_capture(replayed, log: str) -> None:
+    _, records = replayed[log]
+    mine = our_decoding(log)
     common = set(records) & set(mine)
     assert len(common) >= len(records) - 1  # every epoch gpsd reported (test_gnss_decode_gpsd: all agree)
     for key in common:
@@ -600,11 +606,7 @@ def test_a_real_gpsds_reports_of_a_capture_are_recorded_as_our_own_decoding_of_i
         if key < first or g["mode"] < 2:
             continue
         assert (records[key]["latitude"], records[key]["longitude"]) == (g["lat"], g["lon"])
-    serial = decode_pieces([strip_capture_comments((DATA_DIR / log).read_bytes())])
-    mine = {}
-    for fix in serial.fixes:
-        if fix.time_utc_ns is not None and fix.source != "HNR-PVT":
-            mine.setdefault((fix.time_utc_ns + 500_000) // 1_000_000 * 1_000_000, location_fix(fix, 0))
+    mine = our_decoding(log)
     common = set(records) & set(mine)
     assert len(common) >= len(records) - 1
     for key in common:
