@@ -48,8 +48,7 @@ def test_a_folder_under_an_unmounted_fstab_entry_is_refused_naming_its_mount_poi
     card = tmp_path / "card"
     fstab, info = tables(tmp_path, card, mounted=False)
     problem = storage_problem(card / "drives", fstab, info)
-    assert problem == (f"{card} is not mounted (it is listed in /etc/fstab): not recording into {card / 'drives'}, "
-                       "which would be made on the filesystem underneath it")
+    assert problem == f"{card} is not mounted (listed in /etc/fstab); waiting for it"
     assert storage_problem(card, fstab, info) is not None  # the mount point itself
     assert storage_problem(card / ".." / "card" / "a" / "b", fstab, info) is not None  # however it is written
     # Mounted, or not under any listed storage, or nothing known: nothing against the folder.
@@ -104,6 +103,8 @@ def test_the_recorder_waits_for_its_card_and_never_records_underneath_it(
         assert st.state == "failed" and st.detail.startswith(f"not recording: {card} is not mounted"), st
         assert list(card.iterdir()) == []  # nothing made underneath the mount point
         assert caplog.text.count("is not mounted") == 1  # said once, not at every retry
+        assert (f"not recording into {out}, which would be made on the filesystem underneath: {card} is not mounted "
+                "(listed in /etc/fstab); checking again every 0 s") in caplog.text
 
         info.write_text(mountinfo_line("/") + mountinfo_line(card))  # the card mounted
         i = 100

@@ -472,7 +472,9 @@ class Recorder:
         missing = storage_problem(self.settings.out_dir)
         if missing is not None:
             if self._state not in DOWN_STATES or self._detail != f"not recording: {missing}":
-                log.error("%s; retrying every %.0f s", missing, RETRY_S)
+                log.error("not recording into %s, which would be made on the filesystem underneath: %s; checking "
+                          "again every %.0f s", self.settings.out_dir, missing.removesuffix("; waiting for it"),
+                          RETRY_S)
             self._set_state("failed", f"not recording: {missing}")
             self._next_retry = self._now() + RETRY_S
             return

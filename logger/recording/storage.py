@@ -68,7 +68,7 @@ def _read(path: Path) -> str | None:
 
 
 def storage_problem(out_dir: Path, fstab: Path | None = None, mountinfo: Path | None = None) -> str | None:
-    """Why nothing may be made or recorded in ``out_dir`` now, in a line naming the folder and its mount point;
+    """Why nothing may be made or recorded in ``out_dir`` now, in a short line naming its mount point;
     None when it may (the folder is on the storage fstab gives it, or on none that fstab lists). A board without
     an fstab or without /proc (not Linux) is taken as one where nothing is known against the folder."""
     tab = _read(fstab or FSTAB)
@@ -83,5 +83,5 @@ def storage_problem(out_dir: Path, fstab: Path | None = None, mountinfo: Path | 
     info = _read(mountinfo or MOUNTINFO)
     if info is None or point in mounted_points(info):
         return None
-    return (f"{point} is not mounted (it is listed in /etc/fstab): not recording into {here}, which would be made "
-            f"on the filesystem underneath it")
+    # Short: the status screen's problem line (80 columns). The recorder's log line says what is not done.
+    return f"{point} is not mounted (listed in /etc/fstab); waiting for it"
