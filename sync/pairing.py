@@ -178,6 +178,9 @@ class EdgeLabeller:
 
     def publish_many(self, cont_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`publish` for an array of stamps (int64 ns): (Unix ns, bound to add)."""
+        unsure = self._unsure_from()
+        if not self.leaps and (unsure is None or not len(cont_ns) or int(cont_ns.max()) < unsure):
+            return cont_ns, np.zeros(len(cont_ns))  # no leap and none in doubt: a FIFO read's usual case
         unix = cont_ns.copy()
         extra = np.zeros(len(cont_ns))
         for leap in self.leaps:
@@ -187,7 +190,6 @@ class EdgeLabeller:
                 left = np.where(after, left, 0.0)
                 unix = unix - np.where(after, leap.sign * np.rint(NS * (1.0 - left)).astype(np.int64), 0)
                 extra = extra + NS * left
-        unsure = self._unsure_from()
         if unsure is not None:
             extra = extra + np.where(cont_ns >= unsure, float(NS), 0.0)
         return unix, extra

@@ -37,8 +37,9 @@ rows below the table:
   rec      state, the file being written (or where it stopped), size,
            free disk; records on disk and dropped (queue full), queue, and
            how far back everything is on disk (what a power cut loses);
-           time not recording since start (disk full, write errors), the
-           records that came meanwhile, and those lost in a failed write
+           time not recording since start (disk full, write errors, storage
+           not mounted), the records that came meanwhile, and those lost in a
+           failed write
   sim      a simulated drive's pace now against the --time-scale asked for
            (it slows when the daemon falls behind), and on average
 exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""

@@ -212,7 +212,6 @@ class Salvage:
     messages: list[Message] = field(default_factory=list)  # only when the walk keeps them (``keep_messages``)
     keep_messages: bool = True
     message_count: int = 0  # messages in the good chunks (and outside chunks), kept or not
-    channel_messages: dict[int, int] = field(default_factory=dict)  # channel id -> messages: orphans are counted
     metadata: list[Metadata] = field(default_factory=list)
     chunks_ok: int = 0
     chunks_bad: int = 0
@@ -486,7 +485,6 @@ def _keep(found: Salvage, record: object) -> None:
         found.channels[record.id] = record
     elif isinstance(record, Message):
         found.message_count += 1
-        found.channel_messages[record.channel_id] = found.channel_messages.get(record.channel_id, 0) + 1
         if found.keep_messages:
             found.messages.append(record)
     elif isinstance(record, Metadata):
@@ -564,13 +562,12 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
     dst = Path(out) if out is not None else src
     tmp = dst.with_name(dst.name + ".recovering")
     try:
-        _rewrite(found, src, tmp, compression, cancel)
+        orphans = _rewrite(found, src, tmp, compression, cancel)
     except BaseException:
         tmp.unlink(missing_ok=True)  # a full disk: the source is untouched, and no half copy takes its space
         raise
     os.replace(tmp, dst)
     _fsync_dir(dst.parent)
-    orphans = sum(n for cid, n in found.channel_messages.items() if cid not in found.channels)
     return RecoveryReport(dst, found.message_count - orphans, found.chunks_ok, found.chunks_bad, orphans,
                           found.stopped_at, tuple(found.losses))
 

@@ -265,9 +265,7 @@ class Recorder:
     # ---- life cycle --------------------------------------------------------------------------------------
     def start(self) -> Path | None:
         """Open the first file (so a bad output folder fails at start) and start the writer thread."""
-        if storage_problem(self.settings.out_dir) is None:  # else _check_space_and_open says why it records nothing
-            self.settings.out_dir.mkdir(parents=True, exist_ok=True)
-        self._check_space_and_open()
+        self._check_space_and_open()  # makes the folder, where its storage is there
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
         self._thread.start()
         return self._path
@@ -494,15 +492,15 @@ class Recorder:
         path = out / self._name_at_open(start_unix, part)
         stream = None
         try:
-            if not out.is_dir() and out.parent.is_dir():
-                # Deleted under a running recorder, or not there yet on a card that was not mounted at the start:
-                # made where it belongs (not when its parent went too, and not on a mount point whose storage is
-                # not mounted, storage_problem above: the root filesystem must not stand in for the storage).
+            if not out.is_dir() and self._dir_id is None:  # no file yet: the configured folder, with its parents
+                out.mkdir(parents=True)
+                log.info("made the output folder %s", out)
+            elif not out.is_dir() and out.parent.is_dir():
+                # Deleted under a running recorder: made again where it was (not when its parent went too, and
+                # never on a mount point whose storage is not mounted, storage_problem above: the root filesystem
+                # must not stand in for the storage).
                 out.mkdir()
-                if self._dir_id is not None:
-                    log.warning("the output folder %s was missing: made it again", out)
-                else:
-                    log.info("made the output folder %s", out)
+                log.warning("the output folder %s was missing: made it again", out)
             if path.exists():  # another start's file (a crash in this boot left its boot-named 0001)
                 self._tag_names = True
                 path = out / self._name_at_open(start_unix, part)

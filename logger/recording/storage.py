@@ -74,7 +74,7 @@ def storage_problem(out_dir: Path, fstab: Path | None = None, mountinfo: Path | 
     tab = _read(fstab or FSTAB)
     if not tab:
         return None
-    here = Path(os.path.normpath(os.path.abspath(out_dir)))
+    here = Path(os.path.abspath(out_dir))  # normalised too
     # The innermost listed mount point holding the folder: a card mounted under a disk mounted in turn.
     holding = [m for m in fstab_mount_points(tab) if here == m or m in here.parents]
     if not holding:

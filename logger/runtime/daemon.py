@@ -45,6 +45,7 @@ from logger.runtime.sampler import Reading, Sampler
 from logger.runtime.sources import Plan
 from logger.runtime.status_socket import StatusServer
 from logger.runtime.timebase import TimeBase, host_timebase
+from logger.words import plural, size_text
 from sync.stamp import FREERUN, FreeRunClock, Stamp, StampClock
 
 log = logging.getLogger(__name__)
@@ -92,14 +93,15 @@ def recover_file(path: Path, cancel: Callable[[], bool] | None = None, reserve_b
     ``reserve_bytes``: free space the copy must leave (the recorder's minimum, while it records beside the
     recovery): the drive being recorded comes first, and the cut file is readable as it is meanwhile (the drive
     reader reads up to the cut). ``cancel``: asked between chunks; the file is then kept as it was."""
+    size = 0
     try:
         size = path.stat().st_size
         if reserve_bytes:
             st = os.statvfs(path.parent)
             free = st.f_bavail * st.f_frsize
             if free - size < reserve_bytes:
-                return (f"did not recover {path.name}: its copy (up to {size / 1e6:.1f} MB) would leave less than "
-                        f"the {reserve_bytes / 1e6:.0f} MB the recording needs free ({free / 1e6:.0f} MB free); it "
+                return (f"did not recover {path.name}: its copy (up to {size_text(size)}) would leave less than "
+                        f"the {size_text(reserve_bytes)} the recording needs free ({size_text(free)} free); it "
                         "is kept as it was (readable as it is), for the next start or `logger recover`")
         report = recover(path, cancel=cancel)
     except RecoveryCancelled:
@@ -107,7 +109,7 @@ def recover_file(path: Path, cancel: Callable[[], bool] | None = None, reserve_b
     except OSError as exc:
         if exc.errno == errno.ENOSPC:
             return (f"could not recover {path.name}: no space left on the disk for its recovered copy "
-                    f"({path.stat().st_size / 1e6:.1f} MB at most); it is kept as it was, for "
+                    f"({size_text(size)} at most); it is kept as it was, for "
                     "`logger recover` once there is room")
         return f"could not recover {path.name}: {exc.strerror or exc}"
     except McapFileError as exc:
@@ -270,8 +272,8 @@ class Daemon:
         reserve = self.recorder.settings.min_free_bytes
         for i, path in enumerate(files):
             if self.stop_event.is_set():
-                line = (f"{len(files) - i} cut file{'s' if len(files) - i != 1 else ''} left unrecovered by the "
-                        f"stop, for the next start: {', '.join(p.name for p in files[i:])}")
+                line = (f"{plural(len(files) - i, 'cut file')} left unrecovered by the stop, for the next start: "
+                        f"{', '.join(p.name for p in files[i:])}")
                 self.startup_lines.append(line)
                 log.warning(line)
                 return
@@ -397,7 +399,7 @@ class Daemon:
         if recovering is not None:
             # Shown, not a problem: the last run's cut file is being made whole while this run records as it should
             # (as a problem it made `logger status` say degraded, exit 1, for the minutes a board's recovery takes).
-            rec_section["recovering"] = f"{recovering[0]} ({recovering[1] / 1e6:.0f} MB), cut short by the last run"
+            rec_section["recovering"] = f"{recovering[0]} ({size_text(recovering[1])}), cut short by the last run"
         return {
             "verdict": verdict, "problems": problems, "mode": self.mode, "pid": os.getpid(), "t_mono_ns": now,
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,

@@ -91,8 +91,8 @@ def recorder_losses(down_s: float, unrecorded: dict[str, int], lost: dict[str, i
     out = []
     n_unrec = sum(unrecorded.values())
     if down_s >= DOWN_SHOWN_S or n_unrec:
-        out.append(f"not recording for {down_s:.0f} s of the run (disk full or write errors: see the log); "
-                   f"{plural(n_unrec, 'record')} came meanwhile and were not recorded")
+        out.append(f"not recording for {down_s:.0f} s of the run (disk full, write errors or the storage not "
+                   f"mounted: see the log); {plural(n_unrec, 'record')} came meanwhile and were not recorded")
     if sum(lost.values()):
         out.append(f"{plural(sum(lost.values()), 'record')} lost in failed writes (handed to the writer, never on "
                    "disk)")
