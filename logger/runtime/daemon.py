@@ -516,7 +516,11 @@ class Daemon:
                 and all(s.health.state != "starting" for s in self.samplers))
 
     def stale_threads(self) -> list[str]:
-        """Threads that died or whose heartbeat is older than ``heartbeat_bound_s`` real seconds: one line each."""
+        """Threads that died or whose heartbeat is older than ``heartbeat_bound_s`` real seconds: one line each.
+        None once the daemon is stopping: its threads end then by design (the service and health loops at once),
+        and a reader asking meanwhile (the soak's sampler) read them as dead."""
+        if self.stop_event.is_set():
+            return []
         now = self.tb.monotonic_ns()
         bound_ns = self.heartbeat_bound_s * 1e9 * self.tb.scale  # heartbeats are in drive time
         stale: list[str] = []
