@@ -325,6 +325,32 @@ def test_a_lost_filter_restarts_from_gnss_and_says_so():
     assert np.hypot(e[-1, 0], e[-1, 1]) < 2.0
 
 
+def test_a_restart_from_a_2d_fix_keeps_the_height_the_filter_held():
+    """A 2D fix's height is a stand-in (the last 3D fix's, its sigma widened by the climb since): a restart from it
+    takes its position and velocity, and its height only where the filter claims its own height less well."""
+    import dataclasses
+
+    from logger.nav.state import P_ID
+
+    seen: dict[str, Any] = {}
+
+    def restart_2d(engine: NavEngine) -> None:
+        fix = engine.last_readings.fix
+        h0, var0 = engine.state.h, float(engine.ekf.p[P_ID + 2, P_ID + 2])
+        stand_in = dataclasses.replace(fix, fix_3d=False, h=fix.h + 30.0, sigma=(fix.sigma[0], fix.sigma[1], 40.0))
+        engine._restart_from(stand_in)
+        seen["kept"] = (engine.state.h - h0, float(engine.ekf.p[P_ID + 2, P_ID + 2]), var0)
+        engine._restart_from(dataclasses.replace(stand_in, sigma=(fix.sigma[0], fix.sigma[1], 1e-3)))
+        seen["taken"] = (engine.state.h - h0, float(engine.ekf.p[P_ID + 2, P_ID + 2]))
+
+    _, engine, done = upset_at_90_s(100.0, 5, restart_2d)
+    assert done and engine.counters.resets == 2
+    dh, var, var0 = seen["kept"]
+    assert abs(dh) < 0.05 and var == pytest.approx(var0) and var0 < 40.0**2
+    dh, var = seen["taken"]  # a stand-in surer than the filter (a 3D fix a moment ago, on level road): taken
+    assert abs(dh - 30.0) < 1.0 and var == pytest.approx(1e-6)
+
+
 def test_mounting_rotation_from_the_configuration():
     drive = make_drive("outage-60s", seed=4, duration_s=150.0)
     recs = records(drive, 150.0, seed=6)
@@ -606,6 +632,32 @@ def test_a_fix_record_without_a_position_is_no_fix() -> None:
     engine.gnss(gnss_observation({k: v for k, v in later.items() if k != "altitude"}))
     assert (engine.counters.gnss_fixes, len(engine.rows)) == (2, 2)
     assert engine.rows[-1][4] == 520.0 and abs(math.degrees(engine.rows[-1][2]) - 48.10001) < 1e-9
+    # ... with a sigma it can stand behind: the 3D fix's, widened by the 2 m/s a car climbs at most in that second
+    # (10 s later, 20 m).
+    assert engine.rows[-2][9][2] == pytest.approx(3.0) and engine.rows[-1][9][2] == pytest.approx(math.hypot(3.0, 2.0))
+    ten = {**later, "t_sync_ns": full["t_sync_ns"] + 10 * 10**9, "t_mono_ns": 11 * 10**9, "fix_mode": 2}
+    engine.gnss(gnss_observation(ten))
+    assert engine.rows[-1][4] == 520.0 and engine.rows[-1][9][2] == pytest.approx(math.hypot(3.0, 20.0))
+
+
+def test_a_2d_fix_before_any_3d_one_claims_no_height() -> None:
+    """A receiver whose first fixes are 2D (three satellites: a street canyon at power-on) measures no height yet:
+    the one its fix carries is its own assumption (u-blox: a height it was told or guessed) or none. A GNSS-only
+    row took it, or 0 m, with the receiver's vertical figure: 63 m off behind a sigma of 0.65 m on the simulated
+    urban drive with its first 40 fixes made 2D. It now says the height is unknown."""
+    from logger.nav.policies import UNKNOWN_HEIGHT_SIGMA_M
+
+    engine = NavEngine(NavParams(mode="gnss"), record=True)
+    fix2d = {"t_sync_ns": 1_700_000_000 * 10**9, "t_mono_ns": 10**9, "gnss_time_ns": None, "sync_state": "locked",
+             "fix_ok": True, "fix_mode": 2, "latitude": 48.1, "longitude": 11.5, "altitude": 0.0,
+             "vel_ned_mps": [1.0, 0.0, None], "h_acc_m": 2.0, "v_acc_m": 3.0}
+    engine.gnss(gnss_observation(fix2d))
+    engine.gnss(gnss_observation({**fix2d, "t_sync_ns": fix2d["t_sync_ns"] + 10**9, "altitude": None}))
+    assert [r[4] for r in engine.rows] == [0.0, 0.0]
+    assert [r[9][2] for r in engine.rows] == [UNKNOWN_HEIGHT_SIGMA_M] * 2
+    engine.gnss(gnss_observation({**fix2d, "t_sync_ns": fix2d["t_sync_ns"] + 2 * 10**9, "fix_mode": 3,
+                                  "altitude": 520.0}))
+    assert engine.rows[-1][4] == 520.0 and engine.rows[-1][9][2] < 10.0  # its figure (widened as correlated)
 
 
 def _reopening_core(p0: np.ndarray) -> Any:

@@ -972,12 +972,17 @@ class NavEngine:
         s = self.state
         snap = self.state_at(fix.t_ns)
         dn, de, dd = earth.ned_offset_m(fix.lat, fix.lon, fix.h, snap.lat, snap.lon, snap.h)
+        var_d = fix.sigma[2] ** 2
+        if not fix.fix_3d and float(self.ekf.p[P_ID + 2, P_ID + 2]) < var_d:
+            # A 2D fix's height is a stand-in (GnssPolicy.prepare): the filter's own, which the barometer held, is
+            # kept where it claims better than the stand-in's sigma.
+            dd, var_d = 0.0, float(self.ekf.p[P_ID + 2, P_ID + 2])
         dx = np.zeros(self.n)
         dx[P_ID:P_ID + 3] = (dn, de, dd)
         if fix.vel is not None:
             dx[V_ID:V_ID + 3] = (s.vn - fix.vel[0], s.ve - fix.vel[1], s.vd - fix.vel[2] if fix.vel_3d else 0.0)
         self.feedback(dx)
-        self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, fix.sigma[2] ** 2,
+        self.ekf.inflate(slice(P_ID, V_ID + 3), [fix.sigma[0] ** 2, fix.sigma[1] ** 2, var_d,
                                                   fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1, fix.s_vel**2 + 0.1])
         self.reopen_attitude_and_offsets()
         self._restart_tempco()  # the offsets it estimated while losing itself teach nothing of the temperature

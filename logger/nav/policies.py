@@ -60,6 +60,13 @@ UNINFORMATIVE_RATIO = 16.0  # fix variance over the filter's own, on every axis:
 # went in: the barometer's offset, which weather moves, is then checked against the receiver again.
 CANYON_HEIGHT_RATIO = 3.0
 CANYON_HEIGHT_HOLD_NS = 120 * NS
+# A 2D fix measures no height: the one it carries is a stand-in (the last 3D fix's), good to that fix's figure
+# widened by what a car can climb since (a 12 % grade at 60 km/h is 2 m/s). Before any 3D fix there is nothing to
+# stand in: the receiver's own assumption if it gives one (u-blox holds a height it was told or guessed), else 0 m,
+# either known only to the span of road heights on Earth. Only a start, a restart or a GNSS-only row takes a 2D
+# fix's height (its update is horizontal): each then carries a sigma it can stand behind.
+CLIMB_MPS = 2.0
+UNKNOWN_HEIGHT_SIGMA_M = 1000.0
 
 
 @dataclass
@@ -99,7 +106,8 @@ class GnssPolicy:
         # a receiver's sure ones only): what the canyon hold is measured from.
         self._height_in_ns: int | None = None
         self._usual_v = UsualFigure()  # the receiver's usual vertical figure, which a canyon's is measured against
-        self._last_height: float | None = None  # the last 3D fix's height, a 2D fix's stand-in for its offsets
+        # The last 3D fix's epoch, height and vertical sigma: a 2D fix's stand-in for its height.
+        self._last_height: tuple[int, float, float] | None = None
 
     def prepare(self, msg: GnssObservation, counters: EngineCounters) -> PreparedFix | None:
         """The fix at its epoch with the noise to use; None (counted) when the receiver has no fix."""
@@ -107,11 +115,16 @@ class GnssPolicy:
         if not msg.fix_ok or (msg.fix_mode or 1) < 2 or msg.lat_deg is None or msg.lon_deg is None:
             counters.gnss_no_fix += 1
             return None
-        # A 2D fix (a held height, or none recorded: an epoch without GGA) goes in horizontally; its height is only
-        # the radius of the north/east offsets, for which the last 3D fix's (or 0 m, a few ppm of it) does.
-        height = msg.height_m if fix_3d else (self._last_height if self._last_height is not None else 0.0)
+        # A 2D fix (a held height, or none recorded: an epoch without GGA) goes in horizontally; its height is the
+        # radius of the north/east offsets, for which the last 3D fix's (or 0 m, a few ppm of it) does, and only
+        # where the filter takes a height from it whole its sigma (CLIMB_MPS).
+        last_3d = self._last_height
         if fix_3d:
-            self._last_height = msg.height_m
+            height = msg.height_m
+        elif last_3d is not None:
+            height = last_3d[1]
+        else:
+            height = msg.height_m if msg.height_m is not None else 0.0
         counters.gnss_fixes += 1
         p = self.params
         t_sync = msg.t_sync_ns
@@ -137,6 +150,12 @@ class GnssPolicy:
             if moving is not None:
                 d = tu * float(np.hypot(moving[0], moving[1]))
                 sig_h, sig_v = math.hypot(sig_h, d), math.hypot(sig_v, tu * abs(float(moving[2])))
+        if fix_3d:
+            self._last_height = (t_e, height, sig_v)
+        elif last_3d is not None:
+            sig_v = math.hypot(last_3d[2], CLIMB_MPS * max(0.0, (t_e - last_3d[0]) / NS))
+        else:
+            sig_v = UNKNOWN_HEIGHT_SIGMA_M
         usual_v = self._usual_v.add(t_e, fig.v_model)
         return PreparedFix(t_e, msg.t_mono_ns + (t_e - t_sync), math.radians(msg.lat_deg),
                            math.radians(msg.lon_deg), height, vel_arr, vel_3d, (sig_h, sig_h, sig_v), s_vel,
