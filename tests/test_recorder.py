@@ -314,6 +314,11 @@ def test_a_deleted_file_is_noticed_at_the_next_flush_and_a_new_one_started(tmp_p
         rec.stop()
     (second,) = sorted(tmp_path.glob("*.mcap"))
     assert is_finished(second) and [m[1] for m in _read_all(second)] == [1_700_000_000_000_000_003]
+    # The status counts on disk only what is: the first record went with its file (the second, handed to the
+    # writer around the deletion, is lost with it or in the new file, whichever the flush's timing gave).
+    st = rec.status()
+    assert st.deleted == {"/a": 1} and st.written == {"/a": _records_on_disk(tmp_path)}, st
+    assert st.written["/a"] + st.deleted["/a"] + st.lost.get("/a", 0) == 3, st
 
 
 def test_a_deleted_folder_is_reported_made_again_and_recording_goes_on(tmp_path: Path, caplog) -> None:
@@ -341,6 +346,33 @@ def test_a_deleted_folder_is_reported_made_again_and_recording_goes_on(tmp_path:
     assert f"the output folder {out} was deleted while recording" in caplog.text
     assert f"the output folder {out} was missing: made it again" in caplog.text
     assert _records_on_disk(out) == 1 and rec.alive is False
+    st = rec.status()
+    assert st.deleted == {"/a": 1} and st.written == {"/a": 1} and st.on_disk_mono_ns == {"/a": 2000}, st
+
+
+def test_a_deleted_folder_takes_the_runs_earlier_files_from_the_count_on_disk(tmp_path: Path) -> None:
+    """Every file of the run in the folder went with it, the finished ones too: none of their records is counted
+    on disk any more, and the newest on disk is the new folder's."""
+    import shutil
+
+    out = tmp_path / "drives"
+    rec = Recorder(RecorderSettings(out_dir=out, flush_interval_s=0.05, rotate_size_bytes=1), TOPICS)
+    rec.start()
+    try:
+        for i in range(3):  # a file each (rotated at the first flush past one byte)
+            rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, 1000 + i)
+            assert wait_until(lambda i=i: rec.status().on_disk_mono_ns.get("/a") == 1000 + i, 20.0)
+            assert wait_until(lambda i=i: rec.status().files_done >= i + 1, 20.0)
+        assert rec.status().written == {"/a": 3} and len(list(out.glob("*.mcap"))) >= 3
+        shutil.rmtree(out)
+        assert wait_until(lambda: rec.status().deleted == {"/a": 3}, 20.0), rec.status()
+        assert wait_until(lambda: rec.status().state == "recording" and out.is_dir(), 20.0), rec.status()
+        rec.submit("/a", {"x": 9}, 1_700_000_000_000_000_009, 9000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 9000, 20.0)
+    finally:
+        rec.stop()
+    st = rec.status()
+    assert st.written == {"/a": 1} == {"/a": _records_on_disk(out)} and st.deleted == {"/a": 3}, st
 
 
 def test_an_unexpected_error_in_the_writer_is_a_reported_failure_not_a_dead_thread(tmp_path: Path,

@@ -134,5 +134,9 @@ def test_the_rec_row_says_where_recording_stopped_and_sizes_a_reader_can_use() -
     assert screen[i] == "rec     disk-full 45 s, stopped at drive_20261201T220721Z_0001.mcap 396 KiB"
     assert screen[i + 1] == "        984 KiB free, nothing is being written"
     assert "        not recorded for 80 s: 1600 records; 40 lost in failed writes" in screen
+    snap["recorder"]["deleted"] = {"/imu/batch": 1234567}  # a folder deleted under the recorder
+    screen = render(snap, width=80).split("\n")
+    assert max(map(len, screen)) <= 79
+    assert "        1234567 on disk, then deleted with their file or folder" in screen
     snap["recorder"].update(state="recording", free_bytes=3_100_000_000, file_bytes=123_400_000)
     assert "rec     recording drive_20261201T220721Z_0001.mcap 118 MiB, 2.9 GiB free" in render(snap).split("\n")

@@ -38,3 +38,16 @@ def test_a_short_run_with_one_hiccup_held_its_rates() -> None:
     # Ten seconds at 20 Hz with three samples lost to one stall of the host: 1.5 %, but less than a second's worth.
     daemon = SimpleNamespace(samplers=[_sampler("imu", 20.0, 197, 9.95, missed=3, missed_host=3)])
     assert shortfalls(daemon) == [] and shortfalls(daemon, host_only=True) == []
+
+
+def test_the_summary_names_records_deleted_with_their_file_apart_from_those_lost_in_writes() -> None:
+    """On disk, then deleted under the recorder (a file or the folder removed while recording) is not "lost in a
+    failed write": the run's summary names each, and only what happened."""
+    from logger.runtime.summary import recorder_losses
+
+    assert recorder_losses(0.0, {}, {}, {}) == []
+    assert recorder_losses(0.0, {}, {}, {}, {"/imu/batch": 0}) == []
+    lines = recorder_losses(0.0, {}, {"/imu/batch": 2}, {}, {"/imu/batch": 40, "/gnss/fix": 1})
+    assert lines == ["2 records lost in failed writes (handed to the writer, never on disk)",
+                     "41 records deleted with their file or folder while recording (on disk, then deleted: see the "
+                     "log)"]

@@ -38,8 +38,8 @@ rows below the table:
            free disk; records on disk and dropped (queue full), queue, and
            how far back everything is on disk (what a power cut loses);
            time not recording since start (disk full, write errors, storage
-           not mounted), the records that came meanwhile, and those lost in a
-           failed write
+           not mounted), the records that came meanwhile, those lost in a
+           failed write and those deleted with their file or folder
   sim      a simulated drive's pace now against the --time-scale asked for
            (it slows when the daemon falls behind), and on average
 exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""
@@ -221,12 +221,16 @@ def _recorder(sc: Screen, snap: dict[str, Any]) -> None:
     down = rec.get("down_s") or 0.0
     unrecorded = sum((rec.get("unrecorded") or {}).values())
     lost = sum((rec.get("lost") or {}).values())
-    if down >= 1.0 or unrecorded or lost:
-        # Since start: the time the recorder wrote nothing, the records that came meanwhile, and those lost with a
-        # failed write (the row above counts only what is on disk).
+    deleted = sum((rec.get("deleted") or {}).values())
+    if down >= 1.0 or unrecorded or lost or deleted:
+        # Since start: the time the recorder wrote nothing, the records that came meanwhile, those lost with a
+        # failed write and those deleted with their file or folder (the row above counts only what is on disk).
         head = f"not recorded for {age(down)}: {unrecorded} records" if down >= 1.0 or unrecorded else ""
         tail = f"{lost} lost in failed writes" if lost else ""
-        sc.add(LINE, "        " + "; ".join(p for p in (head, tail) if p))
+        if head or tail:
+            sc.add(LINE, "        " + "; ".join(p for p in (head, tail) if p))
+        if deleted:  # a line of its own: the three together do not fit 80 columns
+            sc.add(LINE, f"        {deleted} on disk, then deleted with their file or folder")
 
 
 def _pace(sc: Screen, pace: dict[str, Any] | None) -> None:

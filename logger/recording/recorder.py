@@ -68,6 +68,9 @@ class RecorderStatus:
     # ... and handed to the writer but never on disk: the chunk they were in was lost to an I/O error (disk full,
     # a read-only remount, a deleted file).
     lost: dict[str, int] = field(default_factory=dict)
+    # On disk once, then deleted while recording: the file that held them, or the whole output folder (taken out
+    # of ``written`` and ``samples`` then, which count only what is on disk).
+    deleted: dict[str, int] = field(default_factory=dict)
     queue_depth: int = 0
     queue_size: int = 0
     # Per topic, the board time (t_mono_ns) of the newest record the last flush put on disk: what a power cut
@@ -185,6 +188,14 @@ class Recorder:
         self._pending: Counter[str] = Counter()  # handed to the writer since the last fsync
         self._pending_samples: Counter[str] = Counter()
         self._lost: Counter[str] = Counter()  # handed to the writer, never on disk (an I/O error)
+        self._deleted: Counter[str] = Counter()  # on disk, then deleted with their file or folder
+        # What is on disk in the open file and in the output folder as it is now (files of this run; a folder made
+        # again starts at zero), records and samples, and the newest records on disk before either was started:
+        # what a deleted file or folder takes with it.
+        self._in_file: tuple[Counter[str], Counter[str]] = (Counter(), Counter())
+        self._in_dir: tuple[Counter[str], Counter[str]] = (Counter(), Counter())
+        self._on_disk_before_file: dict[str, int] = {}
+        self._on_disk_before_dir: dict[str, int] = {}
         self._down_ns = 0  # drive time in DOWN_STATES before the present state
         self._newest_written: dict[str, int] = {}  # topic -> t_mono_ns of its newest record handed to the writer
         # Called from the writer thread with a topic the first time one of its records is written (start-up timing).
@@ -258,6 +269,7 @@ class Recorder:
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
                 unrecorded=dict(self._unrecorded), buffered=dict(self._pending), lost=dict(self._lost),
+                deleted=dict(self._deleted),
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
                 on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since,
                 down_s=max(0, down) / 1e9, out_dir=str(self.settings.out_dir))
@@ -400,7 +412,10 @@ class Recorder:
             return
         lost = self._file_lost()
         if lost:  # what was just flushed went to a file nobody can find: it is not on disk in any useful sense
-            self._io_failed(OSError(errno.ENOENT, lost[1]), *lost)
+            problem, event, gone = lost
+            if gone:
+                self._deleted_with(gone)
+            self._io_failed(OSError(errno.ENOENT, event), problem, event)
             self._next_retry = self._now()  # a new file (in a recreated folder) at the next flush
             return
         self._kept_on_disk(True)
@@ -420,29 +435,53 @@ class Recorder:
         if size >= self.settings.rotate_size_bytes:
             self._rotate()
 
-    def _file_lost(self) -> tuple[str, str] | None:
+    def _file_lost(self) -> tuple[str, str, str] | None:
         """Why the open file cannot be found where it is written (None when it can): deleted, or its folder deleted
-        or replaced; as (the problem, short and the same on every retry; the event for the log, with the folder).
-        Writes and fsyncs to an unlinked file succeed, so only this check notices."""
+        or replaced; as (the problem, short and the same on every retry; the event for the log, with the folder;
+        what went with it: "file", "folder", or "" when that is not known). Writes and fsyncs to an unlinked file
+        succeed, so only this check notices."""
         assert self._stream is not None
         out = self.settings.out_dir
         name = self._path.name if self._path else "the open file"
         try:  # the folder first: deleting it deletes the file too, and the folder is the news
             d = os.stat(out)
         except FileNotFoundError:
-            return "the output folder was deleted", f"the output folder {out} was deleted while recording"
+            return ("the output folder was deleted", f"the output folder {out} was deleted while recording",
+                    "folder")
         except OSError as exc:
             why = exc.strerror or str(exc)
-            return f"the output folder cannot be checked: {why}", f"the output folder {out} cannot be checked: {why}"
+            return (f"the output folder cannot be checked: {why}",
+                    f"the output folder {out} cannot be checked: {why}", "")
         if self._dir_id is not None and (d.st_dev, d.st_ino) != self._dir_id:
-            return "the output folder was replaced", f"the output folder {out} was replaced while recording"
+            # Moved away or deleted and made again: its files are not where the run put them either way, and
+            # what is not there cannot be counted on disk.
+            return ("the output folder was replaced",
+                    f"the output folder {out} was replaced while recording (moved away or deleted)", "folder")
         try:
             if os.fstat(self._stream.fileno()).st_nlink == 0:
-                return "its file was deleted", f"{name} was deleted from {out} while being written"
+                return "its file was deleted", f"{name} was deleted from {out} while being written", "file"
         except OSError as exc:
             why = exc.strerror or str(exc)
-            return f"its file cannot be checked: {why}", f"{name} in {out} cannot be checked: {why}"
+            return f"its file cannot be checked: {why}", f"{name} in {out} cannot be checked: {why}", ""
         return None
+
+    def _deleted_with(self, gone: str) -> None:
+        """The records on disk in the deleted file ("file") or in the whole output folder ("folder") are not on
+        disk any more: counted deleted instead of written, and the newest on disk is what it was before them."""
+        records, samples = (Counter(c) for c in (self._in_file if gone == "file" else self._in_dir))
+        with self._lock:
+            self._written.subtract(records)
+            self._samples.subtract(samples)
+            self._written += Counter()  # drops the topics left at zero
+            self._samples += Counter()
+            self._deleted.update(records)
+            self._on_disk = dict(self._on_disk_before_file if gone == "file" else self._on_disk_before_dir)
+        self._newest_written = dict(self._on_disk)
+        for c in (*self._in_file, *self._in_dir) if gone == "folder" else self._in_file:
+            c.clear()
+        if gone == "file":
+            for held, went in zip(self._in_dir, (records, samples), strict=True):
+                held.subtract(went)
 
     def _rotate(self) -> None:
         self._close_file()
@@ -535,7 +574,14 @@ class Recorder:
             self._next_retry = self._now() + RETRY_S
             return
         self._sequence = part
+        if self._dir_id != (d.st_dev, d.st_ino):  # a folder of its own (the first, or one made again)
+            for c in self._in_dir:
+                c.clear()
+            self._on_disk_before_dir = dict(self._on_disk)
         self._dir_id = (d.st_dev, d.st_ino)
+        for c in self._in_file:
+            c.clear()
+        self._on_disk_before_file = dict(self._on_disk)
         with self._lock:
             self._writer, self._stream, self._path = writer, stream, path
             self._files.append(path)
@@ -625,6 +671,9 @@ class Recorder:
                 self._on_disk.update(self._newest_written)
                 self._written.update(self._pending)
                 self._samples.update(self._pending_samples)
+                for records, samples in (self._in_file, self._in_dir):
+                    records.update(self._pending)
+                    samples.update(self._pending_samples)
             else:
                 self._lost.update(self._pending)
             self._pending.clear()

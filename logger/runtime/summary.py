@@ -46,7 +46,8 @@ def run_summary(daemon: Daemon) -> str:
             held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
                     else "")
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
-    lines += [f"  ! {line}" for line in recorder_losses(rec.down_s, rec.unrecorded, rec.lost, rec.dropped)]
+    losses = recorder_losses(rec.down_s, rec.unrecorded, rec.lost, rec.dropped, rec.deleted)
+    lines += [f"  ! {line}" for line in losses]
     # The rows as they were when the run was told to stop (a sampler says "stopped" once it has), with the daemon's
     # own judgement in them (silent, stalled); the samplers' health at that time when the daemon never started.
     end = daemon.ended_mono_ns
@@ -84,10 +85,11 @@ DOWN_SHOWN_S = 1.0  # recorder downtime below this is not worth a line (a rotati
 
 
 def recorder_losses(down_s: float, unrecorded: dict[str, int], lost: dict[str, int],
-                    dropped: dict[str, int]) -> list[str]:
+                    dropped: dict[str, int], deleted: dict[str, int] | None = None) -> list[str]:
     """What the run's files lack, one line each: the time the recorder was not recording and the records that came
     meanwhile, the records lost in a failed write (handed to the writer, never on disk), the records dropped for a
-    full queue. The topic table counts only what is on disk."""
+    full queue, the records deleted with their file or folder while recording. The topic table counts only what is
+    on disk."""
     out = []
     n_unrec = sum(unrecorded.values())
     if down_s >= DOWN_SHOWN_S or n_unrec:
@@ -98,6 +100,9 @@ def recorder_losses(down_s: float, unrecorded: dict[str, int], lost: dict[str, i
                    "disk)")
     if sum(dropped.values()):
         out.append(f"{plural(sum(dropped.values()), 'record')} dropped (the recorder's queue was full)")
+    if deleted and sum(deleted.values()):
+        out.append(f"{plural(sum(deleted.values()), 'record')} deleted with their file or folder while recording "
+                   "(on disk, then deleted: see the log)")
     return out
 
 
