@@ -20,6 +20,7 @@ from __future__ import annotations
 import calendar
 import math
 import re
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -233,12 +234,27 @@ DAY_NS = 86_400 * NS_PER_S
 # gpsd (3.22) stamps a leap second, 23:59:60, with the Unix time of the 00:00:00 after it: two epochs, a second
 # apart, under one time. A TPV of a midnight second arriving this long after the first of that time is the second.
 LEAP_REPEAT_NS = 600_000_000
+# ... and an epoch of such a second is held this long after its first TPV before the settle time reports it (the
+# repeat, 1 s later, then finds it open and marks it 23:59:60), on the days a leap second may end: the first of
+# January, April, July and October (ITU-R TF.460; every one so far ended June or December). A day without one
+# reports that second's epoch when the next second's TPV comes, about 1 s late, four times a year.
+LEAP_HOLD_NS = 1_500_000_000
+LEAP_MONTHS = (1, 4, 7, 10)
 UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
 
 
 def _midnight_second(key: int | None) -> bool:
     """Whether a time falls in the first second of a UTC day, the second a leap second's repeat lands in."""
     return key is not None and key % DAY_NS < NS_PER_S
+
+
+def _leap_may_end(key: int | None) -> bool:
+    """Whether a time falls in the first second of a day a leap second may end before (LEAP_MONTHS' first)."""
+    if not _midnight_second(key):
+        return False
+    assert key is not None
+    day = time.gmtime(key // NS_PER_S)
+    return day.tm_mday == 1 and day.tm_mon in LEAP_MONTHS
 
 
 class GpsdEpochs:
@@ -283,14 +299,22 @@ class GpsdEpochs:
         return []
 
     def poll(self, t_ns: int) -> list[tuple[GnssFix, int]]:
-        """The open epoch, once nothing was added to it for the settle time."""
-        if self._open is not None and t_ns - self._open.last_ns >= self.settle_ns:
+        """The open epoch, once nothing was added to it for the settle time (a possible leap second's, once
+        LEAP_HOLD_NS passed too)."""
+        due = self.due_ns()
+        if due is not None and t_ns >= due:
             return self._finish()
         return []
 
     def due_ns(self) -> int | None:
         """When ``poll`` will report the open epoch (arrival clock), or None with nothing open."""
-        return None if self._open is None else self._open.last_ns + self.settle_ns
+        open_ = self._open
+        if open_ is None:
+            return None
+        due = open_.last_ns + self.settle_ns
+        if _leap_may_end(open_.key):  # its repeat, if it comes, must find it open
+            due = max(due, open_.first_ns + LEAP_HOLD_NS)
+        return due
 
     def flush(self) -> list[tuple[GnssFix, int]]:
         return self._finish()

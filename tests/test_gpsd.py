@@ -43,7 +43,7 @@ from logger.runtime.status_socket import fetch
 from logger.runtime.timebase import TimeBase, host_timebase
 from sensors.errors import DeviceNotFound, NoData, SensorError
 from sensors.gpsd import MAX_LINE_BYTES, GpsdClient, LineSplitter, watch_command
-from sensors.gpsd_decode import GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
+from sensors.gpsd_decode import LEAP_HOLD_NS, GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
 from sensors.sim.clock import ManualClock
 from sensors.sim.gpsd import SimGpsd
 from sync.clock import PpsClock
@@ -802,12 +802,24 @@ def test_gpsds_leap_second_tpv_stamped_midnight_is_an_epoch_of_its_own() -> None
         out = e.push(tpv(midnight - NS, lat=48.11749), 0)
         out += e.push(tpv(midnight, lat=48.1175), NS)
         if poll:
-            out += e.poll(NS + 400_000_000)
+            out += e.poll(NS + 400_000_000)  # held: the repeat may come
         out += e.push(tpv(midnight, lat=48.11751), 2 * NS) + e.push(tpv(midnight + NS, lat=48.11752), 3 * NS)
         out += e.flush()
         assert [(f.time_utc_ns - midnight, f.lat_deg) for f, _ in out] == [
             (-NS, 48.11749), (0, 48.1175), (0, 48.11751), (NS, 48.11752)], poll
-        assert [f.leap_second for f, _ in out] == [False, not poll, False, False]
+        assert [f.leap_second for f, _ in out] == [False, True, False, False]
+    # Live, gpsd's socket is polled between TPVs: the settle time passed before the repeat came, and 23:59:60 was
+    # reported unflagged under 00:00:00's time (a second off on the clock). On a day a leap second may end, the
+    # midnight second's epoch waits for its repeat; any other day's goes out after the settle time as usual.
+    e = GpsdEpochs()
+    e.push(tpv(midnight, lat=48.1175), NS)
+    assert e.poll(NS + 400_000_000) == [] and e.due_ns() == NS + LEAP_HOLD_NS
+    (fix, _), = e.poll(NS + LEAP_HOLD_NS)  # no repeat: this year had no leap second
+    assert not fix.leap_second
+    other_day = calendar.timegm((2026, 1, 2, 0, 0, 0)) * NS
+    e = GpsdEpochs()
+    e.push(tpv(other_day), NS)
+    assert len(e.poll(NS + 400_000_000)) == 1
     # a TPV of a midnight completing its epoch (within the burst) is no second epoch
     e = GpsdEpochs()
     out = e.push(tpv(midnight), 0) + e.push(tpv(midnight, epv=3.0), 200_000_000) + e.flush()
