@@ -402,3 +402,38 @@ def test_an_output_path_that_cannot_be_a_folder_is_one_line_before_the_work(tmp_
             assert r.returncode == 2 and r.stderr == f"logger export: {words}\n" and r.stdout == "", r.stderr
     r = run("export", str(drive), "--out", str(tmp_path / "new" / "deeper"))
     assert r.returncode == 0 and (tmp_path / "new" / "deeper").is_dir(), r.stderr
+
+
+def _with_file_size_limit(limit_bytes: int):
+    """A child whose writes past ``limit_bytes`` fail with EFBIG, as a full card fails them (ENOSPC): a real
+    write error from the kernel, without mounting a small file system (SIGXFSZ ignored, so the write returns it)."""
+    import resource
+    import signal
+
+    def child() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return child
+
+
+def test_an_output_that_fails_part_way_leaves_the_earlier_one_whole(drive: Drive, tmp_path: Path) -> None:
+    """The same drive exported and replayed again into the same folder, the second time with a write failing
+    part-way (a full card): the earlier GPX, CSV and trajectory files stay as they were, byte for byte, where a
+    truncated file had replaced them, no partial file is left, and the line names the output that failed."""
+    out = tmp_path / "out"
+    r = run("export", *map(str, drive.files), "--out", str(out), "--format", "gpx,csv", "--every", "20")
+    assert r.returncode == 0, r.stderr
+    r = run("replay", *map(str, drive.files), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    gpx = next(out.glob("*.gpx"))
+    limit = 2 * len(before[gpx.name])  # the thinned GPX fits, every fix's does not
+    for args, failed in ((("export", "--format", "gpx,csv"), gpx),
+                         (("replay", "--fix-hz", "0"), out / "trajectory.csv")):
+        r = subprocess.run([sys.executable, "-m", "logger.cli", args[0], *map(str, drive.files), "--out", str(out),
+                            *args[1:]], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                           preexec_fn=_with_file_size_limit(limit))
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert r.stderr.endswith(f"{failed}: File too large\n"), r.stderr
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before, args

@@ -127,6 +127,35 @@ def test_convbin_reads_every_rawx_epoch_of_the_export(m8t_drive: tuple[bytes, li
     obs_types = [line[:60].split() for line in header.splitlines() if line[60:].strip() == "SYS / # / OBS TYPES"]
     assert obs_types and all(t[1:] == ["4", "C1C", "L1C", "D1C", "S1C"] for t in obs_types), obs_types  # GPS, SBAS
     assert next(tmp_path.glob("*.ubx")).read_bytes() == data  # the .ubx keeps the unfinished tail
+    # The capture holds no RXM-SFRBX: convbin writes no navigation file, and the command says what is missing.
+    assert not list(tmp_path.glob("*.nav"))
+    assert r.stderr == (f"logger export: no {obs.stem}.nav: the stream holds no navigation data (0 RXM-SFRBX); "
+                        "rnx2rtkp needs the day's broadcast ephemerides from elsewhere (an IGS BRDC file)\n")
+
+
+def test_a_failed_rinex_export_leaves_an_earlier_export_as_it_was(m8t_drive: tuple[bytes, list[Path]],
+                                                                  tmp_path: Path) -> None:
+    """convbin failing (here a stand-in that exits 3) after the stream was joined: the folder keeps what an earlier
+    export of the drive put there, byte for byte (a failed export deleted the earlier .ubx, notes and .obs by name),
+    and nothing of the failed one (no staging folder, no partial file)."""
+    need_convbin()
+    _, files = m8t_drive
+    out = tmp_path / "out"
+    r = run("export", *map(str, files), "--out", str(out), "--format", "ubx,rinex")
+    assert r.returncode == 0, r.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert sorted(Path(n).suffix for n in before) == [".json", ".obs", ".ubx"]
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "convbin").write_text("#!/bin/sh\necho 'input file : broken' >&2\nexit 3\n")
+    (fake / "convbin").chmod(0o755)
+    env = {**os.environ, "PATH": f"{fake}:{os.environ['PATH']}"}
+    for formats in ("rinex", "ubx,rinex"):
+        r = run("export", *map(str, files), "--out", str(out), "--format", formats, env=env)
+        assert r.returncode == 2 and "convbin wrote no observations from " in r.stderr, r.stderr
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before, formats
+    ubx = next(out.glob("*.ubx"))
+    assert r.stderr.endswith(f"; wrote only {ubx} and {ubx}.json\n") and f"from {ubx} (exit status 3" in r.stderr
 
 
 def test_a_configuration_given_at_the_office_goes_into_the_rinex_header(m8t_drive: tuple[bytes, list[Path]],
@@ -176,6 +205,14 @@ def test_rinex_of_a_stream_without_raw_observations_is_one_line_before_convbin(t
     assert r.returncode == 2 and r.stderr == f"{why}; wrote only {ubx} and {ubx}.json\n", r.stderr
     assert ubx.read_bytes() == gga * 5 and sorted(p.name for p in (tmp_path / "both").iterdir()) == [
         ubx.name, f"{ubx.name}.json"]
+    # Into a folder holding an earlier export of another stream: RINEX alone touches nothing there.
+    (tmp_path / "both" / f"{ubx.stem}.obs").write_text("an earlier export's observations\n")
+    before = {p.name: p.read_bytes() for p in (tmp_path / "both").iterdir()}
+    ubx.write_bytes(b"an earlier stream")
+    before[ubx.name] = b"an earlier stream"
+    r = run("export", *files, "--out", str(tmp_path / "both"), "--format", "rinex")
+    assert r.returncode == 2 and r.stderr == f"{why}; nothing written\n", r.stderr
+    assert {p.name: p.read_bytes() for p in (tmp_path / "both").iterdir()} == before
 
 
 def test_lost_records_a_reopened_port_and_a_silence_are_noted_beside_the_stream(tmp_path: Path) -> None:

@@ -12,7 +12,9 @@ into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RT
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 from collections import Counter
 from pathlib import Path
 
@@ -170,40 +172,63 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
     RINEX needs the receiver's raw observations (RXM-RAWX): a stream without any (an M8N, the default, sends none;
     ``[gnss] raw_observations`` off) is refused before convbin is run, which would only fail with its progress
     output for a message. When RINEX cannot be made, the ``.ubx`` and its notes are kept only if ``keep_ubx`` (the
-    user asked for ``ubx`` too), and the error says so; otherwise they were only convbin's input and are removed."""
+    user asked for ``ubx`` too), and the error says so; otherwise they were only convbin's input.
+
+    Everything is made in a staging folder inside ``out`` and moved into place only once it is complete, so that a
+    failure (no raw observations, convbin failing, a full disk) leaves the folder as it was: an earlier export's
+    ``.ubx``, ``.obs`` and ``.nav`` of the same drive were deleted by a failed one. Without navigation data (no
+    RXM-SFRBX in the stream: convbin writes no ``.nav``) the observations are written and a line says what is
+    missing: rnx2rtkp needs broadcast ephemerides from elsewhere then."""
     header = rinex_header(files, config) if rinex else None
     progress = Progress("logger export")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    ubx = out / f"{name}.ubx"
+    ubx, notes, obs, nav = (out / f"{name}{ext}" for ext in (".ubx", ".ubx.json", ".obs", ".nav"))
     try:
-        report = write_ubx(iter_messages(files, [GNSS_RAW], progress), files, ubx)
+        with tempfile.TemporaryDirectory(prefix=".export-", dir=out) as tmp:
+            stage = Path(tmp)
+            try:
+                report = write_ubx(iter_messages(files, [GNSS_RAW], progress), files, stage / ubx.name)
+            finally:
+                progress.end()
+            if not report.records:
+                return []
+            report.ubx = str(ubx)
+            write_notes(stage / notes.name, report)
+            print(stream_summary(report))
+            made = [ubx, notes]
+            failure: UsageError | ConvbinError | None = None
+            if header is not None:
+                try:
+                    if not report.raw_epochs:
+                        raise UsageError(f"no RINEX: {GNSS_RAW} holds no raw observations (0 RXM-RAWX; record them "
+                                         "with [gnss] raw_observations = true on a receiver that has them: M8T, "
+                                         "M8P, F9P, F9T)")
+                    result = to_rinex(stage / ubx.name, stage / obs.name, stage / nav.name, *header,
+                                      report.unfinished_tail_bytes, named=ubx)
+                except (UsageError, ConvbinError) as exc:
+                    failure = exc
+                else:
+                    print(f"rinex: {plural(result.epochs, 'observation epoch')} from {report.raw_epochs} RXM-RAWX")
+                    made += [obs] + ([nav] if result.nav.is_file() else [])
+                    if not result.nav.is_file():
+                        print(f"logger export: no {nav.name}: the stream holds no navigation data (0 RXM-SFRBX); "
+                              "rnx2rtkp needs the day's broadcast ephemerides from elsewhere (an IGS BRDC file)",
+                              file=sys.stderr)
+            if failure is not None and not keep_ubx:
+                raise type(failure)(f"{failure}; nothing written") from None
+            for final in made:
+                os.replace(stage / final.name, final)
+            if failure is not None:
+                raise type(failure)(f"{failure}; wrote only {ubx} and {notes}") from None
+            return made
+    except OSError as exc:  # a full disk while staging: named as the output it was to be
+        if exc.filename and Path(exc.filename).parent.name.startswith(".export-"):
+            exc.filename = str(out / Path(exc.filename).name)
+        raise
     finally:
-        progress.end()
-    if not report.records:
-        ubx.unlink()
-        return []
-    notes = out / f"{name}.ubx.json"
-    write_notes(notes, report)
-    print(stream_summary(report))
-    written = [ubx, notes]
-    if header is None:
-        return written
-    try:
-        if not report.raw_epochs:
-            raise UsageError(f"no RINEX: {GNSS_RAW} holds no raw observations (0 RXM-RAWX; record them with [gnss] "
-                             "raw_observations = true on a receiver that has them: M8T, M8P, F9P, F9T)")
-        result = to_rinex(ubx, out / f"{name}.obs", out / f"{name}.nav", *header, report.unfinished_tail_bytes)
-    except (UsageError, ConvbinError) as exc:
-        if keep_ubx:
-            raise type(exc)(f"{exc}; wrote only {ubx} and {notes}") from None
-        for p in written:
-            p.unlink()
         if created and not any(out.iterdir()):
             out.rmdir()
-        raise type(exc)(f"{exc}; nothing written") from None
-    print(f"rinex: {plural(result.epochs, 'observation epoch')} from {report.raw_epochs} RXM-RAWX")
-    return written + [p for p in (result.obs, result.nav) if p.is_file()]
 
 
 def main(argv: list[str]) -> int:

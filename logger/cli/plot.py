@@ -29,6 +29,7 @@ from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.exports.whole import save_figure
 from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, damage_notes, iter_messages, open_drive
 from logger.recording.records import NO_FIX, fix_name
 from logger.recording.topics import GNSS_FIX, SYNC
@@ -84,7 +85,7 @@ def draw_map(plt: Any, tracks: list[Track], path: Path) -> Path | None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path, DPI)
     plt.close(fig)
     return path
 
@@ -149,7 +150,7 @@ def draw_rates(plt: Any, tim: dict[str, TopicTiming], fixes: list[DriveMessage],
     axes[-1, 0].set_xlabel(f"s since {utc_iso(t0_ns)} (grey: no GNSS fix, orange: gaps, red: messages lost by seq, "
                            "dashed: restart)")
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path, DPI)
     plt.close(fig)
     return path
 
@@ -210,7 +211,7 @@ def draw_sync(plt: Any, sync: list[DriveMessage], tim: dict[str, TopicTiming], f
         ax.grid(alpha=0.3)
         _shade(ax, outages)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path, DPI)
     plt.close(fig)
     return path
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 from logger.exports.tracks import Gap, Track, TrackPoint
+from logger.exports.whole import written_whole
 from logger.recording.topics import GNSS_FIX, NAV_FIX
 from logger.words import plural
 
@@ -76,7 +77,7 @@ def _gpx_point(p: TrackPoint, which: str, gnss: bool) -> str:
 
 def write_gpx(path: Path, tracks: list[Track], which: str, title: str) -> None:
     pts = [p for t in tracks for p in t.points]
-    with open(path, "w", encoding="utf-8") as f:
+    with written_whole(path, "w", encoding="utf-8") as f:
         f.write('<?xml version="1.0" encoding="UTF-8"?>\n')
         f.write(f'<gpx version="1.1" creator="vehicle-logger export" xmlns="{GPX_NS}" '
                 f'xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
@@ -127,7 +128,7 @@ def _kml_gap(g: Gap, which: str) -> str:
 
 
 def write_kml(path: Path, tracks: list[Track], which: str, title: str, gap_marks: bool = False) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with written_whole(path, "w", encoding="utf-8") as f:
         f.write('<?xml version="1.0" encoding="UTF-8"?>\n')
         f.write(f'<kml xmlns="{KML_NS}" xmlns:gx="{GX_NS}"><Document><name>{escape(title)}</name>\n')
         f.write(f"<description>{escape(f'altitudes: {HEIGHT_TEXT[which]} (lines are clamped to the ground)')}"
@@ -155,7 +156,7 @@ def write_kml(path: Path, tracks: list[Track], which: str, title: str, gap_marks
 
 
 def write_csv(path: Path, track: Track) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as f:
+    with written_whole(path, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(CSV_COLUMNS)
         for n, seg in enumerate(track.segments, 1):

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
+from logger.exports.whole import save_figure
 from logger.nav import earth
 from logger.recording.drive import read_messages
 from logger.recording.topics import GNSS_FIX, NAV_FIX, TRUTH_CLOCK, TRUTH_NAV
@@ -353,7 +354,7 @@ def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], 
     ax.legend()
     ax.set_title("map view")
     p = out_dir / "map.png"
-    fig.savefig(p, dpi=110)
+    save_figure(fig, p, 110)
     plt.close(fig)
     written.append(p)
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
@@ -367,7 +368,7 @@ def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], 
     axes[0].legend()
     axes[-1].set_xlabel("drive time, s (grey: no GNSS fix)")
     p = out_dir / "error.png"
-    fig.savefig(p, dpi=110)
+    save_figure(fig, p, 110)
     plt.close(fig)
     written.append(p)
     return written

@@ -46,6 +46,7 @@ from mcap.records import Metadata
 from mcap.stream_reader import StreamReader
 from pyubx2 import UBX_MSGIDS
 
+from logger.exports.whole import written_whole
 from logger.recording.drive import DriveFile, DriveFileError, DriveMessage
 from logger.recording.topics import GNSS_RAW
 from sensors.ublox_frames import KIND_UBX, UbxNmeaFramer
@@ -117,7 +118,7 @@ def write_ubx(messages: Iterable[DriveMessage], files: list[DriveFile], path: Pa
     framer.decode_nmea = False  # counted, not parsed
     counts: Counter[str] = Counter()
     prev: DriveMessage | None = None
-    with open(path, "wb") as out:
+    with written_whole(path, "wb") as out:
         for m in messages:
             data = _record_bytes(m, files)
             if prev is not None:
@@ -176,7 +177,8 @@ def _gap(prev: DriveMessage, m: DriveMessage, at_byte: int) -> StreamGap | None:
 
 def write_notes(path: Path, report: StreamReport) -> None:
     """The report as JSON beside the .ubx: sizes, messages, framing problems and every gap."""
-    path.write_text(json.dumps(asdict(report), indent=2) + "\n")
+    with written_whole(path) as f:
+        f.write(json.dumps(asdict(report), indent=2) + "\n")
 
 
 def recorded_config(files: list[DriveFile]) -> dict[str, str]:
@@ -210,11 +212,12 @@ class RinexResult:
 
 
 def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_name: str,
-             unfinished_tail_bytes: int = 0) -> RinexResult:
+             unfinished_tail_bytes: int = 0, named: Path | None = None) -> RinexResult:
     """``convbin -r ubx`` of the stream into RINEX observations and navigation data, the header carrying the antenna
     height (ANTENNA: DELTA H/E/N) and, when set, the receiver (REC # / TYPE / VERS). A stream that ends inside a
     frame is converted without that tail (see the module's note), from a copy of the same name. On failure nothing
-    of convbin's is left behind (a navigation file without its observations is no RINEX for RTKLIB)."""
+    of convbin's is left behind (a navigation file without its observations is no RINEX for RTKLIB). ``named``:
+    the stream as the user knows it, in messages (``ubx`` may be a staged copy)."""
     cmd = [convbin_path(), "-r", "ubx", "-v", RINEX_VERSION, *CONVBIN_OBS_TYPES, "-hd", f"{antenna_height_m:.4f}/0/0",
            "-o", str(obs), "-n", str(nav)]
     if receiver_name:
@@ -234,7 +237,7 @@ def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_
         for made in (obs, nav):
             made.unlink(missing_ok=True)
         said = convbin_said(done.stderr + "\n" + done.stdout)
-        raise ConvbinError(f"{CONVBIN} wrote no observations from {ubx} (exit status {done.returncode}"
+        raise ConvbinError(f"{CONVBIN} wrote no observations from {named or ubx} (exit status {done.returncode}"
                            + (f": {said})" if said else ")"))
     return RinexResult(obs, nav, count_epochs(obs))
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from logger.exports.plotting import pyplot
 from logger.exports.raw_stream import recorded_config
+from logger.exports.whole import save_figure
 from logger.recording.drive import DriveFile, DriveFileError, iter_messages, open_drive
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TRUTH_CLOCK
 
@@ -197,7 +198,7 @@ def plots(drive: Drive, out_dir: Path) -> list[Path]:
     ax[1].set_title("(b) IMU counter with the timer carry (the paper's method)")
     fig.tight_layout()
     f18 = out_dir / "figure18_counters.png"
-    fig.savefig(f18, dpi=100)
+    save_figure(fig, f18, 100)
     plt.close(fig)
     pps = [m for m in drive.topics.get(PPS, []) if m["sync_state"] != "freerun"]
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
@@ -216,6 +217,6 @@ def plots(drive: Drive, out_dir: Path) -> list[Path]:
     ax[1].legend()
     fig.tight_layout()
     f19 = out_dir / "figure19_intervals.png"
-    fig.savefig(f19, dpi=100)
+    save_figure(fig, f19, 100)
     plt.close(fig)
     return [f18, f19]

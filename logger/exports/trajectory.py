@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from logger.exports.whole import written_whole
 from logger.nav import boresight
 from logger.nav.engine import REOPEN_DEG, NavEngine, TrajectoryRow, forward_axis_turned
 from logger.nav.inputs import SolutionEpoch
@@ -251,7 +252,7 @@ def columns(rows: Sequence[TrajectoryRow]) -> Columns:
 def write_csv(path: Path, rows: Sequence[TrajectoryRow]) -> None:
     """``trajectory.csv``: the header, then a line per row, a block of rows at a time made columns, formatted and
     written."""
-    with open(path, "w", newline="") as f:
+    with written_whole(path, "w", newline="") as f:
         f.write(",".join(CSV_HEADER) + "\r\n")
         for i in range(0, len(rows), BLOCK_ROWS):
             block = list(zip(*columns(rows[i:i + BLOCK_ROWS]).table(), strict=True))
@@ -319,7 +320,7 @@ def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, sta
     hz = engine.params.publish_hz if fix_hz is None else fix_hz
     keep = fix_rows([row[0] for row in rows], hz)
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
-    with open(path, "wb") as f:
+    with written_whole(path, "wb") as f:
         w = McapWriter(f)
         w.start(profile="", library=REPLAY_LIBRARY)
         ids = {}
