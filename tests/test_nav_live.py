@@ -217,6 +217,21 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path):
     empty.mkdir()
     r = _replay(str(empty), "--out", str(tmp_path / "out"))
     assert r.returncode == 2 and "a folder without recorded MCAP files" in r.stderr and "Traceback" not in r.stderr
+    # Another tool's file with an /imu of other fields: its messages are skipped and counted, not a traceback.
+    from mcap.writer import Writer
+
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        w = Writer(f)
+        w.start("x", "another tool")
+        cid = w.register_channel("/imu", "json", w.register_schema("foo", "jsonschema", b"{}"))
+        for i in range(10):
+            w.add_message(cid, log_time=i * 10**9, publish_time=i * 10**9, data=b'{"a": 1}')
+        w.finish()
+    r = _replay(str(foreign), "--out", str(tmp_path / "out"))
+    assert r.returncode == 1 and "Traceback" not in r.stderr and not (tmp_path / "out").exists(), r.stderr
+    assert r.stderr.startswith("logger replay: 10 /imu messages skipped: not the logger's records (no field "
+                               "'accel_mps2')\n"), r.stderr
 
 
 def test_replay_takes_the_drive_folder_and_a_file_cut_short(recorded: Path, tmp_path: Path):

@@ -139,6 +139,7 @@ def main(argv: list[str]) -> int:
             return 2
     t0 = time.perf_counter()
     notes: list[str] = []
+    skipped: list[str] = []
     states: list[dict[str, Any]] | None = None if args.no_mcap else []
     progress = Progress("logger replay")
     smoothing: SmoothingReport | None = None
@@ -150,7 +151,8 @@ def main(argv: list[str]) -> int:
         with no_cycle_collector():
             engine, rows = run_filter([f.path for f in files], params, args.smooth, states, progress, smoothing,
                                       solution.epochs if solution is not None else (),
-                                      args.gnss_solution_mode == "replace", refilter=not args.one_pass, notes=notes)
+                                      args.gnss_solution_mode == "replace", refilter=not args.one_pass, notes=notes,
+                                      skipped=skipped)
     except DriveFileError as exc:  # a file that turned out unreadable once read: one line, nothing written
         progress.end()
         print(f"logger replay: {exc}", file=sys.stderr)
@@ -160,7 +162,7 @@ def main(argv: list[str]) -> int:
     progress.end()
     # Damaged chunks were skipped whole and the rest filtered: said before the result, which is still written
     # (exit 0), since the drive's other minutes are worth as much as before.
-    for line in damage_notes(files):
+    for line in damage_notes(files) + skipped:
         print(f"logger replay: {line}", file=sys.stderr)
     if not rows:
         # An empty trajectory is no result: say what the start waited for, write nothing, fail.

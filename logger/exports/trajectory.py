@@ -37,6 +37,7 @@ from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
 from logger.recording.records import NAV_INPUT_TOPICS, follows_on, nav_fix_record, nav_state_record
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
+from logger.words import plural
 
 if TYPE_CHECKING:
     from logger.nav.smoother import SmoothingReport
@@ -96,7 +97,8 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
                progress: ProgressFn | None = None,
                smoothing: SmoothingReport | None = None, solution: Sequence[SolutionEpoch] = (),
                solution_replaces: bool = True, refilter: bool = False,
-               notes: list[str] | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
+               notes: list[str] | None = None,
+               skipped: list[str] | None = None) -> tuple[NavEngine, list[TrajectoryRow]]:
     """Run the engine over the files; returns it and its rows (smoothed when asked). With ``states``, a
     ``/nav/state`` record is appended to it for every second of drive; ``progress`` hears how far it got;
     ``smoothing`` hears where the backward pass kept the forward solution; ``solution``: a post-processed
@@ -106,8 +108,9 @@ def run_filter(paths: list[Path], params: NavParams, smooth: bool = False,
     it again from the start with that mounting. The live filter can only take the mounting once the drive has
     shown it, and then relearns its attitude and offsets (tens of seconds); whatever comes first (a street canyon
     a minute in) meets a filter still converging. At the office the whole drive is there: the second pass starts
-    with the mounting, as the daemon's next start does with the one it saved. ``notes`` hears a line saying so."""
-    engine = _one_pass(paths, params, states, progress, solution, solution_replaces, notes)
+    with the mounting, as the daemon's next start does with the one it saved. ``notes`` hears a line saying so;
+    ``skipped``, a line per topic whose messages were not the logger's records (skipped, counted)."""
+    engine = _one_pass(paths, params, states, progress, solution, solution_replaces, notes, skipped)
     found = mounting_found(engine, params.mounting_rpy_deg) if refilter else None
     if found is not None:
         rpy = tuple(found.rpy_deg)
@@ -153,9 +156,11 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
 
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
               progress: ProgressFn | None, solution: Sequence[SolutionEpoch],
-              solution_replaces: bool, notes: list[str] | None = None) -> NavEngine:
+              solution_replaces: bool, notes: list[str] | None = None,
+              skipped: list[str] | None = None) -> NavEngine:
     """One forward pass of the engine over the files (``states`` filled as :func:`run_filter` says), with the live
-    filter's re-run of its first minutes (:mod:`logger.recording.nav_rerun`); ``notes`` hears of it."""
+    filter's re-run of its first minutes (:mod:`logger.recording.nav_rerun`); ``notes`` hears of it, ``skipped``
+    of the messages of the filter's topics that were not the logger's records (a line per topic)."""
     def make_engine(p: NavParams) -> NavEngine:
         engine = NavEngine(p, record=True)
         if solution:
@@ -181,23 +186,41 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
             next_state = t + 1_000_000_000
             states.append(nav_state_record(engine, t, mono))
 
+    # Messages of the filter's topics that are not the logger's records (another tool's file with an /imu of other
+    # fields): skipped and counted per topic, with what was wrong with the first, instead of a traceback.
+    foreign: dict[str, tuple[int, str]] = {}
+
+    def skip(topic: str, exc: Exception) -> None:
+        n, why = foreign.get(topic, (0, f"no field {exc}" if isinstance(exc, KeyError) else str(exc)))
+        foreign[topic] = (n + 1, why)
+
     def feed_run() -> None:
         if run:
-            rerun.feed_reads(run)
-            note_state(IMU_BATCH, run[-1])
+            try:
+                rerun.feed_reads(run)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                skip(IMU_BATCH, exc)
+            else:
+                note_state(IMU_BATCH, run[-1])
             run.clear()
 
     for topic, msg in read_drive(paths, progress=progress, runs=True):
-        if topic == IMU_BATCH and follows_on(msg, run[-1]["t_sync_ns"][-1] if run else rerun.engine.t_last_ns):
-            run.append(msg)
-            continue
-        feed_run()
-        rerun.feed(topic, msg)
-        if topic in (IMU, IMU_BATCH):
-            note_state(topic, msg)
+        try:
+            if topic == IMU_BATCH and follows_on(msg, run[-1]["t_sync_ns"][-1] if run else rerun.engine.t_last_ns):
+                run.append(msg)
+                continue
+            feed_run()
+            rerun.feed(topic, msg)
+            if topic in (IMU, IMU_BATCH):
+                note_state(topic, msg)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            skip(topic, exc)
     feed_run()
     if notes is not None and rerun.note():
         notes.append(rerun.note())
+    if skipped is not None:
+        skipped += [f"{plural(n, f'{topic} message')} skipped: not the logger's records ({why})"
+                    for topic, (n, why) in foreign.items()]
     return rerun.engine
 
 
