@@ -577,3 +577,26 @@ def test_written_counts_only_what_reached_the_disk_and_a_failed_write_is_counted
         rec.stop()
     # (The fake fails only the fsync, so the page cache still held those bytes; a real failed write keeps nothing.)
     assert rec.status().written == {"/a": 1} and rec.status().lost == {"/a": 2}
+
+
+def test_a_drive_with_a_part_missing_is_said_and_read_without_it(tmp_path: Path) -> None:
+    """A part of a rotated drive deleted (or not copied from the card): the readers bridged its hole as if nothing
+    were missing. ``cut_notes``, which every office command prints before reading, now names the missing parts;
+    the first part missing is said too (the drive starts late), and a drive with all its parts says nothing."""
+    from logger.recording.drive import cut_notes, open_drive
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02, rotate_size_bytes=1), TOPICS)
+    rec.start()
+    try:
+        for i in range(4):  # a file each (rotated at the first flush past one byte)
+            rec.submit("/a", {"x": i}, 1_700_000_000_000_000_000 + i, 1000 + i)
+            assert wait_until(lambda i=i: rec.status().files_done >= i + 1, 20.0)
+    finally:
+        rec.stop()
+    files = sorted(tmp_path.glob("*.mcap"), key=lambda f: f.name[-9:])  # the first named by the wall clock
+    assert [f.name[-9:] for f in files][:4] == ["0001.mcap", "0002.mcap", "0003.mcap", "0004.mcap"], files
+    assert cut_notes(open_drive(files)) == []
+    assert cut_notes(open_drive([files[0], files[1], files[3]])) == [
+        f"the drive of {files[0].name} lacks 1 part (0003): read without them, its time there is a gap"]
+    assert cut_notes(open_drive(files[2:4])) == [
+        f"the drive of {files[2].name} lacks 2 parts (0001, 0002): read without them, its time there is a gap"]

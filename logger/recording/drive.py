@@ -313,6 +313,7 @@ class DriveFile:
     path: Path
     origin: str  # "live": written by the daemon; "replay": written by logger replay
     finished: bool
+    run: tuple[str, int] | None = None  # (run id, part number) of a daemon's file (:func:`run_identity`)
 
 
 @dataclass(frozen=True)
@@ -507,13 +508,42 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
         if magic != MAGIC:
             raise DriveFileError(f"{p}: not an MCAP file (no MCAP magic at the start)")
         origin = "replay" if _header_library(p) == REPLAY_LIBRARY else "live"
-        files.append(DriveFile(p, origin, is_finished(p)))
+        files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None))
     return files
 
 
 def cut_notes(files: list[DriveFile]) -> list[str]:
-    """One line per file that was not closed cleanly, for the user: such a file is read up to its cut."""
-    return [f"{f.path} was not closed cleanly: read up to where it was cut" for f in files if not f.finished]
+    """One line per file that was not closed cleanly, for the user: such a file is read up to its cut; and one for
+    a drive whose parts are not all there (:func:`missing_parts`)."""
+    return ([f"{f.path} was not closed cleanly: read up to where it was cut" for f in files if not f.finished]
+            + missing_parts(files))
+
+
+def missing_parts(files: list[DriveFile]) -> list[str]:
+    """A line when the daemon's files given lack parts of their run: a part number skipped (a file deleted or not
+    copied from the card) leaves a hole in the drive that the reader would bridge as if nothing were missing (a
+    61 s hole replayed as dead reckoning, 25 m off), and a drive whose first part is not given starts late. The
+    rest is read; the line names what is missing. Files without a run id go by the part numbers of their names,
+    and only a hole between them counts (an older recorder could number a start's first file 0002)."""
+    parts: dict[str, list[tuple[int, Path]]] = {}
+    for f in files:
+        if f.origin != "live":
+            continue
+        if f.run is not None:
+            parts.setdefault(f.run[0], []).append((f.run[1], f.path))
+        elif (n := part_number(f.path)) is not None:
+            parts.setdefault("", []).append((n, f.path))
+    out = []
+    for run, found in parts.items():
+        have = {n for n, _ in found}
+        missing = sorted(set(range(1 if run else min(have), max(have) + 1)) - have)
+        if missing:
+            first = min(found)[1]
+            shown = ", ".join(f"{n:04d}" for n in missing[:FOLDER_DRIVES_SHOWN]) + (
+                ", ..." if len(missing) > FOLDER_DRIVES_SHOWN else "")
+            out.append(f"the drive of {first.name} lacks {plural(len(missing), 'part')} ({shown}): read without "
+                       "them, its time there is a gap")
+    return out
 
 
 def _raw(f: DriveFile, wanted: set[str]) -> list[tuple[int, int, str, bytes]]:
