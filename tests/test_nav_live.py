@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 import statistics
@@ -173,6 +174,14 @@ def test_the_daemon_records_the_live_solution(recorded: Path):
     assert fixes[-1]["t_sync_ns"] - fixes[0]["t_sync_ns"] > 20e9
     assert {"latitude", "longitude", "altitude", "position_covariance", "sigma_ned_m"} <= set(fixes[-1])
     assert states[-1]["status"] == "navigating" and len(states[-1]["p_diag"]) == 17
+    # Logged at their own time, as replay logs them: stamped again at the sink they were off by microseconds.
+    from mcap.reader import make_reader
+
+    for path in sorted(recorded.glob("*.mcap")):
+        with open(path, "rb") as f:
+            off = [m.log_time - json.loads(m.data)["t_sync_ns"]
+                   for _, _, m in make_reader(f).iter_messages(topics=["/nav/fix", "/nav/state"])]
+        assert off and not any(off), (path, min(off), max(off))
 
 
 def test_replay_writes_the_trajectory_in_every_mode(recorded: Path, tmp_path: Path):

@@ -195,15 +195,22 @@ class Daemon:
         observe = self._observe.get(r.topic)
         if observe is not None:
             observe(payload, r.t_mono_ns)  # PPS edges and time messages steer the clock
-        last = self._last_stamp.get(r.topic)
-        if last is not None and last[0] == r.t_mono_ns:
-            stamp = last[1]
+        own = None if r.stamped else payload.get("t_sync_ns")
+        if isinstance(own, int):
+            # A record that carries its own time (the filter's /nav/fix and /nav/state, stamped when their sample
+            # was): logged at it, as replay logs them. Stamped again now, its log time moved by the clock's
+            # corrections since (microseconds), and live and replayed fixes of one sample did not line up.
+            log_ns = own
         else:
-            stamp = self.clock.stamp(r.t_mono_ns)
-            self._last_stamp[r.topic] = (r.t_mono_ns, stamp)
-        if r.stamped:
-            payload = stamped_record(r.t_mono_ns, stamp, next(seq), payload)
-        log_ns = stamp.t_sync_ns
+            last = self._last_stamp.get(r.topic)
+            if last is not None and last[0] == r.t_mono_ns:
+                stamp = last[1]
+            else:
+                stamp = self.clock.stamp(r.t_mono_ns)
+                self._last_stamp[r.topic] = (r.t_mono_ns, stamp)
+            if r.stamped:
+                payload = stamped_record(r.t_mono_ns, stamp, next(seq), payload)
+            log_ns = stamp.t_sync_ns
         self.recorder.submit(r.topic, payload, log_ns, r.t_mono_ns)
         for tap in self.taps:
             tap.offer(r.topic, payload)
