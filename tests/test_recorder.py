@@ -600,3 +600,24 @@ def test_a_drive_with_a_part_missing_is_said_and_read_without_it(tmp_path: Path)
         f"the drive of {files[0].name} lacks 1 part (0003): read without them, its time there is a gap"]
     assert cut_notes(open_drive(files[2:4])) == [
         f"the drive of {files[2].name} lacks 2 parts (0001, 0002): read without them, its time there is a gap"]
+
+
+def test_a_folder_moved_away_or_unmounted_while_recording_keeps_its_records_counted_on_disk(tmp_path: Path) -> None:
+    """A card unmounted under the recorder (a lazy unmount) or its folder moved away: the path no longer leads to the
+    open file, but the file was not deleted (it still has a link) and holds every record up to its last flush.
+    Counted deleted and lost, they were said gone while they were on the card."""
+    out = tmp_path / "drives"
+    rec = Recorder(RecorderSettings(out_dir=out, flush_interval_s=0.05), TOPICS)
+    rec.start()
+    try:
+        rec.submit("/a", {"x": 1}, 1_700_000_000_000_000_001, 1000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 1000, 20.0)
+        out.rename(tmp_path / "moved")
+        assert wait_until(lambda: out.is_dir() and rec.status().state == "recording", 20.0), rec.status()
+        rec.submit("/a", {"x": 2}, 1_700_000_000_000_000_002, 2000)
+        assert wait_until(lambda: rec.status().on_disk_mono_ns.get("/a") == 2000, 20.0)
+    finally:
+        rec.stop()
+    st = rec.status()
+    assert st.deleted == {} and st.lost == {} and st.written == {"/a": 2}, st
+    assert _records_on_disk(tmp_path / "moved") + _records_on_disk(out) == 2

@@ -411,10 +411,12 @@ class Recorder:
             self._io_failed(exc)
             return
         lost = self._file_lost()
-        if lost:  # what was just flushed went to a file nobody can find: it is not on disk in any useful sense
-            problem, event, gone = lost
-            if gone:
+        if lost:  # the file is not where it is written: recording goes on in a new one
+            problem, event, gone, kept = lost
+            if gone:  # deleted: what it held (and the folder's other files, with the folder) is not on disk
                 self._deleted_with(gone)
+            elif kept:  # moved away or unmounted: what was just flushed is in it, wherever it is now
+                self._kept_on_disk(True)
             self._io_failed(OSError(errno.ENOENT, event), problem, event)
             self._next_retry = self._now()  # a new file (in a recreated folder) at the next flush
             return
@@ -435,34 +437,43 @@ class Recorder:
         if size >= self.settings.rotate_size_bytes:
             self._rotate()
 
-    def _file_lost(self) -> tuple[str, str, str] | None:
-        """Why the open file cannot be found where it is written (None when it can): deleted, or its folder deleted
-        or replaced; as (the problem, short and the same on every retry; the event for the log, with the folder;
-        what went with it: "file", "folder", or "" when that is not known). Writes and fsyncs to an unlinked file
-        succeed, so only this check notices."""
+    def _file_lost(self) -> tuple[str, str, str, bool] | None:
+        """Why the open file cannot be found where it is written (None when it can): deleted, or its folder deleted,
+        replaced or gone (moved away, its storage unmounted); as (the problem, short and the same on every retry;
+        the event for the log, with the folder; what went with it: "file" or "folder" when the file was deleted, ""
+        when it was not or that is not known; whether the file still exists somewhere, its flushed records with
+        it). Writes and fsyncs to an unlinked file succeed, so only this check notices. Deleted means unlinked: a
+        folder that is gone while the open file still has a link was moved or unmounted (a card's lazy unmount),
+        and its files, the open one up to its last flush, are on the card."""
         assert self._stream is not None
         out = self.settings.out_dir
         name = self._path.name if self._path else "the open file"
+        try:
+            linked = os.fstat(self._stream.fileno()).st_nlink > 0
+        except OSError as exc:
+            why = exc.strerror or str(exc)
+            return f"its file cannot be checked: {why}", f"{name} in {out} cannot be checked: {why}", "", False
         try:  # the folder first: deleting it deletes the file too, and the folder is the news
             d = os.stat(out)
         except FileNotFoundError:
-            return ("the output folder was deleted", f"the output folder {out} was deleted while recording",
-                    "folder")
+            if not linked:
+                return ("the output folder was deleted", f"the output folder {out} was deleted while recording",
+                        "folder", False)
+            return ("the output folder is gone", f"the output folder {out} is gone while recording (moved away or "
+                    f"its storage unmounted: {name} is not deleted, up to its last flush)", "", True)
         except OSError as exc:
             why = exc.strerror or str(exc)
             return (f"the output folder cannot be checked: {why}",
-                    f"the output folder {out} cannot be checked: {why}", "")
+                    f"the output folder {out} cannot be checked: {why}", "", linked)
         if self._dir_id is not None and (d.st_dev, d.st_ino) != self._dir_id:
-            # Moved away or deleted and made again: its files are not where the run put them either way, and
-            # what is not there cannot be counted on disk.
+            if not linked:  # deleted and made again: its files went with it
+                return ("the output folder was replaced",
+                        f"the output folder {out} was deleted and made again while recording", "folder", False)
             return ("the output folder was replaced",
-                    f"the output folder {out} was replaced while recording (moved away or deleted)", "folder")
-        try:
-            if os.fstat(self._stream.fileno()).st_nlink == 0:
-                return "its file was deleted", f"{name} was deleted from {out} while being written", "file"
-        except OSError as exc:
-            why = exc.strerror or str(exc)
-            return f"its file cannot be checked: {why}", f"{name} in {out} cannot be checked: {why}", ""
+                    f"the output folder {out} was replaced while recording (moved away or its storage unmounted: "
+                    f"{name} is not deleted, up to its last flush)", "", True)
+        if not linked:
+            return "its file was deleted", f"{name} was deleted from {out} while being written", "file", False
         return None
 
     def _deleted_with(self, gone: str) -> None:
