@@ -241,3 +241,27 @@ def test_a_deleted_output_folder_is_critical_within_two_seconds_then_recording_r
     assert f"the output folder {out} was deleted while recording" in caplog.text
     (again,) = sorted(out.glob("*.mcap"))
     assert is_finished(again)
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")  # the thread's end is the case
+def test_the_daemons_service_thread_ending_is_critical_in_the_status(tmp_path: Path, monkeypatch) -> None:
+    """The thread that logs the problems and answers systemd's watchdog ended on an error (the journal's KeyError of
+    two components changing their problem in one second): `logger status` said OK while no problem reached the
+    journal and systemd was about to kill the daemon. The status now says so, critical, and names the thread."""
+    from logger.runtime.daemon import Daemon
+
+    def broken(self: Any, problems: list[str], verdict: str) -> None:
+        raise KeyError("a bug")
+
+    monkeypatch.setattr(Daemon, "_log_problem_changes", broken)
+    daemon, _ = build(sim_config(tmp_path), duration_s=3600)
+    daemon.start()
+    try:
+        wait_for("the service thread's end", lambda: any(t.name == "service" and not t.is_alive()
+                                                           for t in daemon._threads), 30.0)
+        snap = fetch(tmp_path / "status.sock")
+        assert snap["verdict"] == "critical" and (
+            "daemon: its service thread has ended (the journal's problem lines and systemd's watchdog); restart the "
+            "service") in snap["problems"], snap["problems"]
+    finally:
+        daemon.stop()

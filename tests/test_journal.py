@@ -62,3 +62,19 @@ def test_a_problem_that_lasts_is_never_said_to_be_resolved() -> None:
                                      "recording: disk full (2.1 MiB free); for 5 s)"]
     lines = j.update(["imu: silent"], 9.0)
     assert [t for _, t in lines] == ["resolved: recorder: not recording: Read-only file system (lasted 9 s)"]
+
+
+def test_two_components_changing_their_problem_in_one_second_are_two_changes() -> None:
+    """An I2C bus dropped (the IMU's and the barometer's problems turning into others in the same second): the
+    second component's old key was looked up after the first's carry had popped it, and the KeyError ended the
+    service thread that logs problems and answers the watchdog, while `logger status` said OK."""
+    from logger.runtime.journal import ProblemJournal
+
+    j = ProblemJournal()
+    j.update(["imu: no sample for 2 s", "baro: no sample for 2 s"], 0.0)
+    lines = j.update(["imu: stalled in a bus read", "baro: stalled in a bus read"], 1.0)
+    assert sorted(t for _, t in lines) == [
+        "changed: baro: stalled in a bus read (was: baro: no sample for 2 s; for 1 s)",
+        "changed: imu: stalled in a bus read (was: imu: no sample for 2 s; for 1 s)"]
+    assert [t for _, t in j.update([], 3.0)] == ["resolved: imu: stalled in a bus read (lasted 3 s)",
+                                                  "resolved: baro: stalled in a bus read (lasted 3 s)"]

@@ -161,6 +161,12 @@ def test_the_daemon_runs_without_its_card_says_so_and_records_once_it_is_mounted
         assert wait_until(lambda: all(s.health.samples > 0 for s in daemon.samplers))  # the sensors run
         assert list(card.iterdir()) == []
         assert f"started without recording into {card / 'drives'}" in caplog.text
+        # A wait for the card, not a writer failing by itself: past the heartbeat bound the watchdog is still
+        # answered (systemd restarting the service every minute and a half could not bring the card back).
+        assert snap["recorder"]["storage_missing"] is True
+        daemon.heartbeat_bound_s = 0.5
+        time.sleep(1.0)
+        assert daemon.stale_threads() == []
 
         info.write_text(mountinfo_line("/") + mountinfo_line(card))
         assert wait_until(lambda: fetch(sock)["recorder"]["state"] == "recording", 30.0), fetch(sock)["recorder"]

@@ -71,6 +71,9 @@ class RecorderStatus:
     # On disk once, then deleted while recording: the file that held them, or the whole output folder (taken out
     # of ``written`` and ``samples`` then, which count only what is on disk).
     deleted: dict[str, int] = field(default_factory=dict)
+    # Failed because the storage the folder is on is not mounted (storage.py): a wait for the card, which a restart
+    # of the service cannot end, unlike a writer that fails by itself.
+    storage_missing: bool = False
     queue_depth: int = 0
     queue_size: int = 0
     # Per topic, the board time (t_mono_ns) of the newest record the last flush put on disk: what a power cut
@@ -189,6 +192,7 @@ class Recorder:
         self._pending_samples: Counter[str] = Counter()
         self._lost: Counter[str] = Counter()  # handed to the writer, never on disk (an I/O error)
         self._deleted: Counter[str] = Counter()  # on disk, then deleted with their file or folder
+        self._storage_missing = False  # the last open was refused: the storage is not mounted (storage.py)
         # What is on disk in the open file and in the output folder as it is now (files of this run; a folder made
         # again starts at zero), records and samples, and the newest records on disk before either was started:
         # what a deleted file or folder takes with it.
@@ -269,7 +273,7 @@ class Recorder:
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
                 unrecorded=dict(self._unrecorded), buffered=dict(self._pending), lost=dict(self._lost),
-                deleted=dict(self._deleted),
+                deleted=dict(self._deleted), storage_missing=self._storage_missing and self._state == "failed",
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
                 on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since,
                 down_s=max(0, down) / 1e9, out_dir=str(self.settings.out_dir))
@@ -524,8 +528,10 @@ class Recorder:
                           "again every %.0f s", self.settings.out_dir, missing.removesuffix("; waiting for it"),
                           RETRY_S)
             self._set_state("failed", f"not recording: {missing}")
+            self._storage_missing = True
             self._next_retry = self._now() + RETRY_S
             return
+        self._storage_missing = False
         self._free = self._free_bytes()
         if self._free is not None and self._free < self.settings.min_free_bytes:
             if self._state not in DOWN_STATES:

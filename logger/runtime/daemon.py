@@ -53,6 +53,9 @@ log = logging.getLogger(__name__)
 HEARTBEAT_STALE_S = 10.0
 DROP_WINDOW_NS = 60 * 1_000_000_000
 MISLABEL_SHOW_S = 600  # drive seconds a pairing found wrong stays a problem: the operator must see it
+# What each of the daemon's own threads does, for the line that says it ended.
+DAEMON_THREADS = {"service": "the journal's problem lines and systemd's watchdog",
+                  "health": "the /health record", "sim-truth": "the simulation's truth records"}
 # systemd's watchdog is pinged only while every thread proved it is alive within this many real seconds. It must
 # exceed the longest legitimate silence of a thread: a sensor's reconnect back-off (10 s of drive) plus an open
 # that waits for the device (receiver setup by ACK, an ELM327 protocol search).
@@ -384,6 +387,16 @@ class Daemon:
             if problems:
                 rec_section["state"] = "stalled"
                 critical = True
+        # The daemon's own threads: the service loop logs the problems and answers systemd's watchdog, the health
+        # loop records the health once a second. One that ended (a bug) left the journal silent and the watchdog
+        # unanswered while this snapshot said OK.
+        if not self.stop_event.is_set():
+            for t in self._threads:
+                if not t.is_alive():
+                    does = DAEMON_THREADS.get(t.name)
+                    problems.append(f"daemon: its {t.name} thread has ended{f' ({does})' if does else ''}; restart "
+                                    "the service")
+                    critical = True
         sensors, sensor_problems = self._sensor_rows(now)
         problems += sensor_problems
         no_raw = self.gnss_watch.raw_problem(now)
@@ -541,8 +554,9 @@ class Daemon:
             stale.append("recorder has ended")
         elif now - self.recorder.heartbeat_mono_ns > bound_ns:
             stale.append(f"recorder silent for {(now - self.recorder.heartbeat_mono_ns) / 1e9 / self.tb.scale:.0f} s")
-        elif rec.state == "failed" and now - rec.state_since_mono_ns > bound_ns:
-            # Alive but writing nothing: a restart by systemd is the one remedy left to try.
+        elif rec.state == "failed" and not rec.storage_missing and now - rec.state_since_mono_ns > bound_ns:
+            # Alive but writing nothing: a restart by systemd is the one remedy left to try. Not while the card is
+            # not mounted: the recorder waits for it (and records once it is), which a restart cannot hasten.
             stale.append(f"recorder failing for {(now - rec.state_since_mono_ns) / 1e9 / self.tb.scale:.0f} s: "
                          f"{rec.detail}")
         stale += [f"{t.name} has ended" for t in self._threads

@@ -115,11 +115,16 @@ class ProblemJournal:
         """A component's only problem gone and its only new one there in the same update: the problem changed its
         wording (the recorder's write failure, then its retries' open failure). Said once as a change, its
         ``since`` kept, so the journal never says "resolved" for something that lasts."""
-        gone = [k for k in self._active if k not in current]
-        new = [k for k in current if k not in self._active]
-        for who in {subject(current[k]) for k in new}:
-            old_keys = [k for k in gone if subject(self._active[k][0]) == who]
-            new_keys = [k for k in new if subject(current[k]) == who]
+        gone: dict[str, list[str]] = {}  # by subject, taken before any is carried (carrying pops them)
+        for k, (text, *_) in self._active.items():
+            if k not in current:
+                gone.setdefault(subject(text), []).append(k)
+        new: dict[str, list[str]] = {}
+        for k, text in current.items():
+            if k not in self._active:
+                new.setdefault(subject(text), []).append(k)
+        for who, new_keys in new.items():
+            old_keys = gone.get(who, [])
             if len(old_keys) != 1 or len(new_keys) != 1:
                 continue
             old_text, announced, since, _ = self._active.pop(old_keys[0])
