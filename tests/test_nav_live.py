@@ -124,6 +124,10 @@ def test_navigator_thread_publishes_fixes_state_and_status():
         assert sec["age_s"] == pytest.approx(ahead_s, abs=0.6)
         said_old = [v for v in sec["verdicts"] if v.startswith("no new solution for")]
         assert bool(said_old) == stale and (not stale or len(sec["verdicts"]) == 1), sec["verdicts"]
+        # ... on the position's own row, which a full 80x24 screen keeps (the verdict is the first it drops).
+        row = next(line for line in render({"verdict": "ok", "nav": sec}, width=80, height=3).split("\n")
+                   if line.startswith("nav "))
+        assert row.endswith("s old: not current") == stale and len(row) <= 79, row
 
 
 def test_nav_configuration_is_checked_and_reaches_the_filter():

@@ -33,7 +33,9 @@ rows below the table:
            observations (RXM-RAWX a second) when asked for, age
   clock    state (locked to PPS, holdover, freerun), error bound of the
            stamps, offset and frequency of the board clock, last PPS
-  nav      filter position and its 1-sigma, then its plain verdicts
+  nav      filter position and its 1-sigma (or, when the filter had no IMU
+           sample for a while, how old the position is), then its plain
+           verdicts
   rec      state, the file being written (or where it stopped), size,
            free disk; records on disk and dropped (queue full), queue, and
            how far back everything is on disk (what a power cut loses);
@@ -179,9 +181,12 @@ def _nav(sc: Screen, nav: dict[str, Any] | None) -> None:
         return
     verdicts = list(nav.get("verdicts") or [])
     if nav.get("lat_deg") is not None:
-        sigma = f", sigma {nav['sigma_h_m']:.1f} m" if nav.get("sigma_h_m") is not None else ""
-        sc.add(LINE, f"nav     {nav['lat_deg']:.7f} {nav['lon_deg']:.7f} h {nav['height_m']:.1f} m{sigma}"
-                     + (f" ({nav['source']})" if nav.get("source") else ""))
+        where = f"nav     {nav['lat_deg']:.7f} {nav['lon_deg']:.7f} h {nav['height_m']:.1f} m"
+        if nav.get("stale"):  # on the row itself: on a full screen the verdict saying so is the first dropped
+            sc.add(LINE, f"{where}, {age(nav.get('age_s'))} old: not current")
+        else:
+            sigma = f", sigma {nav['sigma_h_m']:.1f} m" if nav.get("sigma_h_m") is not None else ""
+            sc.add(LINE, f"{where}{sigma}" + (f" ({nav['source']})" if nav.get("source") else ""))
         for v in verdicts:
             sc.add(VERDICT, f"        {v}")
     elif verdicts:  # before the first solution: what the start waits for, on the row itself

@@ -406,6 +406,7 @@ class Navigator:
                     # What is known is the filter's last sample, not why (an IMU gone silent, or this thread stuck).
                     out["verdicts"] = [f"no new solution for {age_s:.0f} s (the filter integrated no IMU sample "
                                        "since): the position above is not current"]
+                    out["stale"] = True  # said on the position's own row too (the verdicts may not fit a screen)
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out
