@@ -164,3 +164,58 @@ def test_clients_polling_hard_cost_at_most_a_few_snapshots_a_second(tmp_path: Pa
     assert all(got) and server.answered == sum(got)
     assert server.snapshots <= elapsed / CACHE_S + 2, (server.snapshots, sum(got), elapsed)
     assert server.answered <= (elapsed + 0.5) * 50 + 4  # the answers are paced: the rest wait in the queue
+
+
+def _as_nobody(argv: list[str], default_socket: Path | None = None) -> tuple[int, str]:
+    """``logger status`` in a forked child that dropped root for the unprivileged user: its exit code and stderr."""
+    import sys
+
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: no exec (the interpreter may live where that user may not run it)
+        code = 99
+        try:
+            os.dup2(write, 2)
+            sys.stderr = os.fdopen(2, "w", closefd=False)
+            os.setgroups([])
+            os.setgid(65534)
+            os.setuid(65534)
+            if default_socket is not None:
+                from types import SimpleNamespace
+
+                status_cli.SCHEMA = {"logger": {"status_socket": SimpleNamespace(default=str(default_socket))}}
+            code = main(argv)
+        except BaseException:  # what escaped main: the test shows it
+            import traceback
+
+            traceback.print_exc()
+        finally:
+            sys.stderr.flush()
+            os._exit(code)
+    os.close(write)
+    with os.fdopen(read) as f:
+        err = f.read()
+    return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]), err
+
+
+def test_a_user_outside_the_loggers_group_is_told_so_not_that_it_is_not_running(tmp_path: Path) -> None:
+    """On a board /run/vehicle-logger is the logger group's (0750): another user's `logger status` printed a traceback
+    (the default socket's folder may not be looked into) or said "not running" (exit 3) of a running daemon. Now one
+    line, and exit 4: nobody can say how it is. Run as an unprivileged user (root reads any folder)."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root to ask as another user")
+    run_dir = tmp_path / "run"
+    sock = run_dir / "status.sock"
+    server = StatusServer(sock, lambda: SNAP)
+    server.start()
+    tmp_path.chmod(0o755)
+    run_dir.chmod(0o750)  # root's group: not the unprivileged user's
+    try:
+        for argv, default in ((["status", "--socket", str(sock)], None),
+                              (["status", "--config", "/nonexistent.toml"], sock),
+                              (["status", "--config", str(tmp_path / "none.toml")], sock)):  # not even looked into
+            code, err = _as_nobody(argv, default)
+            assert code == 4 and "Traceback" not in err, (argv, err)
+            assert err.startswith("logger status: not allowed to read ") and "logger's group" in err, err
+    finally:
+        server.close()

@@ -1,8 +1,8 @@
 """``logger status``: what an operator at a red light needs, in one screen.
 
 The daemon's snapshot comes over its status socket (:mod:`logger.runtime.status_socket`); this renders it, and
-the exit code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running, 4 running but not
-answering in time (nobody can say how it is). On a terminal the
+the exit code is the verdict for scripts: 0 healthy, 1 degraded, 2 critical, 3 not running, 4 nobody can say
+(running but not answering in time, or this user may not read its socket). On a terminal the
 screen is drawn to its size (:mod:`logger.cli.status_view`); ``--watch`` redraws it in place.
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 
 from logger.cli.status_view import COLUMNS, render
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
-from logger.runtime.status_socket import EXIT, NOT_RUNNING, UNKNOWN, StatusBusy, fetch, sim_sockets
+from logger.runtime.status_socket import EXIT, NOT_RUNNING, UNKNOWN, StatusBusy, StatusDenied, fetch, sim_sockets
 
 HOME, CLEAR_SCREEN, CLEAR_LINE, CLEAR_BELOW = "\x1b[H", "\x1b[2J", "\x1b[K", "\x1b[J"
 
@@ -30,11 +30,15 @@ def find_socket() -> tuple[Path, dict[str, Any]]:
     naming them all."""
     tried = [Path(SCHEMA["logger"]["status_socket"].default), *sim_sockets(Path(DEFAULT_SIM_SOCKET))]
     for p in tried:
-        if p.exists():
+        try:
+            there = p.exists()
+        except PermissionError:  # its folder may not be read (/run/vehicle-logger is the logger group's)
+            raise StatusDenied(f"not allowed to read {p.parent}: add yourself to the logger's group") from None
+        if there:
             try:
                 return p, fetch(p, timeout_s=1.0)
-            except StatusBusy:
-                raise  # a logger is there, only slow to answer: say so rather than try the next socket
+            except (StatusBusy, StatusDenied):
+                raise  # a logger is there, only slow to answer or not ours to ask: say so, not the next socket
             except ConnectionError:
                 continue  # a socket a crashed run left
     raise ConnectionError("logger is not running (nobody answers on " + ", ".join(map(str, tried)) + ")")
@@ -56,7 +60,7 @@ def main(argv: list[str]) -> int:
         cfg_path = Path(args.config) if args.config else DEFAULT_PATH
         try:
             path = load(cfg_path)["logger"]["status_socket"] if cfg_path.exists() else None
-        except ConfigError:
+        except (ConfigError, OSError):  # one this user may not read: the default sockets are tried
             path = None
     tty = sys.stdout.isatty()
     code = NOT_RUNNING
@@ -73,7 +77,7 @@ def main(argv: list[str]) -> int:
                 code = EXIT.get(snap.get("verdict", ""), 2)
                 text = json.dumps(snap, indent=1) if args.json else render(
                     snap, size.columns if tty else 80, size.lines - (1 if args.watch else 2) if tty else None)
-            except StatusBusy as exc:
+            except (StatusBusy, StatusDenied) as exc:
                 code, text = UNKNOWN, f"logger status: {exc}"
             except ConnectionError as exc:
                 code, text = NOT_RUNNING, f"logger status: {exc}"

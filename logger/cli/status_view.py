@@ -44,7 +44,8 @@ rows below the table:
            failed write and those deleted with their file or folder
   sim      a simulated drive's pace now against the --time-scale asked for
            (it slows when the daemon falls behind), and on average
-exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in time"""
+exit code: 0 ok, 1 degraded, 2 critical, 3 not running, 4 not answering in
+time or not allowed to ask"""
 
 
 def age(s: float | None) -> str:

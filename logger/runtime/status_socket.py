@@ -28,7 +28,8 @@ log = logging.getLogger(__name__)
 
 EXIT = {"ok": 0, "degraded": 1, "critical": 2}
 NOT_RUNNING = 3
-UNKNOWN = 4  # running, but it did not answer in time: nobody can say whether it is well (LSB's "status unknown")
+UNKNOWN = 4  # running but not answering in time, or not allowed to ask: nobody can say whether it is well (LSB's
+# "status unknown")
 MAX_REPLY = 4 << 20
 CACHE_S = 0.25  # a snapshot is this fresh at most: the daemon computes at most four a second
 MAX_ANSWERS_PER_S = 50.0
@@ -37,6 +38,11 @@ BACKLOG = 16
 
 class StatusBusy(ConnectionError):
     """The daemon is there but did not answer in time (its queue full, or it is stalled)."""
+
+
+class StatusDenied(ConnectionError):
+    """The status socket (or the folder it is in) may not be read by this user: nothing says whether the daemon
+    runs or how it is."""
 
 
 class SocketInUse(OSError):
@@ -152,7 +158,7 @@ def _connect_error(exc: OSError, path: str | os.PathLike[str], timeout_s: float)
     if isinstance(exc, ConnectionRefusedError):
         return ConnectionError(f"logger is not running (nobody answers on {path})")
     if isinstance(exc, PermissionError):
-        return ConnectionError(f"not allowed to read {path}: add yourself to the logger's group")
+        return StatusDenied(f"not allowed to read {path}: add yourself to the logger's group")
     if isinstance(exc, TimeoutError):
         return StatusBusy(f"logger did not answer on {path} within {timeout_s:g} s")
     return ConnectionError(f"cannot reach the logger on {path}: {exc.strerror or exc}")
