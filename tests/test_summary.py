@@ -51,3 +51,19 @@ def test_the_summary_names_records_deleted_with_their_file_apart_from_those_lost
     assert lines == ["2 records lost in failed writes (handed to the writer, never on disk)",
                      "41 records deleted with their file or folder while recording (on disk, then deleted: see the "
                      "log)"]
+
+
+def test_a_fifo_imu_is_judged_by_the_samples_it_delivered_not_by_its_reads() -> None:
+    """A 20 Hz IMU read through its FIFO twice a second, the host stopped 8 s (its FIFO holds about 4): the line said
+    "47 of its 1349 periods" (3.5 %, reads set against samples) while 470 samples went, a quarter of them. A read
+    missed while the FIFO holds its samples loses nothing, so what counts is the samples delivered over their span."""
+    imu = _sampler("imu", 2.0, 1310, 90.0, missed=47, missed_host=47)
+    imu.health.rate_hz, imu.health.samples_lost = 20.0, 491  # the samples' rate (the sampler's is its reads')
+    kept_up = _sampler("imu", 2.0, 1783, 90.0, missed=16, missed_host=16)  # late reads, nothing lost; the chip's
+    kept_up.health.rate_hz = 20.0  # clock 1 % slow: 1783 samples in 90 s is no shortfall
+    daemon = SimpleNamespace(samplers=[imu, kept_up])
+    assert shortfalls(daemon) == [
+        "imu let 491 of its 1801 samples pass unsampled (27.3%, 470 while the host ran late), 14.54 Hz of drive time "
+        "against 20 Hz"]
+    assert shortfalls(daemon, host_only=True) == [
+        "imu let 470 of its 1801 samples pass unsampled (26.1%), 14.54 Hz of drive time against 20 Hz"]

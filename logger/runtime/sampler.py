@@ -93,6 +93,9 @@ class SensorHealth:
     # Of those, periods missed after a read the host made late by half a period or more (a simulated drive only:
     # paced, it measures that): what a faster host, or a slower pace, would have sampled.
     missed_host: int = 0
+    # A FIFO's samples an overflow destroyed (the driver's count, from the time since the last read): a FIFO read
+    # late loses nothing until then, so these, not its missed reads, are what it did not deliver.
+    samples_lost: int = 0
     delayed: int = 0  # samples finished more than half a period after their deadline (host scheduling)
     gaps: int = 0
     reconnects: int = 0
@@ -299,6 +302,7 @@ class Sampler(threading.Thread):
                 else:
                     h._recent.extend(times)
                     h.samples += len(times)
+                    h.samples_lost += r.payload.get("lost") or 0
             self.sink(r)
 
     def _check_incidents(self) -> None:
