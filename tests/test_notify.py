@@ -390,6 +390,11 @@ def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[F
     ended = [line for line in text.splitlines() if line.startswith("  ! flaky ended ")]
     assert len(ended) == 1 and "no answer (no ACK): check wiring" in ended[0], text
     assert not any(line.startswith("  ! steady") for line in text.splitlines()), text
+    # Its file deleted after the run: the first line no longer says the drive is all there.
+    (gone,) = d.recorder.files()
+    gone.unlink()
+    first = run_summary(d).splitlines()[0]
+    assert first.endswith("(1 file of them no longer there: deleted or moved)"), first
 
 
 # ---- problems into the journal ---------------------------------------------------------------------------------

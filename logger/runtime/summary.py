@@ -28,7 +28,11 @@ def run_summary(daemon: Daemon) -> str:
     down_s = min(rec.down_s, span_s)
     run = (f"recorded {span_s - down_s:.1f} s of a {span_s:.1f} s run" if down_s >= DOWN_SHOWN_S
            else f"recorded {span_s:.1f} s of drive")
-    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(sizes) / 1e6:.1f} MB"]
+    gone = sum(not p.exists() for p in files)
+    # A file deleted or moved away meanwhile: what was recorded is not all where the run put it ("recorded 120 s"
+    # with the first minute's file gone was said of 48 s left on disk).
+    where = f" ({plural(gone, 'file')} of them no longer there: deleted or moved)" if gone else ""
+    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(sizes) / 1e6:.1f} MB{where}"]
     for p, size in zip(files, sizes, strict=True):
         if not p.exists():
             lines.append(f"  {p}  (gone)")
@@ -46,7 +50,7 @@ def run_summary(daemon: Daemon) -> str:
             held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
                     else "")
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
-    losses = recorder_losses(rec.down_s, rec.unrecorded, rec.lost, rec.dropped, rec.deleted)
+    losses = recorder_losses(down_s, rec.unrecorded, rec.lost, rec.dropped, rec.deleted)
     lines += [f"  ! {line}" for line in losses]
     # The rows as they were when the run was told to stop (a sampler says "stopped" once it has), with the daemon's
     # own judgement in them (silent, stalled); the samplers' health at that time when the daemon never started.
