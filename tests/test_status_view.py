@@ -52,6 +52,9 @@ BUSY["sensors"][3]["origin"] = "serial /dev/serial/by-id/usb-u-blox_AG_-_www.u-b
 def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on_screen() -> None:
     full = render(BUSY, width=80).split("\n")
     assert max(map(len, full)) <= 79  # the last column wraps on a real terminal
+    # Out of lock, how long since the last PPS edge the clock used goes with the state ("PPS 35 s ago" read as the
+    # last pulse while the pps row showed pulses coming that the clock could not label).
+    assert "clock   holdover for 35 s, error bound 48.2 us, offset +1.5 us, -26.12 ppm" in full
     assert len(full) > 23  # this snapshot does not fit as a whole, so the screen has to choose
     screen = render(BUSY, width=80, height=23).split("\n")
     assert len(screen) == 23 and max(map(len, screen)) <= 79

@@ -31,8 +31,9 @@ COLUMNS = """columns:
 rows below the table:
   gnss     fix type, satellites used, horizontal accuracy, PDOP, raw
            observations (RXM-RAWX a second) when asked for, age
-  clock    state (locked to PPS, holdover, freerun), error bound of the
-           stamps, offset and frequency of the board clock, last PPS
+  clock    state (locked to PPS; holdover or freerun, for how long since
+           the last PPS edge it used), error bound of the stamps, offset and
+           frequency of the board clock, the PPS edge it locked on
   nav      filter position and its 1-sigma (or, when the filter had no IMU
            sample for a while, how old the position is), then its plain
            verdicts
@@ -166,14 +167,18 @@ def _clock(sc: Screen, sync: dict[str, Any] | None) -> None:
         return
     state = sync.get("state", "?")
     bound = "unknown" if state == FREERUN or sync.get("err_ns") is None else f"{sync['err_ns'] / 1e3:.1f} us"
-    parts = [f"{state}, error bound {bound}"]
+    # The age of the last PPS edge the clock used: locked, the pulse it locked on; otherwise how long it has gone
+    # without one, said with the state ("PPS 24 s ago" read as the last pulse while the pps row showed them coming:
+    # pulses the clock cannot label, with the receiver's time gone, are not used).
+    used = sync.get("since_edge_s")
+    held = f" for {age(used)}" if "since_edge_s" in sync and used is not None and state != "locked" else ""
+    parts = [f"{state}{held}, error bound {bound}"]
     if sync.get("offset_ns") is not None:
         parts.append(f"offset {sync['offset_ns'] / 1e3:+.1f} us")
     if sync.get("freq_ppm") is not None:
         parts.append(f"{sync['freq_ppm']:+.2f} ppm")
-    if "since_edge_s" in sync:
-        parts.append(f"PPS {age(sync.get('since_edge_s'))} ago" if sync.get("since_edge_s") is not None
-                     else "no PPS yet")
+    if "since_edge_s" in sync and not held:
+        parts.append(f"PPS {age(used)} ago" if used is not None else "no PPS used yet")
     sc.add(LINE, "clock   " + ", ".join(parts))
 
 
