@@ -194,6 +194,8 @@ def test_kml_and_csv_agree_with_the_gpx(drive: Drive, tmp_path: Path) -> None:
         assert [float(c[2]) for c in coords] == [float(p.findtext(f"{GPX}ele")) for p in seg]
     for g in gaps:
         assert re.fullmatch(r"gap \d+\.\d s", g.findtext(f"{KML}name"))
+        # OGC KML 2.2 (ogckml22.xsd, AbstractFeatureType): the time primitive comes before styleUrl.
+        assert [c.tag.removeprefix(KML) for c in g] == ["name", "description", "TimeStamp", "styleUrl", "Point"]
     with open(tmp_path / f"{name}_gnss_fix.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert {"lat_deg", "lon_deg", "height_ellipsoid_m", "height_msl_m", "speed_mps", "h_sigma_m",

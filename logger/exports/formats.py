@@ -120,10 +120,11 @@ def _gx_track(seg: list[TrackPoint], which: str) -> str:
 
 
 def _kml_gap(g: Gap, which: str) -> str:
+    """A placemark where a gap starts, its elements in OGC KML 2.2's order (a feature's time before its style)."""
     text = (f"{g.reason}; stopped {utc_iso(g.before.t_ns)}, resumed {utc_iso(g.after.t_ns)} "
             f"at {g.after.lat_deg:.7f}, {g.after.lon_deg:.7f}")
     return (f"<Placemark><name>gap {g.duration_s:.1f} s</name><description>{escape(text)}</description>"
-            f"<styleUrl>#gap</styleUrl><TimeStamp><when>{utc_iso(g.before.t_ns)}</when></TimeStamp>"
+            f"<TimeStamp><when>{utc_iso(g.before.t_ns)}</when></TimeStamp><styleUrl>#gap</styleUrl>"
             f"<Point><coordinates>{_coord(g.before, which)}</coordinates></Point></Placemark>\n")
 
 
