@@ -341,3 +341,24 @@ def test_a_simulated_m8n_refuses_raw_observations_with_one_warning(tmp_path: Pat
     gnss_line = gnss_row(snap)
     assert ", raw none yet, " in gnss_line
     assert snap["verdict"] == "degraded"
+
+
+def test_bytes_in_a_damaged_chunk_are_not_blamed_on_the_recorder(m8t_drive: tuple[bytes, list[Path]],
+                                                                 tmp_path: Path) -> None:
+    """A chunk of the drive damaged at the office (a flipped byte: its CRC fails, the reader skips it): the bytes it
+    held are missing from the .ubx, and the notes said "the recorder dropped records", which it did not."""
+    _, files = m8t_drive
+    copies = []
+    for f in files:
+        shutil.copy(f, tmp_path / f.name)
+        copies.append(tmp_path / f.name)
+    victim = copies[len(copies) // 2]
+    data = bytearray(victim.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # inside a chunk's compressed records
+    victim.write_bytes(bytes(data))
+    r = run("export", *map(str, copies), "--out", str(tmp_path / "out"), "--format", "ubx")
+    assert r.returncode == 0 and f"{victim}: " in r.stderr, r.stderr  # the read's note names the damage
+    notes = json.loads(next((tmp_path / "out").glob("*.ubx.json")).read_text())
+    kinds = [g["kind"] for g in notes["gaps"]]
+    assert kinds and set(kinds) == {"damaged"}, notes["gaps"]
+    assert all("damaged chunk" in g["detail"] and "recorder" not in g["detail"] for g in notes["gaps"])

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import dataclasses
 import datetime as dt
 import json
 import shutil
@@ -47,7 +48,7 @@ from mcap.stream_reader import StreamReader
 from pyubx2 import UBX_MSGIDS
 
 from logger.exports.whole import written_whole
-from logger.recording.drive import DriveFile, DriveFileError, DriveMessage
+from logger.recording.drive import DriveFile, DriveFileError, DriveMessage, damage_spans
 from logger.recording.topics import GNSS_RAW
 from sensors.ublox_frames import KIND_UBX, UbxNmeaFramer
 
@@ -69,7 +70,7 @@ class ConvbinError(Exception):
 class StreamGap:
     """One place where the exported stream is not what the receiver sent, or where it paused."""
 
-    kind: str  # lost, reopened, silence
+    kind: str  # lost, damaged, reopened, silence
     at_byte: int  # where in the .ubx the gap falls (the first byte after it)
     utc: str  # log time of the first record after it, ISO 8601 UTC
     seconds: float  # board time between the records either side
@@ -124,7 +125,7 @@ def write_ubx(messages: Iterable[DriveMessage], files: list[DriveFile], path: Pa
             if prev is not None:
                 gap = _gap(prev, m, report.bytes)
                 if gap is not None:
-                    report.gaps.append(gap)
+                    report.gaps.append(_in_damage(gap, prev, m, files))
             else:
                 report.first_utc = utc_text(m.log_time)
             out.write(data)
@@ -143,6 +144,19 @@ def write_ubx(messages: Iterable[DriveMessage], files: list[DriveFile], path: Pa
         report.last_utc = utc_text(prev.log_time)
     report.messages = dict(sorted(counts.items()))
     return report
+
+
+def _in_damage(gap: StreamGap, prev: DriveMessage, m: DriveMessage, files: list[DriveFile]) -> StreamGap:
+    """A "lost" gap where a damaged chunk of the drive was skipped (its CRC failed at the office: a card's bad
+    sector, a copy gone wrong): those bytes were recorded once, which "the recorder dropped records" denied."""
+    if gap.kind != "lost":
+        return gap
+    for path in {files[prev.file].path, files[m.file].path}:
+        for first, last in damage_spans(path):
+            if (first is None or first <= m.log_time) and (last is None or last >= prev.log_time):
+                return dataclasses.replace(gap, kind="damaged", detail=f"{gap.bytes_lost} bytes the port gave were "
+                                           "in a damaged chunk of the drive, skipped (see the read's note)")
+    return gap
 
 
 def _frame_name(kind: str, raw: bytes) -> str:

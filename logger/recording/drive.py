@@ -300,6 +300,13 @@ def damage_notes(files: Iterable[DriveFile | Path]) -> list[str]:
     return [_DAMAGE[p].line() for p in dict.fromkeys(paths) if p in _DAMAGE]
 
 
+def damage_spans(path: Path) -> list[tuple[int | None, int | None]]:
+    """The log-time spans (first, last; None where unknown) of the chunks the last read of ``path`` skipped as
+    damaged, not its cut: where a stream read from it may lack what the file once held."""
+    d = _DAMAGE.get(path)
+    return [] if d is None else [(loss.first_ns, loss.last_ns) for loss in d.losses if not loss.cut]
+
+
 def _damaged(path: Path) -> FileDamage:
     return _DAMAGE.setdefault(path, FileDamage(path))
 
