@@ -386,6 +386,8 @@ def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[F
                    "the unplugged sensor noticed")
     finally:
         d.stop()
+    # Told to stop, each sampler says "stopped": no problem of a sensor (a status asked meanwhile said DEGRADED).
+    assert not [p for p in d.snapshot()["problems"] if p.startswith("steady")], d.snapshot()["problems"]
     text = run_summary(d)
     ended = [line for line in text.splitlines() if line.startswith("  ! flaky ended ")]
     assert len(ended) == 1 and "no answer (no ACK): check wiring" in ended[0], text

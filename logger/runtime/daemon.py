@@ -457,6 +457,8 @@ class Daemon:
         talks without a fix is ``no fix``."""
         if snap["state"] != "ok":
             snap["measured_rate_hz"] = None
+            if snap["state"] == "stopped" and self.stop_event.is_set():
+                return ""  # told to stop (a SIGTERM): each sampler says so once it has, which is no fault
             if snap["last_error"]:
                 return f"{snap['state']}: {snap['last_error']}"
             return "starting: opening the device" if snap["state"] == "starting" else snap["state"]
