@@ -529,6 +529,7 @@ class Recorder:
                           RETRY_S)
             self._set_state("failed", f"not recording: {missing}")
             self._storage_missing = True
+            self._free = None  # the free space shown was the card's, before it went
             self._next_retry = self._now() + RETRY_S
             return
         self._storage_missing = False
