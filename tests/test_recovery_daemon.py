@@ -131,3 +131,67 @@ def test_a_recovery_that_would_take_the_recordings_room_waits(tmp_path: Path) ->
     assert line.startswith(f"did not recover {cut.name}: its copy (up to "), line
     assert cut.read_bytes() == before and not list(tmp_path.glob("*.recovering"))
     assert recover_file(cut).startswith(f"recovered {cut.name}: 100 messages")
+
+
+def test_a_second_logger_on_the_same_configuration_is_refused_and_the_file_being_written_is_never_recovered(
+        tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+    """A second `logger run` with the service's configuration (the README's command, while the service runs): it
+    logged "in use by another logger", went on, took the running logger's open file for a crash's and rewrote it
+    under it. Now it is refused before anything is opened; and the file being written is never recovered, by a
+    logger with another socket in the same folder or by `logger recover` by hand."""
+    import subprocess
+    import sys
+
+    from logger.recording.files import being_written
+    from logger.runtime.daemon import unfinished_files
+
+    _, path = systemd
+    first = make_daemon(tmp_path, [TickSource("steady")], path)
+    first.start()
+    try:
+        wait_until(lambda: first.recorder.status().on_disk_mono_ns, "the first logger's records on disk")
+        (open_file,) = first.recorder.files()
+        assert being_written(open_file) and not is_finished(open_file)
+        second = make_daemon(tmp_path, [TickSource("other")], path)
+        with pytest.raises(OSError, match=r"in use by another logger \(pid \d+\): one logger records at a time"):
+            second.start()
+        second.stop()
+        assert fetch(tmp_path / "status.sock")["pid"]  # the first still answers on its socket
+        assert unfinished_files(tmp_path / "drives") == []  # what another start would recover: not the open file
+        r = subprocess.run([sys.executable, "-m", "logger.cli", "recover", str(open_file)], capture_output=True,
+                           text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
+        assert r.returncode == 1 and "a running logger is writing it" in r.stderr, r.stderr
+        newest = max(first.recorder.status().on_disk_mono_ns.values())
+        wait_until(lambda: max(first.recorder.status().on_disk_mono_ns.values()) > newest, "more records on disk")
+        assert first.recorder.status().deleted == {} and first.recorder.status().state == "recording"
+    finally:
+        first.stop()
+    assert not being_written(open_file) and is_finished(open_file)
+
+
+def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> None:
+    """`logger recover FILE -o OUT`: a folder as OUT takes the file under its name (it said "FILE: Is a directory"
+    of the input and left OUT.recovering beside it); OUT in a folder that does not exist is said of OUT (it said
+    "FILE: no such file" of an input that was there). The recovered file keeps the source's permissions."""
+    import os
+    import subprocess
+    import sys
+
+    cut = tmp_path / "drive_0001.mcap"
+    cut_file(cut, 400)
+    cut.chmod(0o640)
+    folder = tmp_path / "out"
+    folder.mkdir()
+
+    def recover(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "logger.cli", "recover", str(cut), *args], capture_output=True,
+                              text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
+
+    r = recover("-o", str(tmp_path / "missing" / "x.mcap"))
+    assert r.returncode == 1 and r.stderr == (f"logger recover: -o {tmp_path / 'missing' / 'x.mcap'}: the folder "
+                                              f"{tmp_path / 'missing'} does not exist\n"), r.stderr
+    r = recover("-o", str(folder))
+    assert r.returncode == 0, r.stderr
+    assert is_finished(folder / cut.name) and sorted(os.listdir(folder)) == [cut.name]
+    assert sorted(os.listdir(tmp_path)) == [cut.name, "out"]  # no .recovering left anywhere
+    assert (folder / cut.name).stat().st_mode & 0o777 == 0o640

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from logger.recording.files import McapFileError, is_finished, recover, walk
+from logger.recording.files import McapFileError, being_written, is_finished, recover, walk
 
 
 def main(argv: list[str]) -> int:
@@ -22,6 +23,17 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--force", action="store_true",
                         help="rewrite even a file that was closed cleanly and whose chunks all hold")
     args = parser.parse_args(argv)
+    src = Path(args.file)
+    out = Path(args.out) if args.out is not None else None
+    if out is not None and out.is_dir():
+        out = out / src.name  # a folder: the recovered file goes into it under the source's name
+    if out is not None and not out.parent.is_dir():
+        print(f"logger recover: -o {args.out}: the folder {out.parent} does not exist", file=sys.stderr)
+        return 1
+    if src.is_file() and being_written(src):
+        print(f"logger recover: {src}: a running logger is writing it (it looks cut while it is being written); "
+              "recover it once that logger has finished it", file=sys.stderr)
+        return 1
     try:
         found = None
         if is_finished(args.file):
@@ -29,15 +41,15 @@ def main(argv: list[str]) -> int:
             if not found.losses and not args.force:
                 print(f"{args.file}: closed cleanly and every chunk's CRC holds: nothing to recover")
                 return 0
-        report = recover(args.file, args.out, found=found)
+        report = recover(src, out, found=found)
     except McapFileError as exc:
         print(f"logger recover: {exc}", file=sys.stderr)
         return 1
     except FileNotFoundError:
         print(f"logger recover: {args.file}: no such file", file=sys.stderr)
         return 1
-    except OSError as exc:
-        print(f"logger recover: {args.file}: {exc.strerror or exc}", file=sys.stderr)
+    except OSError as exc:  # named as the file it was said of (the output's folder or disk, or the source)
+        print(f"logger recover: {exc.filename or args.file}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     lost = report.lost()
     print(f"{report.path}: recovered {report.messages} messages from {report.chunks_ok} chunks"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
+import fcntl
 import io
 import itertools
 import mmap
@@ -31,6 +32,7 @@ from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import lz4.frame
 import zstandard
@@ -546,6 +548,27 @@ class RecoveryReport:
 RECOVERY_CHUNK_BYTES = 4 * 1024 * 1024  # the copy's chunks: few index records, each compressed well
 
 
+def hold_for_writing(stream: Any) -> None:
+    """Mark a file the recorder has open for writing: an exclusive advisory lock (``flock``) held until it is
+    closed, by which :func:`being_written` tells that a logger still writes it."""
+    fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def being_written(path: Path) -> bool:
+    """Whether a running logger has ``path`` open for writing (:func:`hold_for_writing`). An unfinished file looks
+    the same whether a crash cut it or a logger is writing it: recovering the one being written (a second `logger
+    run`'s start-up, a `logger recover` by hand) rewrote it under the logger, which then lost it."""
+    try:
+        with open(path, "rb") as f:
+            try:
+                fcntl.flock(f.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+    except OSError:
+        return False
+    return False
+
+
 def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
             compression: str = "zstd", found: Salvage | None = None,
             cancel: Callable[[], bool] | None = None) -> RecoveryReport:
@@ -563,10 +586,12 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
     tmp = dst.with_name(dst.name + ".recovering")
     try:
         orphans = _rewrite(found, src, tmp, compression, cancel)
+        with contextlib.suppress(OSError):  # the source's permissions (the logger's 0640), not the caller's umask
+            os.chmod(tmp, src.stat().st_mode & 0o777)
+        os.replace(tmp, dst)
     except BaseException:
-        tmp.unlink(missing_ok=True)  # a full disk: the source is untouched, and no half copy takes its space
+        tmp.unlink(missing_ok=True)  # a full disk, a folder as OUT: the source is untouched, no half copy left
         raise
-    os.replace(tmp, dst)
     _fsync_dir(dst.parent)
     return RecoveryReport(dst, found.message_count - orphans, found.chunks_ok, found.chunks_bad, orphans,
                           found.stopped_at, tuple(found.losses))

@@ -27,7 +27,7 @@ from typing import Any
 
 import ujson
 
-from logger.recording.files import CHANNEL_TABLE, RUN_METADATA
+from logger.recording.files import CHANNEL_TABLE, RUN_METADATA, hold_for_writing
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
 from logger.recording.storage import storage_problem
@@ -562,6 +562,7 @@ class Recorder:
                 self._tag_names = True
                 path = out / self._name_at_open(start_unix, part)
             stream = open(path, "xb")  # noqa: SIM115 - lives until the file is finished
+            hold_for_writing(stream)  # no recovery (a second logger's, `logger recover`) takes it meanwhile
             writer = McapWriter(stream, chunk_size=self.settings.chunk_size_bytes,
                                 compression=self.settings.compression)
             writer.start(profile=PROFILE, library="vehicle-logger")

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.config import Config
-from logger.recording.files import McapFileError, RecoveryCancelled, is_finished, recover
+from logger.recording.files import McapFileError, RecoveryCancelled, being_written, is_finished, recover
 from logger.recording.recorder import RETRY_S, Recorder
 from logger.recording.records import (
     NO_FIX,
@@ -43,7 +43,7 @@ from logger.runtime.journal import ProblemJournal
 from logger.runtime.notify import Notifier
 from logger.runtime.sampler import Reading, Sampler
 from logger.runtime.sources import Plan
-from logger.runtime.status_socket import StatusServer
+from logger.runtime.status_socket import SocketInUse, StatusServer
 from logger.runtime.timebase import TimeBase, host_timebase
 from logger.words import plural, size_text
 from sync.stamp import FREERUN, FreeRunClock, Stamp, StampClock
@@ -86,8 +86,8 @@ class Attachments:
 def unfinished_files(out_dir: Path) -> list[Path]:
     """The MCAP files in ``out_dir`` that were not finished: what a crash left for recovery. Listed before the
     recorder opens its own (unfinished while it records), so that recovery can never take the file being
-    written."""
-    return [path for path in sorted(out_dir.glob("*.mcap")) if not is_finished(path)]
+    written; nor one another logger is writing (:func:`being_written`)."""
+    return [path for path in sorted(out_dir.glob("*.mcap")) if not is_finished(path) and not being_written(path)]
 
 
 def recover_file(path: Path, cancel: Callable[[], bool] | None = None, reserve_bytes: int = 0) -> str:
@@ -238,6 +238,17 @@ class Daemon:
 
     # ---- life cycle ---------------------------------------------------------------------------------------
     def start(self) -> None:
+        # The status socket first: another logger answering on it is running with this configuration, and a second
+        # one took its open file for a crash's and rewrote it under it (its start-up recovery), recording into the
+        # same folder. One logger at a time: refused before anything is opened or recovered.
+        try:
+            self.status_server = StatusServer(self.status_socket, self.snapshot)
+        except SocketInUse as exc:
+            raise OSError(errno.EADDRINUSE, f"{exc.strerror}: one logger records at a time; stop that one first",
+                          str(self.status_socket)) from None
+        except OSError as exc:
+            log.error("status socket %s unavailable (%s); `logger status` will not work", self.status_socket,
+                      exc.strerror or exc)
         self._start_thread("service", self._service_loop)  # pings while the sensors' first opens wait, too
         if storage_problem(self.out_dir) is None:  # else the recorder says why it records nothing, and waits
             self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -259,12 +270,8 @@ class Daemon:
         self._start_thread("health", self._health_loop)
         for period, fn in self.attachments.periodic:
             self._start_thread("sim-truth", self._periodic_loop, period, fn)
-        try:
-            self.status_server = StatusServer(self.status_socket, self.snapshot)
+        if self.status_server is not None:
             self.status_server.start()
-        except OSError as exc:
-            log.error("status socket %s unavailable (%s); `logger status` will not work", self.status_socket,
-                      exc.strerror or exc)
         self._started.set()
         if cut:
             # Not one of self._threads: it ends when it is done, which is no hang for the watchdog to see.
