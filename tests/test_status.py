@@ -219,3 +219,22 @@ def test_a_user_outside_the_loggers_group_is_told_so_not_that_it_is_not_running(
             assert err.startswith("logger status: not allowed to read ") and "logger's group" in err, err
     finally:
         server.close()
+
+
+def test_status_reads_the_socket_from_a_simulated_runs_configuration_and_says_what_is_wrong_with_one(
+        tmp_path: Path, capsys) -> None:
+    """`logger status --config FILE` loaded FILE as a hardware configuration: a simulated run's file (no device
+    ports) failed, was passed over silently, and the default sockets said "not running" of a running logger; a
+    mistyped path was passed over the same way."""
+    sock = tmp_path / "sim.sock"
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text(f'[logger]\nstatus_socket = "{sock}"\n[sim]\nseed = 2\n')
+    server = StatusServer(sock, lambda: SNAP)
+    server.start()
+    try:
+        assert main(["status", "--config", str(cfg)]) == 1  # SNAP's verdict: degraded
+        assert "DEGRADED" in capsys.readouterr().out
+    finally:
+        server.close()
+    assert main(["status", "--config", str(tmp_path / "typo.toml")]) == 4
+    assert capsys.readouterr().err == f"logger status: {tmp_path / 'typo.toml'}: no such configuration file\n"

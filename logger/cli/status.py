@@ -59,9 +59,20 @@ def main(argv: list[str]) -> int:
     if path is None:
         cfg_path = Path(args.config) if args.config else DEFAULT_PATH
         try:
-            path = load(cfg_path)["logger"]["status_socket"] if cfg_path.exists() else None
-        except (ConfigError, OSError):  # one this user may not read: the default sockets are tried
+            # Only its [logger] section is wanted: a simulated run's file (no device ports) names its socket too.
+            path = (load(cfg_path, devices=False)["logger"]["status_socket"]
+                    if args.config or cfg_path.exists() else None)
+        except ConfigError as exc:
+            if args.config:  # named on the command line: what is wrong with it, not "not running" (exit 4: 2 is
+                for line in exc.problems:  # a verdict, critical)
+                    print(f"logger status: {line}", file=sys.stderr)
+                return UNKNOWN
             path = None
+        except OSError as exc:
+            if args.config:
+                print(f"logger status: {cfg_path}: {exc.strerror or exc}", file=sys.stderr)
+                return UNKNOWN
+            path = None  # the default one, which this user may not read: the default sockets are tried
     tty = sys.stdout.isatty()
     code = NOT_RUNNING
     first = True
