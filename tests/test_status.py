@@ -166,7 +166,8 @@ def test_clients_polling_hard_cost_at_most_a_few_snapshots_a_second(tmp_path: Pa
     assert server.answered <= (elapsed + 0.5) * 50 + 4  # the answers are paced: the rest wait in the queue
 
 
-def _as_nobody(argv: list[str], default_socket: Path | None = None) -> tuple[int, str]:
+def _as_nobody(argv: list[str], default_socket: Path | None = None, default_config: Path | None = None
+               ) -> tuple[int, str]:
     """``logger status`` in a forked child that dropped root for the unprivileged user: its exit code and stderr."""
     import sys
 
@@ -184,6 +185,8 @@ def _as_nobody(argv: list[str], default_socket: Path | None = None) -> tuple[int
                 from types import SimpleNamespace
 
                 status_cli.SCHEMA = {"logger": {"status_socket": SimpleNamespace(default=str(default_socket))}}
+            if default_config is not None:
+                status_cli.DEFAULT_PATH = default_config
             code = main(argv)
         except BaseException:  # what escaped main: the test shows it
             import traceback
@@ -211,10 +214,10 @@ def test_a_user_outside_the_loggers_group_is_told_so_not_that_it_is_not_running(
     tmp_path.chmod(0o755)
     run_dir.chmod(0o750)  # root's group: not the unprivileged user's
     try:
-        for argv, default in ((["status", "--socket", str(sock)], None),
-                              (["status", "--config", "/nonexistent.toml"], sock),
-                              (["status", "--config", str(tmp_path / "none.toml")], sock)):  # not even looked into
-            code, err = _as_nobody(argv, default)
+        for argv, default, config in ((["status", "--socket", str(sock)], None, None),
+                                      (["status"], sock, Path("/nonexistent.toml")),
+                                      (["status"], sock, tmp_path / "none.toml")):  # a config not to be looked at
+            code, err = _as_nobody(argv, default, config)
             assert code == 4 and "Traceback" not in err, (argv, err)
             assert err.startswith("logger status: not allowed to read ") and "logger's group" in err, err
     finally:
