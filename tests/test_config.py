@@ -121,6 +121,23 @@ def test_config_check_command(tmp_path: Path, capsys) -> None:
     assert main(["config", "check", str(p)]) == 1
     assert "obd.port is required" in capsys.readouterr().err
     assert main(["config", "check", "--sim", str(p)]) == 0
+    # As `logger run --sim --config` takes it: a sensor's section without its port is simulated, not refused.
+    p.write_text('[gnss]\nsource = "serial"\nbaud = 115200\n')
+    capsys.readouterr()
+    assert main(["config", "check", "--sim", str(p)]) == 0
+    assert "gnss=sim" in capsys.readouterr().out
+
+
+def test_run_refuses_bad_numbers_on_its_command_line_in_one_line(tmp_path: Path, capsys) -> None:
+    """--seed -1 reached numpy (a ValueError traceback) and --duration nan passed the positive check."""
+    from logger.cli import main
+
+    common = ["--out", str(tmp_path / "d"), "--status-socket", str(tmp_path / "s.sock")]
+    assert main(["run", "--sim", "--seed", "-1", *common]) == 2
+    assert capsys.readouterr().err.startswith("logger: --seed -1 must be between 0 and ")
+    assert main(["run", "--sim", "--duration", "nan", *common]) == 2
+    assert capsys.readouterr().err == "logger: --duration must be a positive number of seconds\n"
+    assert not (tmp_path / "d").exists()
 
 
 def test_run_refuses_a_bad_config_with_one_line_per_problem(tmp_path: Path, capsys) -> None:

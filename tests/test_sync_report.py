@@ -84,3 +84,16 @@ def test_what_it_cannot_report_on_is_one_line_naming_the_file(tmp_path: Path, ca
         code, out, err = run(capsys, path)
         assert code == 2 and out == "" and err.startswith(f"logger sync-report: {words}"), err
         assert err.count("\n") == 1, err
+
+
+def test_a_figures_folder_that_cannot_be_one_is_said_before_the_work(tmp_path, capsys) -> None:
+    """--png-dir (sync-report) and --plots (nav-score) naming a file: a traceback once the report was printed."""
+    from logger.cli import main
+
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert main(["sync-report", str(tmp_path / "drive.mcap"), "--png-dir", str(afile)]) == 2
+    assert capsys.readouterr().err == f"logger sync-report: --png-dir {afile}: exists and is not a folder\n"
+    assert main(["nav-score", str(tmp_path / "t.csv"), "--plots", str(afile / "sub")]) == 2
+    assert capsys.readouterr().err == (f"logger nav-score: --plots {afile / 'sub'}: cannot be made, {afile} is a "
+                                       "file and not a folder\n")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from logger.config import ConfigError, load
+from logger.config import SIM_SECTIONS, ConfigError, load
 
 
 def main(argv: list[str]) -> int:
@@ -18,11 +18,13 @@ def main(argv: list[str]) -> int:
                             "simulated, so no device ports are required (a file of [sim] or [recorder] alone)")
     args = parser.parse_args(argv)
     try:
-        cfg = load(args.file, sim=args.sim)
+        cfg = load(args.file, sim=args.sim, devices=not args.sim)  # as `logger run` loads it (logger.cli.run)
     except ConfigError as exc:
         for line in exc.problems:
             print(line, file=sys.stderr)
         return 1
-    sources = ", ".join(f"{s}={cfg[s]['source']}" for s in ("imu", "baro", "obd", "gnss", "pps"))
+    # With --sim every sensor is simulated whatever the file says (gpsd by a simulated gpsd), as the run does.
+    sources = ", ".join(f"{s}={'sim' if args.sim and cfg[s]['source'] != 'gpsd' else cfg[s]['source']}"
+                        + (" (simulated)" if args.sim and cfg[s]["source"] == "gpsd" else "") for s in SIM_SECTIONS)
     print(f"{args.file}: OK ({sources})")
     return 0

@@ -13,6 +13,7 @@ import json
 import sys
 from pathlib import Path
 
+from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.exports.nav_score import (
     FOREIGN_M,
     NoOverlap,
@@ -90,6 +91,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--plots", type=Path, help="folder for map.png and error.png")
     ap.add_argument("--json", action="store_true", help="print the scores as JSON")
     args = ap.parse_args(argv)
+    problem = out_folder_problem(args.plots, "--plots") if args.plots else None
+    if problem:  # before the work, not a traceback after it
+        print(f"{PROG}: {problem}", file=sys.stderr)
+        return 2
     try:
         named_paths = expand(args.trajectory)
         missing = [str(p) for p in [*named_paths, *([args.reference] if args.reference else [])] if not p.exists()]
@@ -125,6 +130,10 @@ def main(argv: list[str]) -> int:
         for k, (_, s) in named.items():
             print(format_score(k, s))
     if args.plots and named:
-        for p in plots(args.plots, named, truth):
-            print(f"wrote {p}")
+        try:
+            for p in plots(args.plots, named, truth):
+                print(f"wrote {p}")
+        except OSError as exc:  # a disk full, a folder changed meanwhile
+            print(f"{PROG}: {os_error_line(exc)}", file=sys.stderr)
+            return 2
     return status

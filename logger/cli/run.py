@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -69,6 +70,9 @@ def resolve_config(args: argparse.Namespace) -> Config:
     if args.scenario is not None:
         sim["scenario"] = args.scenario
     if args.seed is not None:
+        problem = SCHEMA["sim"]["seed"].check(args.seed)  # type: ignore[misc]
+        if problem:
+            raise ConfigError([f"--seed {args.seed} {problem}"])
         sim["seed"] = args.seed
     if args.time_scale is not None:
         problem = SCHEMA["sim"]["time_scale"].check(args.time_scale)  # type: ignore[misc]
@@ -120,8 +124,8 @@ def main(argv: list[str]) -> int:
         for line in exc.problems:
             print(f"logger: {line}", file=sys.stderr)
         return 2
-    if args.duration is not None and args.duration <= 0:
-        print("logger: --duration must be positive", file=sys.stderr)
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        print("logger: --duration must be a positive number of seconds", file=sys.stderr)
         return 2
     try:
         daemon, _vehicle = build(cfg, args.duration)

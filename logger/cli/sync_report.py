@@ -11,6 +11,7 @@ import json
 import sys
 from pathlib import Path
 
+from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.exports.plotting import PlotsUnavailable
 from logger.exports.sync_report import Drive, plots, render, report
 from logger.recording.drive import DriveFileError, cut_notes, drive_paths
@@ -23,6 +24,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--png-dir", type=Path, help="write Figures 18 and 19 as PNG here")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
+    problem = out_folder_problem(args.png_dir, "--png-dir") if args.png_dir else None
+    if problem:  # before the report, not a traceback after it
+        print(f"logger sync-report: {problem}", file=sys.stderr)
+        return 2
     try:
         paths = drive_paths(args.files)
     except DriveFileError as exc:
@@ -48,4 +53,7 @@ def main(argv: list[str]) -> int:
         except PlotsUnavailable as exc:
             print(exc, file=sys.stderr)
             return 1
+        except OSError as exc:  # a disk full, a folder changed meanwhile
+            print(f"logger sync-report: {os_error_line(exc)}", file=sys.stderr)
+            return 2
     return 0
