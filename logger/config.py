@@ -426,6 +426,13 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
 
     for section, body in raw.items():
         keys = SCHEMA.get(section)
+        if keys is None and not isinstance(body, dict):
+            # A key written before any [section] header: not a section of its own. Which section holds that key?
+            homes = [sec for sec, ks in SCHEMA.items() if section in ks]
+            problems.append(f"{at(section)}: {_shown(section)} is outside any section"
+                            + (f" (it belongs under [{homes[0]}])" if len(homes) == 1 else
+                               f" (a key of [{'], ['.join(homes)}])" if homes else ""))
+            continue
         if keys is None:
             hint = difflib.get_close_matches(section, SCHEMA, n=1)
             problems.append(f"{at(section)}: unknown section [{_shown(section)}]"

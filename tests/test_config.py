@@ -47,6 +47,17 @@ def test_unknown_key_names_key_line_and_suggests() -> None:
     assert msg == "logger.toml:8: unknown key imu.rat_hz (did you mean imu.rate_hz?)"
 
 
+def test_a_key_before_any_section_is_said_so_with_its_section() -> None:
+    """``out_dir = ...`` on the first line, above [logger]: it was "unknown section [out_dir]"."""
+    for text, said in (('out_dir = "/media/drives"\n[sim]\nseed = 2\n', "out_dir is outside any section (it "
+                        "belongs under [logger])"),
+                       ('port = "/dev/x"\n', "port is outside any section (a key of [obd], [gnss])"),
+                       ("whatever = 3\n", "whatever is outside any section")):
+        with pytest.raises(ConfigError) as exc:
+            parse(text, "logger.toml", sim=True)
+        assert exc.value.problems == [f"logger.toml:1: {said}"], exc.value.problems
+
+
 def test_unknown_section() -> None:
     (msg,) = _problems(GOOD + "\n[gps]\nport = '/dev/ttyS1'\n")
     assert msg.startswith("logger.toml:18: unknown section [gps]")
