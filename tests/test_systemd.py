@@ -124,6 +124,14 @@ def test_service_contract() -> None:
     assert DEFAULT_PATH.parent == Path("/etc") / e["Service.ConfigurationDirectory"][0]
     assert e["Service.ProtectSystem"] == ["strict"]  # so only those directories are writable
     assert e["Service.RuntimeDirectoryMode"] == ["0750"]  # the socket's group, nobody else, can reach it
+    # What the daemon reads and does with the hardening on (a reviewer found each silently switched off): the boot
+    # id under /proc/sys (ProcSubset=pid hid it), the kernel's clock-synchronised state by a read-only adjtimex
+    # (ProtectClock= forbids it), and setpriority for the recovery thread's nice 19 (@resources denied it).
+    assert "Service.ProcSubset" not in e and "Service.ProtectClock" not in e
+    filters = e["Service.SystemCallFilter"]
+    assert filters[:2] == ["@system-service", "~@privileged @resources"]
+    assert {"adjtimex", "setpriority"} <= set(filters[2].split())  # allowed again, after the deny list
+    assert e["Service.CapabilityBoundingSet"] == [""]  # so the clock cannot be set, nor a priority raised
 
 
 @pytest.mark.skipif(SYSUSERS_TOOL is None, reason="systemd-sysusers is not installed")
