@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from sensors.ublox_decode import GnssFix
+from sensors.ublox_decode import NO_COURSE_SPEED_MPS, GnssFix
 
 NS_PER_S = 1_000_000_000
 SOURCE = "gpsd"
@@ -164,15 +164,20 @@ def fix_from_tpv(tpv: Mapping[str, Any], sky: Mapping[str, Any] | None = None, g
         mode = 2  # a position, but no height came with it (gpsd's mode is the receiver's GSA)
     vel: tuple[float, float, float] | None = None
     vn, ve, vd = number(tpv.get("velN")), number(tpv.get("velE")), number(tpv.get("velD"))
-    climb = number(tpv.get("climb"))
-    down = vd if vd is not None else (-climb if climb is not None else math.nan)
+    # The receiver's vertical velocity only: gpsd's ``climb`` without a ``velD`` is its own difference of altitudes,
+    # repeated between epochs (+0.3 m/s for eight epochs of a receiver whose velD was within 0.04 of 0): no
+    # measurement, and the filter took it as one. Missing, as NMEA's is.
+    down = vd if vd is not None else math.nan
     if vn is not None and ve is not None:
         vel = (vn, ve, down)
     else:
-        speed = number(tpv.get("speed"))
-        if speed is not None:
-            track = math.radians(number(tpv.get("track")) or 0.0)
-            vel = (speed * math.cos(track), speed * math.sin(track), down)
+        speed, track = number(tpv.get("speed")), number(tpv.get("track"))
+        if speed is not None and track is not None:
+            vel = (speed * math.cos(math.radians(track)), speed * math.sin(math.radians(track)), down)
+        elif speed is not None and speed <= NO_COURSE_SPEED_MPS:  # standing: within a receiver's noise of 0
+            vel = (0.0, 0.0, down)
+        # A speed above that without a course (the receiver's heading invalid, gpsd leaves ``track`` out) is no
+        # velocity: it was made one due north.
     h_acc = v_acc = s_acc = None
     g_lat, g_lon = (number(gst.get("lat")), number(gst.get("lon"))) if gst is not None else (None, None)
     if gst is not None and g_lat is not None and g_lon is not None:
@@ -240,6 +245,7 @@ LEAP_REPEAT_NS = 600_000_000
 # reports that second's epoch when the next second's TPV comes, about 1 s late, four times a year.
 LEAP_HOLD_NS = 1_500_000_000
 LEAP_MONTHS = (1, 4, 7, 10)
+FIRST_FIGURES = ("eph", "epv", "eps")  # an epoch's accuracy figures: its first TPV's (GpsdEpochs._tpv)
 UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
 
 
@@ -353,7 +359,12 @@ class GpsdEpochs:
             elif _midnight_second(key) and t_ns - open_.first_ns >= LEAP_REPEAT_NS:
                 leap = True  # the open epoch was 23:59:60 under 00:00:00's time; this is 00:00:00
             else:
+                # The epoch's first TPV carries the receiver's own figures (u-blox driver: NAV-PVT's hAcc, vAcc,
+                # sAcc); gpsd's later report of the same epoch (at 5 Hz, after its cycle's NMEA) carries its own
+                # model's, 80 times the receiver's sAcc: the first ones stand.
+                kept = {k: open_.tpv[k] for k in FIRST_FIGURES if k in open_.tpv}
                 open_.tpv.update(msg)
+                open_.tpv.update(kept)
                 open_.last_ns = t_ns
                 return out
         elif key is not None and self._done == key and not (

@@ -36,6 +36,10 @@ from sensors.ublox_frames import KIND_NMEA, KIND_UBX, Frame
 
 NS_PER_MS = 1_000_000
 KNOT_MPS = 1852.0 / 3600.0
+# A speed reported without a course (the receiver's heading invalid) is a standing receiver's noise up to this: a
+# velocity of nought then, within it of the truth. Faster without a course, no velocity (its direction unknown).
+# u-blox receivers leave the course empty below about this speed (static hold, the heading's own accuracy).
+NO_COURSE_SPEED_MPS = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -760,10 +764,16 @@ class GnssDecoder:
             knots = _num(_attr(vtg, "sogn"))
             speed = kmh / 3.6 if kmh is not None else (knots * KNOT_MPS if knots is not None else None)
             course = _num(_attr(vtg, "cogt"))
+        elif course is None and vtg is not None:
+            course = _num(_attr(vtg, "cogt"))
         vel = None
-        if speed is not None:
-            heading = math.radians(course) if course is not None else 0.0
+        if speed is not None and course is not None:
+            heading = math.radians(course)
             vel = (speed * math.cos(heading), speed * math.sin(heading), math.nan)
+        elif speed is not None and speed <= NO_COURSE_SPEED_MPS:  # standing: within a receiver's noise of 0
+            vel = (0.0, 0.0, math.nan)
+        # A speed above that without a course (u-blox leaves it empty while its heading is invalid) is no velocity:
+        # it was made one due north, which the filter took as a measurement.
 
         h_acc = v_acc = None
         if gst is not None:

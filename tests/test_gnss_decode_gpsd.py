@@ -24,7 +24,7 @@ from typing import Any
 import pytest
 
 from logger.cli.gnss_decode import DecodeResult, decode_pieces, fix_to_tpv, main, strip_capture_comments
-from sensors.ublox_decode import GnssDecoder, GnssFix, GnssTime
+from sensors.ublox_decode import NO_COURSE_SPEED_MPS, GnssDecoder, GnssFix, GnssTime
 from sensors.ublox_frames import KIND_NMEA, KIND_UBX, Frame, UbxNmeaFramer
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "gpsd-ublox"  # the GPSD project's captures (BSD-2, COPYING there)
@@ -55,11 +55,11 @@ class Expect:
 # Measured with this test's rules; see docs/gnss-decode.md for what each label means.
 EXPECTED: dict[str, Expect] = {
     "neo-m8n.log": Expect(23, 24, 0, 23, 0, 1, {
-        "gpsd_week_rollover": 22, "gpsd_untimed": 1, "gpsd_cycle_incomplete": 1}),
+        "gpsd_untimed": 1, "speed_without_course": 22, "gpsd_week_rollover": 22, "gpsd_cycle_incomplete": 1}),
     "u-blox-m8t-time.log": Expect(150, 151, 0, 150, 0, 1, {
         "gpsd_speed_from_positions": 150, "gpsd_cycle_detection": 1}),
     "ublox-8-time.log": Expect(89, 89, 0, 89, 0, 0, {"gpsd_geoid_msl": 89}),
-    "ublox-8.log": Expect(72, 72, 71, 1, 0, 0, {"gpsd_partial_report": 1}),
+    "ublox-8.log": Expect(72, 72, 5, 67, 0, 0, {"speed_without_course": 67, "gpsd_partial_report": 1}),
     "ublox-aek-4t.log": Expect(4, 4, 0, 4, 0, 0, {"gpsd_built_in_leap": 1, "gpsd_geoid_msl": 4}),
     "ublox-f9p-hpnmea.log": Expect(9, 9, 8, 1, 0, 0, {"gpsd_partial_report": 1}),
     "ublox-f9p-rtcm.log": Expect(1, 2, 1, 0, 0, 1, {"gpsd_cycle_detection": 1}),
@@ -68,8 +68,8 @@ EXPECTED: dict[str, Expect] = {
         "gpsd_stale_time": 5, "gsa_2d_altitude_held": 4, "gpsd_cycle_incomplete": 1}),
     "ublox-lea-4s.log": Expect(2, 3, 2, 0, 0, 1, {"gpsd_cycle_incomplete": 1}),
     "ublox-lea-4t.log": Expect(2, 2, 0, 2, 0, 0, {"gpsd_built_in_leap": 1, "gpsd_geoid_msl": 2}),
-    "ublox-lea-5h.log": Expect(19, 20, 16, 3, 0, 1, {
-        "capture_splice": 1, "gpsd_mode_carried_over": 1, "gpsd_partial_report": 1,
+    "ublox-lea-5h.log": Expect(19, 20, 1, 18, 0, 1, {
+        "speed_without_course": 16, "gpsd_partial_report": 1, "capture_splice": 1, "gpsd_mode_carried_over": 1,
         "gpsd_cycle_incomplete": 1}),
     "ublox-lea-5q.log": Expect(10, 10, 0, 10, 0, 0, {"gpsd_untimed": 10}),
     "ublox-lea-m8f.log": Expect(18, 28, 18, 0, 0, 10, {"gpsd_cycle_detection": 10}),
@@ -83,21 +83,23 @@ EXPECTED: dict[str, Expect] = {
     "ublox-neo-m8t.log": Expect(39, 39, 0, 39, 0, 0, {"gpsd_geoid_msl": 39}),
     "ublox-neo-m8u-hnr.log": Expect(12, 12, 12, 0, 0, 0, {}),
     "ublox-neo-m8u.log": Expect(2, 3, 2, 0, 0, 1, {"gpsd_cycle_detection": 1}),
-    "ublox-neo-m9n-nmea.log": Expect(61, 61, 60, 1, 0, 0, {"gpsd_partial_report": 1}),
+    "ublox-neo-m9n-nmea.log": Expect(61, 61, 13, 48, 0, 0, {"speed_without_course": 48, "gpsd_partial_report": 1}),
     "ublox-sirf1.log": Expect(8, 0, 0, 0, 8, 0, {"gpsd_other_protocol": 8}),
     "ublox-x20p.log": Expect(28, 0, 0, 0, 28, 0, {"gpsd_time_only": 28}),
     "ublox-zed-f9p-hp.log": Expect(28, 29, 28, 0, 0, 1, {"gpsd_cycle_detection": 1}),
-    "ublox-zed-f9p-nmea.log": Expect(29, 29, 28, 1, 0, 0, {"gpsd_partial_report": 1}),
+    "ublox-zed-f9p-nmea.log": Expect(29, 29, 5, 24, 0, 0, {"speed_without_course": 24, "gpsd_partial_report": 1}),
     "ublox-zed-f9p-rtk.log": Expect(9, 10, 9, 0, 0, 1, {"gpsd_cycle_detection": 1}),
     "ublox-zed-f9p-sfrbx.log": Expect(18, 19, 18, 0, 0, 1, {"gpsd_cycle_detection": 1}),
-    "ublox-zed-f9r.log": Expect(29, 30, 0, 29, 0, 1, {"gpsd_nmea_copy": 29, "gpsd_cycle_detection": 1}),
+    "ublox-zed-f9r.log": Expect(29, 30, 0, 29, 0, 1, {
+        "gpsd_nmea_copy": 29, "speed_without_course": 25, "gpsd_cycle_detection": 1}),
     "ublox-zed-f9t-rtcm3.log": Expect(22, 26, 22, 0, 0, 4, {"gpsd_cycle_detection": 4}),
     "ublox-zed-f9t-ubx_nmea_l5.log": Expect(8, 9, 0, 8, 0, 1, {
         "gpsd_nmea_copy": 8, "gpsd_cycle_detection": 1}),
     "ublox-zoe-m8b-logbatch.log": Expect(0, 0, 0, 0, 0, 0, {}),
     "ublox-zoe-m8b-logretrieve.log": Expect(0, 0, 0, 0, 0, 0, {}),
     "ublox8-uniqid-monhw.log": Expect(8, 8, 0, 8, 0, 0, {
-        "gpsd_sol_copy": 7, "gpsd_geoid_msl": 7, "gpsd_nmea_copy": 3, "gpsd_partial_report": 1}),
+        "speed_without_course": 4, "gpsd_partial_report": 1, "gpsd_sol_copy": 7, "gpsd_geoid_msl": 7,
+        "gpsd_nmea_copy": 3}),
 }
 
 
@@ -273,6 +275,11 @@ def explained_fields(tpv: dict[str, Any], rec: dict[str, Any], problems: list[st
             labels.add("gpsd_partial_report")  # gpsd reported before the epoch's GGA/GSA arrived
         elif problem == "mode" and tpv["mode"] == 3 and rec["mode"] == 2 and no_alt_gpsd and "altMSL" not in rec:
             labels.add("gpsd_mode_carried_over")  # RMC-only epoch: gpsd keeps the previous mode
+        elif problem.startswith("speed") and "track" not in tpv and rec.get("speed") == 0.0 \
+                and tpv.get("speed", 0.0) <= NO_COURSE_SPEED_MPS:
+            # A speed without a course (the receiver's heading invalid): a standing receiver's few cm/s, which we
+            # take as a velocity of nought (a direction made up for it made it due north).
+            labels.add("speed_without_course")
         else:
             left.append(problem)
     return left, labels

@@ -46,6 +46,7 @@ from sensors.gpsd import MAX_LINE_BYTES, GpsdClient, LineSplitter, watch_command
 from sensors.gpsd_decode import LEAP_HOLD_NS, GpsdEpochs, fix_from_tpv, parse_time_ns, pps_report
 from sensors.sim.clock import ManualClock
 from sensors.sim.gpsd import SimGpsd
+from sensors.ublox_decode import NO_COURSE_SPEED_MPS
 from sync.clock import PpsClock
 from sync.realtime import RealtimeMap
 from sync.settings import SyncSettings
@@ -104,7 +105,10 @@ def test_a_tpv_fills_the_fields_of_a_serial_fix() -> None:
     assert (fix.lat_deg, fix.lon_deg, fix.height_hae_m, fix.height_msl_m) == (37.5, 127.0, 60.0, 35.0)
     assert fix.vel_ned_mps is not None
     assert fix.vel_ned_mps[0] == pytest.approx(0.0, abs=1e-12) and fix.vel_ned_mps[1] == pytest.approx(10.0)
-    assert fix.vel_ned_mps[2] == -0.5  # climb is up, the record's velocity is down
+    # gpsd's climb without velD is its own difference of altitudes (repeated between epochs), no measurement: the
+    # vertical velocity is missing, as NMEA's is; the receiver's velD is taken as it is.
+    assert math.isnan(fix.vel_ned_mps[2])
+    assert fix_from_tpv(tpv(t, climb=0.5, velN=0.1, velE=10.0, velD=-0.4), None).vel_ned_mps == (0.1, 10.0, -0.4)
     assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps, fix.num_sv, fix.pdop) == (1.5, 2.5, 0.3, 11, 1.5)
     assert (fix.hdop, fix.vdop) == (0.9, 1.2)
     assert (fix.itow_ms, fix.week) == (None, None)  # gpsd does not tell
@@ -444,13 +448,17 @@ def test_replayed_reports_are_recorded_as_gpsd_gave_them(replayed, log: str) -> 
         assert (rec["latitude"], rec["longitude"]) == (g["lat"], g["lon"])
         assert rec["altitude"] == g.get("altHAE", rec["altitude"]) and rec["height_msl_m"] == g.get("altMSL")
         assert (rec["h_acc_m"], rec["v_acc_m"], rec["s_acc_mps"]) == (g.get("eph"), g.get("epv"), g.get("eps"))
+        if "velN" not in g and "track" not in g:
+            # A speed without a course is no velocity; a standing receiver's few cm/s are a velocity of nought.
+            assert rec["vel_ned_mps"] == ([0.0, 0.0, None] if g.get("speed", 1.0) <= NO_COURSE_SPEED_MPS else None)
+            continue
         vn, ve, vd = rec["vel_ned_mps"]
         if "velN" in g:
             assert (vn, ve, vd) == (g["velN"], g["velE"], g["velD"])
         assert math.hypot(vn, ve) == pytest.approx(g["speed"], rel=1e-12, abs=1e-12) or "velN" in g
         if "track" in g and g["speed"] > 0 and "velN" not in g:
             assert math.degrees(math.atan2(ve, vn)) % 360.0 == pytest.approx(g["track"] % 360.0, abs=1e-9)
-        assert vd == (-g["climb"] if "climb" in g and "velD" not in g else vd)
+        assert vd == g.get("velD")  # the receiver's, or none: gpsd's climb is its own difference of altitudes
 
 
 def our_decoding(log: str) -> dict[int, dict[str, Any]]:
@@ -791,6 +799,15 @@ def test_accuracies_are_the_receivers_1_sigma_or_none_never_gpsds_95_percent_gue
     u.push(UBLOX_DEVICE, 0)
     (fix, _), = u.push(tpv(t, eph=1.1, epv=1.9, eps=0.2), 10) + u.flush()
     assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps) == (1.1, 1.9, 0.2)
+    # At 5 Hz gpsd reports an epoch twice: first with the receiver's figures (NAV-PVT), then, after its cycle's
+    # NMEA, with its own model's (eps 19.08 against the receiver's 0.24: the speed counted for nothing). The first
+    # stand; the rest of the later report completes the epoch as before.
+    u = GpsdEpochs()
+    u.push(UBLOX_DEVICE, 0)
+    out = u.push(tpv(t, eph=1.1, epv=1.9, eps=0.24), 10) + u.push(tpv(t, eph=9.6, epv=22.1, eps=19.08, climb=0.1),
+                                                                   20_000_000)
+    (fix, _), = out + u.flush()
+    assert (fix.h_acc_m, fix.v_acc_m, fix.s_acc_mps) == (1.1, 1.9, 0.24)
 
 
 def test_gpsds_leap_second_tpv_stamped_midnight_is_an_epoch_of_its_own() -> None:

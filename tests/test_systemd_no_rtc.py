@@ -189,3 +189,32 @@ def test_a_restart_in_the_same_boot_begins_its_own_0001_and_is_another_drive(tmp
     assert run_identity(dated) == (rec.run_id, 1) and run_identity(crashed) == (first.run_id, 1)
     with pytest.raises(DriveFileError, match="a folder of 2 drives"):
         drive_paths([tmp_path])
+
+
+def test_the_clock_synchronised_state_is_read_where_the_sandbox_refuses_adjtimex(tmp_path, monkeypatch) -> None:
+    """The service's ProtectClock=yes makes adjtimex() fail even read-only: the daemon then looked unsynchronised
+    for ever. It asks systemd-timesyncd's flag, then timedated (timedatectl, which sees chrony's clock too)."""
+    import ctypes
+    import os
+
+    import sync.wallclock as wallclock
+
+    def refused(*_a, **_k):
+        raise OSError(1, "Operation not permitted")
+
+    monkeypatch.setattr(ctypes, "CDLL", refused)  # as under the sandbox: no answer from the kernel
+    monkeypatch.setattr(wallclock, "TIMESYNC_FLAG", tmp_path / "synchronized")
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    answer = tmp_path / "answer"
+    (fake / "timedatectl").write_text(f"#!/bin/sh\ncat {answer}\n")
+    (fake / "timedatectl").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    for said, synced in (("yes\n", True), ("no\n", False)):
+        answer.write_text(said)
+        assert wallclock.system_clock_synchronized() is synced
+    (tmp_path / "synchronized").touch()  # timesyncd's flag: no need to ask
+    assert wallclock.system_clock_synchronized() is True
+    (tmp_path / "synchronized").unlink()
+    monkeypatch.setenv("PATH", str(tmp_path / "nowhere"))  # no timedated either: it cannot tell
+    assert wallclock.system_clock_synchronized() is False
