@@ -47,8 +47,13 @@ class ChronySock:
         except OSError as exc:
             self.failed += 1
             if not self._warned:
-                log.warning("chrony SOCK refclock %s not reachable (%s): is chronyd running with it configured?",
-                            self.path, exc.strerror or exc)
+                if isinstance(exc, PermissionError):  # chronyd made it root's: the unit drop-in gives it our group
+                    log.warning("chrony SOCK refclock %s refuses this user (%s): chronyd makes it root's; "
+                                "systemd/chrony.service.d/vehicle-logger.conf gives it the logger's group",
+                                self.path, exc.strerror or exc)
+                else:
+                    log.warning("chrony SOCK refclock %s not reachable (%s): is chronyd running with it "
+                                "configured?", self.path, exc.strerror or exc)
                 self._warned = True
 
     def close(self) -> None:

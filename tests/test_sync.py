@@ -720,3 +720,65 @@ def test_a_month_end_without_a_leap_second_stays_exact() -> None:
             assert stamp.state == "locked" and abs(stamp.t_sync_ns - ((LEAP_T0 + k) * NS + 500_000_000)) < 20_000
             assert stamp.err_ns < 50_000
     assert clk.labeller.leaps == [] and clk.counts["rejected"] == 0
+
+
+def test_the_chrony_drop_in_lets_the_loggers_user_send_to_chronyds_socket(tmp_path: Path) -> None:
+    """chronyd makes its SOCK refclock socket as root with its umask (srwxr-xr-x root:root): the service's user was
+    refused every sample (EACCES) behind a warning asking whether chronyd ran. The drop-in installed beside the unit
+    gives the socket to the logger's group; here its own command, run on such a socket, with an unprivileged user
+    and group standing in for the logger's."""
+    import grp
+    import os
+    import re
+    import socket
+    import subprocess
+    import time
+
+    from sync.chrony_sock import SAMPLE
+
+    if os.geteuid() != 0:
+        pytest.skip("needs root: a socket of root's, sent to by another user")
+    group = grp.getgrgid(65534).gr_name
+    drop_in = (Path(__file__).resolve().parents[1] / "systemd" / "chrony.service.d" / "vehicle-logger.conf")
+    (command,) = re.findall(r"^ExecStartPost=/bin/sh -c '(.*)'$", drop_in.read_text(), re.M)
+    import shutil
+    import tempfile
+
+    where = Path(tempfile.mkdtemp(prefix="chrony-", dir="/tmp"))  # a folder another user can reach, as /run is
+    where.chmod(0o755)
+    path = where / "refclock.sock"
+    old = os.umask(0o022)  # chronyd's, as systemd starts it
+    try:
+        server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        server.bind(str(path))
+    finally:
+        os.umask(old)
+    server.settimeout(5)
+
+    def send_as_nobody() -> int:
+        pid = os.fork()
+        if pid == 0:
+            code = 1
+            try:
+                os.setgroups([])
+                os.setgid(65534)
+                os.setuid(65534)
+                from sync.chrony_sock import ChronySock
+
+                client = ChronySock(str(path))
+                client.send_edge(time.monotonic_ns(), time.time_ns())
+                code = 0 if client.sent == 1 else 2
+            finally:
+                os._exit(code)
+        return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+
+    try:
+        assert send_as_nobody() == 2  # refused, as on a board without the drop-in
+        here = command.replace("/run/chrony.vehicle-logger.sock", str(path)).replace("chgrp vehicle-logger",
+                                                                                      f"chgrp {group}")
+        done = subprocess.run(["sh", "-c", here], capture_output=True, text=True, timeout=30)
+        assert done.returncode == 0, done.stderr
+        assert send_as_nobody() == 0 and len(server.recv(64)) == SAMPLE.size
+    finally:
+        server.close()
+        shutil.rmtree(where)

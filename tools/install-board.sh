@@ -193,6 +193,9 @@ configuration() {
 
 service() {
     run install -D -m 0644 "$SRC/systemd/vehicle-logger.service" /etc/systemd/system/vehicle-logger.service
+    # chronyd's SOCK refclock socket given to the logger's group (read only where chrony runs)
+    run install -D -m 0644 "$SRC/systemd/chrony.service.d/vehicle-logger.conf" \
+        /etc/systemd/system/chrony.service.d/vehicle-logger.conf
     if [ "$IMAGE" = 1 ]; then
         # Offline: systemctl --root edits the enablement links only, never the running manager.
         run systemctl --root=/ enable vehicle-logger.service
