@@ -550,8 +550,10 @@ RECOVERY_CHUNK_BYTES = 4 * 1024 * 1024  # the copy's chunks: few index records, 
 
 def hold_for_writing(stream: Any) -> None:
     """Mark a file the recorder has open for writing: an exclusive advisory lock (``flock``) held until it is
-    closed, by which :func:`being_written` tells that a logger still writes it."""
-    fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    closed, by which :func:`being_written` tells that a logger still writes it. Best effort: a file system that
+    refuses locks (ENOLCK) loses that protection, never the recording."""
+    with contextlib.suppress(OSError):
+        fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
 def being_written(path: Path) -> bool:
