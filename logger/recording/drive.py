@@ -21,7 +21,9 @@ the live ``/nav/fix`` and a replayed one are kept apart even though they share t
 from __future__ import annotations
 
 import bisect
+import functools
 import json
+import os
 import re
 import struct
 from collections import deque
@@ -391,7 +393,18 @@ def run_identity(path: Path) -> tuple[str, int] | None:
 
     The recorder writes that record right after the header, outside any chunk, so it is in the first bytes of a
     file cut short as of a finished one, and recovery copies it into the rewritten file (before its first chunk):
-    reading the file's head is enough, not its summary, and costs one small read per file."""
+    reading the file's head is enough, not its summary, and costs one small read per file. A command asks it of
+    each file up to three times (a folder's drives, the files named, :func:`open_drive`): the answer is kept per
+    file as it is on disk (its size and modification time), so the head is read once."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return _run_identity_of(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=1024)
+def _run_identity_of(path: str, _size: int, _mtime_ns: int) -> tuple[str, int] | None:
     try:
         with open(path, "rb") as f:
             head = f.read(RUN_HEAD_BYTES)
