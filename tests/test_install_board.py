@@ -162,3 +162,19 @@ def test_scripts_parse_and_explain_themselves(script: Path) -> None:
     assert r.returncode == 0 and ("--image" if script == INSTALL else "--suite") in r.stdout
     bad = subprocess.run(["sh", str(script), "--no-such-option"], capture_output=True, text=True, timeout=30)
     assert bad.returncode == 2 and "unknown option --no-such-option" in bad.stderr
+
+
+def test_another_prefix_points_the_unit_at_its_venv(tmp_path: Path) -> None:
+    """The unit starts /opt/vehicle-logger's logger; installed elsewhere, a drop-in replaces its ExecStart with the
+    same command from the venv that was installed (the unit itself stays as shipped)."""
+    r, calls = _run(tmp_path, "--no-start")
+    assert r.returncode == 0, r.stdout + r.stderr
+    prefix = tmp_path / "opt"
+    dropin = "/etc/systemd/system/vehicle-logger.service.d/prefix.conf"
+    assert f"install -D -m 0644 {prefix}/prefix.conf {dropin}" in calls
+    lines = (prefix / "prefix.conf").read_text().splitlines()
+    shipped = next(x for x in (ROOT / "systemd" / "vehicle-logger.service").read_text().splitlines()
+                   if x.startswith("ExecStart="))
+    assert lines[1:] == ["[Service]", "ExecStart=", shipped.replace("/opt/vehicle-logger/", f"{prefix}/")]
+    assert (prefix / "venv" / "bin" / "logger").exists()
+    assert calls.index(f"install -D -m 0644 {prefix}/prefix.conf {dropin}") < calls.index("systemctl daemon-reload")

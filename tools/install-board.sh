@@ -25,11 +25,13 @@
 # --wheels DIR     installs offline from a wheelhouse (pip never touches the network); make DIR with
 #                  --fetch-wheels DIR on a machine of the same architecture and Debian release that has a network.
 # --fetch-wheels DIR  runs step 1, then puts into DIR a wheel of everything step 2 would fetch, and stops.
-# --prefix DIR     installs the venv under DIR instead of /opt/vehicle-logger (the unit expects the default).
+# --prefix DIR     installs the venv under DIR instead of /opt/vehicle-logger; a drop-in then points the unit's
+#                  ExecStart at it (not under /home, /root or /run/user: the unit's ProtectHome hides those).
 # --dry-run        shows every step's commands without doing anything, the same whatever is already installed.
 set -u
 
-PREFIX=/opt/vehicle-logger
+UNIT_PREFIX=/opt/vehicle-logger  # where systemd/vehicle-logger.service starts the logger from
+PREFIX=$UNIT_PREFIX
 SRC=$(cd "$(dirname "$0")/.." && pwd)
 APT_PACKAGES="python3-numpy python3-serial python3-smbus2 python3-can python3-zstandard python3-lz4 python3-ujson \
 python3-venv python3-dev python3-setuptools python3-wheel gcc"
@@ -193,6 +195,28 @@ configuration() {
 
 service() {
     run install -D -m 0644 "$SRC/systemd/vehicle-logger.service" /etc/systemd/system/vehicle-logger.service
+    # Another --prefix: the unit's own ExecStart with that venv, as a drop-in (the unit stays as shipped); one left
+    # by an earlier installation elsewhere goes when the default is installed again.
+    dropin=/etc/systemd/system/vehicle-logger.service.d/prefix.conf
+    if [ "$PREFIX" != "$UNIT_PREFIX" ]; then
+        exec_start=$(sed -n "s#^ExecStart=$UNIT_PREFIX/#ExecStart=$PREFIX/#p" "$SRC/systemd/vehicle-logger.service")
+        if [ -z "$exec_start" ]; then
+            echo "systemd/vehicle-logger.service has no ExecStart under $UNIT_PREFIX to point at $PREFIX" > "$REASON"
+            exit 1
+        fi
+        if [ "$DRY_RUN" = 1 ]; then
+            echo "  ($PREFIX/prefix.conf: [Service] ExecStart= $exec_start)"
+        else
+            printf '# tools/install-board.sh --prefix %s\n[Service]\nExecStart=\n%s\n' "$PREFIX" "$exec_start" \
+                > "$PREFIX/prefix.conf"
+        fi
+        run install -D -m 0644 "$PREFIX/prefix.conf" "$dropin"
+    elif [ "$DRY_RUN" = 1 ]; then
+        run rm -f "$dropin"
+        echo "  (only where $dropin exists)"
+    elif [ -e "$dropin" ]; then
+        run rm -f "$dropin"
+    fi
     # chronyd's SOCK refclock socket given to the logger's group (read only where chrony runs)
     run install -D -m 0644 "$SRC/systemd/chrony.service.d/vehicle-logger.conf" \
         /etc/systemd/system/chrony.service.d/vehicle-logger.conf
