@@ -207,8 +207,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gpsd_host": Key(str, "127.0.0.1", _host, "gpsd to read for source = 'gpsd' (and pps.source = 'gpsd')"),
         "gpsd_port": Key(int, 2947, _range(1, 65535), "gpsd's TCP port"),
         "gpsd_device": Key(str, "", _gpsd_device, "the receiver gpsd reads, when it has several; empty: any"),
-        "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)),
-        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start"),
+        "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600),
+                    "the speed the receiver talks at when the port opens (a factory M8: 9600)"),
+        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start, and raise the port speed "
+                         "to one that carries them beside the NMEA (9600 -> 19200; in RAM: a restart is 9600 again)"),
         "raw_observations": Key(bool, False, None, "also RXM-RAWX and RXM-SFRBX for RTKLIB (M8T, M8P, F9P, F9T); "
                                 "the port speed goes up to carry them"),
         "antenna_height_m": Key(NUM, 0.0, _range(-100, 100), "antenna above the marker, m: RINEX ANTENNA: DELTA H"),

@@ -10,12 +10,16 @@ u-blox has two configuration interfaces. Receivers up to M8 know only the legacy
 -RATE, -PRT); F9 knows both; M10 only the configuration keys (UBX-CFG-VALSET). The legacy message is tried
 first and, once NAKed, the keys are used for the rest of the setup.
 
+The port speed goes up to one that carries the whole output (:func:`line_budget`) whenever the current one does
+not: a factory receiver's NMEA (GGA, GLL, GSA, RMC, VTG and a GSV series per constellation: 650 to 950 bytes a
+second with twenty satellites in view) plus NAV-PVT, TIM-TP and NAV-TIMEGPS leave a 9600-baud line no room for the
+burst after each epoch, and a full transmit buffer drops messages, TIM-TP among them.
+
 Raw observations (UBX-RXM-RAWX and -SFRBX, for RTKLIB at the office) are asked for only when the set-up says
 so, and only receivers with raw firmware give them (M8T, M8P, F9P, F9T; an M8N refuses): a refusal is reported
-in the result, not raised, since the logger records everything else the same. They need a fast line, so when they
-are asked for the port speed goes up first to one that carries the whole output (:func:`line_budget`), and they
-are turned on at the new rate: turned on at 9600 baud they would fill the receiver's transmit buffer, which
-drops messages, ACKs among them.
+in the result, not raised, since the logger records everything else the same. They need a fast line, so the speed
+goes up first and they are turned on at the new rate: turned on at 9600 baud they would fill the receiver's
+transmit buffer, which drops messages, ACKs among them.
 
 The baud rate changes on its own, after the other settings. A legacy CFG-PRT is acknowledged at the old rate,
 then the receiver switches; a VALSET takes effect at once, so its ACK (if the host is quick enough to catch it)
@@ -327,8 +331,9 @@ def configure_receiver(
             s.configure(*_message_rate(name, rate, setup.uart))
 
     baud = setup.baud if setup.baud is not None else int(port.baudrate)
-    if setup.raw_observations:
-        baud = max(baud, baud_for(setup))  # raised first: raw output at a slow rate would cost messages, ACKs too
+    # Raised whenever the output needs it: the factory NMEA beside the logger's UBX messages fills most of a
+    # 9600-baud line, and raw output at a slow rate would cost messages, ACKs too (raised before it is turned on).
+    baud = max(baud, baud_for(setup))
     if baud != port.baudrate:
         _change_baud(s, replace(setup, baud=baud))
     raw, refusal = "off", ""

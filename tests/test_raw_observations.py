@@ -68,7 +68,9 @@ def test_without_raw_observations_asked_nothing_changes(bench: Bench) -> None:
     m = bench.receiver(model="NEO-M8T", seed=5, raw_frames=lambda rec: [rawx(rec)])
     ser = bench.host(9600)
     result = configure_receiver(ser, ReceiverSetup(), sleep=bench.sleep)
-    assert result.raw_observations == "off" and result.baud == 9600 and m.rate("RXM-RAWX") == 0
+    # The speed is what the NMEA and UBX output needs (19200), not the 115200 that raw observations would.
+    assert result.raw_observations == "off" and result.baud == 19200 == baud_for(ReceiverSetup())
+    assert m.rate("RXM-RAWX") == 0
     assert not any("RXM" in a for a in result.acknowledged)
     assert "RXM-RAWX" not in identities(bench.listen(ser, 2.0))
 

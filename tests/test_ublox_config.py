@@ -98,7 +98,8 @@ def test_factory_m8_is_configured_by_legacy_messages_each_acknowledged(bench: Be
     ser = bench.host(9600)
     result = configure_receiver(ser, ReceiverSetup(disable=("GGA",)), sleep=bench.sleep)
     assert isinstance(result, SetupResult)
-    assert result.interface == "legacy" and result.baud == 9600
+    # NMEA stays on beside the UBX messages: more than 9600 baud carries with room for an epoch's burst.
+    assert result.interface == "legacy" and result.baud == 19200 == model.baud == ser.baudrate
     assert result.software == "ROM CORE 3.01 (107888)" and "PROTVER=18.00" in result.extensions
     assert result.acknowledged == (
         "UBX-CFG-RATE (navigation rate 1000 ms x 1 on GPS time)",
@@ -106,8 +107,9 @@ def test_factory_m8_is_configured_by_legacy_messages_each_acknowledged(bench: Be
         "UBX-CFG-MSG (TIM-TP on)",
         "UBX-CFG-MSG (NAV-TIMEGPS on)",
         "UBX-CFG-MSG (GGA off)",
+        "UBX-CFG-PRT (UART1 at 19200 baud)",
     )
-    assert (model.counters.acks, model.counters.naks) == (5, 0)
+    assert (model.counters.acks, model.counters.naks) == (6, 0)
     assert [model.rate(m) for m in ("NAV-PVT", "TIM-TP", "NAV-TIMEGPS", "GGA", "RMC")] == [1, 1, 1, 0, 1]
     seen = identities(bench.listen(ser, 3.0))
     assert seen.count("NAV-PVT") == seen.count("NAV-TIMEGPS") == seen.count("RMC") == 3
@@ -162,7 +164,7 @@ def test_a_receiver_at_another_baud_rate_is_silence_too(bench: Bench) -> None:
 def test_a_corrupted_reply_is_retried_and_too_many_are_an_error(bench: Bench) -> None:
     model = bench.receiver(generation=8, seed=6, messages=())  # nothing periodic: only replies are sent
     model.corrupt_checksums(1)  # the first MON-VER answer is damaged on the line
-    quiet = ReceiverSetup(enable=())  # still nothing periodic afterwards
+    quiet = ReceiverSetup(enable=(), nmea_output=False)  # still nothing periodic afterwards (so no speed change)
     result = configure_receiver(bench.host(9600), quiet, sleep=bench.sleep, reply_timeout_s=0.3)
     assert result.software.startswith("ROM CORE")
     assert model.counters.sent["MON-VER"] == 2 and model.counters.acks == 1
@@ -237,3 +239,35 @@ def test_end_to_end_through_the_gnss_receiver_driver(bench: Bench) -> None:
         gps_second = (tp.week * 604_800_000 + tp.tow_ms) // 1000 + tl.leap_s
         assert tp.qerr_ps == model.pulse_quantisation.qerr_ps(gps_second)
     assert {t.leap_s for t in times} == {18}
+
+
+def test_a_factory_receiver_under_a_real_sky_gets_a_line_that_carries_its_output(bench: Bench) -> None:
+    """NMEA stays on after the set-up: with a GSV series per constellation it is most of a 9600-baud line, so the
+    speed goes up to one where NMEA and the UBX messages fill at most LINE_USE of it, and nothing is dropped."""
+    from sensors.sim.scenarios import make_drive
+    from sensors.ublox_config import LINE_USE
+
+    drive = make_drive("urban", seed=1, duration_s=200)
+    bench.model = UbloxReceiverModel(bench.port, bench.clock, drive, time_to_first_fix_s=0.0,
+                                     messages=FACTORY_MESSAGES, seed=3).start()
+    model, ser = bench.model, bench.host(9600)
+    bench.listen(ser, 2.0)
+    sent0, bytes0 = dict(model.counters.sent), model.counters.bytes_written
+    factory = bench.listen(ser, 10.0)
+    factory_bps = (model.counters.bytes_written - bytes0) / 10.0
+    in_view = {f.message.numSV for f in factory.frames if f.kind == "NMEA" and f.message.msgID == "GSV"}
+    gsv_per_s = (model.counters.sent["GSV"] - sent0["GSV"]) / 10.0
+    assert gsv_per_s >= 3 and max(in_view) >= 6  # several constellations, several sentences each
+
+    result = configure_receiver(ser, ReceiverSetup(), sleep=bench.sleep)
+    bench.listen(ser, 2.0)
+    bytes0, drops0 = model.counters.bytes_written, model.counters.tx_overflow_drops
+    seen = identities(bench.listen(ser, 30.0))
+    out_bps = (model.counters.bytes_written - bytes0) / 30.0
+    assert out_bps > factory_bps + 100  # NAV-PVT, TIM-TP and NAV-TIMEGPS on top of the factory NMEA
+    assert out_bps > 9600 / 10 * LINE_USE  # what 9600 baud would have had to carry: more than its share
+    assert result.baud == model.baud == ser.baudrate > 9600
+    assert out_bps <= result.baud / 10 * LINE_USE
+    assert model.counters.tx_overflow_drops == drops0
+    assert 29 <= seen.count("NAV-PVT") <= 31 and 29 <= seen.count("TIM-TP") <= 31
+    assert {"GGA", "GLL", "GSA", "GSV", "RMC", "VTG"} <= set(seen)

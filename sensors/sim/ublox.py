@@ -83,7 +83,19 @@ from sensors.sim.ublox_commands import (
     Reply,
     UbxInputScanner,
 )
-from sensors.sim.ublox_encode import MESSAGE_IDS, EpochRecord, gga, gsa, nav_pvt, nav_timegps, rmc, tim_tp
+from sensors.sim.ublox_encode import (
+    MESSAGE_IDS,
+    EpochRecord,
+    gga,
+    gll,
+    gsa,
+    gsv,
+    nav_pvt,
+    nav_timegps,
+    rmc,
+    tim_tp,
+    vtg,
+)
 
 __all__ = [
     "DEFAULT_MESSAGES",
@@ -95,7 +107,9 @@ __all__ = [
 ]
 
 DEFAULT_MESSAGES = ("NAV-PVT", "TIM-TP", "GGA", "RMC")  # a receiver whose flash holds the logger's setup
-FACTORY_MESSAGES = ("GGA", "RMC")  # fresh from the factory: NMEA only (GSV, GLL, VTG not modelled)
+# Fresh from the factory: NMEA only, u-blox's default set (TXT aside), about 600-900 bytes a second with a dozen
+# satellites in view: most of a 9600-baud line before any UBX message is added.
+FACTORY_MESSAGES = ("GGA", "GLL", "GSA", "GSV", "RMC", "VTG")
 # An NMEA-only receiver's output: position, speed and course, and the DOPs; no GST, so no accuracy figures, and
 # no vertical velocity (NMEA has none).
 NMEA_ONLY_MESSAGES = ("GGA", "RMC", "GSA")
@@ -537,6 +551,13 @@ class UbloxReceiverModel:
             self._enqueue_nmea(ready, rmc(rec, utc_ns if known else None, talker=self.nmea_talker), "RMC")
         if due("GSA", solution_index):
             self._enqueue_nmea(ready, gsa(rec, talker=self.nmea_talker), "GSA")
+        if due("GLL", solution_index):
+            self._enqueue_nmea(ready, gll(rec, utc_ns if known else None, talker=self.nmea_talker), "GLL")
+        if due("VTG", solution_index):
+            self._enqueue_nmea(ready, vtg(rec, talker=self.nmea_talker), "VTG")
+        if due("GSV", solution_index):
+            for sentence in gsv(rec):
+                self._enqueue_nmea(ready, sentence, "GSV")
         second = gps_ns // NS_PER_S
         if second != self._last_pulse_second:
             self._last_pulse_second = second
@@ -574,7 +595,13 @@ class UbloxReceiverModel:
                 view = replace(view, az=view.az[:0], el=view.el[:0], reflected=view.reflected[:0], ids=view.ids[:0])
             err = self.geometry_errors.step(dt_s, view)
             num_sv = view.num_sv if math.isfinite(err.h_acc_m) else min(view.num_sv, 2)  # masked: no fix
+            names = self.sky.constellation.names
+            satellites = tuple(
+                (names[i], math.degrees(e), math.degrees(a) % 360.0, round(30 + 15 * math.sin(e) - 8 * r))
+                for i, e, a, r in zip(view.ids.tolist(), view.el.tolist(), view.az.tolist(), view.reflected.tolist(),
+                                      strict=True))
         else:
+            satellites = ()
             num_sv = satellites_tracked(truth.sky_open, self.max_satellites) if self._tracking(t_ns) else 0
             err = self.errors.step(dt_s, truth.sky_open, num_sv)
         fix_type = fix_type_for(num_sv)
@@ -622,7 +649,7 @@ class UbloxReceiverModel:
         if rec.fix_type >= 2 and g_speed >= _MIN_MOVING_MPS:  # slower: the heading is noise, keep the last
             self._head_mot_deg = math.degrees(math.atan2(ve, vn)) % 360.0
             head_acc = min(180.0, math.degrees(math.atan2(rec.s_acc_mps, g_speed)))
-        rec = replace(rec, head_mot_deg=self._head_mot_deg, head_acc_deg=head_acc)
+        rec = replace(rec, head_mot_deg=self._head_mot_deg, head_acc_deg=head_acc, satellites=satellites)
         self.history.append(rec)
         return rec
 

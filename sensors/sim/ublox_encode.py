@@ -1,10 +1,11 @@
 """The periodic output of the simulated u-blox receiver: one navigation solution as UBX and NMEA messages.
 
 The counterpart of :mod:`sensors.ublox_decode` on the device side. :class:`EpochRecord` is what the
-receiver model computed for one epoch; the encoders turn it into NAV-PVT, NAV-TIMEGPS, GGA, RMC and GSA, and
-a pulse second into TIM-TP, with the fields, scalings and "no estimate" conventions of the u-blox M8
-protocol specification. They are plain functions of their arguments, so the receiver model decides what it
-knows (a time solution, a position since power-on) and the encoders only say it as the firmware would.
+receiver model computed for one epoch; the encoders turn it into NAV-PVT, NAV-TIMEGPS, GGA, RMC, GSA and the
+rest of the factory NMEA set (GLL, VTG, GSV: what fills a slow line), and a pulse second into TIM-TP, with the
+fields, scalings and "no estimate" conventions of the u-blox M8 protocol specification. They are plain functions
+of their arguments, so the receiver model decides what it knows (a time solution, a position since power-on) and
+the encoders only say it as the firmware would.
 
 Messages are built with pyubx2 and pynmeagps and serialised by the caller, which also labels them by
 the names in :data:`MESSAGE_IDS`.
@@ -24,7 +25,7 @@ from sensors.sim.gnss_errors import NO_DOP, EpochError
 from sensors.sim.gnss_time import NS_PER_MS, NS_PER_S, GnssTimeline
 from sensors.sim.truth import TruthState
 
-__all__ = ["MESSAGE_IDS", "EpochRecord", "gga", "gsa", "nav_pvt", "nav_timegps", "rmc", "tim_tp"]
+__all__ = ["MESSAGE_IDS", "EpochRecord", "gga", "gll", "gsa", "gsv", "nav_pvt", "nav_timegps", "rmc", "tim_tp", "vtg"]
 
 # Class and id of the output messages the model produces (u-blox M8 protocol spec; NMEA class 0xF0).
 MESSAGE_IDS: dict[str, tuple[int, int]] = {
@@ -34,6 +35,9 @@ MESSAGE_IDS: dict[str, tuple[int, int]] = {
     "GGA": (0xF0, 0x00),
     "RMC": (0xF0, 0x04),
     "GSA": (0xF0, 0x02),
+    "GLL": (0xF0, 0x01),
+    "GSV": (0xF0, 0x03),
+    "VTG": (0xF0, 0x05),
     # Raw observations: the receiver model puts out what its raw_frames hook gives (sensors.sim.ublox).
     "RXM-RAWX": (0x02, 0x15),
     "RXM-SFRBX": (0x02, 0x13),
@@ -66,6 +70,9 @@ class EpochRecord:
     t_acc_ns: float
     head_mot_deg: float = 0.0  # heading of motion; kept from the last epoch with enough speed
     head_acc_deg: float = 180.0
+    # Satellites in view as (constellation name such as "G07", elevation deg, azimuth deg, C/N0 dB-Hz), for GSV;
+    # empty where the model has no sky geometry (a bare trajectory): GSV then lists ``num_sv`` satellites by number.
+    satellites: tuple[tuple[str, float, float, int], ...] = ()
 
 
 def nav_pvt(rec: EpochRecord, utc_ns: int, *, time_known: bool, position_known: bool,
@@ -181,6 +188,57 @@ def gsa(rec: EpochRecord, *, talker: str) -> NMEAMessage:
     dops = (d.pdop, d.hdop, d.vdop) if mode >= 2 else (NO_DOP,) * 3
     return NMEAMessage(talker, "GSA", GET, payload=["A", str(mode), *[""] * 12,
                                                      *(f"{min(x, NO_DOP):.2f}" for x in dops)])
+
+
+def gll(rec: EpochRecord, utc_ns: int | None, *, talker: str) -> NMEAMessage:
+    """NMEA GLL: the position again, with its time and status (a factory-default sentence)."""
+    hhmm, _ = _nmea_time(utc_ns) if utc_ns is not None else ("", "")
+    if rec.fix_type >= 2:
+        lat, lon = rec.lat_deg, rec.lon_deg
+        fields = [_nmea_coordinate(lat, 2), "N" if lat >= 0 else "S", _nmea_coordinate(lon, 3),
+                  "E" if lon >= 0 else "W", hhmm, "A", "A"]
+    else:
+        fields = ["", "", "", "", hhmm, "V", "N"]
+    return NMEAMessage(talker, "GLL", GET, payload=fields)
+
+
+def vtg(rec: EpochRecord, *, talker: str) -> NMEAMessage:
+    """NMEA VTG: course and speed over ground, in knots and km/h (a factory-default sentence)."""
+    if rec.fix_type < 2:
+        return NMEAMessage(talker, "VTG", GET, payload=["", "T", "", "M", "", "N", "", "K", "N"])
+    speed = math.hypot(float(rec.vel_ned_mps[0]), float(rec.vel_ned_mps[1]))
+    return NMEAMessage(talker, "VTG", GET, payload=[
+        f"{rec.head_mot_deg:.2f}", "T", "", "M", f"{speed * 3600.0 / 1852.0:.3f}", "N", f"{speed * 3.6:.3f}", "K",
+        "A"])
+
+
+# GSV talker and satellite number of each constellation (NMEA 4.10 as u-blox M8 numbers them: GLONASS 65-96).
+_GSV_SYSTEMS = {"G": ("GP", 0), "R": ("GL", 64), "E": ("GA", 0)}
+
+
+def gsv(rec: EpochRecord) -> list[NMEAMessage]:
+    """NMEA GSV: the satellites in view, four to a sentence, one series per constellation (GPGSV, GLGSV, GAGSV).
+
+    It is the bulk of a factory receiver's output (half of its bytes with a dozen satellites in view), which is why
+    the line speed the logger sets up depends on whether NMEA stays on."""
+    series: dict[str, list[list[str]]] = {}
+    if rec.satellites:
+        for name, el, az, cno in rec.satellites:
+            talker, base = _GSV_SYSTEMS.get(name[:1], ("GP", 0))
+            series.setdefault(talker, []).append([f"{base + int(name[1:]):02d}", f"{round(el):02d}",
+                                                  f"{round(az) % 360:03d}", f"{cno:02d}"])
+    elif rec.num_sv:
+        series["GP"] = [[f"{n:02d}", "", "", ""] for n in range(1, rec.num_sv + 1)]
+    else:
+        series["GP"] = []
+    out = []
+    for talker, sats in series.items():
+        count = max(1, math.ceil(len(sats) / 4))
+        for i in range(count):
+            group = sats[i * 4:(i + 1) * 4]
+            out.append(NMEAMessage(talker, "GSV", GET, payload=[
+                str(count), str(i + 1), f"{len(sats):02d}", *[f for sat in group for f in sat]]))
+    return out
 
 
 def _nearest_second(utc_ns: int) -> tuple[int, int]:
