@@ -18,7 +18,11 @@ import serial
 from pynmeagps import NMEAMessage
 from pyubx2 import ERR_RAISE, NMEA_PROTOCOL, POLL, SET, UBX_PROTOCOL, UBXMessage, UBXReader
 
-from sensors.errors import BusError
+from logger.recording.topics import GNSS_FIX
+from logger.runtime.sampler import Reading
+from logger.runtime.sources import GnssSource
+from logger.runtime.timebase import TimeBase
+from sensors.errors import BusError, ProtocolError, SensorError
 from sensors.sim import earth
 from sensors.sim.clock import ManualClock
 from sensors.sim.gnss_errors import (
@@ -35,7 +39,7 @@ from sensors.sim.pps import PpsSignal
 from sensors.sim.pty import PtyPort
 from sensors.sim.truth import ParkedTrajectory, StraightTrajectory, Trajectory, TruthState
 from sensors.sim.uart_line import resample
-from sensors.sim.ublox import UbloxReceiverModel
+from sensors.sim.ublox import FACTORY_MESSAGES, UbloxReceiverModel
 from sensors.sim.ublox_commands import mon_ver
 from sensors.ublox import GnssReceiver
 from sensors.ublox_frames import UbxNmeaFramer
@@ -530,9 +534,7 @@ def test_a_read_that_holds_two_seconds_says_its_messages_were_read_late() -> Non
     """A host that reads the port a second late gets two seconds of messages in one read: their stamps say nothing
     of when they came, so the receiver's source marks them ``late_read`` and the clock pairs no PPS edge with them.
     Read on time, nothing is marked."""
-    from logger.recording.topics import GNSS_FIX, TIMEPULSE
-    from logger.runtime.sources import GnssSource
-    from logger.runtime.timebase import TimeBase
+    from logger.recording.topics import TIMEPULSE
 
     rig = Rig()
     model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0).start()
@@ -559,6 +561,71 @@ def test_a_read_that_holds_two_seconds_says_its_messages_were_read_late() -> Non
         fixes = [r for r in backlog if r.topic == GNSS_FIX and r.payload["gnss_time_ns"] is not None]
         assert len({r.payload["gnss_time_ns"] for r in fixes}) >= 2
         assert all(r.payload["late_read"] for r in backlog), [r.payload for r in backlog]
+    finally:
+        source.close()
+        model.stop()
+
+
+class _RigTime(TimeBase):
+    """The rig's clock as the GNSS thread's time base: its waits move the drive (and the model) on."""
+
+    def __init__(self, rig: Rig) -> None:
+        super().__init__(rig.clock.now_ns, 1.0)
+        self.rig = rig
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self.rig.step(seconds)
+
+
+def _gnss_reads(rig: Rig, source: GnssSource, seconds: float) -> list:
+    """The GNSS thread's reads over ``seconds`` of drive time; a SensorError ends them (returned, not raised)."""
+    out: list = []
+    end = rig.clock.now_ns() + round(seconds * 1e9)
+    while rig.clock.now_ns() < end:
+        rig.step(0.25)
+        try:
+            out += source.read()
+        except SensorError as exc:
+            out.append(exc)
+            break
+    return out
+
+
+def _pvt_fixes(reads: list) -> list:
+    return [r for r in reads if isinstance(r, Reading) and r.topic == GNSS_FIX and r.payload["source"] == "NAV-PVT"]
+
+
+@pytest.mark.parametrize("generation, speeds", [(8, (9600, 19200)), (10, (38400, 38400))])
+def test_a_receiver_that_restarts_under_the_logger_is_set_up_again(generation: int, speeds: tuple[int, int]) -> None:
+    """A voltage dip while the engine cranks restarts the receiver: it comes back at its flash's speed and with its
+    factory messages, NMEA only. An M8 whose set-up raised the line to 19200 then sends bytes the port reads as
+    garbage; an M10 at 38400 sends NMEA without NAV-PVT. Either way the GNSS thread stops (one line saying why) and
+    the port opened again sets the receiver up again: NAV-PVT comes back within seconds."""
+    rig = Rig()
+    flash, raised = speeds
+    model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0,
+                               messages=FACTORY_MESSAGES, generation=generation).start()
+    rig.models.append(model)
+    source = GnssSource(rig.port.path, flash, configure=True, tb=_RigTime(rig))
+    try:
+        source.open()
+        assert model.baud == source.port_baud == raised
+        assert len(_pvt_fixes(_gnss_reads(rig, source, 4.0))) >= 3
+
+        model.reappear(power_cycle=True)  # the port stays: a UART on the board, the receiver restarted
+        rig.step(0.1)
+        reads = _gnss_reads(rig, source, 15.0)
+        stop = reads[-1]
+        assert isinstance(stop, ProtocolError), reads[-3:]
+        expected = f"at {raised} baud: restarted" if raised != flash else "messages but no NAV-PVT"
+        assert expected in str(stop) and "Setting it up again" in str(stop) and "\n" not in str(stop)
+        assert not _pvt_fixes(reads)
+        source.close()
+
+        source.open()  # what the sampler does after its back-off
+        assert model.baud == source.port_baud == raised and model.rate("NAV-PVT") == 1
+        assert len(_pvt_fixes(_gnss_reads(rig, source, 4.0))) >= 3
     finally:
         source.close()
         model.stop()

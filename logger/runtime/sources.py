@@ -26,7 +26,7 @@ from logger.recording.records import (
 from logger.recording.topics import BARO, GNSS_FIX, GNSS_RAW, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
 from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
-from sensors.errors import BusError, DeviceNotFound, SensorError
+from sensors.errors import BusError, DeviceNotFound, ProtocolError, SensorError
 from sensors.obd import SpeedDriver
 from sync.fifo import FifoClock
 
@@ -47,6 +47,12 @@ LATE_READ_SPAN_NS = 500_000_000  # epochs this far apart in one read: the older 
 # taken as late only when its epochs lie LATE_READ_SPAN_NS apart.
 EPOCH_BURST_BYTES = 320
 BURST_SETTLE_MAX_S = 0.35
+# A receiver that restarts (a voltage dip while the engine cranks) comes back at the speed and with the messages its
+# flash holds, while the logger's port stays open at the speed the set-up raised it to. Bytes with not one message
+# in them for this many fix periods (at least this many seconds), or NMEA fixes without NAV-PVT for as long, mean
+# that: the port is opened again (at the configured speed) and the receiver set up again.
+RESTART_SEEN_PERIODS = 5
+RESTART_SEEN_MIN_S = 5.0
 
 
 def _i2c_bus(path_or_number: str | int) -> Any:
@@ -242,12 +248,16 @@ class GnssSource(Source):
         self.offset = 0  # bytes read since the port was opened (each /gnss/raw record says where it starts)
         self._settle = lambda: tb.sleep(self.settle_s())
         self._raw_warned = False
+        self._heard_ns = self._pvt_ns = 0  # drive time of the last message of any kind, and of the last NAV-PVT
+        self._frames_ok = 0
 
     def open(self) -> None:
         from sensors.ublox import GnssReceiver
 
         self.receiver = GnssReceiver.open(self.path, self.port_baud)
         self.offset = 0
+        self._heard_ns = self._pvt_ns = self.tb.monotonic_ns()
+        self._frames_ok = 0
         if self.configure:
             from sensors.ublox_config import NoUbxAnswer, ReceiverSetup, configure_receiver
 
@@ -298,6 +308,7 @@ class GnssSource(Source):
         if got.raw:
             out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw, self.offset), t, stamped=False))
             self.offset += len(got.raw)
+            self._watch_for_a_restart(got.items, t)
         # Epochs half a second or more apart in one read (or two time pulses): the host read the older messages
         # that long after they came, so their stamp says nothing of when; paired with PPS edges they could name
         # the wrong second.
@@ -313,6 +324,30 @@ class GnssSource(Source):
             elif isinstance(item, TimePulse):
                 out.append(Reading(TIMEPULSE, timepulse_record(item, late), t))
         return out
+
+    def _watch_for_a_restart(self, items: list, t_ns: int) -> None:
+        """Raise ProtocolError (the sampler closes the port and opens it again, which sets the receiver up again)
+        when what arrives says the receiver restarted since its set-up: bytes at a speed the port is no longer at
+        (nothing but garbage), or messages (its factory NMEA) without the NAV-PVT the set-up turned on. The bytes
+        are recorded first (``/gnss/raw``), so nothing that came is lost."""
+        ok = self.receiver.framer.frames_ok
+        heard = ok != self._frames_ok
+        if heard:
+            self._frames_ok, self._heard_ns = ok, t_ns
+        if any(getattr(item, "source", None) == "NAV-PVT" for item in items):
+            self._pvt_ns = t_ns
+        limit_ns = round(max(RESTART_SEEN_MIN_S, RESTART_SEEN_PERIODS * (self.meas_period_ms or 1000) / 1000) * 1e9)
+        if self.port_baud != self.baud and t_ns - self._heard_ns > limit_ns:
+            raised, self.port_baud = self.port_baud, self.baud  # open again where a restarted receiver talks
+            raise ProtocolError(
+                f"GNSS receiver on {self.path}: {(t_ns - self._heard_ns) / 1e9:.0f} s of bytes without one message "
+                f"at {raised} baud: restarted at the {self.baud} baud of its flash? Setting it up again")
+        # Messages, but none a NAV-PVT (the decoder, having seen UBX solutions, takes nothing from NMEA any more,
+        # so without this the receiver's fixes would stop while its bytes were recorded as if all was well).
+        if heard and self.setup is not None and t_ns - self._pvt_ns > limit_ns:
+            raise ProtocolError(
+                f"GNSS receiver on {self.path}: messages but no NAV-PVT for {(t_ns - self._pvt_ns) / 1e9:.0f} s: "
+                f"restarted without the logger's set-up? Setting it up again")
 
     def incidents(self) -> dict[str, int]:
         if self.receiver is None:
