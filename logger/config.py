@@ -94,6 +94,8 @@ def _vector3(limit: float) -> Callable[[Any], str | None]:
 
 
 def _abs_path(v: str) -> str | None:
+    if "\0" in v:  # TOML's "\u0000" gets one in; no file system takes it (open() raises ValueError)
+        return "must not hold a NUL character"
     return None if v.startswith("/") else "must be an absolute path"
 
 

@@ -76,6 +76,11 @@ def test_bad_address_and_out_of_range_reported_together() -> None:
     ]
 
 
+def test_a_path_holding_a_nul_is_refused_by_the_check_not_by_a_traceback_in_run() -> None:
+    (msg,) = _problems(GOOD.replace('out_dir = "/data/drives"', 'out_dir = "/data/\\u0000drives"'))
+    assert msg == "logger.toml:3: logger.out_dir = '/data/\\x00drives' must not hold a NUL character"
+
+
 def test_missing_device_path() -> None:
     (msg,) = _problems(GOOD.replace('port = "/dev/ttyUSB0"\n', ""))
     assert msg == "logger.toml:11: obd.port is required when obd.source = 'elm327'"
