@@ -256,8 +256,6 @@ class GnssSource(Source):
 
         self.receiver = GnssReceiver.open(self.path, self.port_baud)
         self.offset = 0
-        self._heard_ns = self._pvt_ns = self.tb.monotonic_ns()
-        self._frames_ok = 0
         if self.configure:
             from sensors.ublox_config import NoUbxAnswer, ReceiverSetup, configure_receiver
 
@@ -284,6 +282,9 @@ class GnssSource(Source):
                 self.nmea_only = False
                 self.port_baud = self.setup.baud
                 self._report_raw(self.setup)
+        # Counted from the end of the set-up, which may take seconds of retries: a restart is what comes after it.
+        self._heard_ns = self._pvt_ns = self.tb.monotonic_ns()
+        self._frames_ok = self.receiver.framer.frames_ok
 
     def settle_s(self) -> float:
         """How long to wait for the rest of an epoch's burst once its first byte is in (drive time)."""
