@@ -14,7 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 # Faults whose every occurrence changes what `logger status` shows (garbage on the receiver's line is skipped
 # by the framer without a trace there, so the long soak reports it rather than this test asserting it).
-FAULTS = "imu_unplugged,elm327_can_error,pps_outage,disk_nearly_full"
+FAULTS = "imu_unplugged,elm327_can_error,pps_outage,disk_nearly_full,gnss_restarted"
 
 
 @pytest.mark.slow_on_board

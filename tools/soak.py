@@ -8,7 +8,8 @@ The drive runs in worker processes (``--worker``), each a whole daemon on the si
 process faults are real: a SIGTERM ends the first worker and a ``kill -9`` the second, and each time a new one
 starts on the same folder (it must recover the cut file). Inside each worker a fault injector picks faults at
 random, one at a time, through the device models: I2C chips unplugged and bus errors, the receiver's USB serial
-vanishing, garbage on its line, the ELM327 resetting or reporting bus errors, PPS outages, the disk nearly full.
+vanishing, garbage on its line, the receiver restarting under the open port, the ELM327 resetting or reporting bus
+errors, PPS outages, the disk nearly full.
 While a fault lasts, the injector reads the status socket (what `logger status` shows) until the fault is
 visible there; the orchestrator stamps every log line the worker writes, to check the journal as well.
 
@@ -67,14 +68,15 @@ FAULT_TOPICS = {
     "i2c_errors": {"/imu", "/baro"},
     "gnss_vanished": {"/gnss/fix", "/gnss/raw", "/gnss/timepulse"},
     "gnss_garbage": {"/gnss/fix", "/gnss/timepulse"},
+    "gnss_restarted": {"/gnss/fix", "/gnss/timepulse", "/pps"},  # no fix, so no pulse, until its first fix again
     "elm327_reset": {"/obd/speed"},
     "elm327_can_error": {"/obd/speed"},
     "pps_outage": {"/pps"},
     "disk_nearly_full": set(SENSOR_TOPICS) | {"/gnss/raw", "/gnss/timepulse"},
 }
 FAULT_SENSOR = {"imu_unplugged": "imu", "baro_unplugged": "baro", "i2c_errors": "imu|baro", "gnss_vanished": "gnss",
-                "gnss_garbage": "gnss", "elm327_reset": "obd", "elm327_can_error": "obd", "pps_outage": "pps",
-                "disk_nearly_full": "recorder"}
+                "gnss_garbage": "gnss", "gnss_restarted": "gnss", "elm327_reset": "obd", "elm327_can_error": "obd",
+                "pps_outage": "pps", "disk_nearly_full": "recorder"}
 
 
 # ================================================================================================================
@@ -228,6 +230,13 @@ class Injector:
         # The bytes wait in the line until the receiver's thread reads them: the fault lasts until then.
         self._fault("gnss_garbage", burst, None, 5.0, lambda s: self.problem(s, "gnss:"),
                     lambda s: self.problem(s, "gnss:") is not None)
+
+    def gnss_restarted(self) -> None:
+        # A voltage dip while the engine cranks: the receiver restarts under the open port, back at its flash's
+        # speed and messages (NMEA only), so the GNSS thread must notice and set it up again.
+        self._fault("gnss_restarted", lambda: self.v.gnss.reappear(power_cycle=True), None, 10.0,
+                    lambda s: self.problem(s, "gnss:"),
+                    lambda s: self.problem(s, "gnss:") is None and self.sensor(s, "gnss")["state"] == "ok")
 
     def elm327_reset(self) -> None:
         self._fault("elm327_reset", self.v.elm327.reset, None, 5.0, lambda s: self.problem(s, "obd:"),
