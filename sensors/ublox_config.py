@@ -372,18 +372,34 @@ def baud_for(setup: ReceiverSetup) -> int:
     return next((b for b in _BAUDS if b / 10 * LINE_USE >= need), _BAUDS[-1])
 
 
+def _port_settings(s: _Session, setup: ReceiverSetup, baud: int) -> UBXMessage:
+    """The legacy CFG-PRT that changes the port's speed and nothing else it holds: the port's settings as the
+    receiver reports them (its input protocols, RTCM corrections for an RTK receiver among them; TX-ready; the
+    mode's bits) with the new speed and NMEA output as the set-up says. A receiver that does not answer the poll
+    gets the factory's: 8N1, UBX, NMEA and RTCM in, UBX out."""
+    port_id = _UART_PORT_ID[setup.uart]
+    now = s.poll(UBXMessage("CFG", "CFG-PRT", POLL, portID=port_id), "CFG-PRT")
+    payload = getattr(now, "payload", b"") or b""
+    if len(payload) == 20 and payload[0] == port_id:
+        s.wait_for(lambda m: _ack_of(m, 0x06, 0x00))  # the poll's own ACK, so the change's is not taken for it
+        out_mask = payload[14] & ~0x02 | (0x02 if setup.nmea_output else 0)
+        changed = payload[:8] + int(baud).to_bytes(4, "little") + payload[12:14] + bytes((out_mask,)) + payload[15:]
+        return UBXMessage("CFG", "CFG-PRT", SET, payload=changed)
+    return UBXMessage("CFG", "CFG-PRT", SET, portID=port_id, reserved2=0x10, charLen=3, parity=4, nStopBits=0,
+                      baudRate=baud, inUBX=1, inNMEA=1, inRTCM=1, outUBX=1, outNMEA=int(setup.nmea_output))
+
+
 def _change_baud(s: _Session, setup: ReceiverSetup) -> None:
     old, new = int(s.port.baudrate), int(setup.baud or 0)
     mon_ver = UBXMessage("MON", "MON-VER", POLL)
     attempts = 0
+    port_message = None
     while attempts < s.tries:
         attempts += 1
         if s.interface == "legacy":
             what = f"UBX-CFG-PRT ({setup.uart} at {new} baud)"
-            s.write(UBXMessage(
-                "CFG", "CFG-PRT", SET, portID=_UART_PORT_ID[setup.uart], charLen=3, parity=4, nStopBits=0,
-                baudRate=new, inUBX=1, inNMEA=1, outUBX=1, outNMEA=int(setup.nmea_output),
-            ))
+            port_message = port_message or _port_settings(s, setup, new)
+            s.write(port_message)
             # The ACK comes at the old rate; without it the receiver may still have switched.
             if s.wait_for(lambda m: _ack_of(m, 0x06, 0x00)) is False:
                 s.interface = "keys"  # refused: the configuration keys may still do it

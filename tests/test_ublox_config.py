@@ -7,6 +7,7 @@ drive time and a test never waits for real.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import serial
@@ -109,7 +110,7 @@ def test_factory_m8_is_configured_by_legacy_messages_each_acknowledged(bench: Be
         "UBX-CFG-MSG (GGA off)",
         "UBX-CFG-PRT (UART1 at 19200 baud)",
     )
-    assert (model.counters.acks, model.counters.naks) == (6, 0)
+    assert (model.counters.acks, model.counters.naks) == (7, 0)  # the CFG-PRT poll is acknowledged too
     assert [model.rate(m) for m in ("NAV-PVT", "TIM-TP", "NAV-TIMEGPS", "GGA", "RMC")] == [1, 1, 1, 0, 1]
     seen = identities(bench.listen(ser, 3.0))
     assert seen.count("NAV-PVT") == seen.count("NAV-TIMEGPS") == seen.count("RMC") == 3
@@ -271,3 +272,16 @@ def test_a_factory_receiver_under_a_real_sky_gets_a_line_that_carries_its_output
     assert model.counters.tx_overflow_drops == drops0
     assert 29 <= seen.count("NAV-PVT") <= 31 and 29 <= seen.count("TIM-TP") <= 31
     assert {"GGA", "GLL", "GSA", "GSV", "RMC", "VTG"} <= set(seen)
+
+
+@pytest.mark.parametrize("generation", [8, 9])
+def test_raising_the_speed_changes_nothing_else_of_the_port(bench: Bench, generation: int) -> None:
+    """An RTK receiver takes its corrections on the same UART (RTCM 2 on an M8P, RTCM 3 on an F9P): the legacy
+    CFG-PRT that raises the speed is the port's own settings, polled, with only the speed changed."""
+    model = bench.receiver(generation=generation, seed=2)
+    before = replace(model._cfg.port)
+    assert before.in_rtcm and before.in_rtcm3 == (generation >= 9)
+    ser = bench.host(model.baud)
+    result = configure_receiver(ser, ReceiverSetup(baud=115200), sleep=bench.sleep)
+    assert result.interface == "legacy" and result.baud == model.baud == 115200 != before.baud
+    assert replace(model._cfg.port, baud=before.baud) == before

@@ -231,7 +231,8 @@ class UbloxReceiverModel:
         if not self.min_meas_period_ms <= meas_period_ms <= 65535:
             raise ValueError(f"meas_period_ms must be {self.min_meas_period_ms}..65535, not {meas_period_ms}")
         # An NMEA-only receiver neither takes nor sends UBX: its port is NMEA in and out, for good.
-        uart = PortConfig(start_baud) if ubx else PortConfig(start_baud, in_ubx=False, out_ubx=False)
+        uart = PortConfig(start_baud, in_rtcm3=generation >= 9) if ubx else \
+            PortConfig(start_baud, in_ubx=False, out_ubx=False, in_rtcm3=generation >= 9)
         startup = RamConfig(uart, meas_ms=meas_period_ms, rates={MESSAGE_IDS[m]: 1 for m in messages})
         # Without a named product: the generation's firmware, raw observations as its generic firmware has them (F9).
         raw = spec.raw if spec is not None else generation == 9

@@ -121,6 +121,10 @@ class PortConfig:
     in_nmea: bool = True
     out_ubx: bool = True
     out_nmea: bool = True
+    # RTCM correction input, on from the factory (RTCM 2 on an M8, RTCM 3 on an F9): an RTK receiver's corrections
+    # arrive on the UART, so a host that changes the port's speed must leave them on.
+    in_rtcm: bool = True
+    in_rtcm3: bool = False
 
 
 @dataclass(slots=True)
@@ -314,9 +318,9 @@ class CommandInterpreter:
             if port_id != _UART1:
                 return self._ack(now, _CFG_PRT, port_id in _OTHER_PORTS)
             reply = UBXMessage(
-                "CFG", "CFG-PRT", GET, portID=_UART1, charLen=3, parity=4, nStopBits=0, baudRate=port.baud,
-                inUBX=int(port.in_ubx), inNMEA=int(port.in_nmea), outUBX=int(port.out_ubx),
-                outNMEA=int(port.out_nmea),
+                "CFG", "CFG-PRT", GET, portID=_UART1, reserved2=0x10, charLen=3, parity=4, nStopBits=0,
+                baudRate=port.baud, inUBX=int(port.in_ubx), inNMEA=int(port.in_nmea), inRTCM=int(port.in_rtcm),
+                inRTCM3=int(port.in_rtcm3), outUBX=int(port.out_ubx), outNMEA=int(port.out_nmea),
             )
             return self._ack(now, _CFG_PRT, True, reply)
         if len(payload) != 20:
@@ -328,7 +332,8 @@ class CommandInterpreter:
         if msg.charLen != 3 or msg.parity not in (4, 5) or msg.nStopBits != 0 \
                 or msg.baudRate not in STANDARD_BAUDS:
             return self._ack(now, _CFG_PRT, False)
-        new = PortConfig(msg.baudRate, bool(msg.inUBX), bool(msg.inNMEA), bool(msg.outUBX), bool(msg.outNMEA))
+        new = PortConfig(msg.baudRate, bool(msg.inUBX), bool(msg.inNMEA), bool(msg.outUBX), bool(msg.outNMEA),
+                         bool(msg.inRTCM), bool(msg.inRTCM3))
 
         def switch() -> None:  # after the ACK has left at the old rate, on whatever RAM holds by then
             self.ram.port = new
