@@ -191,8 +191,8 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
         g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
         g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]
         # A simulated receiver keeps the navigation rate it runs at (its profile's), as its baud rate; hardware is
-        # set to one fix a second.
-        meas_ms = devices.gnss_meas_period_ms if gnss["source"] == "sim" else None
+        # set to [gnss] rate_hz.
+        meas_ms = devices.gnss_meas_period_ms if gnss["source"] == "sim" else round(1000 / gnss["rate_hz"])
         plans.append(Plan(GnssSource(g_path, g_baud, gnss["configure"], tb, meas_ms, gnss["raw_observations"]), None,
                           1000.0 / meas_ms if meas_ms else 1.0))
     if pps["source"] == "gpsd":

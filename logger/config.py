@@ -24,6 +24,8 @@ from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
 DEFAULT_PATH = Path("/etc/vehicle-logger/logger.toml")
+# Navigation rates a receiver may be set to ([gnss] rate_hz): whole milliseconds apart, up to an F9P's 25 Hz.
+RECEIVER_RATES_HZ = (1, 2, 4, 5, 8, 10, 20, 25)
 SIM_SECTIONS = ("imu", "baro", "obd", "gnss", "pps")  # the sensors a simulated vehicle can play
 DEFAULT_SIM_OUT = "drives"  # `logger run --sim` without a configuration: files under ./drives
 DEFAULT_SIM_SOCKET = "/tmp/vehicle-logger-sim/status.sock"  # ... and its status socket, where `logger status` looks
@@ -211,8 +213,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gpsd_device": Key(str, "", _gpsd_device, "the receiver gpsd reads, when it has several; empty: any"),
         "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600),
                     "the speed the receiver talks at when the port opens (a factory M8: 9600)"),
-        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at 1 Hz at start, and raise the port speed "
-                         "to one that carries them beside the NMEA (9600 -> 19200; in RAM: a restart is 9600 again)"),
+        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at rate_hz at start, and raise the port "
+                         "speed to one that carries them beside the NMEA (9600 -> 19200 at 1 Hz; in RAM: a restart "
+                         "is 9600 again)"),
+        "rate_hz": Key(NUM, 1, _one_of(*RECEIVER_RATES_HZ), "navigation solutions a second: what the set-up asks "
+                       "for, or (configure = false) what the receiver is set to; an M8 does up to 10 with one "
+                       "constellation, an F9P 25 (20 in RTK)"),
         "raw_observations": Key(bool, False, None, "also RXM-RAWX and RXM-SFRBX for RTKLIB (M8T, M8P, F9P, F9T); "
                                 "the port speed goes up to carry them"),
         "antenna_height_m": Key(NUM, 0.0, _range(-100, 100), "antenna above the marker, m: RINEX ANTENNA: DELTA H"),

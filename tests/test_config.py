@@ -260,3 +260,16 @@ def test_the_scenario_names_the_configuration_checks_are_the_simulator_s() -> No
     for name in SCENARIOS:
         assert parse(f'[sim]\nscenario = "{name}"\n', "x", sim=True).values["sim"]["scenario"] == name
         assert make_drive(name, seed=1, duration_s=60.0).name == name
+
+
+def test_the_receivers_rate_reaches_its_set_up() -> None:
+    """[gnss] rate_hz is what the set-up asks of a real receiver (and what the status expects of it)."""
+    from logger.compose import plans_from_config
+    from logger.runtime.timebase import TimeBase
+
+    for text, period_ms, expected_hz in (("", 1000, 1.0), ("rate_hz = 5\n", 200, 5.0), ("rate_hz = 25\n", 40, 25.0)):
+        cfg = parse(GOOD.replace('baud = 115200\n', f"baud = 115200\n{text}"), "logger.toml")
+        (gnss,) = [p for p in plans_from_config(cfg, TimeBase()) if p.source.name == "gnss"]
+        assert gnss.source.meas_period_ms == period_ms and gnss.expected_hz == expected_hz
+    (msg,) = _problems(GOOD.replace('baud = 115200\n', "baud = 115200\nrate_hz = 3\n"))
+    assert msg == "logger.toml:17: gnss.rate_hz = 3 must be one of 1, 2, 4, 5, 8, 10, 20, 25"

@@ -285,3 +285,17 @@ def test_raising_the_speed_changes_nothing_else_of_the_port(bench: Bench, genera
     result = configure_receiver(ser, ReceiverSetup(baud=115200), sleep=bench.sleep)
     assert result.interface == "legacy" and result.baud == model.baud == 115200 != before.baud
     assert replace(model._cfg.port, baud=before.baud) == before
+
+
+def test_a_factory_receiver_set_to_five_fixes_a_second_gets_a_line_for_them(bench: Bench) -> None:
+    """At 5 Hz the output is five times a second's: at the factory's 9600 baud most of it would be dropped in the
+    receiver (NAV-PVT and TIM-TP among it); the set-up raises the speed first, and every solution arrives."""
+    model = bench.receiver(generation=8, seed=7)
+    ser = bench.host(9600)
+    result = configure_receiver(ser, ReceiverSetup(meas_period_ms=200), sleep=bench.sleep)
+    assert model.meas_period_ms == 200 and result.baud == model.baud == 115200
+    bench.listen(ser, 1.0)
+    drops = model.counters.tx_overflow_drops
+    seen = identities(bench.listen(ser, 10.0))
+    assert model.counters.tx_overflow_drops == drops
+    assert 49 <= seen.count("NAV-PVT") <= 51 and 9 <= seen.count("TIM-TP") <= 11
