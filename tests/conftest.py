@@ -34,8 +34,8 @@ def _restore_root_logging() -> Iterator[None]:
 # and fails the run too, as a skip for a missing RTKLIB or node does there.
 TOOL_SKIP_REASONS = ("is not installed", "needs gcc", "needs root")  # root: to mount a small disk of its own
 EXTRAS_INSTALLED = os.environ.get("LOGGER_TESTS_NO_SKIP") == "1"
-# What .ci/run installs besides the extra, as the skip reasons name it: RTKLIB, node with @mcap/core, gpsd.
-CI_INSTALLS = ("rtklib", "nodejs", "tools/mcap_js", "gpsd")
+# What .ci/run installs besides the extra, as the skip reasons name it: RTKLIB, node with @mcap/core, gpsd, chrony.
+CI_INSTALLS = ("rtklib", "nodejs", "tools/mcap_js", "gpsd", "chrony")
 _unexpected_skips: list[str] = []
 
 # On a board's single slow core (or an emulated one: tools/board-check.sh sets LOGGER_BOARD=1) the tests that spend
