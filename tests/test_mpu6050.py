@@ -583,3 +583,56 @@ def test_fifo_reads_take_the_die_temperature_once_a_second(rig) -> None:
         r.clock.advance(0.04)
         d.read_fifo()
     assert sum(1 for _, kind, data in r.adapter.trace if kind == "W" and data == bytes((TEMP_OUT_H,))) == 3
+
+
+# ---- a restart the bus did not see ---------------------------------------------------------------
+class _ClockTime:
+    """The rig's clock as the IMU thread's time base (its waits move the chip model on)."""
+
+    def __init__(self, clock: ManualClock) -> None:
+        self.clock = clock
+
+    def monotonic_ns(self) -> int:
+        return self.clock.now_ns()
+
+    def sleep(self, seconds: float) -> None:
+        self.clock.sleep(seconds)
+
+
+@pytest.mark.parametrize("read", ["fifo", "register"])
+def test_a_chip_restarted_by_its_supply_without_a_bus_error_is_configured_again(rig, read: str) -> None:
+    """A dip in the MPU-6050's own supply (its cable, a loose connector) resets it, asleep, while every transfer
+    still succeeds: the FIFO stays empty, the data registers read zero. The IMU thread notices within a second
+    (a register read at once: all-zero samples never reach a record) and says so in one line; the chip opened
+    again samples as before."""
+    from logger.runtime.sources import ImuSource
+    from sensors.errors import SensorError
+
+    r = rig(errors=Mpu6050Errors.ideal())
+    source = ImuSource(r.adapter.path, 0x68, 100 if read == "fifo" else 50, 4, 500, _ClockTime(r.clock), read)
+
+    def samples(seconds: float) -> tuple[int, SensorError | None]:
+        n = 0
+        for _ in range(round(seconds / 0.1)):
+            r.clock.advance(0.1)
+            try:
+                got = source.read()
+            except SensorError as exc:
+                return n, exc
+            n += sum(len(g.times) if g.times else 1 for g in got)
+        return n, None
+
+    source.open()
+    try:
+        got, error = samples(2.0)
+        assert error is None and got >= 19
+        r.model.power_on_reset()  # the supply dipped; the bus saw nothing
+        got, error = samples(3.0)
+        assert got == 0 and error is not None, got
+        assert "found asleep at its reset values" in str(error) and "\n" not in str(error)
+        source.close()
+        source.open()  # what the sampler does after its back-off
+        got, error = samples(2.0)
+        assert error is None and got >= 19
+    finally:
+        source.close()

@@ -7,9 +7,9 @@ whether the logger can be left alone in a car for months.
 The drive runs in worker processes (``--worker``), each a whole daemon on the simulated vehicle, so that the
 process faults are real: a SIGTERM ends the first worker and a ``kill -9`` the second, and each time a new one
 starts on the same folder (it must recover the cut file). Inside each worker a fault injector picks faults at
-random, one at a time, through the device models: I2C chips unplugged and bus errors, the receiver's USB serial
-vanishing, garbage on its line, the receiver restarting under the open port, the ELM327 resetting or reporting bus
-errors, PPS outages, the disk nearly full.
+random, one at a time, through the device models: I2C chips unplugged, restarted and bus errors, the receiver's
+USB serial vanishing, garbage on its line, the receiver restarting under the open port, the ELM327 resetting or
+reporting bus errors, PPS outages, the disk nearly full.
 While a fault lasts, the injector reads the status socket (what `logger status` shows) until the fault is
 visible there; the orchestrator stamps every log line the worker writes, to check the journal as well.
 
@@ -64,6 +64,7 @@ SENSOR_OF_TOPIC = {"/imu": "imu", "/baro": "baro", "/obd/speed": "obd", "/gnss/f
 
 FAULT_TOPICS = {
     "imu_unplugged": {"/imu"},
+    "imu_restarted": {"/imu"},
     "baro_unplugged": {"/baro"},
     "i2c_errors": {"/imu", "/baro"},
     "gnss_vanished": {"/gnss/fix", "/gnss/raw", "/gnss/timepulse"},
@@ -74,7 +75,8 @@ FAULT_TOPICS = {
     "pps_outage": {"/pps"},
     "disk_nearly_full": set(SENSOR_TOPICS) | {"/gnss/raw", "/gnss/timepulse"},
 }
-FAULT_SENSOR = {"imu_unplugged": "imu", "baro_unplugged": "baro", "i2c_errors": "imu|baro", "gnss_vanished": "gnss",
+FAULT_SENSOR = {"imu_unplugged": "imu", "imu_restarted": "imu", "baro_unplugged": "baro", "i2c_errors": "imu|baro",
+                "gnss_vanished": "gnss",
                 "gnss_garbage": "gnss", "gnss_restarted": "gnss", "elm327_reset": "obd", "elm327_can_error": "obd",
                 "pps_outage": "pps", "disk_nearly_full": "recorder"}
 
@@ -206,6 +208,20 @@ class Injector:
     def _unplug(self, kind: str, name: str, address: int) -> None:
         self._fault(kind, lambda: self.v.i2c.unplug(address), lambda: self.v.i2c.replug(address), self.duration(),
                     lambda s: self.problem(s, f"{name}:"), lambda s: self.sensor(s, name)["state"] == "ok")
+
+    def imu_restarted(self) -> None:
+        # A dip in the chip's own supply: it restarts asleep at its reset values while every transfer succeeds.
+        # Found and set up again within about a second: the status may show it only as one more reconnect.
+        snap = self.snapshot()
+        before = self.sensor(snap, "imu")["reconnects"] if snap else 0
+
+        def visible(s: dict[str, Any]) -> str | None:
+            grew = self.sensor(s, "imu")["reconnects"] > before
+            return self.problem(s, "imu:") or (f"imu reconnects {before} -> {self.sensor(s, 'imu')['reconnects']}"
+                                               if grew else None)
+
+        self._fault("imu_restarted", lambda: self.v.i2c.chip(0x68).power_on_reset(), None, 15.0, visible,
+                    lambda s: self.sensor(s, "imu")["state"] == "ok")
 
     def i2c_errors(self) -> None:
         snap = self.snapshot()

@@ -53,6 +53,11 @@ BURST_SETTLE_MAX_S = 0.35
 # that: the port is opened again (at the configured speed) and the receiver set up again.
 RESTART_SEEN_PERIODS = 5
 RESTART_SEEN_MIN_S = 5.0
+# An MPU-6050 whose supply dipped while its bus did not (its own cable, a loose connector) restarts asleep at its
+# reset values: its FIFO stays empty, its data registers read zero, and no I2C transfer fails. After this long
+# without a FIFO sample (or at an all-zero register sample), the IMU thread reads the configuration back, at most
+# once per this long.
+IMU_AWAKE_CHECK_S = 1.0
 
 
 def _i2c_bus(path_or_number: str | int) -> Any:
@@ -109,6 +114,7 @@ class ImuSource(Source):
         self._bus: Any = None
         self._pending_lost = 0
         self._fifo_clock: FifoClock | None = None
+        self._sampled_ns = self._checked_ns = 0  # drive time of the last samples read, of the last awake check
 
     def open(self) -> None:
         from sensors.mpu6050 import Mpu6050, choose_sample_timing
@@ -133,12 +139,23 @@ class ImuSource(Source):
         except ValueError as exc:
             raise SensorError(f"MPU-6050: {exc}") from None
         self.driver.configure()
+        self._sampled_ns = self._checked_ns = self.tb.monotonic_ns()
+
+    def _check_awake(self, t_ns: int) -> None:
+        """Raise SensorError (the sampler closes the chip and configures it again) when it is no longer as
+        configured: restarted by a dip in its supply that no transfer saw."""
+        self._checked_ns = t_ns
+        if not self.driver.is_configured():
+            raise SensorError(f"MPU-6050 on I2C bus {self.bus_id}: found asleep at its reset values (its supply "
+                              "dipped?); configuring it again")
 
     def read(self) -> list[Reading]:
         if not self.fifo:
             t0 = self.tb.monotonic_ns()
             s = self.driver.read()
             t1 = self.tb.monotonic_ns()
+            if not any(s.accel_mps2) and not any(s.gyro_rps):  # reset values: no real sample is all zero
+                self._check_awake(t1)
             return [Reading(IMU, imu_record(s.accel_mps2, s.gyro_rps, s.temp_degc, False, 0), (t0 + t1) // 2)]
         t_read = self.tb.monotonic_ns()
         batch = self.driver.read_fifo(t_read)
@@ -150,7 +167,11 @@ class ImuSource(Source):
             self._fifo_clock.reset()
         n = len(batch)
         if not n:
+            check_ns = round(IMU_AWAKE_CHECK_S * 1e9)
+            if t_done - self._sampled_ns > check_ns and t_done - self._checked_ns > check_ns:
+                self._check_awake(t_done)
             return []  # the lost count waits for the next samples, the first of which it precedes
+        self._sampled_ns = t_done
         times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
         payload = imu_batch_payload(times, batch.accel_mps2, batch.gyro_rps, batch.temp_degc, batch.period_s,
                                     self._pending_lost)
