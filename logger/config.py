@@ -213,9 +213,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gpsd_device": Key(str, "", _gpsd_device, "the receiver gpsd reads, when it has several; empty: any"),
         "baud": Key(int, 9600, _one_of(4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600),
                     "the speed the receiver talks at when the port opens (a factory M8: 9600)"),
-        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at rate_hz at start, and raise the port "
-                         "speed to one that carries them beside the NMEA (9600 -> 19200 at 1 Hz; in RAM: a restart "
-                         "is 9600 again)"),
+        "configure": Key(bool, True, None, "turn on NAV-PVT and TIM-TP at rate_hz at start, and raise a UART's "
+                         "speed to one that carries them beside the NMEA (9600 -> 19200 at 1 Hz, in RAM only)"),
         "rate_hz": Key(NUM, 1, _one_of(*RECEIVER_RATES_HZ), "navigation solutions a second: what the set-up asks "
                        "for, or (configure = false) what the receiver is set to; an M8 does up to 10 with one "
                        "constellation, an F9P 25 (20 in RTK)"),

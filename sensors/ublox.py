@@ -8,6 +8,7 @@ GPS time in :mod:`sensors.geodesy`. Their public names are re-exported here, so 
 from __future__ import annotations
 
 import os
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -16,7 +17,7 @@ import serial
 from sensors.errors import BusError, DeviceNotFound
 from sensors.geodesy import ecef_to_geodetic, ecef_velocity_to_ned, gps_to_unix_ns
 from sensors.ublox_decode import GnssDecoder, GnssFix, GnssItem, GnssTime, TimePulse
-from sensors.ublox_frames import Frame, UbxNmeaFramer
+from sensors.ublox_frames import KIND_UBX, Frame, UbxNmeaFramer
 
 __all__ = [
     "Frame",
@@ -54,6 +55,9 @@ class GnssReceiver:
         self.path = path if path is not None else str(getattr(port, "port", "") or "")
         self.framer = UbxNmeaFramer()
         self.decoder = GnssDecoder()
+        # Good UBX frames by (class, id) since the port was opened: which messages the receiver still sends (a
+        # receiver restarted under the open port comes back without the ones the host's set-up turned on).
+        self.ubx_counts: Counter[tuple[int, int]] = Counter()
 
     @property
     def port(self) -> serial.Serial:
@@ -100,6 +104,8 @@ class GnssReceiver:
         if data:
             self.framer.decode_nmea = not self.decoder.ignores_nmea  # what the decoder would discard is not parsed
             for frame in self.framer.feed(data):
+                if frame.kind == KIND_UBX:
+                    self.ubx_counts[frame.raw[2], frame.raw[3]] += 1
                 items += self.decoder.push(frame)
         return GnssRead(raw=bytes(data), items=items)
 

@@ -61,6 +61,7 @@ for _key, _name in UBX_MSGIDS.items():
 
 _TIME_REF = {"utc": 0, "gps": 1, "glonass": 2, "beidou": 3, "galileo": 4}
 _UART_PORT_ID = {"UART1": 1, "UART2": 2}
+_UART_NAME = {v: k for k, v in _UART_PORT_ID.items()}  # CFG-PRT's port ids: 0 I2C (DDC), 1-2 UART, 3 USB, 4 SPI
 _BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # Shortest payload of each reply the set-up reads. pyubx2 decodes a runt with a good checksum into a message
 # without the fields, and reading those would raise out of the set-up instead of waiting for a real reply.
@@ -163,6 +164,7 @@ class _Session:
         self.tries = tries
         self.poll_s = poll_s
         self.framer = UbxNmeaFramer()
+        self._backlog: list = []  # UBX frames read after the one an earlier wait matched (a poll's reply and ACK)
         self.interface = "legacy"
         self.acknowledged: list[str] = []
         self.nmea_sentences = 0  # checksum-valid NMEA heard while waiting for answers
@@ -199,6 +201,7 @@ class _Session:
     def discard_input(self) -> None:
         self._io(self.port.reset_input_buffer, "clearing input")
         self.framer = UbxNmeaFramer()  # half a frame is garbage now
+        self._backlog = []
 
     # -- waiting
 
@@ -207,9 +210,11 @@ class _Session:
         limit = self.timeout_s if timeout_s is None else timeout_s
         waited = 0.0
         while True:
-            for frame in self._frames():
+            frames, self._backlog = self._backlog + self._frames(), []
+            for i, frame in enumerate(frames):
                 hit = match(frame.message)
                 if hit is not None:
+                    self._backlog = frames[i + 1:]
                     return hit
             if waited >= limit:
                 return None
@@ -331,11 +336,19 @@ def configure_receiver(
             s.configure(*_message_rate(name, rate, setup.uart))
 
     baud = setup.baud if setup.baud is not None else int(port.baudrate)
-    # Raised whenever the output needs it: the factory NMEA beside the logger's UBX messages fills most of a
-    # 9600-baud line, and raw output at a slow rate would cost messages, ACKs too (raised before it is turned on).
-    baud = max(baud, baud_for(setup))
-    if baud != port.baudrate:
-        _change_baud(s, replace(setup, baud=baud))
+    # The port this link reaches, as a legacy receiver reports it to a CFG-PRT poll without a port number: a USB,
+    # SPI or I2C link has no speed to set (and UART1 may carry an RTK radio's corrections); a UART is changed in
+    # place, its NMEA output left as its owner set it.
+    link = _link_port(s) if s.interface == "legacy" else None
+    if link is None or link[0] in _UART_NAME:
+        nmea = setup.nmea_output and (link is None or bool(link[1][14] & 0x02))
+        uart = _UART_NAME[link[0]] if link is not None else setup.uart
+        # Raised whenever the output needs it: the factory NMEA beside the logger's UBX messages fills most of a
+        # 9600-baud line, and raw output at a slow rate would cost messages, ACKs too (raised before it is on).
+        baud = max(baud, baud_for(replace(setup, nmea_output=nmea)))
+        if baud != port.baudrate:
+            _change_baud(s, replace(setup, baud=baud, uart=uart, nmea_output=nmea), link[1] if link else None,
+                         extensions)
     raw, refusal = "off", ""
     if setup.raw_observations:
         for name in RAW_MESSAGES:
@@ -372,34 +385,54 @@ def baud_for(setup: ReceiverSetup) -> int:
     return next((b for b in _BAUDS if b / 10 * LINE_USE >= need), _BAUDS[-1])
 
 
-def _port_settings(s: _Session, setup: ReceiverSetup, baud: int) -> UBXMessage:
+def _link_port(s: _Session) -> tuple[int, bytes] | None:
+    """(port id, CFG-PRT payload) of the port the receiver hears the host on, from a CFG-PRT poll without a port
+    number (as gpsd asks it); None when it does not answer."""
+    reply = s.poll(UBXMessage("CFG", "CFG-PRT", POLL), "CFG-PRT")
+    payload = getattr(reply, "payload", b"") or b""
+    if len(payload) != 20:
+        return None
+    s.wait_for(lambda m: _ack_of(m, 0x06, 0x00))  # the poll's own ACK, so that a change's is not taken for it
+    return payload[0], bytes(payload)
+
+
+def _port_settings(setup: ReceiverSetup, baud: int, polled: bytes | None, extensions: tuple[str, ...]) -> UBXMessage:
     """The legacy CFG-PRT that changes the port's speed and nothing else it holds: the port's settings as the
-    receiver reports them (its input protocols, RTCM corrections for an RTK receiver among them; TX-ready; the
-    mode's bits) with the new speed and NMEA output as the set-up says. A receiver that does not answer the poll
-    gets the factory's: 8N1, UBX, NMEA and RTCM in, UBX out."""
+    receiver reported them (its input protocols, RTCM corrections for an RTK receiver among them; TX-ready; the
+    mode's bits) with the new speed, and NMEA output off where the set-up says so. A receiver that did not answer
+    the poll gets the factory's: 8N1, UBX, NMEA and RTCM in (RTCM 3 from protocol 20), UBX and NMEA out."""
     port_id = _UART_PORT_ID[setup.uart]
-    now = s.poll(UBXMessage("CFG", "CFG-PRT", POLL, portID=port_id), "CFG-PRT")
-    payload = getattr(now, "payload", b"") or b""
-    if len(payload) == 20 and payload[0] == port_id:
-        s.wait_for(lambda m: _ack_of(m, 0x06, 0x00))  # the poll's own ACK, so the change's is not taken for it
-        out_mask = payload[14] & ~0x02 | (0x02 if setup.nmea_output else 0)
-        changed = payload[:8] + int(baud).to_bytes(4, "little") + payload[12:14] + bytes((out_mask,)) + payload[15:]
+    if polled is not None and polled[0] == port_id:
+        out_mask = polled[14] if setup.nmea_output else polled[14] & ~0x02
+        changed = polled[:8] + int(baud).to_bytes(4, "little") + polled[12:14] + bytes((out_mask,)) + polled[15:]
         return UBXMessage("CFG", "CFG-PRT", SET, payload=changed)
     return UBXMessage("CFG", "CFG-PRT", SET, portID=port_id, reserved2=0x10, charLen=3, parity=4, nStopBits=0,
-                      baudRate=baud, inUBX=1, inNMEA=1, inRTCM=1, outUBX=1, outNMEA=int(setup.nmea_output))
+                      baudRate=baud, inUBX=1, inNMEA=1, inRTCM=1, inRTCM3=int(_protocol(extensions) >= 20),
+                      outUBX=1, outNMEA=int(setup.nmea_output))
 
 
-def _change_baud(s: _Session, setup: ReceiverSetup) -> None:
+def _protocol(extensions: tuple[str, ...]) -> float:
+    """The protocol version MON-VER's extensions name (PROTVER=18.00), 0 when they do not."""
+    for text in extensions:
+        key, _, value = text.partition("=")
+        if key.strip().upper() == "PROTVER":
+            try:
+                return float(value)
+            except ValueError:
+                return 0.0
+    return 0.0
+
+
+def _change_baud(s: _Session, setup: ReceiverSetup, polled: bytes | None = None,
+                 extensions: tuple[str, ...] = ()) -> None:
     old, new = int(s.port.baudrate), int(setup.baud or 0)
     mon_ver = UBXMessage("MON", "MON-VER", POLL)
     attempts = 0
-    port_message = None
     while attempts < s.tries:
         attempts += 1
         if s.interface == "legacy":
             what = f"UBX-CFG-PRT ({setup.uart} at {new} baud)"
-            port_message = port_message or _port_settings(s, setup, new)
-            s.write(port_message)
+            s.write(_port_settings(setup, new, polled, extensions))
             # The ACK comes at the old rate; without it the receiver may still have switched.
             if s.wait_for(lambda m: _ack_of(m, 0x06, 0x00)) is False:
                 s.interface = "keys"  # refused: the configuration keys may still do it

@@ -178,3 +178,11 @@ def test_another_prefix_points_the_unit_at_its_venv(tmp_path: Path) -> None:
     assert lines[1:] == ["[Service]", "ExecStart=", shipped.replace("/opt/vehicle-logger/", f"{prefix}/")]
     assert (prefix / "venv" / "bin" / "logger").exists()
     assert calls.index(f"install -D -m 0644 {prefix}/prefix.conf {dropin}") < calls.index("systemctl daemon-reload")
+
+
+@pytest.mark.parametrize("prefix, says", [("opt/vl", "must be an absolute path"), ("/srv/v l", "holds a space")])
+def test_a_prefix_the_unit_could_not_run_from_is_refused(tmp_path: Path, prefix: str, says: str) -> None:
+    r = subprocess.run(["sh", str(INSTALL), "--dry-run", "--prefix", prefix], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and says in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+    assert "==" not in r.stdout  # refused before any step

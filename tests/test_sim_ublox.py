@@ -629,3 +629,78 @@ def test_a_receiver_that_restarts_under_the_logger_is_set_up_again(generation: i
     finally:
         source.close()
         model.stop()
+
+
+def test_a_logger_restarted_while_the_receiver_kept_its_raised_speed_finds_it() -> None:
+    """The service restarted (a watchdog, an upgrade) while the receiver kept the 19200 baud of the last set-up in
+    RAM: the new logger opens at the configured 9600, hears garbage, and tries the speed a set-up gives next."""
+    rig = Rig()
+    model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0,
+                               messages=FACTORY_MESSAGES, generation=8).start()
+    rig.models.append(model)
+    first = GnssSource(rig.port.path, 9600, configure=True, tb=_RigTime(rig))
+    second = GnssSource(rig.port.path, 9600, configure=True, tb=_RigTime(rig))
+    try:
+        first.open()
+        assert model.baud == first.port_baud == 19200
+        first.close()
+        second.open()
+        assert second.port_baud == 19200 == model.baud
+        assert len(_pvt_fixes(_gnss_reads(rig, second, 4.0))) >= 3
+    finally:
+        first.close()
+        second.close()
+        model.stop()
+
+
+def test_damaged_frames_at_the_right_speed_are_not_taken_for_a_restart() -> None:
+    """Interference (an engine cranking, a loose connector) damages frames for longer than the restart watch's
+    limit: their checksums fail, but they are frames, so the speed is right and nothing is opened again."""
+    rig = Rig()
+    model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0,
+                               messages=FACTORY_MESSAGES, generation=8).start()
+    rig.models.append(model)
+    source = GnssSource(rig.port.path, 9600, configure=True, tb=_RigTime(rig))
+    try:
+        source.open()
+        _gnss_reads(rig, source, 2.0)
+        model.corrupt_checksums(10_000)  # every frame for a while
+        reads = _gnss_reads(rig, source, 8.0)
+        assert not any(isinstance(r, SensorError) for r in reads) and source.port_baud == 19200
+        assert source.receiver.framer.bad_checksum > 20
+    finally:
+        source.close()
+        model.stop()
+
+
+def test_a_receiver_restarted_with_its_own_saved_setup_is_still_set_up_again() -> None:
+    """A ZED-F9P whose owner saved NAV-PVT at 115200 to flash: restarted, it sends NAV-PVT at the same speed but
+    none of the raw observations or NAV-TIMEGPS the logger's set-up turned on. The watch covers every message of
+    every epoch the set-up asked for, and the read that shows it is recorded before the port is opened again."""
+    from test_raw_observations import rawx
+
+    rig = Rig()
+    model = UbloxReceiverModel(rig.port, rig.clock, StraightTrajectory(), time_to_first_fix_s=0.0, model="ZED-F9P",
+                               baud=115200, messages=("NAV-PVT", "GGA", "RMC"), raw_frames=lambda rec: [rawx(rec)],
+                               ).start()
+    rig.models.append(model)
+    source = GnssSource(rig.port.path, 115200, configure=True, tb=_RigTime(rig), raw_observations=True)
+    try:
+        source.open()
+        assert source.setup.raw_observations == "on" and model.rate("RXM-RAWX") == 1
+        assert len(_pvt_fixes(_gnss_reads(rig, source, 3.0))) >= 2
+        model.reappear(power_cycle=True)
+        rig.step(0.1)
+        reads = _gnss_reads(rig, source, 15.0)
+        stop = reads[-1]
+        assert isinstance(stop, ProtocolError), reads[-3:]
+        assert "no NAV-TIMEGPS, RXM-RAWX for" in str(stop), stop
+        assert _pvt_fixes(reads)  # the restarted receiver's own NAV-PVT kept coming, and was recorded
+        before = reads[-2]
+        assert isinstance(before, Reading)  # the read that tripped the watch went out before the error
+        source.close()
+        source.open()
+        assert model.rate("RXM-RAWX") == 1 == model.rate("NAV-TIMEGPS")
+    finally:
+        source.close()
+        model.stop()

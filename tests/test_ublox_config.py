@@ -168,7 +168,7 @@ def test_a_corrupted_reply_is_retried_and_too_many_are_an_error(bench: Bench) ->
     quiet = ReceiverSetup(enable=(), nmea_output=False)  # still nothing periodic afterwards (so no speed change)
     result = configure_receiver(bench.host(9600), quiet, sleep=bench.sleep, reply_timeout_s=0.3)
     assert result.software.startswith("ROM CORE")
-    assert model.counters.sent["MON-VER"] == 2 and model.counters.acks == 1
+    assert model.counters.sent["MON-VER"] == 2 and model.counters.acks == 2  # CFG-RATE, the CFG-PRT poll
 
     model.corrupt_checksums(3)  # every answer to three tries
     with pytest.raises(NoData, match=r"UBX-MON-VER within 0.3 s \(3 tries\)"):
@@ -299,3 +299,29 @@ def test_a_factory_receiver_set_to_five_fixes_a_second_gets_a_line_for_them(benc
     seen = identities(bench.listen(ser, 10.0))
     assert model.counters.tx_overflow_drops == drops
     assert 49 <= seen.count("NAV-PVT") <= 51 and 9 <= seen.count("TIM-TP") <= 11
+
+
+def test_on_usb_the_speed_is_left_alone_and_uart1_untouched(bench: Bench) -> None:
+    """On USB (CDC-ACM) a baud rate means nothing, and the receiver's UART1 may carry an RTK radio: the set-up asks
+    which port it is heard on (a CFG-PRT poll without a port number) and changes no port's speed."""
+    model = bench.receiver(generation=8, seed=3, usb=True)
+    ser = bench.host(9600)
+    result = configure_receiver(ser, ReceiverSetup(meas_period_ms=200), sleep=bench.sleep)
+    assert result.baud == ser.baudrate == 9600 and not any("CFG-PRT" in a for a in result.acknowledged)
+    assert model.baud == 9600 and model.meas_period_ms == 200  # the model's UART1 speed, as it was
+    bench.listen(ser, 1.0)
+    seen = identities(bench.listen(ser, 4.0))
+    assert 19 <= seen.count("NAV-PVT") <= 21 and model.counters.tx_overflow_drops == 0
+
+
+def test_a_receiver_its_owner_set_to_ubx_only_is_not_given_nmea_again(bench: Bench) -> None:
+    """NMEA output off in the port's settings (its owner's choice): the set-up neither turns it back on nor counts
+    NMEA bytes when it judges the line, so 9600 baud carries the UBX messages and stays."""
+    model = bench.receiver(generation=8, seed=4, messages=())
+    ser = bench.host(9600)
+    model._commands.ram.port.out_nmea = False
+    result = configure_receiver(ser, ReceiverSetup(), sleep=bench.sleep)
+    assert result.baud == model.baud == 9600 and not model._cfg.port.out_nmea
+    assert not any("CFG-PRT" in a for a in result.acknowledged)
+    seen = identities(bench.listen(ser, 3.0))
+    assert seen.count("NAV-PVT") == 3 and not {"GGA", "RMC"} & set(seen)

@@ -48,7 +48,15 @@ while [ $# -gt 0 ]; do
         --operator) OPERATOR="${2:?--operator needs a user name}"; shift ;;
         --wheels) WHEELS="${2:?--wheels needs a directory}"; shift ;;
         --fetch-wheels) FETCH="${2:?--fetch-wheels needs a directory}"; shift ;;
-        --prefix) PREFIX="${2:?--prefix needs a directory}"; shift ;;
+        --prefix) PREFIX="${2:?--prefix needs a directory}"; shift
+                  case "$PREFIX" in
+                      *" "* | *"	"*)
+                         echo "install-board.sh: --prefix '$PREFIX' holds a space, which the unit's ExecStart cannot" >&2
+                         exit 2 ;;
+                      /*) ;;
+                      *) echo "install-board.sh: --prefix $PREFIX must be an absolute path (the unit runs from it)" >&2
+                         exit 2 ;;
+                  esac ;;
         -h|--help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "install-board.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -199,13 +207,14 @@ service() {
     # by an earlier installation elsewhere goes when the default is installed again.
     dropin=/etc/systemd/system/vehicle-logger.service.d/prefix.conf
     if [ "$PREFIX" != "$UNIT_PREFIX" ]; then
-        exec_start=$(sed -n "s#^ExecStart=$UNIT_PREFIX/#ExecStart=$PREFIX/#p" "$SRC/systemd/vehicle-logger.service")
-        if [ -z "$exec_start" ]; then
+        shipped=$(grep '^ExecStart=' "$SRC/systemd/vehicle-logger.service")
+        exec_start="ExecStart=$PREFIX/${shipped#"ExecStart=$UNIT_PREFIX/"}"
+        if [ "$shipped" = "${shipped#"ExecStart=$UNIT_PREFIX/"}" ]; then
             echo "systemd/vehicle-logger.service has no ExecStart under $UNIT_PREFIX to point at $PREFIX" > "$REASON"
             exit 1
         fi
         if [ "$DRY_RUN" = 1 ]; then
-            echo "  ($PREFIX/prefix.conf: [Service] ExecStart= $exec_start)"
+            echo "  ($PREFIX/prefix.conf: [Service], ExecStart= to clear the unit's, then $exec_start)"
         else
             printf '# tools/install-board.sh --prefix %s\n[Service]\nExecStart=\n%s\n' "$PREFIX" "$exec_start" \
                 > "$PREFIX/prefix.conf"

@@ -49,8 +49,8 @@ EPOCH_BURST_BYTES = 320
 BURST_SETTLE_MAX_S = 0.35
 # A receiver that restarts (a voltage dip while the engine cranks) comes back at the speed and with the messages its
 # flash holds, while the logger's port stays open at the speed the set-up raised it to. Bytes with not one message
-# in them for this many fix periods (at least this many seconds), or NMEA fixes without NAV-PVT for as long, mean
-# that: the port is opened again (at the configured speed) and the receiver set up again.
+# in them for this many fix periods (at least this many seconds), or messages without the ones the set-up turned on
+# for as long, mean that: the port is opened again and the receiver set up again.
 RESTART_SEEN_PERIODS = 5
 RESTART_SEEN_MIN_S = 5.0
 # An MPU-6050 whose supply dipped while its bus did not (its own cable, a loose connector) restarts asleep at its
@@ -269,33 +269,47 @@ class GnssSource(Source):
         self.offset = 0  # bytes read since the port was opened (each /gnss/raw record says where it starts)
         self._settle = lambda: tb.sleep(self.settle_s())
         self._raw_warned = False
-        self._heard_ns = self._pvt_ns = 0  # drive time of the last message of any kind, and of the last NAV-PVT
-        self._frames_ok = 0
+        self._heard_ns = 0  # drive time of the last message of any kind
+        self._frames_ok = self._bad_frames = 0
+        self._watched: dict[tuple[int, int], str] = {}  # the UBX messages the set-up turned on, every epoch's
+        self._watch_counts: dict[tuple[int, int], int] = {}
+        self._watch_seen_ns: dict[tuple[int, int], int] = {}
+        self._restart: ProtocolError | None = None  # seen in a read whose records went out first
+
+    def _setup_wanted(self) -> Any:
+        from sensors.ublox_config import ReceiverSetup
+
+        if self.meas_period_ms is None:
+            return ReceiverSetup(raw_observations=self.raw_observations)
+        return ReceiverSetup(meas_period_ms=self.meas_period_ms, raw_observations=self.raw_observations)
 
     def open(self) -> None:
         from sensors.ublox import GnssReceiver
 
-        self.receiver = GnssReceiver.open(self.path, self.port_baud)
-        self.offset = 0
-        if self.configure:
-            from sensors.ublox_config import NoUbxAnswer, ReceiverSetup, configure_receiver
+        if not self.configure:
+            self.receiver = GnssReceiver.open(self.path, self.port_baud)
+            self._opened()
+            return
+        from sensors.ublox_config import NoUbxAnswer, baud_for, configure_receiver
 
-            setup = ReceiverSetup(raw_observations=self.raw_observations) if self.meas_period_ms is None else \
-                ReceiverSetup(meas_period_ms=self.meas_period_ms, raw_observations=self.raw_observations)
+        setup = self._setup_wanted()
+        # Where the receiver may be talking: the speed last used, its flash's (the configured one: after its own
+        # restart), and the one a set-up gives it (the logger restarted while the receiver kept its RAM setting).
+        speeds = list(dict.fromkeys((self.port_baud, self.baud, baud_for(setup))))
+        for speed in speeds:
+            self.receiver = GnssReceiver.open(self.path, speed)
             try:
                 self.setup = configure_receiver(self.receiver, setup, sleep=self.tb.sleep)
             except NoUbxAnswer as exc:
-                if not exc.nmea_sentences:  # nothing heard at all: a wrong baud rate or no receiver; retry later
+                if not exc.nmea_sentences:  # nothing understood at this speed: try the next
                     _close_quietly(self.receiver)
-                    self.port_baud = self.baud  # a receiver restarted talks at the speed its flash holds
-                    raise
+                    continue
                 # Refusing it would record nothing, forever: a working receiver that does not know UBX.
                 if not self.nmea_only:
                     log.warning("gnss: %s; recording its NMEA unconfigured, as it comes (no UBX: no accuracy figures "
                                 "unless it sends GST, no vertical velocity, no TIM-TP: the clock pairs PPS edges "
                                 "with the NMEA fixes' UTC times)", exc)
-                self.nmea_only = True
-                self.setup = None
+                self.nmea_only, self.setup, self.port_baud = True, None, speed
             except SensorError:
                 _close_quietly(self.receiver)
                 raise
@@ -303,9 +317,24 @@ class GnssSource(Source):
                 self.nmea_only = False
                 self.port_baud = self.setup.baud
                 self._report_raw(self.setup)
-        # Counted from the end of the set-up, which may take seconds of retries: a restart is what comes after it.
-        self._heard_ns = self._pvt_ns = self.tb.monotonic_ns()
-        self._frames_ok = self.receiver.framer.frames_ok
+            self._opened()
+            return
+        self.port_baud = self.baud
+        raise NoUbxAnswer(f"GNSS receiver on {self.path} answered no UBX-MON-VER and sent no NMEA at "
+                          f"{', '.join(str(b) for b in speeds)} baud: wrong baud rate, or nothing on the line", 0)
+
+    def _opened(self) -> None:
+        """Counted from the end of the set-up, which may take seconds of retries: a restart is what comes after."""
+        from sensors.ublox_config import message_id
+
+        now = self.tb.monotonic_ns()
+        self._heard_ns, self._restart = now, None
+        self._frames_ok, self._bad_frames = self.receiver.framer.frames_ok, self.receiver.framer.bad_checksum
+        names = () if self.setup is None else (
+            "NAV-PVT", "NAV-TIMEGPS", *(("RXM-RAWX",) if self.setup.raw_observations == "on" else ()))
+        self._watched = {message_id(n): n for n in names}
+        self._watch_counts = {k: self.receiver.ubx_counts[k] for k in self._watched}
+        self._watch_seen_ns = dict.fromkeys(self._watched, now)
 
     def settle_s(self) -> float:
         """How long to wait for the rest of an epoch's burst once its first byte is in (drive time)."""
@@ -324,13 +353,15 @@ class GnssSource(Source):
     def read(self) -> list[Reading]:
         from sensors.ublox import GnssFix, TimePulse
 
+        if self._restart is not None:
+            raise self._restart
         got = self.receiver.read(EVENT_WAIT_S, self._settle)
         t = self.tb.monotonic_ns()
         out: list[Reading] = []
         if got.raw:
             out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw, self.offset), t, stamped=False))
             self.offset += len(got.raw)
-            self._watch_for_a_restart(got.items, t)
+            self._watch_for_a_restart(t)
         # Epochs half a second or more apart in one read (or two time pulses): the host read the older messages
         # that long after they came, so their stamp says nothing of when; paired with PPS edges they could name
         # the wrong second.
@@ -347,29 +378,32 @@ class GnssSource(Source):
                 out.append(Reading(TIMEPULSE, timepulse_record(item, late), t))
         return out
 
-    def _watch_for_a_restart(self, items: list, t_ns: int) -> None:
-        """Raise ProtocolError (the sampler closes the port and opens it again, which sets the receiver up again)
-        when what arrives says the receiver restarted since its set-up: bytes at a speed the port is no longer at
-        (nothing but garbage), or messages (its factory NMEA) without the NAV-PVT the set-up turned on. The bytes
-        are recorded first (``/gnss/raw``), so nothing that came is lost."""
-        ok = self.receiver.framer.frames_ok
-        heard = ok != self._frames_ok
-        if heard:
-            self._frames_ok, self._heard_ns = ok, t_ns
-        if any(getattr(item, "source", None) == "NAV-PVT" for item in items):
-            self._pvt_ns = t_ns
+    def _watch_for_a_restart(self, t_ns: int) -> None:
+        """Note a ProtocolError for the next read (the sampler then closes the port and opens it again, which sets
+        the receiver up again) when what arrives says the receiver restarted since its set-up: bytes at a speed the
+        port is no longer at (nothing but garbage, and no damaged frame either), or messages (its factory NMEA)
+        without the UBX messages the set-up turned on. This read's records go out first: nothing is lost."""
+        framer = self.receiver.framer
+        heard = framer.frames_ok != self._frames_ok
+        if heard or framer.bad_checksum != self._bad_frames:  # a frame, whole or damaged: the speed is right
+            self._frames_ok, self._bad_frames, self._heard_ns = framer.frames_ok, framer.bad_checksum, t_ns
+        counts = self.receiver.ubx_counts
+        for key in self._watched:
+            if counts[key] != self._watch_counts[key]:
+                self._watch_counts[key], self._watch_seen_ns[key] = counts[key], t_ns
         limit_ns = round(max(RESTART_SEEN_MIN_S, RESTART_SEEN_PERIODS * (self.meas_period_ms or 1000) / 1000) * 1e9)
         if self.port_baud != self.baud and t_ns - self._heard_ns > limit_ns:
-            raised, self.port_baud = self.port_baud, self.baud  # open again where a restarted receiver talks
-            raise ProtocolError(
+            self._restart = ProtocolError(
                 f"GNSS receiver on {self.path}: {(t_ns - self._heard_ns) / 1e9:.0f} s of bytes without one message "
-                f"at {raised} baud: restarted at the {self.baud} baud of its flash? Setting it up again")
-        # Messages, but none a NAV-PVT (the decoder, having seen UBX solutions, takes nothing from NMEA any more,
-        # so without this the receiver's fixes would stop while its bytes were recorded as if all was well).
-        if heard and self.setup is not None and t_ns - self._pvt_ns > limit_ns:
-            raise ProtocolError(
-                f"GNSS receiver on {self.path}: messages but no NAV-PVT for {(t_ns - self._pvt_ns) / 1e9:.0f} s: "
-                f"restarted without the logger's set-up? Setting it up again")
+                f"at {self.port_baud} baud: restarted at the {self.baud} baud of its flash? Setting it up again")
+            self.port_baud = self.baud  # the likeliest speed first; the others are tried after it
+            return
+        missing = [name for key, name in self._watched.items() if t_ns - self._watch_seen_ns[key] > limit_ns]
+        if heard and missing:
+            self._restart = ProtocolError(
+                f"GNSS receiver on {self.path}: messages but no {', '.join(missing)} for "
+                f"{(t_ns - min(self._watch_seen_ns.values())) / 1e9:.0f} s: restarted without the logger's set-up? "
+                f"Setting it up again")
 
     def incidents(self) -> dict[str, int]:
         if self.receiver is None:

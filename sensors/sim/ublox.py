@@ -184,6 +184,7 @@ class UbloxReceiverModel:
         model: str | None = None,
         raw_frames: Callable[[EpochRecord], Iterable[bytes]] | None = None,
         sent_log: BinaryIO | None = None,
+        usb: bool = False,
     ) -> None:
         if model is not None and model not in RECEIVER_MODELS:
             raise ValueError(f"model must be one of {', '.join(RECEIVER_MODELS)}, not {model!r}")
@@ -237,7 +238,10 @@ class UbloxReceiverModel:
         # Without a named product: the generation's firmware, raw observations as its generic firmware has them (F9).
         raw = spec.raw if spec is not None else generation == 9
         self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms,
-                                            raw=raw, firmware=spec.firmware if spec is not None else None)
+                                            raw=raw, firmware=spec.firmware if spec is not None else None,
+                                            link_port=3 if usb else 1)
+        # On USB (CDC-ACM) the host's baud rate means nothing and bytes go at the bus's speed.
+        self.usb = usb
         self.history: deque[EpochRecord] = deque(maxlen=history_len)
         self.counters = ModelCounters()
         self.error: BaseException | None = None
@@ -429,7 +433,7 @@ class UbloxReceiverModel:
         data = self.port.read(0.0, 65536)
         if data:
             host_out = self._host.speeds()[1]  # the host's bytes went out at its output speed
-            self._receive(resample(data, host_out or 0, self._cfg.port.baud), now)
+            self._receive(data if self.usb else resample(data, host_out or 0, self._cfg.port.baud), now)
         self._advance(now)
 
     def _advance(self, now: int) -> None:
@@ -454,6 +458,8 @@ class UbloxReceiverModel:
                     item.after()
 
     def _tx_ns(self, n_bytes: int) -> int:
+        if self.usb:
+            return n_bytes * 1000  # a full-speed USB bulk endpoint: about a megabyte a second
         return -(-n_bytes * 10 * NS_PER_S // self._cfg.port.baud)  # 8N1: ten bit times a byte
 
     def _enqueue(self, ready_ns: int, data: bytes, label: str, after: Callable[[], None] | None = None) -> None:
@@ -472,7 +478,7 @@ class UbloxReceiverModel:
             self.counters.corrupted += 1
             data = self._corrupt(data)
         host_in, _ = self._host.speeds()
-        wire = resample(data, self._cfg.port.baud, host_in)
+        wire = data if self.usb else resample(data, self._cfg.port.baud, host_in)
         unread = self._host.unread()
         if unread < 0 or not self.port.present:
             self.counters.unplugged_drops += 1

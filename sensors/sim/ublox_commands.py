@@ -215,7 +215,7 @@ class CommandInterpreter:
 
     def __init__(self, generation: int, startup: RamConfig, rng: np.random.Generator, *,
                  min_meas_period_ms: int, raw: bool = False,
-                 firmware: tuple[str, str, tuple[str, ...]] | None = None) -> None:
+                 firmware: tuple[str, str, tuple[str, ...]] | None = None, link_port: int = _UART1) -> None:
         if generation not in FIRMWARE:
             raise ValueError(f"generation must be one of {sorted(FIRMWARE)}, not {generation}")
         self.generation = generation
@@ -224,6 +224,10 @@ class CommandInterpreter:
         self.startup = startup
         self.ram = startup.copy()
         self.min_meas_period_ms = min_meas_period_ms
+        # The port the host is on (UART1, or USB: 3), whose settings RAM's ``port`` holds; the others exist and are
+        # not modelled.
+        self.link_port = link_port
+        self._other_ports = tuple(p for p in (_UART1, *_OTHER_PORTS) if p != link_port)
         self._rng = rng
         self._last_reply_ns = 0
 
@@ -313,21 +317,27 @@ class CommandInterpreter:
 
     def _cfg_prt(self, frame: bytes, payload: bytes, now: int) -> Reply:
         port = self.ram.port
+        usb = self.link_port != _UART1
         if len(payload) in (0, 1):
-            port_id = payload[0] if payload else _UART1
-            if port_id != _UART1:
-                return self._ack(now, _CFG_PRT, port_id in _OTHER_PORTS)
-            reply = UBXMessage(
-                "CFG", "CFG-PRT", GET, portID=_UART1, reserved2=0x10, charLen=3, parity=4, nStopBits=0,
-                baudRate=port.baud, inUBX=int(port.in_ubx), inNMEA=int(port.in_nmea), inRTCM=int(port.in_rtcm),
-                inRTCM3=int(port.in_rtcm3), outUBX=int(port.out_ubx), outNMEA=int(port.out_nmea),
+            port_id = payload[0] if payload else self.link_port  # no port number: the one the poll came in on
+            if port_id != self.link_port:
+                return self._ack(now, _CFG_PRT, port_id in self._other_ports)
+            reply = UBXMessage(  # USB's layout has no mode or speed (reserved, zero)
+                "CFG", "CFG-PRT", GET, portID=port_id, reserved2=0 if usb else 0x10, charLen=0 if usb else 3,
+                parity=0 if usb else 4, nStopBits=0, baudRate=0 if usb else port.baud, inUBX=int(port.in_ubx),
+                inNMEA=int(port.in_nmea), inRTCM=int(port.in_rtcm), inRTCM3=int(port.in_rtcm3),
+                outUBX=int(port.out_ubx), outNMEA=int(port.out_nmea),
             )
             return self._ack(now, _CFG_PRT, True, reply)
         if len(payload) != 20:
             return self._ack(now, _CFG_PRT, False)
         msg = UBXReader.parse(frame, msgmode=SET)
-        if msg.portID != _UART1:
-            return self._ack(now, _CFG_PRT, msg.portID in _OTHER_PORTS)
+        if msg.portID != self.link_port:
+            return self._ack(now, _CFG_PRT, msg.portID in self._other_ports)
+        if usb:  # no speed: only which protocols go in and out
+            self.ram.port = PortConfig(port.baud, bool(msg.inUBX), bool(msg.inNMEA), bool(msg.outUBX),
+                                       bool(msg.outNMEA), bool(msg.inRTCM), bool(msg.inRTCM3))
+            return self._ack(now, _CFG_PRT, True)
         # Only 8N1 (charLen 3 = 8 bit, parity 10x = none, one stop bit) at a rate the UART offers.
         if msg.charLen != 3 or msg.parity not in (4, 5) or msg.nStopBits != 0 \
                 or msg.baudRate not in STANDARD_BAUDS:
