@@ -195,3 +195,13 @@ def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> Non
     assert is_finished(folder / cut.name) and sorted(os.listdir(folder)) == [cut.name]
     assert sorted(os.listdir(tmp_path)) == [cut.name, "out"]  # no .recovering left anywhere
     assert (folder / cut.name).stat().st_mode & 0o777 == 0o640
+    # Another recording named as OUT (a wrong completion) is never replaced; naming FILE itself replaces FILE.
+    other = tmp_path / "drive_other.mcap"
+    other.write_bytes(b"another drive's file")
+    r = recover("-o", str(other))
+    assert r.returncode == 2 and other.read_bytes() == b"another drive's file"
+    assert r.stderr == f"logger recover: -o {other} already exists and is not {cut}: name a new file or a folder\n"
+    r = recover("-o", str(folder))  # the folder already holds the earlier output under FILE's name
+    assert r.returncode == 2 and "already exists" in r.stderr
+    r = recover("-o", str(cut))
+    assert r.returncode == 0 and is_finished(cut), r.stderr

@@ -30,6 +30,11 @@ def main(argv: list[str]) -> int:
     if out is not None and not out.parent.is_dir():
         print(f"logger recover: -o {args.out}: the folder {out.parent} does not exist", file=sys.stderr)
         return 1
+    if out is not None and out.exists() and not (src.exists() and out.samefile(src)):
+        # One wrong completion would replace another recording with this one: never without asking for FILE itself.
+        print(f"logger recover: -o {out} already exists and is not {src}: name a new file or a folder",
+              file=sys.stderr)
+        return 2
     if src.is_file() and being_written(src):
         print(f"logger recover: {src}: a running logger is writing it (it looks cut while it is being written); "
               "recover it once that logger has finished it", file=sys.stderr)
