@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from logger.config import SIM_SECTIONS, Config, ConfigError
+from logger.config import Config, ConfigError, simulated_sections
 from logger.recording.records import truth_clock_record
 from logger.recording.topics import TRUTH_CLOCK, TRUTH_NAV
 from logger.runtime import mount_state, tempco_state
@@ -34,13 +34,6 @@ from sync.wallclock import boot_id, system_clock_synchronized
 
 if TYPE_CHECKING:  # the simulated vehicle is imported only when a sensor is simulated
     from sensors.sim.vehicle import VehicleDevices
-
-
-def simulated_sections(cfg: Config) -> dict[str, bool]:
-    """Which sensors the simulated vehicle plays: those with source 'sim', and 'gpsd' ones when sim.gpsd says
-    that gpsd is simulated too."""
-    return {s: cfg[s]["source"] == "sim" or (cfg[s]["source"] == "gpsd" and bool(cfg["sim"]["gpsd"]))
-            for s in SIM_SECTIONS}
 
 
 def build(cfg: Config, duration_s: float | None,

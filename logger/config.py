@@ -477,6 +477,9 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
     chrony = chrony_problem(cfg)
     if chrony:
         problems.append(f"{at('sync.chrony_sock')}: {chrony}")
+    scale = time_scale_problem(cfg)
+    if scale:
+        problems.append(f"{at('sim.time_scale')}: {scale}")
     imu = cfg.values["imu"]
     if imu["read"] == "register" and imu["rate_hz"] > REGISTER_READ_MAX_HZ:
         problems.append(f"{at('imu.read')}: imu.read = 'register' reads a sample at a time, at most "
@@ -491,6 +494,25 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
     if problems:
         raise ConfigError(problems)
     return cfg
+
+
+def simulated_sections(cfg: Config) -> dict[str, bool]:
+    """Which sensors the simulated vehicle plays: those with source 'sim', and 'gpsd' ones when sim.gpsd says
+    that gpsd is simulated too."""
+    gpsd_simulated = bool(cfg.values["sim"]["gpsd"])
+    return {s: cfg.values[s]["source"] == "sim" or (cfg.values[s]["source"] == "gpsd" and gpsd_simulated)
+            for s in SIM_SECTIONS}
+
+
+def time_scale_problem(cfg: Config) -> str:
+    """Why the drive's time scale cannot be had ("" when it can): a real sensor runs at real time. Checked by
+    ``config check`` and again by ``logger run`` once its command line has had its say."""
+    scale = cfg.values["sim"]["time_scale"]
+    simulated = simulated_sections(cfg)
+    real = [s for s in SIM_SECTIONS if not simulated[s] and cfg.values[s]["source"] != "none"]
+    if real and scale != 1.0:
+        return f"sim.time_scale = {scale:g} needs every sensor simulated; real: {', '.join(real)}"
+    return ""
 
 
 def chrony_problem(cfg: Config) -> str:

@@ -175,6 +175,13 @@ def test_time_scale_needs_every_sensor_simulated(tmp_path: Path, capsys) -> None
     p.write_text(GOOD + "\n[sim]\ntime_scale = 10\n")
     assert main(["run", "--config", str(p)]) == 2
     assert "needs every sensor simulated" in capsys.readouterr().err
+    # `config check` says so too: a file it passes must not stop the service (a mix of simulated and real sensors)
+    mixed = tmp_path / "mixed.toml"
+    mixed.write_text('[imu]\nsource = "sim"\n[baro]\nsource = "sim"\n[gnss]\nsource = "sim"\n[pps]\nsource = "sim"\n'
+                     '[obd]\nport = "/dev/ttyUSB0"\n[sim]\ntime_scale = 2\n')
+    assert main(["config", "check", str(mixed)]) == 1
+    assert capsys.readouterr().err == (f"{mixed}:12: sim.time_scale = 2 needs every sensor simulated; real: obd\n")
+    assert main(["run", "--config", str(mixed)]) == 2
 
 
 def test_files_too_long_for_the_boards_memory_are_refused() -> None:

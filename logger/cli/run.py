@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from logger.compose import build, simulated_sections
+from logger.compose import build
 from logger.config import (
     DEFAULT_PATH,
     DEFAULT_SIM_OUT,
@@ -26,6 +26,7 @@ from logger.config import (
     chrony_problem,
     defaults,
     load,
+    time_scale_problem,
 )
 from logger.runtime import logs
 from logger.runtime.daemon import Daemon
@@ -85,11 +86,9 @@ def resolve_config(args: argparse.Namespace) -> Config:
             cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
     if args.status_socket:
         cfg.values["logger"]["status_socket"] = args.status_socket
-    simulated = simulated_sections(cfg)
-    real = [s for s in SIM_SECTIONS if not simulated[s] and cfg[s]["source"] != "none"]
-    if real and sim["time_scale"] != 1.0:
-        raise ConfigError([f"sim.time_scale = {sim['time_scale']:g} needs every sensor simulated; real: "
-                           + ", ".join(real)])
+    scale = time_scale_problem(cfg)  # again: --sim and --time-scale may have changed what the file said
+    if scale:
+        raise ConfigError([scale])
     chrony = chrony_problem(cfg)  # again: --sim and --time-scale may have changed what the file said
     if chrony:
         raise ConfigError([chrony])
