@@ -161,6 +161,15 @@ def test_a_second_logger_on_the_same_configuration_is_refused_and_the_file_being
         r = subprocess.run([sys.executable, "-m", "logger.cli", "recover", str(open_file)], capture_output=True,
                            text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
         assert r.returncode == 1 and "a running logger is writing it" in r.stderr, r.stderr
+        # `info` and the office commands say it is being recorded, not that it was cut (and to recover it)
+        r = subprocess.run([sys.executable, "-m", "logger.cli", "info", str(open_file)], capture_output=True,
+                           text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
+        assert r.returncode == 0 and "Closed:    not yet (being recorded)" in r.stdout, r.stdout + r.stderr
+        assert "logger recover" not in r.stdout and "cut short" not in r.stdout
+        from logger.recording.drive import cut_notes, open_drive
+
+        assert cut_notes(open_drive([open_file])) == [f"{open_file} is being recorded: read up to its last chunk "
+                                                       "on disk"]
         newest = max(first.recorder.status().on_disk_mono_ns.values())
         wait_until(lambda: max(first.recorder.status().on_disk_mono_ns.values()) > newest, "more records on disk")
         assert first.recorder.status().deleted == {} and first.recorder.status().state == "recording"

@@ -22,7 +22,15 @@ from mcap.records import Channel, Chunk, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
 from logger.recording.drive import DriveFileError, drive_paths
-from logger.recording.files import Loss, McapFileError, chunk_fault, describe_losses, is_finished, walk
+from logger.recording.files import (
+    Loss,
+    McapFileError,
+    being_written,
+    chunk_fault,
+    describe_losses,
+    is_finished,
+    walk,
+)
 from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS
 
@@ -62,6 +70,7 @@ class FileInfo:
     damaged_chunks: int = 0  # chunks whose CRC (or decompression) fails: every reader skips them whole
     lost_messages: int = 0  # the messages they held (counted in no topic above)
     damage: str = ""  # the two above, and when, in words; empty for a file whose chunks all hold
+    recording: bool = False  # a running logger has it open: unfinished because it is being written, not cut
 
 
 def inspect(path: str | os.PathLike[str]) -> FileInfo:
@@ -73,6 +82,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     schemas: dict[int, str] = {}
     config: dict[str, str] = {}  # the daemon's configuration, as the file's "config" metadata keeps it
     note = ""
+    recording = False
     losses: list[Loss] = []
     if finished:
         try:
@@ -112,7 +122,10 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
             times[m.channel_id].append(m.log_time)
         config = next((dict(m.metadata) for m in found.metadata if m.name == "config"), config)
         losses = found.damage()
-        if found.stopped_at and not note:
+        recording = being_written(p)
+        if recording:
+            note = "being recorded: a running logger is writing it; read up to its last chunk on disk"
+        elif found.stopped_at and not note:
             note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
     topics = []
     all_times = [t for ts in times.values() for t in ts]
@@ -129,7 +142,8 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
         damage = (f"{describe_losses(losses)}: every reader skips {'it' if len(losses) == 1 else 'them'} and reads the "
                   f"rest; `logger recover {p}` rewrites the file without {'it' if len(losses) == 1 else 'them'}")
     return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note, silent,
-                    sum(x.chunks for x in losses), sum(x.messages for x in losses), damage)
+                    sum(x.chunks for x in losses), sum(x.messages for x in losses), damage,
+                    recording)
 
 
 def _utc(ns: int | None) -> str:
@@ -142,7 +156,8 @@ def render(info: FileInfo) -> str:
     lines = [
         f"File:      {info.path}",
         f"Size:      {info.size_bytes / 1e6:.1f} MB",
-        f"Closed:    {'cleanly' if info.closed_cleanly else 'NO (cut short)'}"
+        "Closed:    " + ("cleanly" if info.closed_cleanly else "not yet (being recorded)" if info.recording
+                            else "NO (cut short)")
         + (f", but {info.damaged_chunks} chunk{'s' if info.damaged_chunks != 1 else ''} damaged"
            if info.damaged_chunks else ""),
         f"Start:     {_utc(info.start_ns)}",

@@ -40,6 +40,7 @@ from logger.recording.files import (
     Loss,
     McapFileError,
     Statistics,
+    being_written,
     chunk_fault,
     describe_losses,
     is_finished,
@@ -535,7 +536,8 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
 def cut_notes(files: list[DriveFile]) -> list[str]:
     """One line per file that was not closed cleanly, for the user: such a file is read up to its cut; and one for
     a drive whose parts are not all there (:func:`missing_parts`)."""
-    return ([f"{f.path} was not closed cleanly: read up to where it was cut" for f in files if not f.finished]
+    return ([f"{f.path} is being recorded: read up to its last chunk on disk" if being_written(f.path)
+             else f"{f.path} was not closed cleanly: read up to where it was cut" for f in files if not f.finished]
             + missing_parts(files))
 
 
