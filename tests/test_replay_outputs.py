@@ -243,3 +243,40 @@ def test_the_cycle_collector_is_paused_only_for_the_work() -> None:
         assert not gc.isenabled()  # left as the caller had it
     finally:
         gc.enable()
+
+
+def test_a_replay_names_its_drive_and_is_never_read_beside_another(drive: list[str], tmp_path: Path) -> None:
+    """trajectory.mcap begins with the run id of the drive it was made from: named beside another drive's files
+    (export, plot), it is refused in one line instead of being drawn as that drive's; replay itself leaves a
+    replay's output out, and says so."""
+    from logger.recording.drive import replay_source, run_identity
+    from logger.recording.recorder import Recorder
+    from logger.recording.settings import RecorderSettings
+    from logger.recording.topics import TOPICS
+
+    r = replay(*drive, "--out", str(tmp_path / "r"))
+    assert r.returncode == 0, r.stderr
+    ours = tmp_path / "r" / "trajectory.mcap"
+    run = run_identity(Path(drive[0]))
+    assert run is not None and replay_source(ours) == run[0]
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "other"), TOPICS)
+    rec.start()
+    for t, topic, msg in records(make_drive("urban", seed=3, duration_s=5.0), 5.0, seed=3):
+        rec.submit(topic, msg, t, msg["t_mono_ns"])
+    rec.stop()
+    (other,) = sorted((tmp_path / "other").glob("*.mcap"))
+
+    def export(*files: Path | str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "logger.cli", "export", *map(str, files), "--out",
+                               str(tmp_path / "ex"), "--format", "csv"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=120)
+
+    bad = export(other, ours)
+    assert bad.returncode == 2, bad.stdout + bad.stderr
+    assert bad.stderr == (f"logger export: {ours}: the replay of another drive (run {run[0]}), not of {other}'s "
+                          f"(run {run_identity(other)[0]})\n")
+    good = export(*drive, ours)
+    assert good.returncode == 0, good.stderr
+    again = replay(*drive, str(ours), "--out", str(tmp_path / "r2"))
+    assert again.returncode == 0 and f"{ours} is a replay's output: left out" in again.stderr, again.stderr

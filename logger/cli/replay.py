@@ -114,6 +114,10 @@ def main(argv: list[str]) -> int:
         return 2
     for line in cut_notes(files):  # a file cut short is read up to its cut, as export and plot read it
         print(f"logger replay: {line}", file=sys.stderr)
+    for f in files:
+        if f.origin == "replay":  # the filter runs on the drive's own records: a replay's output is not one
+            print(f"logger replay: {f.path} is a replay's output: left out (the filter runs on the drive's own "
+                  "records)", file=sys.stderr)
     if args.config is not None:
         from logger.config import ConfigError, load
 
@@ -186,7 +190,8 @@ def main(argv: list[str]) -> int:
         with no_cycle_collector():
             write_csv(args.out / "trajectory.csv", rows)
             if states is not None:
-                fixes = write_mcap(args.out / "trajectory.mcap", rows, engine, states, fix_hz)
+                source_run = next((f.run[0] for f in files if f.run is not None), None)
+                fixes = write_mcap(args.out / "trajectory.mcap", rows, engine, states, fix_hz, source_run)
     except OSError as exc:  # checked before the run; what is left: a disk full, a folder changed meanwhile
         progress.end()
         print(f"logger replay: {os_error_line(exc)}", file=sys.stderr)

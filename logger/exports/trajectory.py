@@ -31,7 +31,7 @@ from logger.nav.inputs import SolutionEpoch
 from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
-from logger.recording.drive import REPLAY_LIBRARY, ProgressFn, read_messages
+from logger.recording.drive import REPLAY_LIBRARY, REPLAY_OF_METADATA, ProgressFn, read_messages
 from logger.recording.intervals import next_due_ns
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
@@ -337,15 +337,18 @@ def nav_fix_json(cols: Columns, source: str, mode: str) -> list[bytes]:
 
 
 def write_mcap(path: Path, rows: Sequence[TrajectoryRow], engine: NavEngine, states: list[dict[str, Any]],
-               fix_hz: float | None = None) -> int:
+               fix_hz: float | None = None, source_run: str | None = None) -> int:
     """``trajectory.mcap``: ``/nav/fix`` at ``fix_hz`` (None: the engine's ``publish_hz``, the live rate; 0: every
-    row) and the ``/nav/state`` records. Returns how many ``/nav/fix`` messages it wrote."""
+    row) and the ``/nav/state`` records. ``source_run``: the run id of the drive replayed, recorded first (the
+    drive reader refuses the file beside another drive's). Returns how many ``/nav/fix`` messages it wrote."""
     hz = engine.params.publish_hz if fix_hz is None else fix_hz
     keep = fix_rows([row[0] for row in rows], hz)
     source = "gnss" if engine.mode == "gnss" else f"ins {engine.mode}-state"
     with written_whole(path, "wb") as f:
         w = McapWriter(f)
         w.start(profile="", library=REPLAY_LIBRARY)
+        if source_run:
+            w.add_metadata(REPLAY_OF_METADATA, {"run": source_run})
         ids = {}
         for topic in (NAV_FIX, NAV_STATE):
             spec = TOPICS[topic]

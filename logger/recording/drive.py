@@ -63,6 +63,9 @@ from logger.recording.topics import IMU_BATCH
 from logger.words import plural
 
 REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
+# The metadata record a replay's trajectory.mcap begins with: the run id of the drive it was made from, so that it
+# is never read beside another drive's files as if it were theirs.
+REPLAY_OF_METADATA = "replay_of"
 
 _MSG = struct.Struct("<HIQQ")
 _H = struct.Struct("<H")
@@ -324,6 +327,7 @@ class DriveFile:
     origin: str  # "live": written by the daemon; "replay": written by logger replay
     finished: bool
     run: tuple[str, int] | None = None  # (run id, part number) of a daemon's file (:func:`run_identity`)
+    replay_of: str | None = None  # a replay's file: the run id of the drive it was made from (:func:`replay_source`)
 
 
 @dataclass(frozen=True)
@@ -388,6 +392,13 @@ def _string_map(buf: bytes, pos: int, end: int) -> dict[str, str]:
     return out
 
 
+def replay_source(path: Path) -> str | None:
+    """The run id of the drive a replay's file was made from (its ``replay_of`` record); None for one that does not
+    say (a replay written before it did)."""
+    fields = _head_metadata(path, REPLAY_OF_METADATA)
+    return fields.get("run") or None if fields is not None else None
+
+
 def run_identity(path: Path) -> tuple[str, int] | None:
     """(run id, part number) of a file the recorder wrote, from its ``drive`` metadata record; None for a file
     without one (written before run ids, by another tool, or unreadable).
@@ -397,40 +408,47 @@ def run_identity(path: Path) -> tuple[str, int] | None:
     reading the file's head is enough, not its summary, and costs one small read per file. A command asks it of
     each file up to three times (a folder's drives, the files named, :func:`open_drive`): the answer is kept per
     file as it is on disk (its size and modification time), so the head is read once."""
+    fields = _head_metadata(path, RUN_METADATA)
+    if fields is None:
+        return None
+    run, part = fields.get("run", ""), fields.get("part", "")
+    return (run, int(part)) if run and part.isdigit() else None
+
+
+def _head_metadata(path: Path, name: str) -> dict[str, str] | None:
+    """The fields of the metadata record ``name`` among the records that open the file (before its first chunk);
+    None when there is none. Kept per file as it is on disk (its size and modification time)."""
     try:
         st = os.stat(path)
     except OSError:
         return None
-    return _run_identity_of(str(path), st.st_size, st.st_mtime_ns)
+    return _head_records(str(path), st.st_size, st.st_mtime_ns).get(name)
 
 
 @functools.lru_cache(maxsize=1024)
-def _run_identity_of(path: str, _size: int, _mtime_ns: int) -> tuple[str, int] | None:
+def _head_records(path: str, _size: int, _mtime_ns: int) -> dict[str, dict[str, str]]:
     try:
         with open(path, "rb") as f:
             head = f.read(RUN_HEAD_BYTES)
     except OSError:
-        return None
+        return {}
+    out: dict[str, dict[str, str]] = {}
     if not head.startswith(MAGIC):
-        return None
+        return out
     pos = len(MAGIC)
     while pos + 9 <= len(head):
         op, length = RECORD_HEAD.unpack_from(head, pos)
         body, nxt = pos + 9, pos + 9 + length
-        if nxt > len(head) or op == OP_DATA_END:
-            return None
+        if nxt > len(head) or op in (OP_DATA_END, OP_CHUNK):
+            return out
         if op == OP_METADATA:
             try:
                 n = _I.unpack_from(head, body)[0]
-                name = head[body + 4:body + 4 + n].decode()
-                if name == RUN_METADATA:
-                    fields = _string_map(head, body + 4 + n, nxt)
-                    run, part = fields.get("run", ""), fields.get("part", "")
-                    return (run, int(part)) if run and part.isdigit() else None
+                out.setdefault(head[body + 4:body + 4 + n].decode(), _string_map(head, body + 4 + n, nxt))
             except (struct.error, UnicodeDecodeError, ValueError):
-                return None
+                return out
         pos = nxt
-    return None
+    return out
 
 
 def drive_starts(files: list[Path]) -> list[Path]:
@@ -529,7 +547,14 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
         if magic != MAGIC:
             raise DriveFileError(f"{p}: not an MCAP file (no MCAP magic at the start)")
         origin = "replay" if _header_library(p) == REPLAY_LIBRARY else "live"
-        files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None))
+        files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None,
+                               replay_source(p) if origin == "replay" else None))
+    runs = {f.run[0]: f.path for f in files if f.run is not None}
+    for f in files:
+        if runs and f.replay_of is not None and f.replay_of not in runs:
+            live = next(iter(runs.values()))
+            raise DriveFileError(f"{f.path}: the replay of another drive (run {f.replay_of}), not of {live}'s "
+                                 f"(run {next(iter(runs))})")
     return files
 
 
