@@ -169,6 +169,9 @@ def test_a_configuration_given_at_the_office_goes_into_the_rinex_header(m8t_driv
     header = next((tmp_path / "out").glob("*.obs")).read_text().split("END OF HEADER")[0]
     assert "        2.0500        0.0000        0.0000                  ANTENNA: DELTA H/E/N" in header
     assert "SN42                NEO-M8T" in header
+    # convbin names its input in a COMMENT: the stream's own name, not the staging folder it was converted in
+    (log,) = [line for line in header.splitlines() if line.startswith("log: ")]
+    assert ".export-" not in log and "/" not in log[:60] and ".ubx" in log, log
 
 
 def test_without_convbin_rinex_says_how_to_install_it(m8t_drive: tuple[bytes, list[Path]], tmp_path: Path) -> None:

@@ -64,7 +64,7 @@ def test_a_file_cut_short_is_reported_up_to_the_cut(tmp_path: Path, capsys) -> N
     assert not is_finished(cut)
     code, out, err = run(capsys, cut_dir, "--json")
     assert code == 0, err
-    assert err == f"{cut} was not closed cleanly: read up to where it was cut\n"
+    assert err == f"logger sync-report: {cut} was not closed cleanly: read up to where it was cut\n"
     t7 = json.loads(out)["table7_synchronised"]
     assert 5 < t7["n"] < SECONDS - 5 and t7["mean_s"] == pytest.approx(1.0)
 

@@ -43,7 +43,7 @@ def main(argv: list[str]) -> int:
         print(f"logger sync-report: {exc}", file=sys.stderr)
         return 2
     for note in cut_notes(drive.files):
-        print(note, file=sys.stderr)
+        print(f"logger sync-report: {note}", file=sys.stderr)
     out = report(drive)
     print(json.dumps(out, indent=1) if args.json else render(out))
     if args.png_dir:

@@ -90,8 +90,8 @@ def write_gpx(path: Path, tracks: list[Track], which: str, title: str) -> None:
                     f'maxlat="{max(p.lat_deg for p in pts):.9f}" maxlon="{max(p.lon_deg for p in pts):.9f}"/>')
         f.write("</metadata>\n")
         for t in tracks:
-            desc = (f"{t.n_points} points, {len(t.segments)} segments; <time>: {TIME_TEXT[t.topic]}; "
-                    f"<ele>: {HEIGHT_TEXT[which]}")
+            desc = (f"{plural(t.n_points, 'point')}, {plural(len(t.segments), 'segment')}; "
+                    f"<time>: {TIME_TEXT[t.topic]}; <ele>: {HEIGHT_TEXT[which]}")
             f.write(f"<trk><name>{escape(t.label)}</name><desc>{escape(desc)}</desc>"
                     f"<src>vehicle-logger {escape(t.topic)} ({t.origin})</src><type>{escape(t.key)}</type>\n")
             for seg in t.segments:

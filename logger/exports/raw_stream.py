@@ -233,7 +233,7 @@ def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_
     of convbin's is left behind (a navigation file without its observations is no RINEX for RTKLIB). ``named``:
     the stream as the user knows it, in messages (``ubx`` may be a staged copy)."""
     cmd = [convbin_path(), "-r", "ubx", "-v", RINEX_VERSION, *CONVBIN_OBS_TYPES, "-hd", f"{antenna_height_m:.4f}/0/0",
-           "-o", str(obs), "-n", str(nav)]
+           "-o", str(obs.absolute()), "-n", str(nav.absolute())]
     if receiver_name:
         cmd += ["-hr", receiver_name]
     with tempfile.TemporaryDirectory(prefix="logger-export-") as tmp:
@@ -244,7 +244,10 @@ def to_rinex(ubx: Path, obs: Path, nav: Path, antenna_height_m: float, receiver_
                 shutil.copyfileobj(whole, trimmed)
                 trimmed.truncate(ubx.stat().st_size - unfinished_tail_bytes)
         try:
-            done = subprocess.run([*cmd, str(source)], capture_output=True, text=True, timeout=CONVBIN_TIMEOUT_S)
+            # Named from its own folder: convbin writes the input's path into the header ("log: ..."), which is
+            # then the stream's name, not a staging folder's or a temporary one's.
+            done = subprocess.run([*cmd, source.name], cwd=source.parent, capture_output=True, text=True,
+                                  timeout=CONVBIN_TIMEOUT_S)
         except (OSError, subprocess.TimeoutExpired) as exc:
             raise ConvbinError(f"{CONVBIN} could not be run: {exc}") from None
     if done.returncode != 0 or not obs.is_file():
