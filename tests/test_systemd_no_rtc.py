@@ -89,6 +89,7 @@ def test_boot_safe_name_then_renamed_to_the_start_time_once_known(tmp_path: Path
     started = time.strptime(m.group(1), "%Y%m%dT%H%M%SZ")
     assert abs(time.mktime(started) - time.mktime(time.strptime(expected, "%Y%m%dT%H%M%SZ"))) <= 1
     wait_until("status names the renamed file", lambda: rec.status().file == str(renamed))
+    assert rec.status().detail == f"writing {renamed.name}"  # not the boot-time name it had
     for i in range(100, 200):  # the writer goes on writing into the renamed file
         rec.submit("/a", {"x": i}, i, i)
     rec.stop()

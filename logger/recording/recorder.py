@@ -653,6 +653,8 @@ class Recorder:
             with self._lock:
                 if self._path == old:
                     self._path = new
+                    if self._state == "recording":  # what the status says it writes
+                        self._detail = f"writing {new.name}"
                 self._files = [new if f == old else f for f in self._files]
         self._unnamed = still
 
