@@ -280,3 +280,9 @@ def test_a_replay_names_its_drive_and_is_never_read_beside_another(drive: list[s
     assert good.returncode == 0, good.stderr
     again = replay(*drive, str(ours), "--out", str(tmp_path / "r2"))
     assert again.returncode == 0 and f"{ours} is a replay's output: left out" in again.stderr, again.stderr
+    # nav-score: the replay's folder stands for its CSV, scored against the drive named
+    score = subprocess.run([sys.executable, "-m", "logger.cli", "nav-score", str(tmp_path / "r"), str(other)],
+                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert score.returncode == 2 and score.stderr == (
+        f"logger nav-score: {tmp_path / 'r' / 'trajectory.csv'}: replayed from another drive (run {run[0]}), not "
+        f"from the one named (run {run_identity(other)[0]})\n"), score.stderr

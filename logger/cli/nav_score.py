@@ -28,7 +28,15 @@ from logger.exports.nav_score import (
     reference_outages,
     score,
 )
-from logger.recording.drive import DriveFileError, cut_notes, damage_notes, drive_paths, open_drive
+from logger.recording.drive import (
+    DriveFileError,
+    cut_notes,
+    damage_notes,
+    drive_paths,
+    open_drive,
+    replay_source,
+    run_identity,
+)
 
 PROG = "logger nav-score"
 
@@ -58,6 +66,18 @@ def sort_inputs(paths: list[Path]) -> tuple[list[Path], list[Path]]:
         raise ScoreError("no trajectory to score: name logger replay's trajectory.csv (or its --out folder) "
                          "before the drive")
     return csvs, drives
+
+
+def same_drive(csvs: list[Path], drives: list[Path]) -> None:
+    """ScoreError for a trajectory replayed from another drive than the one named: its replay's trajectory.mcap,
+    beside the CSV, names the run it was made from (every urban drive starts at the same place, so the distance to
+    the fixes does not tell two of them apart)."""
+    runs = {ident[0] for ident in map(run_identity, drives) if ident is not None}
+    for csv_path in csvs:
+        made_from = replay_source(csv_path.with_name("trajectory.mcap")) if runs else None
+        if made_from is not None and made_from not in runs:
+            raise ScoreError(f"{csv_path}: replayed from another drive (run {made_from}), not from the one named "
+                             f"(run {', '.join(sorted(runs))})")
 
 
 def load_against(reference: Path | None, drives: list[Path]) -> Truth:
@@ -101,6 +121,7 @@ def main(argv: list[str]) -> int:
         if missing:
             raise ScoreError(f"no such file: {', '.join(missing)}")
         csvs, drives = sort_inputs(named_paths)
+        same_drive(csvs, drives)
         truth = load_against(args.reference, drives)
         trajectories = {p: read_trajectory(p) for p in csvs}
     except (ScoreError, DriveFileError) as exc:
