@@ -77,9 +77,12 @@ def test_a_second_simulated_run_gets_its_own_socket_and_status_finds_it(tmp_path
     monkeypatch.setattr(status_cli, "DEFAULT_SIM_SOCKET", str(default))
     monkeypatch.setattr(status_cli, "DEFAULT_PATH", tmp_path / "no-config.toml")
     monkeypatch.delenv("LOGGER_STATUS_SOCKET", raising=False)
-    with pytest.raises(ConnectionError, match=r"nobody answers on .*status\.sock"):
+    with pytest.raises(ConnectionError, match=r"nobody answers on\n  .*status\.sock"):
         status_cli.find_socket()
-    assert main(["status"]) == 3 and "not running (nobody answers on" in capsys.readouterr().err
+    assert main(["status"]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith("logger status: logger is not running; nobody answers on\n  ") and f"\n  {default}\n" in err
+    assert all(len(line) <= 80 for line in err.splitlines() if not line.startswith("  /")), err
     first = StatusServer(default, lambda: SNAP)
     first.start()
     try:

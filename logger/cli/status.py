@@ -41,7 +41,8 @@ def find_socket() -> tuple[Path, dict[str, Any]]:
                 raise  # a logger is there, only slow to answer or not ours to ask: say so, not the next socket
             except ConnectionError:
                 continue  # a socket a crashed run left
-    raise ConnectionError("logger is not running (nobody answers on " + ", ".join(map(str, tried)) + ")")
+    # A line per socket: over SSH on an 80-column terminal, two long paths on one line wrapped mid-path.
+    raise ConnectionError("logger is not running; nobody answers on\n" + "\n".join(f"  {p}" for p in tried))
 
 
 def main(argv: list[str]) -> int:
