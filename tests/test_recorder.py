@@ -233,6 +233,20 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
     assert "Closed:    cleanly" in out and "/a" in out and "1.100" in out  # the gap, in seconds
+    assert "before the file's end" not in out
+
+    # A sensor that stopped 40 s before the recording did: its own span's rate and gaps do not show it; a line does.
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "stopped", flush_interval_s=0.02), TOPICS)
+    stopped = rec.start()
+    assert stopped is not None
+    for i in range(600):  # /a at 10 Hz for 60 s, /b at 2 Hz for its first 20 s
+        rec.submit("/a", {"x": i}, t0 + i * 100_000_000, i)
+        if i % 5 == 0 and i < 200:
+            rec.submit("/b", {"x": i}, t0 + i * 100_000_000, i)
+    rec.stop()
+    assert main(["info", str(stopped)]) == 0
+    out = capsys.readouterr().out
+    assert "  /b: its last message 40.4 s before the file's end" in out and "  /a: its last" not in out
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[:-100])
     assert main(["info", str(cut)]) == 0

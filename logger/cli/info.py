@@ -53,6 +53,9 @@ class TopicInfo:
     rate_hz: float
     largest_gap_s: float  # the longest interval between two messages (the name scripts reading --json know)
     gaps: int  # intervals over GAP_FACTOR times the usual one (logger plot shades the same ones)
+    # From its last message to the file's last: a sensor that stopped before the recording did (its rate and gaps,
+    # taken over its own span, do not show it)
+    ended_before_end_s: float = 0.0
 
 
 @dataclass
@@ -71,6 +74,11 @@ class FileInfo:
     lost_messages: int = 0  # the messages they held (counted in no topic above)
     damage: str = ""  # the two above, and when, in words; empty for a file whose chunks all hold
     recording: bool = False  # a running logger has it open: unfinished because it is being written, not cut
+
+
+# A topic whose last message lies more than this (and GAP_FACTOR of its usual interval) before the file's last is
+# said to have ended early: the threads of a stopping logger end within a second or two of each other.
+ENDED_EARLY_MIN_S = 5.0
 
 
 def inspect(path: str | os.PathLike[str]) -> FileInfo:
@@ -129,12 +137,14 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
             note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
     topics = []
     all_times = [t for ts in times.values() for t in ts]
-    for cid, ch in sorted(channels.items(), key=lambda kv: kv[1].topic):
-        reg = regularity(sorted(times.get(cid, [])))
-        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), reg.count, reg.rate_hz,
-                                reg.largest_interval_s, len(reg.gaps)))
     start = min(all_times) if all_times else None
     end = max(all_times) if all_times else None
+    for cid, ch in sorted(channels.items(), key=lambda kv: kv[1].topic):
+        own = sorted(times.get(cid, []))
+        reg = regularity(own)
+        ended = (end - own[-1]) / 1e9 if own and end is not None else 0.0
+        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), reg.count, reg.rate_hz,
+                                reg.largest_interval_s, len(reg.gaps), round(ended, 3)))
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
     silent = silent_sensors(config, {t.topic: t.count for t in topics})
     damage = ""
@@ -178,6 +188,10 @@ def render(info: FileInfo) -> str:
         lines.append(f"  {t.topic:<{width}}  {t.count:>8}  {t.rate_hz:>8.2f}  {t.gaps:>5}  "
                      f"{t.largest_gap_s:>9.3f}  {t.schema}")
     lines.append(f"  (rate over each topic's span; a gap: an interval over {GAP_FACTOR:g}x the usual one)")
+    for t in info.topics:
+        usual = 1.0 / t.rate_hz if t.rate_hz > 0 else 0.0
+        if t.count and t.ended_before_end_s > max(ENDED_EARLY_MIN_S, GAP_FACTOR * usual):
+            lines.append(f"  {t.topic}: its last message {t.ended_before_end_s:.1f} s before the file's end")
     return "\n".join(lines)
 
 
