@@ -394,8 +394,9 @@ class GnssSource(Source):
         limit_ns = round(max(RESTART_SEEN_MIN_S, RESTART_SEEN_PERIODS * (self.meas_period_ms or 1000) / 1000) * 1e9)
         if self.port_baud != self.baud and t_ns - self._heard_ns > limit_ns:
             self._restart = ProtocolError(
-                f"GNSS receiver on {self.path}: {(t_ns - self._heard_ns) / 1e9:.0f} s of bytes without one message "
-                f"at {self.port_baud} baud: restarted at the {self.baud} baud of its flash? Setting it up again")
+                f"GNSS receiver on {self.path}: only garbage at {self.port_baud} baud, no message for "
+                f"{(t_ns - self._heard_ns) / 1e9:.0f} s: restarted at the {self.baud} baud of its flash? "
+                "Setting it up again")
             self.port_baud = self.baud  # the likeliest speed first; the others are tried after it
             return
         missing = [name for key, name in self._watched.items() if t_ns - self._watch_seen_ns[key] > limit_ns]
