@@ -244,3 +244,26 @@ def test_status_reads_the_socket_from_a_simulated_runs_configuration_and_says_wh
         server.close()
     assert main(["status", "--config", str(tmp_path / "typo.toml")]) == 4
     assert capsys.readouterr().err == f"logger status: {tmp_path / 'typo.toml'}: no such configuration file\n"
+
+
+def test_a_sensor_open_with_nothing_from_it_yet_is_starting_not_ok_at_zero_hz() -> None:
+    """In the first second after an open, a sensor that has sent nothing yet showed "ok" at 0.0 Hz beside the
+    navigator waiting for it: it is "starting" (no rate) until its first sample, and "silent" once overdue."""
+    from types import SimpleNamespace
+
+    from logger.runtime.daemon import Daemon
+
+    fake = SimpleNamespace(tb=SimpleNamespace(scale=1.0))
+    health = SimpleNamespace(heartbeat_mono_ns=10**9, ok_since_mono_ns=10**9)
+    sampler = SimpleNamespace(health=health)
+    base = {"name": "gnss", "state": "ok", "rate_hz": 1.0, "measured_rate_hz": 0.0, "last_error": ""}
+    fresh = {**base, "last_sample_age_s": None}
+    assert Daemon._sensor_problem(fake, sampler, fresh, 2 * 10**9, None) == ""  # type: ignore[arg-type]
+    assert fresh["state"] == "starting" and fresh["measured_rate_hz"] is None
+    late = {**base, "last_sample_age_s": None}
+    assert Daemon._sensor_problem(fake, sampler, late, 10 * 10**9, None) == \
+        "no sample since it was opened 9 s ago"  # type: ignore[arg-type]
+    assert late["state"] == "silent"
+    flowing = {**base, "last_sample_age_s": 0.5, "measured_rate_hz": 1.0}
+    assert Daemon._sensor_problem(fake, sampler, flowing, 2 * 10**9, None) == ""  # type: ignore[arg-type]
+    assert flowing["state"] == "ok" and flowing["measured_rate_hz"] == 1.0

@@ -482,6 +482,9 @@ class Daemon:
             if age is None:
                 return f"no {what} since it was opened {since_ok:.0f} s ago{why}"
             return f"no {what} for {age:.0f} s{why}"
+        if age is None:  # open, nothing from it yet and not overdue: starting, not "ok at 0 Hz"
+            snap["state"], snap["measured_rate_hz"] = "starting", None
+            return ""
         if snap["name"] == "gnss" and no_fix:
             snap["state"] = NO_FIX
             return no_fix
