@@ -11,9 +11,10 @@ u-blox has two configuration interfaces. Receivers up to M8 know only the legacy
 first and, once NAKed, the keys are used for the rest of the setup.
 
 The port speed goes up to one that carries the whole output (:func:`line_budget`) whenever the current one does
-not: a factory receiver's NMEA (GGA, GLL, GSA, RMC, VTG and a GSV series per constellation: 650 to 950 bytes a
-second with twenty satellites in view) plus NAV-PVT, TIM-TP and NAV-TIMEGPS leave a 9600-baud line no room for the
-burst after each epoch, and a full transmit buffer drops messages, TIM-TP among them.
+not: a factory receiver's NMEA (GGA, GLL, GSA, RMC, VTG and a GSV series per constellation: 649 bytes a second on
+the simulated M8 with 21 satellites in view) plus NAV-PVT, TIM-TP and NAV-TIMEGPS (148) fill more than LINE_USE of
+a 9600-baud line, leaving too little for the burst after each epoch, and a full transmit buffer drops messages,
+TIM-TP among them. :data:`NMEA_BYTES_PER_SOLUTION` allows 1000 for the NMEA, for skies with more satellites.
 
 Raw observations (UBX-RXM-RAWX and -SFRBX, for RTKLIB at the office) are asked for only when the set-up says
 so, and only receivers with raw firmware give them (M8T, M8P, F9P, F9T; an M8N refuses): a refusal is reported

@@ -242,7 +242,7 @@ def test_end_to_end_through_the_gnss_receiver_driver(bench: Bench) -> None:
     assert {t.leap_s for t in times} == {18}
 
 
-def test_a_factory_receiver_under_a_real_sky_gets_a_line_that_carries_its_output(bench: Bench) -> None:
+def test_a_factory_receiver_under_a_simulated_sky_gets_a_line_that_carries_its_output(bench: Bench) -> None:
     """NMEA stays on after the set-up: with a GSV series per constellation it is most of a 9600-baud line, so the
     speed goes up to one where NMEA and the UBX messages fill at most LINE_USE of it, and nothing is dropped."""
     from sensors.sim.scenarios import make_drive

@@ -219,8 +219,8 @@ _GSV_SYSTEMS = {"G": ("GP", 0), "R": ("GL", 64), "E": ("GA", 0)}
 def gsv(rec: EpochRecord) -> list[NMEAMessage]:
     """NMEA GSV: the satellites in view, four to a sentence, one series per constellation (GPGSV, GLGSV, GAGSV).
 
-    It is the bulk of a factory receiver's output (half of its bytes with a dozen satellites in view), which is why
-    the line speed the logger sets up depends on whether NMEA stays on."""
+    It is the bulk of a factory receiver's output (56 % of the simulated M8's 649 bytes a second with 21 satellites
+    in view), which is why the line speed the logger sets up depends on whether NMEA stays on."""
     series: dict[str, list[list[str]]] = {}
     if rec.satellites:
         for name, el, az, cno in rec.satellites:
