@@ -274,7 +274,7 @@ def test_a_replay_names_its_drive_and_is_never_read_beside_another(drive: list[s
 
     bad = export(other, ours)
     assert bad.returncode == 2, bad.stdout + bad.stderr
-    assert bad.stderr == (f"logger export: {ours}: the replay of another drive (run {run[0]}), not of {other}'s "
+    assert bad.stderr == (f"logger export: {ours}: the replay of another drive (run {run[0]}), not of the one named "
                           f"(run {run_identity(other)[0]})\n")
     good = export(*drive, ours)
     assert good.returncode == 0, good.stderr
@@ -284,5 +284,5 @@ def test_a_replay_names_its_drive_and_is_never_read_beside_another(drive: list[s
     score = subprocess.run([sys.executable, "-m", "logger.cli", "nav-score", str(tmp_path / "r"), str(other)],
                            cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert score.returncode == 2 and score.stderr == (
-        f"logger nav-score: {tmp_path / 'r' / 'trajectory.csv'}: replayed from another drive (run {run[0]}), not "
-        f"from the one named (run {run_identity(other)[0]})\n"), score.stderr
+        f"logger nav-score: {tmp_path / 'r' / 'trajectory.csv'}: the replay of another drive (run {run[0]}), not "
+        f"of the one named (run {run_identity(other)[0]})\n"), score.stderr

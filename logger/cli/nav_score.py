@@ -34,6 +34,7 @@ from logger.recording.drive import (
     damage_notes,
     drive_paths,
     open_drive,
+    replay_mismatch,
     replay_source,
     run_identity,
 )
@@ -74,10 +75,10 @@ def same_drive(csvs: list[Path], drives: list[Path]) -> None:
     the fixes does not tell two of them apart)."""
     runs = {ident[0] for ident in map(run_identity, drives) if ident is not None}
     for csv_path in csvs:
-        made_from = replay_source(csv_path.with_name("trajectory.mcap")) if runs else None
-        if made_from is not None and made_from not in runs:
-            raise ScoreError(f"{csv_path}: replayed from another drive (run {made_from}), not from the one named "
-                             f"(run {', '.join(sorted(runs))})")
+        foreign = replay_mismatch(csv_path, replay_source(csv_path.with_name("trajectory.mcap")) if runs else None,
+                                  runs)
+        if foreign:
+            raise ScoreError(foreign)
 
 
 def load_against(reference: Path | None, drives: list[Path]) -> Truth:

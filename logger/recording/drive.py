@@ -395,8 +395,8 @@ def _string_map(buf: bytes, pos: int, end: int) -> dict[str, str]:
 def replay_source(path: Path) -> str | None:
     """The run id of the drive a replay's file was made from (its ``replay_of`` record); None for one that does not
     say (a replay written before it did)."""
-    fields = _head_metadata(path, REPLAY_OF_METADATA)
-    return fields.get("run") or None if fields is not None else None
+    fields = _head_metadata(path, REPLAY_OF_METADATA) or {}
+    return fields.get("run") or None
 
 
 def run_identity(path: Path) -> tuple[str, int] | None:
@@ -549,13 +549,20 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
         origin = "replay" if _header_library(p) == REPLAY_LIBRARY else "live"
         files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None,
                                replay_source(p) if origin == "replay" else None))
-    runs = {f.run[0]: f.path for f in files if f.run is not None}
+    runs = {f.run[0] for f in files if f.run is not None}
     for f in files:
-        if runs and f.replay_of is not None and f.replay_of not in runs:
-            live = next(iter(runs.values()))
-            raise DriveFileError(f"{f.path}: the replay of another drive (run {f.replay_of}), not of {live}'s "
-                                 f"(run {next(iter(runs))})")
+        if (foreign := replay_mismatch(f.path, f.replay_of, runs)):
+            raise DriveFileError(foreign)
     return files
+
+
+def replay_mismatch(path: Path, replay_of: str | None, runs: set[str]) -> str:
+    """Why a replay's output (``path``, made from run ``replay_of``) is not of the drive of ``runs`` ("" when it is,
+    or when either side does not say): one line, for every command that reads one beside a drive."""
+    if not runs or replay_of is None or replay_of in runs:
+        return ""
+    named = ", ".join(sorted(runs))
+    return f"{path}: the replay of another drive (run {replay_of}), not of the one named (run {named})"
 
 
 def cut_notes(files: list[DriveFile]) -> list[str]:

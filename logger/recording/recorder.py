@@ -267,7 +267,9 @@ class Recorder:
             if self._state in DOWN_STATES:
                 down += self._mono_ns() - self._state_since
             return RecorderStatus(
-                state=self._state, detail=self._detail,
+                # Recording: the file it writes, under its name now (renamed once the time is known)
+                state=self._state, detail=f"writing {self._path.name}" if self._state == "recording" and self._path
+                else self._detail,
                 file=str(self._path) if self._path else None,
                 file_bytes=self._file_bytes,
                 files_done=self._files_done, free_bytes=self._free,
@@ -612,7 +614,7 @@ class Recorder:
         self._first_log_ns = None
         self._file_started_mono = self._now()
         self._last_flush = self._now()
-        self._set_state("recording", f"writing {path.name}")
+        self._set_state("recording", "")  # its detail is the open file's name (status)
 
     # ---- file names on a board that boots without knowing the time ------------------------------------------
     def _name_at_open(self, start_unix_ns: int | None, part: int) -> str:
@@ -653,8 +655,6 @@ class Recorder:
             with self._lock:
                 if self._path == old:
                     self._path = new
-                    if self._state == "recording":  # what the status says it writes
-                        self._detail = f"writing {new.name}"
                 self._files = [new if f == old else f for f in self._files]
         self._unnamed = still
 
