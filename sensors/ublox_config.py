@@ -63,6 +63,7 @@ for _key, _name in UBX_MSGIDS.items():
 _TIME_REF = {"utc": 0, "gps": 1, "glonass": 2, "beidou": 3, "galileo": 4}
 _UART_PORT_ID = {"UART1": 1, "UART2": 2}
 _UART_NAME = {v: k for k, v in _UART_PORT_ID.items()}  # CFG-PRT's port ids: 0 I2C (DDC), 1-2 UART, 3 USB, 4 SPI
+_PRT_OUT_PROTO, _PRT_OUT_NMEA = 14, 0x02  # CFG-PRT payload: outProtoMask's low byte, and its NMEA bit
 _BAUDS = (4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # Shortest payload of each reply the set-up reads. pyubx2 decodes a runt with a good checksum into a message
 # without the fields, and reading those would raise out of the set-up instead of waiting for a real reply.
@@ -342,7 +343,7 @@ def configure_receiver(
     # place, its NMEA output left as its owner set it.
     link = _link_port(s) if s.interface == "legacy" else None
     if link is None or link[0] in _UART_NAME:
-        nmea = setup.nmea_output and (link is None or bool(link[1][14] & 0x02))
+        nmea = setup.nmea_output and (link is None or bool(link[1][_PRT_OUT_PROTO] & _PRT_OUT_NMEA))
         uart = _UART_NAME[link[0]] if link is not None else setup.uart
         # Raised whenever the output needs it: the factory NMEA beside the logger's UBX messages fills most of a
         # 9600-baud line, and raw output at a slow rate would cost messages, ACKs too (raised before it is on).
@@ -404,8 +405,9 @@ def _port_settings(setup: ReceiverSetup, baud: int, polled: bytes | None, extens
     the poll gets the factory's: 8N1, UBX, NMEA and RTCM in (RTCM 3 from protocol 20), UBX and NMEA out."""
     port_id = _UART_PORT_ID[setup.uart]
     if polled is not None and polled[0] == port_id:
-        out_mask = polled[14] if setup.nmea_output else polled[14] & ~0x02
-        changed = polled[:8] + int(baud).to_bytes(4, "little") + polled[12:14] + bytes((out_mask,)) + polled[15:]
+        out_mask = polled[_PRT_OUT_PROTO] if setup.nmea_output else polled[_PRT_OUT_PROTO] & ~_PRT_OUT_NMEA
+        changed = (polled[:8] + int(baud).to_bytes(4, "little") + polled[12:_PRT_OUT_PROTO] + bytes((out_mask,))
+                   + polled[_PRT_OUT_PROTO + 1:])
         return UBXMessage("CFG", "CFG-PRT", SET, payload=changed)
     return UBXMessage("CFG", "CFG-PRT", SET, portID=port_id, reserved2=0x10, charLen=3, parity=4, nStopBits=0,
                       baudRate=baud, inUBX=1, inNMEA=1, inRTCM=1, inRTCM3=int(_protocol(extensions) >= 20),

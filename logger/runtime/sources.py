@@ -275,6 +275,9 @@ class GnssSource(Source):
         self._watch_counts: dict[tuple[int, int], int] = {}
         self._watch_seen_ns: dict[tuple[int, int], int] = {}
         self._restart: ProtocolError | None = None  # seen in a read whose records went out first
+        # How long without them a restart is taken for seen: RESTART_SEEN_PERIODS fix periods, RESTART_SEEN_MIN_S
+        self._restart_after_ns = round(max(RESTART_SEEN_MIN_S, RESTART_SEEN_PERIODS * (meas_period_ms or 1000) / 1000)
+                                       * 1e9)
 
     def _setup_wanted(self) -> Any:
         from sensors.ublox_config import ReceiverSetup
@@ -391,7 +394,7 @@ class GnssSource(Source):
         for key in self._watched:
             if counts[key] != self._watch_counts[key]:
                 self._watch_counts[key], self._watch_seen_ns[key] = counts[key], t_ns
-        limit_ns = round(max(RESTART_SEEN_MIN_S, RESTART_SEEN_PERIODS * (self.meas_period_ms or 1000) / 1000) * 1e9)
+        limit_ns = self._restart_after_ns
         if self.port_baud != self.baud and t_ns - self._heard_ns > limit_ns:
             self._restart = ProtocolError(
                 f"GNSS receiver on {self.path}: only garbage at {self.port_baud} baud, no message for "

@@ -241,8 +241,6 @@ class UbloxReceiverModel:
         self._commands = CommandInterpreter(generation, startup, rng_cmd, min_meas_period_ms=self.min_meas_period_ms,
                                             raw=raw, firmware=spec.firmware if spec is not None else None,
                                             link_port=3 if usb else 1)
-        # On USB (CDC-ACM) the host's baud rate means nothing and bytes go at the bus's speed.
-        self.usb = usb
         self.history: deque[EpochRecord] = deque(maxlen=history_len)
         self.counters = ModelCounters()
         self.error: BaseException | None = None
@@ -355,6 +353,11 @@ class UbloxReceiverModel:
     def _cfg(self) -> RamConfig:
         """The RAM configuration, as the command interpreter holds it (a VALSET or power cycle replaces it)."""
         return self._commands.ram
+
+    @property
+    def usb(self) -> bool:
+        """On USB (CDC-ACM) the host's baud rate means nothing and bytes go at the bus's speed."""
+        return self._commands.link_port != 1
 
     @property
     def baud(self) -> int:
