@@ -325,3 +325,42 @@ def test_a_receiver_its_owner_set_to_ubx_only_is_not_given_nmea_again(bench: Ben
     assert not any("CFG-PRT" in a for a in result.acknowledged)
     seen = identities(bench.listen(ser, 3.0))
     assert seen.count("NAV-PVT") == 3 and not {"GGA", "RMC"} & set(seen)
+
+
+def test_the_simulated_factory_nmea_is_what_gpsd_reads_of_it(bench: Bench) -> None:
+    """The factory sentences the simulated receiver sends (GGA, GLL, GSA, GSV per constellation, RMC, VTG), read by
+    gpsd's own decoder (gpsdecode, Debian's gpsd-clients): one epoch's whole sky from its GSV series, each
+    satellite's elevation, azimuth and C/N0 under its constellation (gpsd's gnssid and PRN), and the fix."""
+    import json
+    import shutil
+    import subprocess
+
+    from sensors.sim.scenarios import make_drive
+
+    if shutil.which("gpsdecode") is None:
+        pytest.skip("gpsd's gpsdecode (gpsd-clients) is not installed")
+    drive = make_drive("urban", seed=1, duration_s=60)
+    model = bench.model = UbloxReceiverModel(bench.port, bench.clock, drive, time_to_first_fix_s=0.0,
+                                             messages=FACTORY_MESSAGES, seed=3).start()
+    ser = bench.host(9600)
+    data = b""
+    for _ in range(40):
+        bench.sleep(0.1)
+        data += ser.read(ser.in_waiting or 0)
+    ser.timeout = 0.2
+    data += ser.read(65536)
+    decoded = subprocess.run(["gpsdecode", "-d"], input=data, capture_output=True, timeout=60)
+    assert decoded.returncode == 0, decoded.stderr
+    reports = [json.loads(line) for line in decoded.stdout.decode().splitlines() if line.startswith("{")]
+    sky = [r for r in reports if r["class"] == "SKY"]
+    tpv = [r for r in reports if r["class"] == "TPV" and r.get("mode") == 3]
+    assert sky and tpv
+    numbers = {"G": (0, 0), "R": (6, 64), "E": (2, 300)}  # our constellation letter -> gpsd's gnssid, PRN base
+    recs = [rec for rec in model.history if rec.satellites]
+    last_sky = max(sky, key=lambda r: len(r["satellites"]))
+    seen = {(s["gnssid"], s["PRN"]): (s["el"], s["az"], s["ss"]) for s in last_sky["satellites"]}
+    sent = [{(numbers[n[0]][0], numbers[n[0]][1] + int(n[1:])): (float(round(el)), float(round(az) % 360), float(cno))
+             for n, el, az, cno in rec.satellites} for rec in recs]
+    assert seen in sent and len(seen) >= 12  # one epoch's whole sky, every satellite as the receiver said it
+    for r in tpv:  # each fix one of the receiver's, to the 1e-5 minute (1.7e-7 deg) NMEA carries
+        assert min(max(abs(r["lat"] - rec.lat_deg), abs(r["lon"] - rec.lon_deg)) for rec in recs) < 1e-7, r
