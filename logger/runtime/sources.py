@@ -89,13 +89,12 @@ def fifo_poll_hz(rate_hz: float) -> float:
     """How often the FIFO is read: every half second (ten samples at 20 Hz, the default), or twice per filling
     of its 85 frames where that is more often (from 80 Hz up: 5 reads a second at 200 Hz, 25 at 1 kHz).
 
-    Every read costs a wake-up, four I2C transfers, a stamping and a record whatever it holds: 0.4 to 0.5 ms of
+    Every read costs a wake-up, four I2C transfers, a stamping and a record whatever it holds: 0.3 to 0.5 ms of
     the sampler thread's CPU here at 20 Hz, 200 Hz and 1 kHz alike (tools/bench_daemon.py), so the reads, not
-    the samples, are the thread's cost (twenty reads a second at 200 Hz took it to 1.0 % of a core, against
-    0.1 % for two at 20 Hz). Nothing needs the samples sooner:
-    the live filter wakes every two seconds (navigator.WAKE_S) and ``logger status`` shows rates. What a read
-    late by more than half a filling loses is counted (the chip's overflow); at 1 kHz that is 42 ms, at 200 Hz
-    212 ms."""
+    the samples, are the thread's cost (twenty reads a second at 200 Hz took it to 0.74 % of a core, five take
+    0.25 %; two at 20 Hz 0.10 %). Nothing needs the samples sooner: the live filter wakes every two seconds
+    (navigator.WAKE_S) and ``logger status`` shows rates. A read later than the FIFO's filling less one period
+    (45 ms at 1 kHz, 225 ms at 200 Hz, 3.75 s at 20 Hz) loses samples, counted as the chip's overflow."""
     return max(FIFO_READS_MIN_HZ, rate_hz / FIFO_FRAMES_PER_READ)
 
 
