@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -164,9 +165,15 @@ def test_the_daemon_runs_without_its_card_says_so_and_records_once_it_is_mounted
         # A wait for the card, not a writer failing by itself: past the heartbeat bound the watchdog is still
         # answered (systemd restarting the service every minute and a half could not bring the card back).
         assert snap["recorder"]["storage_missing"] is True and snap["recorder"]["free_bytes"] is None
+        # Only the recorder's lines are this test's: a loaded host slows the paced drive, and a 1 Hz sensor then
+        # beats less often than so short a bound (sampler-baro "silent for 1 s" in a CI run).
         daemon.heartbeat_bound_s = 0.5
         time.sleep(1.0)
-        assert daemon.stale_threads() == []
+        assert not [line for line in daemon.stale_threads() if line.startswith("recorder failing")]
+        status = daemon.recorder.status
+        with monkeypatch.context() as m:  # the same failure with the card there would stop the watchdog
+            m.setattr(daemon.recorder, "status", lambda: dataclasses.replace(status(), storage_missing=False))
+            assert [line for line in daemon.stale_threads() if line.startswith("recorder failing")]
 
         info.write_text(mountinfo_line("/") + mountinfo_line(card))
         assert wait_until(lambda: fetch(sock)["recorder"]["state"] == "recording", 30.0), fetch(sock)["recorder"]
