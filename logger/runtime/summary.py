@@ -10,6 +10,7 @@ how long the filter had a position, and the commands to look at the drive.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 from logger.recording.files import is_finished
@@ -18,23 +19,31 @@ from logger.words import plural
 from sync.stamp import FREERUN
 
 
+def _size(path: Path) -> int | None:
+    """A recorded file's size, or None when it is no longer there."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return None
+
+
 def run_summary(daemon: Daemon) -> str:
     span_s = daemon.run_span_s
     files = daemon.recorder.files()
-    sizes = [p.stat().st_size if p.exists() else 0 for p in files]
+    sizes = [_size(p) for p in files]  # one look at each file: None when it is gone
     rec = daemon.recorder.status()
     # The time the recorder was down (disk full, write errors) is not recorded drive: "recorded 200 s" over 50 s of
     # a full disk was not true.
     down_s = min(rec.down_s, span_s)
     run = (f"recorded {span_s - down_s:.1f} s of a {span_s:.1f} s run" if down_s >= DOWN_SHOWN_S
            else f"recorded {span_s:.1f} s of drive")
-    gone = sum(not p.exists() for p in files)
+    gone = sum(size is None for size in sizes)
     # A file deleted or moved away meanwhile: what was recorded is not all where the run put it ("recorded 120 s"
     # with the first minute's file gone was said of 48 s left on disk).
     where = f" ({plural(gone, 'file')} of them no longer there: deleted or moved)" if gone else ""
-    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(sizes) / 1e6:.1f} MB{where}"]
+    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(s or 0 for s in sizes) / 1e6:.1f} MB{where}"]
     for p, size in zip(files, sizes, strict=True):
-        if not p.exists():
+        if size is None:
             lines.append(f"  {p}  (gone)")
         else:
             note = "" if is_finished(p) else "  (not finished: `logger recover` it)"
