@@ -197,7 +197,7 @@ def test_files_too_long_for_the_boards_memory_are_refused() -> None:
 def test_the_imu_is_read_through_its_fifo_unless_told_and_register_reads_stop_at_50_hz() -> None:
     """The FIFO by default at every rate; a read per sample where asked, at the rates a thread per sample keeps."""
     from logger.compose import plans_from_config
-    from logger.runtime.sources import fifo_poll_hz
+    from logger.runtime.sources import FIFO_FRAMES, fifo_poll_hz
     from logger.runtime.timebase import TimeBase
     from sensors.sim.vehicle import VehicleDevices
 
@@ -207,7 +207,7 @@ def test_the_imu_is_read_through_its_fifo_unless_told_and_register_reads_stop_at
     assert imu.source.fifo and imu.rate_hz == 2.0  # 20 Hz in reads of ten samples
     # ... every half second, or twice per filling of the 85-frame FIFO where that is more often
     assert [fifo_poll_hz(hz) for hz in (50, 100, 200, 500, 1000)] == [2.0, 2.5, 5.0, 12.5, 25.0]
-    assert all(85 / hz >= 2 / fifo_poll_hz(hz) for hz in (20, 50, 80, 100, 200, 500, 1000))
+    assert all(FIFO_FRAMES / hz >= 2 / fifo_poll_hz(hz) for hz in (20, 50, 80, 100, 200, 500, 1000))
     cfg = parse('[imu]\nread = "register"\nrate_hz = 50\n', "logger.toml", sim=True)
     (imu, *_) = plans_from_config(cfg, TimeBase(), VehicleDevices())
     assert not imu.source.fifo and imu.rate_hz == 50.0

@@ -86,10 +86,9 @@ def resolve_config(args: argparse.Namespace) -> Config:
             cfg.values["logger"]["state_dir"] = str(Path(args.out).resolve() / ".state")
     if args.status_socket:
         cfg.values["logger"]["status_socket"] = args.status_socket
-    # Both again: --sim and --time-scale may have changed what the file said
-    problems = [p for p in (time_scale_problem(cfg), chrony_problem(cfg)) if p]
-    if problems:
-        raise ConfigError(problems[:1])
+    problem = time_scale_problem(cfg) or chrony_problem(cfg)  # again: --sim and --time-scale may have changed them
+    if problem:
+        raise ConfigError([problem])
     return cfg
 
 

@@ -75,16 +75,24 @@ class RecoveryCancelled(Exception):
 def is_finished(path: str | os.PathLike[str]) -> bool:
     """True when the file ends with a footer and the closing magic, as a clean ``finish()`` leaves it."""
     try:
-        with open(path, "rb") as f:
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            if size < 2 * len(MAGIC) + FOOTER_LEN:
-                return False
-            f.seek(size - len(MAGIC) - FOOTER_LEN)
-            tail = f.read()
+        state = file_state(path)
     except OSError:
         return False
-    return tail[-len(MAGIC):] == MAGIC and tail[0] == OP_FOOTER
+    return state is not None and state[1]
+
+
+def file_state(path: str | os.PathLike[str]) -> tuple[int, bool] | None:
+    """A file's size and whether it is finished (:func:`is_finished`), from one open; None when it is not there."""
+    try:
+        with open(path, "rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            if size < 2 * len(MAGIC) + FOOTER_LEN:
+                return size, False
+            f.seek(size - len(MAGIC) - FOOTER_LEN)
+            tail = f.read()
+    except FileNotFoundError:
+        return None
+    return size, tail[-len(MAGIC):] == MAGIC and tail[0] == OP_FOOTER
 
 
 @dataclass

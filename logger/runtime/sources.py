@@ -27,6 +27,7 @@ from logger.recording.topics import BARO, GNSS_FIX, GNSS_RAW, IMU, IMU_BATCH, OB
 from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, ProtocolError, SensorError
+from sensors.mpu6050 import FIFO_FRAME_BYTES, FIFO_SIZE_BYTES
 from sensors.obd import SpeedDriver
 from sync.fifo import FifoClock
 
@@ -59,7 +60,8 @@ RESTART_SEEN_MIN_S = 5.0
 # once per this long.
 IMU_AWAKE_CHECK_S = 1.0
 FIFO_READS_MIN_HZ = 2.0  # a FIFO read every half second at low rates
-FIFO_FRAMES_PER_READ = 40.0  # ... and at least twice per filling of the MPU-6050's 85 frames
+FIFO_FRAMES = FIFO_SIZE_BYTES // FIFO_FRAME_BYTES  # the MPU-6050's FIFO holds 85 accelerometer and gyro frames
+FIFO_FRAMES_PER_READ = 40.0  # ... and at most this many frames a read: twice per filling, 2.5 frames to spare
 
 
 def _i2c_bus(path_or_number: str | int) -> Any:
@@ -87,7 +89,7 @@ def _close_quietly(obj: Any) -> None:
 
 def fifo_poll_hz(rate_hz: float) -> float:
     """How often the FIFO is read: every half second (ten samples at 20 Hz, the default), or twice per filling
-    of its 85 frames where that is more often (from 80 Hz up: 5 reads a second at 200 Hz, 25 at 1 kHz).
+    of its 85 frames (FIFO_FRAMES) where that is more often (from 80 Hz up: 5 reads a second at 200 Hz, 25 at 1 kHz).
 
     Every read costs a wake-up, four I2C transfers, a stamping and a record whatever it holds: 0.3 to 0.5 ms of
     the sampler thread's CPU here at 20 Hz, 200 Hz and 1 kHz alike (tools/bench_daemon.py), so the reads, not

@@ -10,44 +10,36 @@ how long the filter had a position, and the commands to look at the drive.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
-from logger.recording.files import is_finished
+from logger.recording.files import file_state
 from logger.runtime.daemon import CLOCK, Daemon
 from logger.words import plural
 from sync.stamp import FREERUN
 
 
-def _size(path: Path) -> int | None:
-    """A recorded file's size, or None when it is no longer there."""
-    try:
-        return path.stat().st_size
-    except FileNotFoundError:
-        return None
-
-
 def run_summary(daemon: Daemon) -> str:
     span_s = daemon.run_span_s
     files = daemon.recorder.files()
-    sizes = [_size(p) for p in files]  # one look at each file: None when it is gone
+    states = [file_state(p) for p in files]  # one look at each file: (size, finished), None when it is gone
     rec = daemon.recorder.status()
     # The time the recorder was down (disk full, write errors) is not recorded drive: "recorded 200 s" over 50 s of
     # a full disk was not true.
     down_s = min(rec.down_s, span_s)
     run = (f"recorded {span_s - down_s:.1f} s of a {span_s:.1f} s run" if down_s >= DOWN_SHOWN_S
            else f"recorded {span_s:.1f} s of drive")
-    gone = sum(size is None for size in sizes)
+    gone = sum(state is None for state in states)
     # A file deleted or moved away meanwhile: what was recorded is not all where the run put it ("recorded 120 s"
     # with the first minute's file gone was said of 48 s left on disk).
     where = f" ({plural(gone, 'file')} of them no longer there: deleted or moved)" if gone else ""
-    lines = [f"logger: {run} into {plural(len(files), 'file')}, {sum(s or 0 for s in sizes) / 1e6:.1f} MB{where}"]
-    for p, size in zip(files, sizes, strict=True):
-        if size is None:
+    total = sum(state[0] for state in states if state is not None)
+    lines = [f"logger: {run} into {plural(len(files), 'file')}, {total / 1e6:.1f} MB{where}"]
+    for p, state in zip(files, states, strict=True):
+        if state is None:
             lines.append(f"  {p}  (gone)")
         else:
-            note = "" if is_finished(p) else "  (not finished: `logger recover` it)"
-            lines.append(f"  {p}  {size / 1e6:.1f} MB{note}")
+            note = "" if state[1] else "  (not finished: `logger recover` it)"
+            lines.append(f"  {p}  {state[0] / 1e6:.1f} MB{note}")
     written = rec.written
     if written:
         width = max(len(t) for t in written)
