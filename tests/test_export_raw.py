@@ -30,6 +30,7 @@ from test_raw_observations import rawx
 from logger.compose import build
 from logger.config import defaults
 from logger.exports.raw_stream import count_epochs
+from logger.exports.whole import STAGE_PREFIX, remove_stale_stages, stage_prefix
 from logger.recording.recorder import Recorder
 from logger.recording.records import raw_bytes_record
 from logger.recording.settings import RecorderSettings
@@ -156,6 +157,51 @@ def test_a_failed_rinex_export_leaves_an_earlier_export_as_it_was(m8t_drive: tup
         assert {p.name: p.read_bytes() for p in out.iterdir()} == before, formats
     ubx = next(out.glob("*.ubx"))
     assert r.stderr.endswith(f"; wrote only {ubx} and {ubx}.json\n") and f"from {ubx} (exit status 3" in r.stderr
+
+
+def test_an_export_killed_outright_leaves_its_stage_and_the_next_export_removes_it(
+        m8t_drive: tuple[bytes, list[Path]], tmp_path: Path) -> None:
+    """SIGKILL during RINEX conversion (a stand-in convbin kills the export that runs it): the export cannot clean
+    up, so its staging folder stays with the joined stream in it and nothing of it is in place. The next export
+    into that folder says it removes the stage and finishes as usual."""
+    need_convbin()
+    _, files = m8t_drive
+    out = tmp_path / "out"
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "convbin").write_text("#!/bin/sh\nkill -9 $PPID\nsleep 5\n")
+    (fake / "convbin").chmod(0o755)
+    env = {**os.environ, "PATH": f"{fake}:{os.environ['PATH']}"}
+    r = run("export", *map(str, files), "--out", str(out), "--format", "rinex", env=env)
+    assert r.returncode == -9, (r.returncode, r.stderr)
+    (stage,) = out.iterdir()
+    assert stage.name.startswith(".export-") and stage.is_dir() and list(stage.glob("*.ubx")), stage
+    r = run("export", *map(str, files), "--out", str(out), "--format", "rinex")
+    assert r.returncode == 0, r.stderr
+    assert f"logger export: removed {stage}, left by an export that was killed\n" in r.stderr, r.stderr
+    assert sorted(p.suffix for p in out.iterdir()) == [".json", ".obs", ".ubx"], list(out.iterdir())
+
+
+def test_only_the_stages_of_ended_processes_are_removed(tmp_path: Path) -> None:
+    """A stage whose process still runs (this one, or another) is another export at work; a name without a process
+    id is not a stage this judges."""
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                           check=True)
+    gone = tmp_path / f"{STAGE_PREFIX}{int(ended.stdout)}-abc"
+    mine = tmp_path / f"{stage_prefix()}def"
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        other = tmp_path / f"{STAGE_PREFIX}{sleeper.pid}-ghi"
+        unnamed = tmp_path / f"{STAGE_PREFIX}jkl"
+        for d in (gone, mine, other, unnamed):
+            d.mkdir()
+            (d / "part.ubx").write_bytes(b"x")
+        assert remove_stale_stages(tmp_path) == [gone]
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(d.name for d in (mine, other, unnamed))
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    assert remove_stale_stages(tmp_path) == [other]
 
 
 def test_a_configuration_given_at_the_office_goes_into_the_rinex_header(m8t_drive: tuple[bytes, list[Path]],

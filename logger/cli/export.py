@@ -32,6 +32,7 @@ from logger.exports.raw_stream import (
     write_ubx,
 )
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
+from logger.exports.whole import STAGE_PREFIX, remove_stale_stages, stage_prefix
 from logger.recording.drive import (
     DriveFile,
     DriveFileError,
@@ -174,7 +175,9 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
     output for a message. When RINEX cannot be made, the ``.ubx`` and its notes are kept only if ``keep_ubx`` (the
     user asked for ``ubx`` too), and the error says so; otherwise they were only convbin's input.
 
-    Everything is made in a staging folder inside ``out`` and moved into place only once it is complete, so that a
+    Everything is made in a staging folder inside ``out`` (named with this process's id: an export killed outright
+    leaves it, and the next one removes it, :func:`~logger.exports.whole.remove_stale_stages`) and moved into place
+    only once it is complete, so that a
     failure (no raw observations, convbin failing, a full disk) leaves the folder as it was: an earlier export's
     ``.ubx``, ``.obs`` and ``.nav`` of the same drive were deleted by a failed one. Without navigation data (no
     RXM-SFRBX in the stream: convbin writes no ``.nav``) the observations are written and a line says what is
@@ -183,9 +186,11 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
     progress = Progress("logger export")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    for stage in remove_stale_stages(out):
+        print(f"logger export: removed {stage}, left by an export that was killed", file=sys.stderr)
     ubx, notes, obs, nav = (out / f"{name}{ext}" for ext in (".ubx", ".ubx.json", ".obs", ".nav"))
     try:
-        with tempfile.TemporaryDirectory(prefix=".export-", dir=out) as tmp:
+        with tempfile.TemporaryDirectory(prefix=stage_prefix(), dir=out) as tmp:
             stage = Path(tmp)
             try:
                 report = write_ubx(iter_messages(files, [GNSS_RAW], progress), files, stage / ubx.name)
@@ -223,7 +228,7 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
                 raise type(failure)(f"{failure}; wrote only {ubx} and {notes}") from None
             return made
     except OSError as exc:  # a full disk while staging: named as the output it was to be
-        if exc.filename and Path(exc.filename).parent.name.startswith(".export-"):
+        if exc.filename and Path(exc.filename).parent.name.startswith(STAGE_PREFIX):
             exc.filename = str(out / Path(exc.filename).name)
         raise
     finally:

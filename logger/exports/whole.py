@@ -6,15 +6,64 @@ truncated GPX or ``trajectory.mcap`` where the good one had been, and a folder m
 written to a partial file beside it (``.NAME.partial``, hidden, in the same folder so that the rename cannot cross
 file systems) and renamed over the old one only once it is complete; on a failure the partial file is removed and
 the old output stays as it was. An error writing says which output it was: a write's ``OSError`` names no file.
+
+An export made of several files (the receiver's stream with its RINEX) is staged in a hidden folder inside the
+output folder and moved into place whole. A run killed outright (SIGKILL, a power cut, the terminal's window
+closed on it) cannot remove its stage, and a day's raw stream makes it hundreds of megabytes: the stage is named
+with its process's id (``.export-PID-...``) and the next export into that folder removes the stages whose process
+is gone (:func:`remove_stale_stages`). A partial file's name is the output's own, so the next run writing that
+output replaces it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
+
+STAGE_PREFIX = ".export-"
+
+
+def stage_prefix() -> str:
+    """The name a staging folder of this process starts with: its id says whether the folder is still in use."""
+    return f"{STAGE_PREFIX}{os.getpid()}-"
+
+
+def remove_stale_stages(folder: Path) -> list[Path]:
+    """Remove the staging folders in ``folder`` whose process has ended (a killed export's); those removed.
+
+    Only stages named with a process id are judged; one whose process still runs is kept, whoever it is. Two
+    machines exporting into one shared folder at once cannot see each other's processes: the other machine's
+    stage would be taken as stale, and its export fail (it says so) rather than finish."""
+    removed = []
+    for stage in folder.glob(STAGE_PREFIX + "*"):
+        pid, sep, rest = stage.name[len(STAGE_PREFIX):].partition("-")
+        if not (pid.isdigit() and sep and rest) or _running(int(pid)):
+            continue
+        if stage.is_dir() and not stage.is_symlink():
+            shutil.rmtree(stage, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                stage.unlink()
+        if not stage.exists():
+            removed.append(stage)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    """Whether a process with this id exists (another user's counts: signalling it is refused, not unknown)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
 
 def partial_path(path: Path) -> Path:
