@@ -130,6 +130,37 @@ def test_navigator_thread_publishes_fixes_state_and_status():
         assert row.endswith("s old: not current") == stale and len(row) <= 79, row
 
 
+def test_the_status_counts_an_outage_up_to_the_moment_it_is_asked():
+    """The verdicts are drawn as the navigator publishes, and the navigator wakes every 2 s: the outage's age in
+    the status is counted up to the moment asked (the time since the last solution added), as the receiver's own
+    row beside it counts its silence; before, it lagged that row by a wake and a publish period."""
+    drive = make_drive("outage-60s", seed=1, duration_s=70.0)
+    nav = Navigator(NavParams(publish_hz=1.0), publish=lambda r: None)
+    nav.start()
+    try:
+        for _, topic, msg in records(drive, 70.0, seed=1, gnss_off=[(50.0, 80.0)]):
+            nav.offer(topic, msg)
+        deadline = time.monotonic() + 20.0
+        while nav.queued and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+    finally:
+        nav.stop()
+    sol = nav.engine.current()
+    assert sol is not None
+    drawn = [v for v in nav._verdicts if v.startswith("no GNSS fix for ")]
+    assert len(drawn) == 1, nav._verdicts
+    drawn_age = int(re.match(r"no GNSS fix for (\d+) s", drawn[0]).group(1))
+    assert 15 <= drawn_age <= 21, drawn  # the last fix's epoch at 49 s, the last solution published at 65-70 s
+    for ahead_s in (0.0, 2.0, STALE_S - 1.0):  # the status between two wakes; a later one calls it stale
+        nav._timebase = TimeBase(lambda a=ahead_s: sol.t_mono_ns + int(a * 1e9))
+        sec = nav.section()
+        (line,) = [v for v in sec["verdicts"] if v.startswith("no GNSS fix for ")]
+        age = int(re.match(r"no GNSS fix for (\d+) s", line).group(1))
+        assert age == round((sol.t_ns - nav.engine.last_readings.fix.t_ns) / 1e9 + ahead_s), (line, ahead_s)
+        assert line.endswith(drawn[0].split(":", 1)[1]), (line, drawn)  # the same aids named
+
+
 def test_nav_configuration_is_checked_and_reaches_the_filter():
     cfg = parse("[nav]\nmode = '15'\nlever_arm_m = [0.3, 0, -1.1]\nmounting_rpy_deg = [180, 0, 90]\n"
                 "accel_noise_ug_rthz = 800\n", "logger.toml", sim=True)

@@ -24,18 +24,23 @@ BARO_DRIFT_M_PER_MIN = 0.5  # a front passing moves pressure ~1 hPa/h (0.14 m/mi
 OFFSET_SIGMAS = 2.0  # an offset is beyond (or within) the datasheet's tolerance when this many sigmas past it
 MOUNT_TILT_LIMIT_DEG = 10.0
 MOUNT_SLIP_LIMIT_DEG = 2.0
+OUTAGE_S = 5.0  # the filter's last fix older than this: dead reckoning is said (not for a few missed fixes)
 
 
 class HealthJudge:
     """Keeps the little history the verdicts need (GNSS acceptance, baro offset over minutes)."""
 
     def __init__(self) -> None:
+        # Where the last verdicts' outage line is (None: there is none), so that a status asked between two
+        # publishes can say its age as of then (outage_verdict's ``later_s``).
+        self.outage_line: int | None = None
         self._gnss: deque[bool] = deque(maxlen=60)
         self._seen_gnss = (0, 0)
         self._offset: deque[tuple[float, float]] = deque(maxlen=600)  # (t_s, offset m), one per call
 
     def verdicts(self, engine: NavEngine, t_s: float) -> list[str]:
         out: list[str] = []
+        self.outage_line = None
         ekf, s = engine.ekf, engine.state
         if s is None or ekf is None:
             if engine.mode == "gnss":
@@ -51,22 +56,16 @@ class HealthJudge:
             self._gnss.extend([True] * min(d_acc, 60) + [False] * min(d_rej, 60))
         n = len(self._gnss)
         refused = n - sum(self._gnss)
-        fix = engine.last_readings.fix
-        t_last = engine.t_last_ns
-        age = (t_last - fix.t_ns) / 1e9 if fix is not None and t_last else math.inf
-        if age > 5.0:
-            on = "the IMU"
-            if engine.mode == "17":
-                last = engine.last_readings
-                aids = [name for name, fresh in (("OBD", last.obd_fresh(t_last or 0)),
-                                                 ("baro", last.baro_fresh(t_last or 0))) if fresh]
-                on = "IMU" + "".join(f", {a}" for a in aids[:-1]) + (f" and {aids[-1]}" if aids else " alone")
-            out.append(f"no GNSS fix for {age:.0f} s: dead reckoning on {on}")
+        outage = outage_verdict(engine)
+        self.outage_line = len(out) if outage else None
+        if outage:
+            out.append(outage)
         elif n and refused > n // 5:
             out.append(f"GNSS disagrees with the IMU: {refused} of the last {n} fixes refused")
         elif n:
             out.append(f"GNSS consistent with the IMU ({n - refused} of the last {n} fixes accepted)")
         if engine.n > SF_ID:
+            t_last = engine.t_last_ns
             sf_sigma = ekf.sigma(SF_ID)
             obd = engine.last_readings.obd
             if obd is None or not engine.last_readings.obd_fresh(t_last or 0):
@@ -106,6 +105,24 @@ class HealthJudge:
         rate = (s.dh - d0) / (t_s - t0) * 60.0
         state = "drifting" if abs(rate) > BARO_DRIFT_M_PER_MIN else "stable"
         return f"barometer offset {state}: {s.dh:+.1f} m (+-{ekf.sigma(DH_ID):.1f} m), {rate:+.2f} m/min"
+
+
+def outage_verdict(engine: NavEngine, later_s: float = 0.0) -> str | None:
+    """The line "no GNSS fix for N s: dead reckoning on ..." when the filter's last fix was over OUTAGE_S old at its
+    last sample; None otherwise. ``later_s``: how long after that sample the line is read (the status between two of the
+    navigator's wakes), counted into the age, as the receiver's own row counts its silence up to the moment asked."""
+    fix = engine.last_readings.fix
+    t_last = engine.t_last_ns
+    age = (t_last - fix.t_ns) / 1e9 if fix is not None and t_last else math.inf
+    if not age > OUTAGE_S:
+        return None
+    on = "the IMU"
+    if engine.mode == "17":
+        last = engine.last_readings
+        aids = [name for name, fresh in (("OBD", last.obd_fresh(t_last or 0)),
+                                         ("baro", last.baro_fresh(t_last or 0))) if fresh]
+        on = "IMU" + "".join(f", {a}" for a in aids[:-1]) + (f" and {aids[-1]}" if aids else " alone")
+    return f"no GNSS fix for {age + max(later_s, 0.0):.0f} s: dead reckoning on {on}"
 
 
 def offsets_verdict(engine: NavEngine) -> str:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from logger.nav.engine import NavEngine, Solution, configured_tempco
-from logger.nav.health import HealthJudge
+from logger.nav.health import HealthJudge, outage_verdict
 from logger.nav.params import NavParams
 from logger.nav.thermal import TempcoLearner
 from logger.recording.drive import in_runs
@@ -118,6 +118,7 @@ class Navigator:
         self._live_ns = 0  # how long /nav/fix was published, silences left out
         self._next_state_ns = 0
         self._verdicts: list[str] = []
+        self._outage_line: int | None = None  # where in _verdicts the outage's line is (HealthJudge.outage_line)
         self.error: str = ""
         self._held: list[tuple[str, dict[str, Any]]] = []  # measurements ahead of the IMU samples taken so far
         self._newest_ns: int | None = None  # the latest record time offered
@@ -351,6 +352,7 @@ class Navigator:
         if t >= self._next_state_ns:
             self._next_state_ns = t + 1_000_000_000
             self._verdicts = self.judge.verdicts(self.engine, t / 1e9)
+            self._outage_line = self.judge.outage_line
             msg = nav_state_record(self.engine, t, sol.t_mono_ns, self._verdicts,
                                 {"dropped": self.dropped, "cpu_s": round(self.cpu_s, 4)})
             self.publish(Reading(NAV_STATE, msg, sol.t_mono_ns, stamped=False))
@@ -407,6 +409,12 @@ class Navigator:
                     out["verdicts"] = [f"no new solution for {age_s:.0f} s (the filter integrated no IMU sample "
                                        "since): the position above is not current"]
                     out["stale"] = True  # said on the position's own row too (the verdicts may not fit a screen)
+                elif age_s is not None and self._outage_line is not None:
+                    # Drawn at the last publish, up to a wake (2 s) and a publish period ago: the outage's age as of
+                    # now, as the receiver's row beside it counts its own.
+                    line = outage_verdict(self.engine, age_s)
+                    if line is not None:
+                        out["verdicts"][self._outage_line] = line
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out
