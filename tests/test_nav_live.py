@@ -69,6 +69,20 @@ def test_a_quarter_filled_queue_wakes_the_filter_thread():
     assert nav._wake.is_set() and nav.queued == 10
 
 
+def run_through(nav: Navigator, recs: list[tuple[str, dict]]) -> None:
+    """The navigator's thread fed these records, and stopped once it has taken them all."""
+    nav.start()
+    try:
+        for topic, msg in recs:
+            nav.offer(topic, msg)
+        deadline = time.monotonic() + 20.0
+        while nav.queued and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+    finally:
+        nav.stop()
+
+
 def test_navigator_thread_publishes_fixes_state_and_status():
     drive = make_drive("outage-60s", seed=1, duration_s=80.0)
     published: list[Reading] = []
@@ -79,19 +93,13 @@ def test_navigator_thread_publishes_fixes_state_and_status():
             published.append(r)
 
     nav = Navigator(NavParams(publish_hz=2.0), publish=publish)
-    nav.start()
     jitter = iter(np.random.default_rng(7).integers(-5_000, 5_000, 10_000))
-    try:
-        for _, topic, msg in records(drive, 80.0, seed=1):
-            if topic == "/imu":  # a board's samples: 50 ms apart to a few microseconds, either side
-                msg = {**msg, "t_sync_ns": msg["t_sync_ns"] + int(next(jitter))}
-            nav.offer(topic, msg)
-        deadline = time.monotonic() + 20.0
-        while nav.queued and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.5)
-    finally:
-        nav.stop()
+    recs = []
+    for _, topic, msg in records(drive, 80.0, seed=1):
+        if topic == "/imu":  # a board's samples: 50 ms apart to a few microseconds, either side
+            msg = {**msg, "t_sync_ns": msg["t_sync_ns"] + int(next(jitter))}
+        recs.append((topic, msg))
+    run_through(nav, recs)
     fixes = [r for r in published if r.topic == "/nav/fix"]
     states = [r for r in published if r.topic == "/nav/state"]
     assert fixes and states and nav.dropped == 0
@@ -136,16 +144,7 @@ def test_the_status_counts_an_outage_up_to_the_moment_it_is_asked():
     row beside it counts its silence; before, it lagged that row by a wake and a publish period."""
     drive = make_drive("outage-60s", seed=1, duration_s=70.0)
     nav = Navigator(NavParams(publish_hz=1.0), publish=lambda r: None)
-    nav.start()
-    try:
-        for _, topic, msg in records(drive, 70.0, seed=1, gnss_off=[(50.0, 80.0)]):
-            nav.offer(topic, msg)
-        deadline = time.monotonic() + 20.0
-        while nav.queued and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.5)
-    finally:
-        nav.stop()
+    run_through(nav, [(topic, msg) for _, topic, msg in records(drive, 70.0, seed=1, gnss_off=[(50.0, 80.0)])])
     sol = nav.engine.current()
     assert sol is not None
     drawn = [v for v in nav._verdicts if v.startswith("no GNSS fix for ")]
