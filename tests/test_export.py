@@ -14,6 +14,7 @@ import datetime as dt
 import io
 import itertools
 import json
+import os
 import re
 import subprocess
 import sys
@@ -439,3 +440,51 @@ def test_an_output_that_fails_part_way_leaves_the_earlier_one_whole(drive: Drive
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert r.stderr.endswith(f"{failed}: File too large\n"), r.stderr
         assert {p.name: p.read_bytes() for p in out.iterdir()} == before, args
+
+
+def test_one_runs_outputs_go_in_together_or_not_at_all(drive: Drive, tmp_path: Path) -> None:
+    """A later output of a run failing (a full card after the first file fitted; a folder where an output goes):
+    none of the run's outputs replaces the earlier run's, so the folder never holds one run's CSV beside another
+    run's MCAP, or one run's GPX beside another's CSV; the line names the output that failed, not its hidden
+    partial file."""
+    out, full = tmp_path / "out", tmp_path / "full"
+    r = run("replay", *map(str, drive.files), "--out", str(out), "--mode", "15")
+    assert r.returncode == 0, r.stderr
+    r = run("export", *map(str, drive.files), "--out", str(out), "--format", "gpx,csv", "--every", "20")
+    assert r.returncode == 0, r.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    r = run("replay", *map(str, drive.files), "--out", str(full), "--fix-hz", "0")
+    assert r.returncode == 0, r.stderr
+    size = {p.name: p.stat().st_size for p in full.iterdir()}
+    # trajectory.csv is written first: it fits under the limit, trajectory.mcap after it does not.
+    assert size["trajectory.csv"] < size["trajectory.mcap"], size
+    r = subprocess.run([sys.executable, "-m", "logger.cli", "replay", *map(str, drive.files), "--out", str(out),
+                        "--fix-hz", "0"], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                       preexec_fn=_with_file_size_limit(size["trajectory.csv"]))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.endswith(f"logger replay: {out / 'trajectory.mcap'}: File too large\n"), r.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # An output's name taken by a folder: found before anything is replaced, and named as the output.
+    (csv_path,) = list(out.glob("*gnss_fix.csv"))
+    csv_path.unlink()
+    csv_path.mkdir()
+    r = run("export", *map(str, drive.files), "--out", str(out), "--format", "gpx,csv")
+    assert r.returncode == 2 and r.stderr.endswith(f"logger export: {csv_path}: Is a directory\n"), r.stderr
+    after = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert after == {k: v for k, v in before.items() if k != csv_path.name}
+
+
+def test_any_export_removes_a_killed_exports_stage(drive: Drive, tmp_path: Path) -> None:
+    """A staging folder left by a killed export (its process gone) is removed by the next export into the folder,
+    whatever it writes, and the command says so; a stage whose process runs is left to it."""
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                           check=True)
+    out = tmp_path / "out"
+    stale, live = out / f".export-{int(ended.stdout)}-abc", out / f".export-{os.getpid()}-def"
+    for stage in (stale, live):
+        stage.mkdir(parents=True)
+        (stage / "drive.ubx").write_bytes(b"\xb5b" * 1000)
+    r = run("export", *map(str, drive.files), "--out", str(out), "--format", "gpx")
+    assert r.returncode == 0, r.stderr
+    assert f"logger export: removed {stale}, left by an export that was killed\n" in r.stderr, r.stderr
+    assert not stale.exists() and (live / "drive.ubx").exists()

@@ -12,7 +12,6 @@ into one ``.ubx`` with its gaps noted beside it, ``rinex`` converts that with RT
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 from collections import Counter
@@ -32,7 +31,7 @@ from logger.exports.raw_stream import (
     write_ubx,
 )
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
-from logger.exports.whole import STAGE_PREFIX, remove_stale_stages, stage_prefix
+from logger.exports.whole import STAGE_PREFIX, adopt, remove_stale_stages, stage_prefix, written_together
 from logger.recording.drive import (
     DriveFile,
     DriveFileError,
@@ -125,16 +124,17 @@ def export(files: list[DriveFile], out: Path, formats: list[str], topics: list[s
     out.mkdir(parents=True, exist_ok=True)
     name = drive_name([f.path for f in files])
     written = []
-    if "gpx" in formats:
-        written.append(out / f"{name}.gpx")
-        write_gpx(written[-1], chosen, height, name)
-    if "kml" in formats:
-        written.append(out / f"{name}.kml")
-        write_kml(written[-1], chosen, height, name, gap_marks)
-    if "csv" in formats:
-        for t in chosen:
-            written.append(out / f"{name}_{t.key}.csv")
-            write_csv(written[-1], t)
+    with written_together():  # one run's tracks: a GPX beside another run's CSV would disagree without a word
+        if "gpx" in formats:
+            written.append(out / f"{name}.gpx")
+            write_gpx(written[-1], chosen, height, name)
+        if "kml" in formats:
+            written.append(out / f"{name}.kml")
+            write_kml(written[-1], chosen, height, name, gap_marks)
+        if "csv" in formats:
+            for t in chosen:
+                written.append(out / f"{name}_{t.key}.csv")
+                write_csv(written[-1], t)
     return chosen, written
 
 
@@ -186,8 +186,6 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
     progress = Progress("logger export")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    for stage in remove_stale_stages(out):
-        print(f"logger export: removed {stage}, left by an export that was killed", file=sys.stderr)
     ubx, notes, obs, nav = (out / f"{name}{ext}" for ext in (".ubx", ".ubx.json", ".obs", ".nav"))
     try:
         with tempfile.TemporaryDirectory(prefix=stage_prefix(), dir=out) as tmp:
@@ -222,8 +220,9 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
                               file=sys.stderr)
             if failure is not None and not keep_ubx:
                 raise type(failure)(f"{failure}; nothing written") from None
-            for final in made:
-                os.replace(stage / final.name, final)
+            with written_together():  # every file of the stream's set, or none (a name taken by a folder)
+                for final in made:
+                    adopt(stage / final.name, final)
             if failure is not None:
                 raise type(failure)(f"{failure}; wrote only {ubx} and {notes}") from None
             return made
@@ -248,6 +247,9 @@ def main(argv: list[str]) -> int:
         return 2
     for line in cut_notes(files):
         print(f"logger export: {line}", file=sys.stderr)
+    if args.out.is_dir():
+        for stage in remove_stale_stages(args.out):
+            print(f"logger export: removed {stage}, left by an export that was killed", file=sys.stderr)
     streamed: list[Path] = []
     if any(f in STREAM_FORMATS for f in formats):
         try:

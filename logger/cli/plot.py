@@ -29,7 +29,7 @@ from logger.exports.formats import utc_iso
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
 from logger.exports.topic_timing import STAMPED_TOPICS, TopicTiming, timings
 from logger.exports.tracks import EXPORT_TOPICS, Track, build_tracks
-from logger.exports.whole import save_figure
+from logger.exports.whole import save_figure, written_together
 from logger.recording.drive import DriveFileError, DriveMessage, cut_notes, damage_notes, iter_messages, open_drive
 from logger.recording.records import NO_FIX, fix_name
 from logger.recording.topics import GNSS_FIX, SYNC
@@ -245,14 +245,15 @@ def main(argv: list[str]) -> int:
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         name = drive_name([f.path for f in files])
-        progress.stage("drawing the map")
-        written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
-        if tim:
-            progress.stage("drawing the rates")
-            written.append(draw_rates(plt, tim, fixes, t0, span_s, args.out / f"{name}_rates.png"))
-        if tim or sync:
-            progress.stage("drawing the clock")
-            written.append(draw_sync(plt, sync, tim, fixes, t0, args.out / f"{name}_sync.png"))
+        with written_together():  # one run's figures, or none
+            progress.stage("drawing the map")
+            written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
+            if tim:
+                progress.stage("drawing the rates")
+                written.append(draw_rates(plt, tim, fixes, t0, span_s, args.out / f"{name}_rates.png"))
+            if tim or sync:
+                progress.stage("drawing the clock")
+                written.append(draw_sync(plt, sync, tim, fixes, t0, args.out / f"{name}_sync.png"))
     except OSError as exc:  # the folder was checked first; what is left: a disk full, a folder changed meanwhile
         progress.end()
         print(f"logger plot: {os_error_line(exc)}", file=sys.stderr)

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
+from logger.exports.whole import written_together
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.drive import DriveFileError, cut_notes, damage_notes, open_drive
@@ -187,7 +188,7 @@ def main(argv: list[str]) -> int:
     fixes = 0
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        with no_cycle_collector():
+        with no_cycle_collector(), written_together():  # the CSV and the MCAP of one run, or neither
             write_csv(args.out / "trajectory.csv", rows)
             if states is not None:
                 source_run = next((f.run[0] for f in files if f.run is not None), None)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from logger.exports.plotting import PlotsUnavailable, local_en, pyplot
-from logger.exports.whole import save_figure
+from logger.exports.whole import save_figure, written_together
 from logger.nav import earth
 from logger.recording.drive import read_messages
 from logger.recording.topics import GNSS_FIX, NAV_FIX, TRUTH_CLOCK, TRUTH_NAV
@@ -335,6 +335,12 @@ def format_score(name: str, s: Score) -> str:
 
 
 def plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], truth: Truth) -> list[Path]:
+    """The score's figures into ``out_dir``: all of them, or none (an earlier run's left as they were)."""
+    with written_together():
+        return _plots(out_dir, named, truth)
+
+
+def _plots(out_dir: Path, named: dict[str, tuple[dict[str, np.ndarray], Score]], truth: Truth) -> list[Path]:
     try:
         plt = pyplot()
     except PlotsUnavailable as exc:

@@ -20,7 +20,7 @@ import numpy as np
 
 from logger.exports.plotting import pyplot
 from logger.exports.raw_stream import recorded_config
-from logger.exports.whole import save_figure
+from logger.exports.whole import save_figure, written_together
 from logger.recording.drive import DriveFile, DriveFileError, iter_messages, open_drive
 from logger.recording.topics import BARO, GNSS_FIX, IMU, OBD_SPEED, PPS, TRUTH_CLOCK
 
@@ -183,6 +183,12 @@ def render(out: dict) -> str:
 
 
 def plots(drive: Drive, out_dir: Path) -> list[Path]:
+    """Figures 18 and 19 of the drive into ``out_dir``: both, or neither (an earlier pair left as it was)."""
+    with written_together():
+        return _plots(drive, out_dir)
+
+
+def _plots(drive: Drive, out_dir: Path) -> list[Path]:
     plt = pyplot()
     out_dir.mkdir(parents=True, exist_ok=True)
     imu = drive.topics.get(IMU, [])

@@ -5,7 +5,10 @@ drive exported again with other options). Written in place, a failure part-way (
 truncated GPX or ``trajectory.mcap`` where the good one had been, and a folder mixing both runs. So each output is
 written to a partial file beside it (``.NAME.partial``, hidden, in the same folder so that the rename cannot cross
 file systems) and renamed over the old one only once it is complete; on a failure the partial file is removed and
-the old output stays as it was. An error writing says which output it was: a write's ``OSError`` names no file.
+the old output stays as it was. The outputs of one run go in together (:func:`written_together`): all of them
+once every one is complete, or none, so that a folder never holds one run's CSV beside another's GPX or
+``trajectory.mcap``. An error writing says which output it was (a write's ``OSError`` names no file, a rename's
+the hidden partial file).
 
 An export made of several files (the receiver's stream with its RINEX) is staged in a hidden folder inside the
 output folder and moved into place whole. A run killed outright (SIGKILL, a power cut, the terminal's window
@@ -18,6 +21,8 @@ output replaces it.
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import errno
 import os
 import shutil
 from collections.abc import Iterator
@@ -73,19 +78,91 @@ def partial_path(path: Path) -> Path:
 
 @contextlib.contextmanager
 def written_whole(path: Path, mode: str = "w", **open_kw: Any) -> Iterator[IO[Any]]:
-    """``open(path, mode)`` for writing, with ``path`` replaced only when the block ends without an error."""
+    """``open(path, mode)`` for writing, with ``path`` replaced only when the block ends without an error; inside
+    :func:`written_together`, only once every output of that block is complete."""
     tmp = partial_path(path)
     try:
         with open(tmp, mode, **open_kw) as f:
             yield f
-        os.replace(tmp, path)
+        _complete(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        if isinstance(exc, OSError) and not exc.filename:
-            exc.filename = str(path)  # a write's error names no file: the output it was writing
+        _name_output(exc, path)
         raise
 
+
+@contextlib.contextmanager
+def written_together() -> Iterator[None]:
+    """The outputs written whole inside the block are put in place together, once the block ends without an error;
+    on an error none is, and the folder keeps an earlier run's set as it was. A run's outputs are one set: a CSV
+    and a ``trajectory.mcap``, or a GPX beside a CSV, from two runs would disagree without a word (a full disk
+    after the first of them left exactly that)."""
+    done: list[tuple[Path, Path]] = []
+    token = _TOGETHER.set(done)
+    try:
+        yield
+    except BaseException:
+        _discard(done)
+        raise
+    finally:
+        _TOGETHER.reset(token)
+    _put_in_place(done)
+
+
+def adopt(done: Path, path: Path) -> None:
+    """A complete file made elsewhere on the output's file system (a staging folder) becomes the output ``path``:
+    at once, or with the rest of the set inside :func:`written_together`."""
+    tmp = partial_path(path)
+    try:
+        os.replace(done, tmp)
+    except OSError as exc:
+        _name_output(exc, path)
+        raise
+    _complete(tmp, path)
+
+
+_TOGETHER: contextvars.ContextVar[list[tuple[Path, Path]] | None] = contextvars.ContextVar("together", default=None)
+
+
+def _put_in_place(done: list[tuple[Path, Path]]) -> None:
+    """Rename each complete partial file over its output. A rename in one folder needs no space; what can refuse it
+    (an output's name taken by a folder) is looked for first, so that a set is not left half replaced."""
+    try:
+        for _, path in done:
+            if path.is_dir() and not path.is_symlink():
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        for tmp, path in done:
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                _name_output(exc, path)
+                raise
+    except BaseException:
+        _discard(done)
+        raise
+
+
+def _complete(tmp: Path, path: Path) -> None:
+    """The partial file ``tmp`` of ``path`` is complete: in place now, or with its set at the end of it."""
+    together = _TOGETHER.get()
+    if together is None:
+        _put_in_place([(tmp, path)])
+    else:
+        together.append((tmp, path))
+
+
+def _discard(done: list[tuple[Path, Path]]) -> None:
+    for tmp, _ in done:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+def _name_output(exc: BaseException, path: Path) -> None:
+    """An error writing says which output it was: a write's ``OSError`` names no file, and a rename's names the
+    hidden partial file the user never asked for."""
+    if isinstance(exc, OSError) and (not exc.filename or Path(exc.filename) == partial_path(path)):
+        exc.filename, exc.filename2 = str(path), None
 
 
 def save_figure(fig: Any, path: Path, dpi: int) -> None:
