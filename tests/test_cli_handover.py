@@ -207,6 +207,24 @@ def test_a_reader_that_closes_the_pipe_early_gets_no_traceback() -> None:
 
 
 
+def test_ctrl_c_ends_a_command_with_one_line_and_the_shells_code() -> None:
+    """Ctrl-C during an office command (a replay, an export): no traceback, one line, the shell's 130."""
+    code = ("import os, signal, sys, time\n"
+            "import logger.cli as cli\n"
+            "import types\n"
+            "m = types.ModuleType('slow_work')\n"
+            "def main(args):\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    time.sleep(30)\n"
+            "    return 0\n"
+            "m.main = main\n"
+            "sys.modules['slow_work'] = m\n"
+            "sys.exit(cli.run_subcommand('slow_work', []))\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 130, p.stderr
+    assert p.stderr == "\nlogger slow-work: interrupted; nothing more written\n", p.stderr
+
+
 @pytest.mark.parametrize("flag", ["--help", "--version"])
 def test_help_and_version_into_a_closed_pipe_get_no_traceback(flag: str) -> None:
     """``logger --help | head -3`` on a slow board: the reader may be gone before the text is written."""

@@ -199,6 +199,11 @@ def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> Non
     r = recover("-o", str(tmp_path / "missing" / "x.mcap"))
     assert r.returncode == 1 and r.stderr == (f"logger recover: -o {tmp_path / 'missing' / 'x.mcap'}: the folder "
                                               f"{tmp_path / 'missing'} does not exist\n"), r.stderr
+    # A folder named with its slash is a folder even before it exists: said to be missing, not made a file.
+    r = recover("-o", str(tmp_path / "new") + "/")
+    assert r.returncode == 1 and r.stderr == (f"logger recover: -o {tmp_path / 'new'}/: the folder "
+                                              f"{tmp_path / 'new'} does not exist\n"), r.stderr
+    assert not (tmp_path / "new").exists()
     r = recover("-o", str(folder))
     assert r.returncode == 0, r.stderr
     assert is_finished(folder / cut.name) and sorted(os.listdir(folder)) == [cut.name]
@@ -212,5 +217,18 @@ def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> Non
     assert r.stderr == f"logger recover: -o {other} already exists and is not {cut}: name a new file or a folder\n"
     r = recover("-o", str(folder))  # the folder already holds the earlier output under FILE's name
     assert r.returncode == 2 and "already exists" in r.stderr
+    # A copy that fills its disk (a write past the size limit fails as on a full card) is said of the copy.
+    import resource
+    import signal
+
+    def small_disk() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
+
+    r = subprocess.run([sys.executable, "-m", "logger.cli", "recover", str(cut), "-o", str(tmp_path / "big.mcap")],
+                       capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[1],
+                       preexec_fn=small_disk)
+    assert r.returncode == 1 and r.stderr == f"logger recover: {tmp_path / 'big.mcap'}: File too large\n", r.stderr
+    assert not list(tmp_path.glob("big.mcap*"))
     r = recover("-o", str(cut))
     assert r.returncode == 0 and is_finished(cut), r.stderr

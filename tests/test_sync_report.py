@@ -97,3 +97,20 @@ def test_a_figures_folder_that_cannot_be_one_is_said_before_the_work(tmp_path, c
     assert main(["nav-score", str(tmp_path / "t.csv"), "--plots", str(afile / "sub")]) == 2
     assert capsys.readouterr().err == (f"logger nav-score: --plots {afile / 'sub'}: cannot be made, {afile} is a "
                                        "file and not a folder\n")
+
+
+def test_the_figures_into_a_closed_pipe_end_quietly(tmp_path: Path) -> None:
+    """``logger sync-report D --png-dir DIR | head -1``: the reader gone, the command ends as every other does (141,
+    no line), not as a failure to write the figures ("[Errno 32] Broken pipe", exit 2)."""
+    import subprocess
+    import sys
+
+    drive = locked_drive(tmp_path / "drive_20261205T094239Z_0001.mcap")
+    p = subprocess.Popen([sys.executable, "-m", "logger.cli", "sync-report", str(drive), "--png-dir",
+                          str(tmp_path / "png")], cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    assert p.stdout is not None
+    p.stdout.readline()
+    p.stdout.close()
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 141 and b"Broken pipe" not in err and b"Traceback" not in err, err

@@ -155,6 +155,8 @@ def main(argv: list[str]) -> int:
         try:
             for p in plots(args.plots, named, truth):
                 print(f"wrote {p}")
+        except BrokenPipeError:
+            raise  # the reader of stdout went away (| head): ended quietly by the command line
         except OSError as exc:  # a disk full, a folder changed meanwhile
             print(f"{PROG}: {os_error_line(exc)}", file=sys.stderr)
             return 2

@@ -8,6 +8,7 @@ way the line says what was kept and what was lost (chunks, messages, when), so n
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -25,8 +26,10 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     src = Path(args.file)
     out = Path(args.out) if args.out is not None else None
-    if out is not None and out.is_dir():
-        out = out / src.name  # a folder: the recovered file goes into it under the source's name
+    if out is not None and (out.is_dir() or args.out.endswith(os.sep)):
+        # A folder (one to be made, when written with its slash): the recovered file goes into it under the
+        # source's name.
+        out = out / src.name
     if out is not None and not out.parent.is_dir():
         print(f"logger recover: -o {args.out}: the folder {out.parent} does not exist", file=sys.stderr)
         return 1

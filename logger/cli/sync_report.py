@@ -53,6 +53,8 @@ def main(argv: list[str]) -> int:
         except PlotsUnavailable as exc:
             print(exc, file=sys.stderr)
             return 1
+        except BrokenPipeError:
+            raise  # the reader of stdout went away (| head): ended quietly by the command line
         except OSError as exc:  # a disk full, a folder changed meanwhile
             print(f"logger sync-report: {os_error_line(exc)}", file=sys.stderr)
             return 2

@@ -599,8 +599,10 @@ def recover(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = N
         with contextlib.suppress(OSError):  # the source's permissions (the logger's 0640), not the caller's umask
             os.chmod(tmp, src.stat().st_mode & 0o777)
         os.replace(tmp, dst)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)  # a full disk, a folder as OUT: the source is untouched, no half copy left
+        if isinstance(exc, OSError) and (not exc.filename or Path(exc.filename) == tmp):
+            exc.filename, exc.filename2 = str(dst), None  # a write names no file: the copy's disk, not the source's
         raise
     _fsync_dir(dst.parent)
     return RecoveryReport(dst, found.message_count - orphans, found.chunks_ok, found.chunks_bad, orphans,
