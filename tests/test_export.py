@@ -28,9 +28,10 @@ from helpers_drive import drive_timeout
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from logger.cli.export import drive_name
+from logger.cli.outputs import drive_name
 from logger.compose import build
 from logger.config import defaults
+from logger.recording.drive import open_drive
 from logger.recording.files import is_finished, walk
 from logger.recording.topics import TOPICS
 
@@ -134,7 +135,7 @@ def gpx_tracks(path: Path) -> dict[str, list[list[ET.Element]]]:
 def test_gpx_holds_every_valid_fix_split_at_the_outage(drive: Drive, tmp_path: Path) -> None:
     r = run("export", *map(str, drive.files), drive.replay.as_posix(), "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
-    name = drive_name(drive.files)
+    name = drive_name(open_drive(drive.files))
     tracks = gpx_tracks(tmp_path / f"{name}.gpx")
     assert list(tracks) == ["/gnss/fix", "/nav/fix", f"/nav/fix (replay: {drive.replay.name})"]
 
@@ -175,7 +176,7 @@ def test_gpx_holds_every_valid_fix_split_at_the_outage(drive: Drive, tmp_path: P
 def test_kml_and_csv_agree_with_the_gpx(drive: Drive, tmp_path: Path) -> None:
     r = run("export", *map(str, drive.files), "--out", str(tmp_path), "--gap-marks", "--topic", "/gnss/fix")
     assert r.returncode == 0, r.stderr
-    name = drive_name(drive.files)
+    name = drive_name(open_drive(drive.files))
     segs = gpx_tracks(tmp_path / f"{name}.gpx")["/gnss/fix"]
     root = ET.parse(tmp_path / f"{name}.kml").getroot()
     assert root.tag == f"{KML}kml"
@@ -213,7 +214,7 @@ def test_kml_and_csv_agree_with_the_gpx(drive: Drive, tmp_path: Path) -> None:
 def test_msl_heights_use_the_receivers_geoid(drive: Drive, tmp_path: Path) -> None:
     r = run("export", *map(str, drive.files), "--out", str(tmp_path), "--format", "gpx", "--height", "msl")
     assert r.returncode == 0, r.stderr
-    tracks = gpx_tracks(tmp_path / f"{drive_name(drive.files)}.gpx")
+    tracks = gpx_tracks(tmp_path / f"{drive_name(open_drive(drive.files))}.gpx")
     fixes = [m for _, m in recorded(drive.files, "/gnss/fix") if valid_fix(m)]
     gnss = [p for s in tracks["/gnss/fix"] for p in s]
     for p, m in zip(gnss, fixes, strict=True):
@@ -235,7 +236,7 @@ def test_a_file_cut_short_is_read_up_to_the_cut(drive: Drive, tmp_path: Path) ->
     whole = [m for _, m in recorded(drive.files[-1:], "/gnss/fix") if valid_fix(m)]
     assert 0 < len(from_cut) < len(whole)
     expected = [m for _, m in recorded(files, "/gnss/fix") if valid_fix(m)]
-    with open(tmp_path / f"{drive_name(files)}_gnss_fix.csv", newline="") as f:
+    with open(tmp_path / f"{drive_name(open_drive(files))}_gnss_fix.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [float(r["lat_deg"]) for r in rows] == pytest.approx([m["latitude"] for m in expected], abs=1e-9)
 
@@ -488,3 +489,15 @@ def test_any_export_removes_a_killed_exports_stage(drive: Drive, tmp_path: Path)
     assert r.returncode == 0, r.stderr
     assert f"logger export: removed {stale}, left by an export that was killed\n" in r.stderr, r.stderr
     assert not stale.exists() and (live / "drive.ubx").exists()
+
+
+def test_the_outputs_are_named_for_the_drive_whatever_order_its_files_come_in(drive: Drive, tmp_path: Path) -> None:
+    """A drive's parts are named by the times they began: given last part first, the outputs were named for the last
+    part and sat beside the ones named for the first."""
+    assert len(drive.files) >= 2
+    for order, out in ((drive.files, tmp_path / "forward"), (drive.files[::-1], tmp_path / "backward")):
+        r = run("export", *map(str, order), "--out", str(out), "--format", "gpx")
+        assert r.returncode == 0, r.stderr
+    first = re.sub(r"_\d{4}$", "", drive.files[0].stem)
+    assert [p.name for p in (tmp_path / "backward").iterdir()] == [f"{first}.gpx"]
+    assert [p.name for p in (tmp_path / "forward").iterdir()] == [f"{first}.gpx"]

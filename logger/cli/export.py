@@ -122,7 +122,7 @@ def export(files: list[DriveFile], out: Path, formats: list[str], topics: list[s
     if not chosen:
         return [t for t in tracks if t.topic in topics], []
     out.mkdir(parents=True, exist_ok=True)
-    name = drive_name([f.path for f in files])
+    name = drive_name(files)
     written = []
     with written_together():  # one run's tracks: a GPX beside another run's CSV would disagree without a word
         if "gpx" in formats:
@@ -253,7 +253,7 @@ def main(argv: list[str]) -> int:
     streamed: list[Path] = []
     if any(f in STREAM_FORMATS for f in formats):
         try:
-            streamed = export_stream(files, args.out, drive_name([f.path for f in files]), "rinex" in formats,
+            streamed = export_stream(files, args.out, drive_name(files), "rinex" in formats,
                                      "ubx" in formats, args.config)
         except (DriveFileError, ConvbinError, UsageError) as exc:
             print(f"logger export: {exc}", file=sys.stderr)

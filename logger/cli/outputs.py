@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from logger.recording.drive import drive_stem
+from logger.recording.drive import DriveFile, drive_stem
 
 
 def out_folder_problem(out: Path, option: str = "--out") -> str | None:
@@ -42,6 +42,18 @@ def os_error_line(exc: OSError) -> str:
     return f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc)
 
 
-def drive_name(paths: list[Path]) -> str:
-    """The name of the outputs: the first file's stem without the rotation number (``drive_..._0001``)."""
-    return drive_stem(paths[0]) or "drive"
+def drive_name(files: list[DriveFile]) -> str:
+    """The name of the outputs: the drive's first file's stem without the rotation number (``drive_..._0001``),
+    whatever order the files were given in (a drive's parts are named by the times they began): the part numbered
+    first by the recorder, else the daemon's file whose name sorts first, else the first file given."""
+    if not files:
+        return "drive"
+    numbered = [f for f in files if f.run is not None]
+    live = [f for f in files if f.origin == "live"]
+    if numbered:
+        first = min(numbered, key=lambda f: (f.run[1] if f.run else 0, f.path.name)).path
+    elif live:
+        first = min(f.path for f in live)
+    else:
+        first = files[0].path
+    return drive_stem(first) or "drive"

@@ -244,7 +244,7 @@ def main(argv: list[str]) -> int:
     span_s = (messages[-1].log_time - t0) / 1e9
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        name = drive_name([f.path for f in files])
+        name = drive_name(files)
         with written_together():  # one run's figures, or none
             progress.stage("drawing the map")
             written = [draw_map(plt, tracks, args.out / f"{name}_map.png")]
