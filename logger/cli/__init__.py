@@ -125,15 +125,16 @@ def near_miss(word: str) -> str | None:
 
 
 def run_subcommand(module_name: str, args: list[str]) -> int:
-    """A subcommand; a reader that closes the pipe early (``logger info F | head -1``) ends it quietly, and so does
-    Ctrl-C at the office (a replay or an export stopped part-way: its outputs are written whole or not at all, so
-    there is nothing to tell but that it stopped)."""
+    """A subcommand; a reader that closes the pipe early (``logger info F | head -1``) ends it quietly, and Ctrl-C
+    with one line (a replay or an export stopped part-way writes its outputs whole or not at all; ``logger run``
+    stopped before its own handlers are in place has recorded nothing yet, or leaves a file the next start
+    recovers)."""
     module = importlib.import_module(module_name)
     try:
         return quiet_on_closed_pipe(lambda: int(module.main(args) or 0))
     except KeyboardInterrupt:
         name = module_name.rsplit(".", 1)[-1].replace("_", "-")
-        print(f"\nlogger {name}: interrupted; nothing more written", file=sys.stderr)
+        print(f"\nlogger {name}: interrupted", file=sys.stderr)
         return 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
 
 
