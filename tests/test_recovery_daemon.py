@@ -232,3 +232,39 @@ def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> Non
     assert not list(tmp_path.glob("big.mcap*"))
     r = recover("-o", str(cut))
     assert r.returncode == 0 and is_finished(cut), r.stderr
+
+
+def test_a_second_simulated_run_into_the_same_folder_is_refused(tmp_path: Path) -> None:
+    """`logger run --sim --out DIR` twice: the second took a status socket of its own (so as not to take the
+    first's) and recorded into DIR beside the first, two drives in one folder and one clock state. The state
+    folder's lock refuses it, whatever the sockets; a run into another folder beside it goes on."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "drives"
+
+    def logger_run(folder: Path, seconds: str) -> subprocess.Popen[str]:
+        return subprocess.Popen([sys.executable, "-m", "logger.cli", "run", "--sim", "--out", str(folder),
+                                 "--duration", seconds], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)
+
+    first = logger_run(out, "600")
+    try:
+        lock = out / ".state" / "lock"
+        wait_until(lambda: lock.exists() and lock.read_text().strip() == str(first.pid), "the first run's lock")
+        second = logger_run(out, "5")
+        _, err = second.communicate(timeout=60)
+        assert second.returncode == 1, err
+        assert err == (f"logger: {out / '.state'}: in use by another logger (pid {first.pid}): one logger records "
+                       "at a time; stop that one first\n"), err
+        beside = logger_run(tmp_path / "other", "2")
+        _, err = beside.communicate(timeout=120)
+        assert beside.returncode == 0, err
+    finally:
+        os.killpg(first.pid, signal.SIGTERM)
+        first.communicate(timeout=60)
+    assert first.returncode == 0
+    assert len(list(out.glob("drive_*.mcap"))) == 1

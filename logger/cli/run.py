@@ -30,6 +30,7 @@ from logger.config import (
 )
 from logger.runtime import logs
 from logger.runtime.daemon import Daemon
+from logger.runtime.state_file import StateInUse, lock_state, unlock_state
 from logger.runtime.status_socket import free_sim_socket
 from logger.runtime.summary import run_summary, shortfalls
 
@@ -123,6 +124,18 @@ def main(argv: list[str]) -> int:
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         print("logger: --duration must be a positive number of seconds", file=sys.stderr)
         return 2
+    try:
+        lock = lock_state(Path(cfg["logger"]["state_dir"]))  # one logger per state folder, for the whole run
+    except StateInUse as exc:
+        print(f"logger: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 1
+    try:
+        return _run(args, cfg)
+    finally:
+        unlock_state(lock)
+
+
+def _run(args: argparse.Namespace, cfg: Config) -> int:
     try:
         daemon, _vehicle = build(cfg, args.duration)
     except ConfigError as exc:

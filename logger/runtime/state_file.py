@@ -1,7 +1,11 @@
-"""What the daemon keeps in its state folder from one drive to the next: written whole or not at all."""
+"""What the daemon keeps in its state folder from one drive to the next: written whole or not at all; and the
+folder's lock, which lets one logger at a time use it."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import json
 import logging
 import os
@@ -40,3 +44,54 @@ def save_json(path: Path, state: dict[str, Any], what: str) -> bool:
     except OSError:
         pass
     return True
+
+
+LOCK_NAME = "lock"
+
+
+class StateInUse(OSError):
+    """Another logger holds the state folder: it is recording with this configuration's folders."""
+
+
+def lock_state(folder: Path) -> int | None:
+    """Hold ``folder``'s lock for as long as the returned descriptor stays open (the process's life, or
+    :func:`unlock_state`): one logger per state folder, hence per recording folder and clock state.
+
+    The status socket already refuses a second logger of the same configuration, but only where both look for
+    it: a second simulated run beside a first takes a socket of its own, and recorded into the same folder (its
+    start-up recovery rewriting the first one's open file as a crash's). The lock holds whatever the sockets, and
+    is gone with its process, however that ends (no stale lock after a power cut). Raises :class:`StateInUse`
+    when another process holds it; a folder that cannot be locked at all (made, written: the recorder says what
+    it can of such a folder) is a warning, and the run goes on as before the lock."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+    except OSError as exc:
+        log.warning("cannot lock the state folder %s (%s): a second logger on it would not be refused",
+                    folder, exc.strerror or exc)
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        try:
+            pid = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        except OSError:
+            pid = "?"
+        os.close(fd)
+        raise StateInUse(errno.EBUSY, f"in use by another logger (pid {pid}): one logger records at a time; stop "
+                         "that one first", str(folder)) from None
+    except OSError as exc:  # a file system without locks
+        os.close(fd)
+        log.warning("cannot lock the state folder %s (%s): a second logger on it would not be refused",
+                    folder, exc.strerror or exc)
+        return None
+    with contextlib.suppress(OSError):  # who holds it, for the next one's line
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd
+
+
+def unlock_state(fd: int | None) -> None:
+    if fd is not None:
+        with contextlib.suppress(OSError):
+            os.close(fd)
