@@ -435,3 +435,56 @@ def test_live_check_scores_the_recorded_and_the_offered_live_solution(recorded: 
 
     # The daemon's order gives replay's solution (scored at the five fixes a second against every row).
     assert max(abs(a - b) for a, b in zip(rmse("navigator, as offered"), rmse("replay, forward"), strict=True)) < 0.05
+
+
+def test_a_filter_failing_batch_after_batch_is_a_problem_said_once_a_minute(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A filter that fails on every batch (restarted each time) showed `logger OK`, its row saying "initialising:
+    waiting for the IMU: no sample yet" while the IMU delivered, and logged a traceback every 2 s. Now the row says
+    it fails, the daemon's status counts it as a problem, and the traceback is logged once a minute at most."""
+    import logging
+
+    from test_notify import make_daemon
+
+    from logger.runtime import navigator as navmod
+
+    caplog.set_level(logging.INFO)
+    nav = Navigator(NavParams(), publish=lambda r: None)
+
+    def broken(batch: list) -> None:
+        raise FloatingPointError("singular covariance")
+
+    nav.take = broken  # type: ignore[method-assign]
+    nav.start()
+    try:
+        drive = make_drive("urban", seed=3, duration_s=20.0)
+        for _, topic, msg in records(drive, 20.0, seed=3):
+            nav.offer(topic, msg)
+            if nav.queued >= 200:
+                nav._wake.set()
+                deadline = time.monotonic() + 10.0
+                while nav.queued and time.monotonic() < deadline:
+                    time.sleep(0.01)
+        deadline = time.monotonic() + 20.0
+        while nav.failures < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        nav.stop()
+    assert nav.failures >= 3
+    line = (f"filter failing: FloatingPointError: singular covariance (restarted after each of {nav.failures} "
+            "failures)")
+    sec = nav.section()
+    assert sec["verdicts"] == [line] and sec["problems"] == [f"nav: {line}"], sec
+    logged = [r for r in caplog.records if r.getMessage().startswith("navigation filter failed")]
+    assert len(logged) == 1 and logged[0].exc_info is not None, [r.getMessage() for r in logged]
+    # In the daemon's status: one of its problems (this daemon is not started: its recorder's is there too).
+    d = make_daemon(tmp_path, [], "")
+    d._started_mono = d.tb.monotonic_ns()
+    without = d.snapshot()["problems"]
+    d.attachments.sections["nav"] = nav.section
+    assert d.snapshot()["problems"] == [*without, f"nav: {line}"]
+    # Once it no longer fails (FAILING_S since the last failure), a restart after an error is only noted.
+    nav._failed_at -= navmod.FAILING_S
+    sec = nav.section()
+    assert "problems" not in sec and sec["verdicts"][-1] == "filter restarted after an error: FloatingPointError: " \
+        "singular covariance", sec

@@ -75,7 +75,8 @@ class Attachments:
 
     periodic: list[tuple[float, Callable[[], list[Reading]]]] = field(default_factory=list)
     taps: list[Any] = field(default_factory=list)  # objects with offer(topic, payload) -> None, never blocking
-    sections: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)  # extra status sections
+    # Extra status sections; one's "problems" (a list of lines) count in the status's verdict, as the sensors' do.
+    sections: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     close: list[Callable[[], None]] = field(default_factory=list)
     # Queues beside the recorder's (the navigator's): (depth, size) now, so that a simulated drive slows down
@@ -421,6 +422,9 @@ class Daemon:
         recent = dropped - self._drop_history[0][1]
         if recent:
             problems.append(f"recorder: {recent} records dropped in the last minute (queue full: writer too slow)")
+        sections = {name: fn() for name, fn in self.attachments.sections.items()}
+        for sec in sections.values():  # an attachment's own problems (the navigator's filter failing)
+            problems += sec.get("problems", [])
         verdict = "critical" if critical else ("degraded" if problems else "ok")
         recovering = self._recovering
         if recovering is not None:
@@ -432,7 +436,7 @@ class Daemon:
             "uptime_s": (now - self._started_mono) / 1e9, "sensors": sensors,
             "sync": self._sync_section(now), "gnss": self.gnss_watch.section(now),
             "recorder": rec_section, "pace": self.tb.pace(),
-            **{name: fn() for name, fn in self.attachments.sections.items()},
+            **sections,
         }
 
     def _sensor_rows(self, now: int) -> tuple[list[dict[str, Any]], list[str]]:

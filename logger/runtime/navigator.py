@@ -48,6 +48,7 @@ from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state, tempco_state
 from logger.runtime.daemon import Attachments
 from logger.runtime.sampler import Reading
+from logger.words import plural
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,8 @@ INPUT_TOPICS = frozenset((*NAV_INPUT_TOPICS, IMU_BATCH))  # live, a FIFO read co
 # core at 20 Hz, the daemon 0.51-0.57 against 0.58-0.62 % (tools/bench_daemon.py, three pairs of 150 s windows
 # alternated); the live solution in `logger status` is then up to two seconds old instead of one.
 WAKE_S = 2.0
+FAILING_S = 3 * WAKE_S  # a failure this recent (real seconds): the filter is failing now, a problem in the status
+FAILURE_LOG_REPEAT_S = 60.0  # a filter failing batch after batch is logged with its traceback at most this often
 STALE_S = WAKE_S + 3.0  # a solution older than this (real seconds) is shown as the past it is
 HOLD_MAX_NS = 2_000_000_000  # a measurement waits for the IMU samples before it at most this long (record time)
 
@@ -120,6 +123,10 @@ class Navigator:
         self._verdicts: list[str] = []
         self._outage_line: int | None = None  # where in _verdicts the outage's line is (HealthJudge.outage_line)
         self.error: str = ""
+        self.failures = 0
+        self._failed_at: float | None = None  # time.monotonic() of the last failure
+        self._failure_logged_at = -math.inf
+        self._failures_unlogged = 0
         self._held: list[tuple[str, dict[str, Any]]] = []  # measurements ahead of the IMU samples taken so far
         self._newest_ns: int | None = None  # the latest record time offered
 
@@ -211,11 +218,29 @@ class Navigator:
                     self.take(batch)
                 self.rerun_if_due()
             except Exception as exc:  # a bug in the filter must not take the logger down: report, restart it
-                log.exception("navigation filter failed; restarting it")
-                self.error = f"{type(exc).__name__}: {exc}"
+                self._failed(exc)
                 with self._lock:
                     self.rerun = NavRerun(self.params, self._make_engine, deferred=True)
             self.cpu_s = time.thread_time() - cpu0
+
+    def _failed(self, exc: Exception) -> None:
+        """A batch the filter failed on: counted, and logged with its traceback, once a minute at most (a filter
+        that fails on every batch wrote a traceback every 2 s into the journal)."""
+        now = time.monotonic()
+        self.failures += 1
+        self._failed_at = now
+        self.error = f"{type(exc).__name__}: {exc}"
+        if now - self._failure_logged_at >= FAILURE_LOG_REPEAT_S:
+            unlogged = self._failures_unlogged
+            log.exception("navigation filter failed; restarting it%s",
+                          f" ({unlogged} more failures since the last logged)" if unlogged else "")
+            self._failure_logged_at, self._failures_unlogged = now, 0
+        else:
+            self._failures_unlogged += 1
+
+    def failing(self) -> bool:
+        """Whether the filter failed within FAILING_S: restarted, and failing again."""
+        return self._failed_at is not None and time.monotonic() - self._failed_at < FAILING_S
 
     def in_time_order(self, records: list[tuple[str, dict[str, Any]]],
                       release: bool = False) -> list[tuple[str, dict[str, Any]]]:
@@ -391,8 +416,6 @@ class Navigator:
                                    "dropped": self.dropped, "processed": self.processed,
                                    "cpu_s": round(self.cpu_s, 3), "resets": self.engine.counters.resets,
                                    "live_s": round(self._live_ns / 1e9, 1)}
-            if self.error:
-                out["verdicts"].append(f"filter restarted after an error: {self.error}")
             if sol is not None:
                 out.update(lat_deg=math.degrees(sol.lat_rad), lon_deg=math.degrees(sol.lon_rad), height_m=sol.h_m,
                            sigma_h_m=math.hypot(sol.sigma_ned[0], sol.sigma_ned[1])
@@ -415,6 +438,14 @@ class Navigator:
                     line = outage_verdict(self.engine, age_s)
                     if line is not None:
                         out["verdicts"][self._outage_line] = line
+            if self.failing():
+                # Its verdicts are a restarted filter's ("initialising: waiting for the IMU" while the IMU delivers):
+                # what is true is that it fails. A problem for the status's verdict too.
+                line = f"filter failing: {self.error} (restarted after each of {plural(self.failures, 'failure')})"
+                out["verdicts"] = [line]
+                out["problems"] = [f"nav: {line}"]
+            elif self.error:
+                out["verdicts"].append(f"filter restarted after an error: {self.error}")
             if self.dropped:
                 out["verdicts"].append(f"navigator behind: {self.dropped} records skipped")
             return out
