@@ -65,6 +65,7 @@ SILENT = "silent"  # the row state of a running sensor from which nothing comes 
 # The service loop's status line and journal take the health loop's snapshot while it is this fresh (drive ns):
 # that loop takes one every drive second, and a second snapshot a second cost the daemon as much again.
 SHARED_SNAPSHOT_NS = 1_500_000_000
+OPEN_GRACE_S = 15.0  # real seconds from the start a sensor's first open may take before it is a problem
 READY_TIMEOUT_S = 60.0  # READY=1 even if a sensor's first open has not returned by then: degraded, not failed
 
 
@@ -472,12 +473,22 @@ class Daemon:
                 return ""  # told to stop (a SIGTERM): each sampler says so once it has, which is no fault
             if snap["last_error"]:
                 return f"{snap['state']}: {snap['last_error']}"
-            return "starting: opening the device" if snap["state"] == "starting" else snap["state"]
+            if snap["state"] == "starting":
+                # Its first open still going on: an ELM327's protocol search, a receiver's set-up answered message
+                # by message take seconds at every start, which is not a fault (the row says starting); an open that
+                # has not returned after OPEN_GRACE_S is one.
+                opening_s = (now - self._started_mono) / 1e9 / self.tb.scale  # real seconds
+                return f"starting: opening the device for {opening_s:.0f} s" if opening_s > OPEN_GRACE_S else ""
+            return snap["state"]
         if (now - s.health.heartbeat_mono_ns) / 1e9 / self.tb.scale > HEARTBEAT_STALE_S:  # real seconds
             snap["state"], snap["measured_rate_hz"] = "stalled", None
             return "thread not responding"
         age = snap["last_sample_age_s"]
         since_ok = (now - s.health.ok_since_mono_ns) / 1e9
+        if age is not None and age > since_ok:
+            # The last sample came before the device was opened again (a receiver unplugged and back): its silence
+            # is counted from the reopening, as at the first start ("no sample for 27 s" the moment it was back).
+            age = None
         limit = 3.0 / snap["rate_hz"] + 1.0 if snap["rate_hz"] else None
         if limit is not None and (age if age is not None else since_ok) > limit:
             snap["state"], snap["measured_rate_hz"] = SILENT, None
@@ -486,7 +497,7 @@ class Daemon:
             if age is None:
                 return f"no {what} since it was opened {since_ok:.0f} s ago{why}"
             return f"no {what} for {age:.0f} s{why}"
-        if age is None:  # open, nothing from it yet and not overdue: starting, not "ok at 0 Hz"
+        if age is None:  # open, nothing from it (since it was opened) and not overdue: starting, not "ok at 0 Hz"
             snap["state"], snap["measured_rate_hz"] = "starting", None
             return ""
         if snap["name"] == "gnss" and no_fix:
