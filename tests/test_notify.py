@@ -400,10 +400,14 @@ def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[F
     assert len(ended) == 1 and "no answer (no ACK): check wiring" in ended[0], text
     assert not any(line.startswith("  ! steady") for line in text.splitlines()), text
     # Its file deleted after the run: the first line no longer says the drive is all there.
+    assert "next:" in text and f"  logger info {d.recorder.files()[0]}" in text
     (gone,) = d.recorder.files()
     gone.unlink()
-    first = run_summary(d).splitlines()[0]
+    text = run_summary(d)
+    first = text.splitlines()[0]
     assert first.endswith("(1 file of them no longer there: deleted or moved)"), first
+    # ... and suggests no command on it (logger info of a deleted file fails): none left, no "next:" at all.
+    assert "next:" not in text and str(gone) in text, text
 
 
 # ---- problems into the journal ---------------------------------------------------------------------------------

@@ -79,8 +79,9 @@ def run_summary(daemon: Daemon) -> str:
     nav = daemon.attachments.sections.get("nav")
     if nav is not None:
         lines.append("  " + nav_line(nav()))
-    if files:
-        drive = " ".join(map(str, files))
+    there = [p for p, state in zip(files, states, strict=True) if state is not None]
+    if there:  # the files still there: a command naming a deleted one fails on it
+        drive = " ".join(map(str, there))
         lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/",
                   f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
     return "\n".join(lines)
