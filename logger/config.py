@@ -101,6 +101,25 @@ def _abs_path(v: str) -> str | None:
     return None if v.startswith("/") else "must be an absolute path"
 
 
+SOCKET_PATH_MAX = 107  # bytes of a Unix socket's path (sun_path is 108, its NUL included)
+IFNAME_MAX = 15  # a network interface's name (IFNAMSIZ 16, its NUL included)
+
+
+def _socket_path(v: str) -> str | None:
+    """An absolute path a Unix socket can have: a longer one is refused by bind() ("AF_UNIX path too long"), which
+    left the logger without its status socket, and without the one-logger check it makes."""
+    problem = _abs_path(v)
+    if problem is None and len(v.encode()) > SOCKET_PATH_MAX:
+        return f"is {len(v.encode())} bytes long: a Unix socket's path holds {SOCKET_PATH_MAX} at most"
+    return problem
+
+
+def _ifname(v: str) -> str | None:
+    if 0 < len(v) <= IFNAME_MAX and v.isprintable() and not any(c in v for c in "/ \t"):
+        return None
+    return f"must be a network interface's name (1 to {IFNAME_MAX} characters, no '/' or space), such as can0"
+
+
 _HOST = re.compile(r"[A-Za-z0-9._:-]{1,253}")
 
 
@@ -164,7 +183,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "out_dir": Key(str, "/var/lib/vehicle-logger/drives", _abs_path, "folder for the MCAP files"),
         "state_dir": Key(str, "/var/lib/vehicle-logger", _abs_path,
                          "kept between runs: the clock state, the mount alignment, the IMU temperature coefficients"),
-        "status_socket": Key(str, "/run/vehicle-logger/status.sock", _abs_path, "Unix socket of `logger status`"),
+        "status_socket": Key(str, "/run/vehicle-logger/status.sock", _socket_path, "Unix socket of `logger status`"),
     },
     "recorder": _defaults_from(RecorderSettings, {
         "flush_interval_s": Key(NUM, FIELD, _range(0.05, 60), "close the chunk and fsync this often"),
@@ -201,7 +220,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "baud": Key(int, 38400, _one_of(9600, 38400, 57600, 115200, 230400, 500000)),
         "protocol": Key(str, "0", _one_of(*"0123456789BC"), "ATSP protocol number, 0 = automatic"),
         "headers": Key(bool, True, None, "ask the adapter for headers: tells which ECU answered, prefers the engine"),
-        "channel": Key(str, "can0", None, "SocketCAN interface for source = 'can'"),
+        "channel": Key(str, "can0", _ifname, "SocketCAN interface for source = 'can'"),
         "extended_id": Key(bool, False, None, "29-bit OBD addressing"),
         "rate_hz": Key(NUM, 2, _range(0.1, 20)),
     },
@@ -233,7 +252,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                               "mean delay of the PPS interrupt's time stamp"),
         "stability_ppm": Key(NUM, FIELD, _range(0.01, 100), "how far the board clock may wander unseen (holdover)"),
         "max_slew_ppm": Key(NUM, FIELD, _range(1, 10000), "how fast a correction is slewed in after holdover"),
-        "chrony_sock": Key(str, "", lambda v: None if v == "" else _abs_path(v),
+        "chrony_sock": Key(str, "", lambda v: None if v == "" else _socket_path(v),
                            "chronyd's SOCK refclock socket to hand PPS samples to; empty: off"),
     }),
     "nav": _defaults_from(NavParams, {  # every key is the NavParams field of the same name

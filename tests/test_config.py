@@ -281,3 +281,32 @@ def test_the_receivers_rate_reaches_its_set_up() -> None:
         assert gnss.source.meas_period_ms == period_ms and gnss.expected_hz == expected_hz
     (msg,) = _problems(GOOD.replace('baud = 115200\n', "baud = 115200\nrate_hz = 3\n"))
     assert msg == "logger.toml:17: gnss.rate_hz = 3 must be one of 1, 2, 4, 5, 8, 10, 20, 25"
+
+
+def test_a_socket_path_too_long_and_an_empty_can_interface_are_refused_by_the_check() -> None:
+    """A status socket's path over the 107 bytes bind() takes left the logger without its socket (and without the
+    one-logger check it makes) after `config check` said OK; an empty CAN interface was taken too."""
+    long_path = "/run/" + "x" * 100 + "/status.sock"
+    (msg,) = _problems(GOOD.replace('out_dir = "/data/drives"',
+                                    f'out_dir = "/data/drives"\nstatus_socket = "{long_path}"'))
+    assert msg.endswith(f": logger.status_socket = {long_path!r} is {len(long_path)} bytes long: a Unix socket's "
+                        "path holds 107 at most"), msg
+    (msg,) = _problems(GOOD.replace('source = "elm327"\nport = "/dev/ttyUSB0"', 'source = "can"\nchannel = ""'))
+    assert msg.endswith("obd.channel = '' must be a network interface's name (1 to 15 characters, no '/' or "
+                       "space), such as can0"), msg
+    assert parse(GOOD.replace('source = "elm327"\nport = "/dev/ttyUSB0"', 'source = "can"\nchannel = "can1"'),
+                 "logger.toml")["obd"]["channel"] == "can1"
+
+
+def test_a_folder_named_by_a_file_is_said_by_the_check_and_by_run(tmp_path: Path, capsys) -> None:
+    from logger.cli import main
+
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("not a folder")
+    p = tmp_path / "logger.toml"
+    p.write_text(f'[logger]\nout_dir = "{a_file}"\n')
+    p.chmod(0o640)
+    assert main(["config", "check", "--sim", str(p)]) == 1
+    assert capsys.readouterr().err == f"{p}: logger.out_dir = {str(a_file)!r} exists and is not a folder\n"
+    assert main(["run", "--sim", "--config", str(p), "--duration", "1"]) == 1
+    assert capsys.readouterr().err.endswith(f"logger: {a_file}: exists and is not a folder\n")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from logger.config import SIM_SECTIONS, ConfigError, load
 
@@ -22,6 +23,13 @@ def main(argv: list[str]) -> int:
     except ConfigError as exc:
         for line in exc.problems:
             print(line, file=sys.stderr)
+        return 1
+    # What the file alone cannot tell: a folder it names that is a file on this machine (run would fail on it).
+    places = [f"{args.file}: logger.{key} = {cfg['logger'][key]!r} exists and is not a folder"
+              for key in ("out_dir", "state_dir") if Path(cfg["logger"][key]).exists()
+              and not Path(cfg["logger"][key]).is_dir()]
+    if places:
+        print("\n".join(places), file=sys.stderr)
         return 1
     # With --sim every sensor is simulated whatever the file says (gpsd by a simulated gpsd), as the run does.
     sources = ", ".join(f"{s}={'sim' if args.sim and cfg[s]['source'] != 'gpsd' else cfg[s]['source']}"

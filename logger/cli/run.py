@@ -145,7 +145,8 @@ def _run(args: argparse.Namespace, cfg: Config) -> int:
     try:
         code = daemon.run(args.duration)
     except OSError as exc:  # the output folder or the socket cannot be created: say which, no traceback
-        print(f"logger: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        why = "exists and is not a folder" if isinstance(exc, FileExistsError) else exc.strerror or exc
+        print(f"logger: {exc.filename or ''}: {why}", file=sys.stderr)
         daemon.stop()
         return 1
     return finish(daemon, code)
