@@ -135,10 +135,12 @@ def _gpsd_device(v: str) -> str | None:
 
 
 def _rinex_receiver(v: str) -> str | None:
-    """RINEX gives the receiver's number, type and version 20 characters each; convbin takes them split by '/'."""
+    """RINEX gives the receiver's number, type and version 20 characters each, in an ASCII header (convbin cuts a
+    field at 20 bytes: an 'Ä' is two, and half of one went into the file); convbin takes them split by '/'."""
     parts = v.split("/")
-    if len(parts) > 3 or not v.isprintable() or any(len(p) > 20 for p in parts):
-        return "must be up to three parts separated by '/' (number/type/version), each at most 20 characters"
+    if len(parts) > 3 or not (v.isascii() and v.isprintable()) or any(len(p) > 20 for p in parts):
+        return ("must be up to three parts separated by '/' (number/type/version), each at most 20 characters, "
+                "ASCII only (a RINEX header is ASCII)")
     return None
 
 

@@ -310,3 +310,12 @@ def test_a_folder_named_by_a_file_is_said_by_the_check_and_by_run(tmp_path: Path
     assert capsys.readouterr().err == f"{p}: logger.out_dir = {str(a_file)!r} exists and is not a folder\n"
     assert main(["run", "--sim", "--config", str(p), "--duration", "1"]) == 1
     assert capsys.readouterr().err.endswith(f"logger: {a_file}: exists and is not a folder\n")
+
+
+def test_a_rinex_receiver_name_is_ascii() -> None:
+    """convbin cuts a RINEX header field at 20 bytes: 20 'Ä' (40 bytes of UTF-8) went in as 10 of them, in a header
+    that is ASCII by the format."""
+    (msg,) = _problems(GOOD.replace('baud = 115200', 'baud = 115200\nreceiver_name = "ÄÄÄÄ/NEO-M8T/1.0"'))
+    assert "gnss.receiver_name" in msg and msg.endswith("ASCII only (a RINEX header is ASCII)"), msg
+    assert parse(GOOD.replace('baud = 115200', 'baud = 115200\nreceiver_name = "SN42/NEO-M8T/TIM 1.10"'),
+                 "logger.toml")["gnss"]["receiver_name"] == "SN42/NEO-M8T/TIM 1.10"
