@@ -350,6 +350,28 @@ def test_gnss_decode_reads_a_recordings_raw_receiver_bytes(drive: Drive) -> None
     assert " 0 garbage bytes" in r.stderr
 
 
+def test_gnss_decode_says_what_a_damaged_or_cut_recording_lost(drive: Drive, tmp_path: Path) -> None:
+    """A recording with a chunk that does not decompress, and one cut short: decoded from what is left, with the
+    line every reader of a drive gives (it said nothing, one fix short of the file's)."""
+    from mcap.reader import make_reader
+
+    damaged = tmp_path / drive.files[0].name
+    data = bytearray(drive.files[0].read_bytes())
+    with open(drive.files[0], "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) > 4
+    chunk = summary.chunk_indexes[2]
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[middle:middle + 8] = bytes(b ^ 0xFF for b in data[middle:middle + 8])
+    damaged.write_bytes(bytes(data))
+    r = run("gnss-decode", str(damaged))
+    assert r.returncode == 0, r.stderr
+    assert f"logger gnss-decode: {damaged}: 1 damaged chunk skipped" in r.stderr, r.stderr
+    r = run("gnss-decode", str(drive.cut))
+    assert r.returncode == 0, r.stderr
+    assert f"logger gnss-decode: {drive.cut} was not closed cleanly: read up to where it was cut" in r.stderr
+
+
 def test_gnss_decode_says_when_a_recording_has_no_raw_bytes(drive: Drive, tmp_path: Path) -> None:
     r = run("gnss-decode", str(drive.replay))  # logger replay's trajectory: no /gnss/raw
     assert r.returncode == 1 and "without /gnss/raw" in r.stderr and "Traceback" not in r.stderr

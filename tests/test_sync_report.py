@@ -114,3 +114,23 @@ def test_the_figures_into_a_closed_pipe_end_quietly(tmp_path: Path) -> None:
     p.stdout.close()
     _, err = p.communicate(timeout=120)
     assert p.returncode == 141 and b"Broken pipe" not in err and b"Traceback" not in err, err
+
+
+def test_a_damaged_chunk_is_said_and_the_rest_reported(tmp_path: Path, capsys) -> None:
+    """A chunk that does not decompress is skipped whole and said, one line naming the file, as every reader of a
+    drive says it (the report came without a word, its counts short of the file's)."""
+    from mcap.reader import make_reader
+
+    p = locked_drive(tmp_path / "drive_20261205T094239Z_0001.mcap")
+    with open(p, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) > 4
+    chunk = summary.chunk_indexes[2]
+    data = bytearray(p.read_bytes())
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[middle:middle + 8] = bytes(b ^ 0xFF for b in data[middle:middle + 8])
+    p.write_bytes(bytes(data))
+    code, out, err = run(capsys, p, "--json")
+    assert code == 0 and json.loads(out)["table7_synchronised"]["n"] > 0
+    (line,) = err.splitlines()
+    assert line.startswith(f"logger sync-report: {p}: 1 damaged chunk skipped") and "messages lost" in line, err

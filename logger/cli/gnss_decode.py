@@ -21,7 +21,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from logger.recording.drive import DriveFileError, iter_messages, open_drive
+from logger.recording.drive import DriveFileError, cut_notes, damage_notes, iter_messages, open_drive
 from logger.recording.files import MAGIC as MCAP_MAGIC
 from logger.recording.topics import GNSS_RAW
 from sensors.ublox_decode import GnssDecoder, GnssFix, GnssItem
@@ -155,9 +155,15 @@ def tpv_lines(result: DecodeResult, as_json: bool) -> Iterator[str]:
 
 
 def recorded_bytes(path: Path) -> list[bytes]:
-    """The receiver's bytes a recording kept on ``/gnss/raw``, in the order they were read (cut files too)."""
+    """The receiver's bytes a recording kept on ``/gnss/raw``, in the order they were read (cut files too, and past
+    damaged chunks: what was cut or skipped is said on stderr, as every reader of a drive says it)."""
     files = open_drive([path])
-    return [base64.b64decode(m.msg["data_b64"]) for m in iter_messages(files, [GNSS_RAW])]
+    for line in cut_notes(files):
+        print(f"logger gnss-decode: {line}", file=sys.stderr)
+    pieces = [base64.b64decode(m.msg["data_b64"]) for m in iter_messages(files, [GNSS_RAW])]
+    for line in damage_notes(files):
+        print(f"logger gnss-decode: {line}", file=sys.stderr)
+    return pieces
 
 
 def not_receiver_output(result: DecodeResult, size: int) -> str | None:

@@ -14,7 +14,7 @@ from pathlib import Path
 from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.exports.plotting import PlotsUnavailable
 from logger.exports.sync_report import Drive, plots, render, report
-from logger.recording.drive import DriveFileError, cut_notes, drive_paths
+from logger.recording.drive import DriveFileError, cut_notes, damage_notes, drive_paths
 
 
 def main(argv: list[str]) -> int:
@@ -42,7 +42,7 @@ def main(argv: list[str]) -> int:
     except DriveFileError as exc:
         print(f"logger sync-report: {exc}", file=sys.stderr)
         return 2
-    for note in cut_notes(drive.files):
+    for note in cut_notes(drive.files) + damage_notes(drive.files):  # Drive.load has read them: damage is known
         print(f"logger sync-report: {note}", file=sys.stderr)
     out = report(drive)
     print(json.dumps(out, indent=1) if args.json else render(out))
