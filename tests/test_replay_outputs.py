@@ -286,3 +286,21 @@ def test_a_replay_names_its_drive_and_is_never_read_beside_another(drive: list[s
     assert score.returncode == 2 and score.stderr == (
         f"logger nav-score: {tmp_path / 'r' / 'trajectory.csv'}: the replay of another drive (run {run[0]}), not "
         f"of the one named (run {run_identity(other)[0]})\n"), score.stderr
+
+    def nav_score(*args: Path | str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "logger.cli", "nav-score", *map(str, args)], cwd=ROOT,
+                              capture_output=True, text=True, timeout=120)
+
+    # ... and a reference of another drive than the trajectory's or the drive's is refused too (it was scored
+    # without a word: a kilometre's "RMSE", exit 0), whether the other drive's file or a replay's folder.
+    other_run = run_identity(other)[0]
+    score = nav_score(tmp_path / "r", "--reference", other)
+    assert score.returncode == 2 and score.stderr == (
+        f"logger nav-score: {other}: a reference of another drive (run {other_run}) than "
+        f"{tmp_path / 'r' / 'trajectory.csv'}'s (run {run[0]})\n"), score.stderr
+    score = nav_score(tmp_path / "r", *drive, "--reference", other)
+    assert score.returncode == 2 and score.stderr == (
+        f"logger nav-score: {other}: a reference of another drive (run {other_run}), not of the one named "
+        f"(run {run[0]})\n"), score.stderr
+    score = nav_score(tmp_path / "r", *drive, "--reference", tmp_path / "r2")  # the same drive's: scored
+    assert score.returncode == 0, score.stderr

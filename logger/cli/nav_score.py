@@ -69,16 +69,39 @@ def sort_inputs(paths: list[Path]) -> tuple[list[Path], list[Path]]:
     return csvs, drives
 
 
-def same_drive(csvs: list[Path], drives: list[Path]) -> None:
-    """ScoreError for a trajectory replayed from another drive than the one named: its replay's trajectory.mcap,
-    beside the CSV, names the run it was made from (every urban drive starts at the same place, so the distance to
-    the fixes does not tell two of them apart)."""
+def same_drive(csvs: list[Path], drives: list[Path], reference: Path | None = None) -> None:
+    """ScoreError for a trajectory replayed from another drive than the one named, or a reference of another drive
+    than the trajectories' or the drive's: a replay's trajectory.mcap, beside its CSV, names the run it was made
+    from, and a drive's files name theirs (every urban drive starts at the same place, so the distance to the fixes
+    does not tell two of them apart; a reference of another drive was scored without a word, 1.1 km "RMSE")."""
     runs = {ident[0] for ident in map(run_identity, drives) if ident is not None}
     for csv_path in csvs:
         foreign = replay_mismatch(csv_path, replay_source(csv_path.with_name("trajectory.mcap")) if runs else None,
                                   runs)
         if foreign:
             raise ScoreError(foreign)
+    ref_run = reference_run(reference) if reference is not None else None
+    if ref_run is None:
+        return
+    if runs and ref_run not in runs:
+        raise ScoreError(f"{reference}: a reference of another drive (run {ref_run}), not of the one named "
+                         f"(run {', '.join(sorted(runs))})")
+    for csv_path in csvs:
+        made_from = replay_source(csv_path.with_name("trajectory.mcap"))
+        if made_from is not None and made_from != ref_run:
+            raise ScoreError(f"{reference}: a reference of another drive (run {ref_run}) than {csv_path}'s "
+                             f"(run {made_from})")
+
+
+def reference_run(reference: Path) -> str | None:
+    """The run id of the drive a reference is of, when it says: a drive's file its own, a replay's output (its
+    trajectory.mcap, or the one beside its CSV) the run it was made from."""
+    if reference.is_dir():
+        reference = reference / "trajectory.csv"
+    if reference.suffix.lower() == ".csv":
+        return replay_source(reference.with_name("trajectory.mcap"))
+    ident = run_identity(reference)
+    return ident[0] if ident is not None else replay_source(reference)
 
 
 def load_against(reference: Path | None, drives: list[Path]) -> Truth:
@@ -122,7 +145,7 @@ def main(argv: list[str]) -> int:
         if missing:
             raise ScoreError(f"no such file: {', '.join(missing)}")
         csvs, drives = sort_inputs(named_paths)
-        same_drive(csvs, drives)
+        same_drive(csvs, drives, args.reference)
         truth = load_against(args.reference, drives)
         trajectories = {p: read_trajectory(p) for p in csvs}
     except (ScoreError, DriveFileError) as exc:
