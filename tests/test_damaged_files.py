@@ -232,3 +232,39 @@ def test_replay_skips_a_damaged_chunk_says_so_and_writes_the_rest(tmp_path: Path
     (line,) = [x for x in r.stderr.splitlines() if "damaged chunk" in x]
     assert line.startswith(f"logger replay: {p}: 1 damaged chunk skipped (") and "messages lost, at " in line
     assert (tmp_path / "out" / "trajectory.csv").is_file()
+
+
+def test_a_lost_chunk_that_overlaps_its_neighbours_in_time_keeps_its_own_span(tmp_path: Path) -> None:
+    """Messages are logged at their own time but written when they come (the navigator's /nav/fix seconds late), so
+    a chunk can begin before the one written before it. Its intact head's span was taken for a damaged head's and
+    the loss said as the short gap between its neighbours (0.7 s of a 4.7 s loss); now it is its own, in every
+    reader (the drive reader, and logger info / recover's walk)."""
+    from logger.recording.drive import damage_spans
+
+    p = tmp_path / "drive_20261205T094239Z_0001.mcap"
+    late_t = T0 + (2 * PER_CHUNK - 15) * STEP_NS  # inside chunk 1, written with chunk 3
+    with open(p, "wb") as f:
+        w = McapWriter(f, compression="none", chunk_size=1 << 20)
+        w.start(profile="", library="vehicle-logger test")
+        spec = TOPICS[GNSS_FIX]
+        cid = w.register_channel(GNSS_FIX, "json", w.register_schema(spec.schema_name, "jsonschema",
+                                                                     spec.schema_data))
+        for c in range(CHUNKS):
+            for i in range(PER_CHUNK):
+                t = T0 + (c * PER_CHUNK + i) * STEP_NS
+                w.add_message(cid, t, json.dumps({"t_sync_ns": t, "value": 1000 + c * PER_CHUNK + i}).encode(), t)
+            if c == 3:
+                w.add_message(cid, late_t, json.dumps({"t_sync_ns": late_t, "value": 1}).encode(), late_t)
+            w.flush()
+            w.add_metadata(CHANNEL_TABLE, {str(cid): GNSS_FIX})
+        w.finish()
+    data = bytearray(p.read_bytes())
+    start, length = chunk_spans(p)[3]
+    at = data.index(b'"value": 10', start, start + length) + len(b'"value": 10')
+    data[at] ^= 0x02  # the CRC fails; the head is intact
+    p.write_bytes(bytes(data))
+    chunk3_last = T0 + (4 * PER_CHUNK - 1) * STEP_NS
+    list(iter_messages(open_drive([p]), [GNSS_FIX]))
+    assert damage_spans(p) == [(late_t, chunk3_last)]
+    (loss,) = walk(p, keep_messages=False).losses
+    assert (loss.first_ns, loss.last_ns) == (late_t, chunk3_last)

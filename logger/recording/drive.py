@@ -43,6 +43,7 @@ from logger.recording.files import (
     being_written,
     chunk_fault,
     describe_losses,
+    head_span_plausible,
     is_finished,
     summary_statistics,
     walk,
@@ -210,17 +211,16 @@ def walk_records(path: Path, wanted: set[str], losses: list[Loss] | None = None)
 
 
 def _settle(w: _Walk, stats: Statistics | None) -> None:
-    """Each skipped chunk's span: its own head's times, unless they fall outside its good neighbours' (the head is
-    not under the CRC: a damaged one gives any times), then the gap between them; and the messages lost counted
+    """Each skipped chunk's span: its own head's times, unless they do not fit among its good neighbours'
+    (:func:`~logger.recording.files.head_span_plausible`: the head is not under the CRC, a damaged one gives any
+    times), then the gap between them; and the messages lost counted
     against the file's statistics where its summary holds. Raises UnexpectedLayout when they count messages no
     skipped chunk explains (a damaged record the walk passed over: the caller reads the file another way)."""
     starts = [g[0] for g in w.good]
     for loss in w.losses:
         i = bisect.bisect_left(starts, loss.at)
         prev, nxt = (w.good[i - 1] if i > 0 else None), (w.good[i] if i < len(w.good) else None)
-        first, last = loss.first_ns, loss.last_ns
-        if first is None or last is None or first > last or (prev is not None and first < prev[1]) or \
-                (nxt is not None and last > nxt[2]):
+        if not head_span_plausible(loss.first_ns, loss.last_ns, prev, nxt):
             loss.first_ns = prev[2] if prev is not None else None
             loss.last_ns = nxt[1] if nxt is not None else None
     if stats is None:

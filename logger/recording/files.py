@@ -382,6 +382,25 @@ def _scan_indexes(buf: mmap.mmap, lo: int, hi: int, found: Salvage, loss: Loss) 
     loss.chunks = max(loss.chunks, runs)
 
 
+# How far a chunk's messages may reach before its predecessor's first or after its successor's last: a message is
+# logged at its own time (a solution's, a sample's) but written when it comes, and the navigator's come up to a
+# few seconds late, so chunks overlap in time. A damaged head's times (not under the CRC) are garbage, far off.
+CHUNK_OVERLAP_NS = 60 * 1_000_000_000
+
+
+def head_span_plausible(first: int | None, last: int | None, prev: tuple[int, int, int] | None,
+                        nxt: tuple[int, int, int] | None) -> bool:
+    """Whether a skipped chunk's own head times (``first``, ``last``) can be its messages' span, against its good
+    neighbours (offset, first, last): in order, and within CHUNK_OVERLAP_NS of them. Held to the neighbours'
+    own first and last exactly, the late /nav/fix messages of a drive made every head look damaged, and a 4.7 s
+    loss was said as the 0.7 s gap between its neighbours."""
+    if first is None or last is None or first > last:
+        return False
+    if prev is not None and first < prev[1] - CHUNK_OVERLAP_NS:
+        return False
+    return nxt is None or last <= nxt[2] + CHUNK_OVERLAP_NS
+
+
 def _account(found: Salvage) -> None:
     """Each loss's time span from the good chunks around it, and, for a finished file whose statistics hold, the
     exact count: the statistics know every chunk and message written, whatever the damage hid."""
@@ -390,11 +409,9 @@ def _account(found: Salvage) -> None:
         i = bisect.bisect_left(starts, loss.at)
         prev = found.good_chunks[i - 1] if i > 0 else None
         nxt = found.good_chunks[i] if i < len(found.good_chunks) else None
-        first, last = loss.first_ns, loss.last_ns
-        # The lost chunks' own times when their heads were read and fall within their good neighbours' (a head is
-        # not under the CRC: a damaged one gives any times), else the gap between the neighbours.
-        if first is None or last is None or first > last or (prev is not None and first < prev[1]) or \
-                (nxt is not None and last > nxt[2]) or loss.chunks > 1:
+        # The lost chunks' own times when their heads were read and fit among their good neighbours'
+        # (head_span_plausible), else the gap between the neighbours.
+        if loss.chunks > 1 or not head_span_plausible(loss.first_ns, loss.last_ns, prev, nxt):
             loss.first_ns = prev[2] if prev is not None else None
             loss.last_ns = nxt[1] if nxt is not None else None
     stats = found.statistics
