@@ -488,3 +488,14 @@ def test_a_filter_failing_batch_after_batch_is_a_problem_said_once_a_minute(
     sec = nav.section()
     assert "problems" not in sec and sec["verdicts"][-1] == "filter restarted after an error: FloatingPointError: " \
         "singular covariance", sec
+
+
+def test_before_its_first_turn_the_filter_does_not_say_the_imu_is_silent():
+    """At start the IMU delivers and its row says ok while the filter thread has not had its first turn (it wakes
+    every WAKE_S): the nav row said "waiting for the IMU: no sample yet"; it says the records wait for it."""
+    nav = Navigator(NavParams())  # no thread started: the records wait
+    assert nav.section()["verdicts"] == ["initialising: waiting for the IMU: no sample yet"]
+    msg = {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0, -9.8], "gyro_rps": [0, 0, 0]}
+    nav.offer("/imu", msg)
+    nav.offer("/imu", {**msg, "t_sync_ns": 2, "t_mono_ns": 2})
+    assert nav.section()["verdicts"] == ["initialising: 2 records waiting for the filter's first turn"]
