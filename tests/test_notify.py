@@ -538,6 +538,15 @@ def test_a_full_disk_is_one_line_that_lasts_and_the_summary_and_status_say_the_t
     head = text.splitlines()[0]
     assert " s of a " in head and " s run into 1 file" in head, head
     assert any(line.startswith("  ! not recording for ") for line in text.splitlines()), text
+    # The topics' rates are over the time it recorded, and say so (over the whole run they read low by the spell).
+    (header,) = [line for line in text.splitlines() if line.lstrip().startswith("topic ")]
+    assert header.endswith("(rates while recording)"), text
+    rec = d.recorder.status()
+    recorded_s = d.run_span_s - min(rec.down_s, d.run_span_s)
+    lines = text.splitlines()
+    topic, messages, rate = lines[lines.index(header) + 1].split()[:3]
+    assert int(messages) == rec.written[topic] and float(rate) == pytest.approx(rec.written[topic] / recorded_s,
+                                                                                 abs=0.01), text
     (f,) = d.recorder.files()
     assert f.name.endswith("_0001.mcap")  # the failed opens took no part number
 

@@ -43,12 +43,15 @@ def run_summary(daemon: Daemon) -> str:
     written = rec.written
     if written:
         width = max(len(t) for t in written)
-        lines.append(f"  {'topic':<{width}}  {'messages':>9}  {'rate Hz':>8}")
+        # Rates over the time the recorder recorded: over the whole run, a disk full for half of it halved them.
+        rec_s = span_s - down_s if down_s >= DOWN_SHOWN_S else span_s
+        lines.append(f"  {'topic':<{width}}  {'messages':>9}  {'rate Hz':>8}"
+                     + ("  (rates while recording)" if rec_s < span_s else ""))
         for topic in sorted(written):
-            rate = written[topic] / span_s if span_s > 0 else math.nan
+            rate = written[topic] / rec_s if rec_s > 0 else math.nan
             samples = rec.samples.get(topic)
             # A batch topic's messages are reads: the samples they hold are what its rate is judged by.
-            held = (f"  ({samples} samples, {samples / span_s:.2f} Hz)" if samples is not None and span_s > 0
+            held = (f"  ({samples} samples, {samples / rec_s:.2f} Hz)" if samples is not None and rec_s > 0
                     else "")
             lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
     losses = recorder_losses(down_s, rec.unrecorded, rec.lost, rec.dropped, rec.deleted)
