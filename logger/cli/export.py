@@ -177,9 +177,9 @@ def export_stream(files: list[DriveFile], out: Path, name: str, rinex: bool, kee
 
     Everything is made in a staging folder inside ``out`` (named with this process's id: an export killed outright
     leaves it, and the next one removes it, :func:`~logger.exports.whole.remove_stale_stages`) and moved into place
-    only once it is complete, so that a
-    failure (no raw observations, convbin failing, a full disk) leaves the folder as it was: an earlier export's
-    ``.ubx``, ``.obs`` and ``.nav`` of the same drive were deleted by a failed one. Without navigation data (no
+    only once it is complete, all of it together, so that a failure (no raw observations, convbin failing, a full
+    disk) leaves the folder as it was: an earlier export's ``.ubx``, ``.obs`` and ``.nav`` of the same drive were
+    deleted by a failed one. Without navigation data (no
     RXM-SFRBX in the stream: convbin writes no ``.nav``) the observations are written and a line says what is
     missing: rnx2rtkp needs broadcast ephemerides from elsewhere then."""
     header = rinex_header(files, config) if rinex else None
