@@ -306,6 +306,30 @@ def test_replay_fuses_the_solution_and_says_so(drive_with_ppk, tmp_path: Path):
                                    "(111 after the drive's end): it spans "), r.stderr
         assert r.stderr.endswith(f"; nothing written to {tmp_path / 'out'}\n")
     assert (tmp_path / "out" / "trajectory.csv").stat().st_mtime_ns < next_day.stat().st_mtime_ns
+    # Epochs on too few satellites are named among those not used (the summary's counts add up to the file's).
+    few = tmp_path / "few_sv.pos"
+    few_lines = pos.read_text().splitlines(keepends=True)
+    data_at = [i for i, line in enumerate(few_lines) if line[:1].isdigit()]
+    for i in data_at[40:60]:
+        few_lines[i] = few_lines[i].replace(" 1  14 ", " 5   4 ", 1)  # single point, 4 satellites
+    few.write_text("".join(few_lines))
+    r = replay("--out", str(tmp_path / "out4"), "--gnss-solution", str(few), "--no-mcap")
+    assert r.returncode == 0, r.stderr
+    (said,) = [line for line in r.stdout.splitlines() if line.startswith("GNSS solution few_sv.pos")]
+    assert "20 on fewer than 5 satellites" in said, said
+    used = int(said.split(": used ")[1].split(" fix")[0])
+    left = [int(part.split()[0]) for part in said.split("; not used: ")[1].split("; ")]
+    assert used + sum(left) == 111, said
+    # GNSS-only mode has no filter to fuse a solution with, or to smooth: one line, exit 2 (a traceback before).
+    for extra in (("--gnss-solution", str(pos)), ("--smooth",)):
+        r = replay("--out", str(tmp_path / "out5"), "--mode", "gnss", *extra)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "needs the filter (mode 15 or 17)" in r.stderr
+    # --no-mcap into a folder holding an earlier run's trajectory.mcap: removed with the run's CSV, and said.
+    r = replay("--out", str(tmp_path / "out6"))
+    assert r.returncode == 0 and (tmp_path / "out6" / "trajectory.mcap").exists(), r.stderr
+    r = replay("--out", str(tmp_path / "out6"), "--no-mcap", "--mode", "15")
+    assert r.returncode == 0 and not (tmp_path / "out6" / "trajectory.mcap").exists(), r.stderr
+    assert f"removed {tmp_path / 'out6' / 'trajectory.mcap'}: an earlier run's (--no-mcap writes none)" in r.stdout
 
 
 def test_a_filter_lost_with_a_solution_restarts_from_its_epochs(drive_with_ppk):

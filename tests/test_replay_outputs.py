@@ -189,6 +189,10 @@ def test_replay_writes_nav_fix_at_the_live_rate_and_every_row_when_asked(drive: 
     assert [f["t_sync_ns"] for f in full] == times and full_states == states
     assert [full[i] for i in keep] == fixes  # the thinned messages are the full rate's, unchanged
 
+    r = replay(*drive, "--out", str(tmp_path / "fast"), "--fix-hz", "50")  # above the 20 Hz rows: every one
+    assert r.returncode == 0, r.stderr
+    assert "trajectory.mcap: /nav/fix for every solution (50 Hz is the solutions' own rate or more)" in r.stdout
+
     r = replay(*drive, "--out", str(tmp_path / "one"), "--fix-hz", "1", "--mode", "15")
     assert r.returncode == 0, r.stderr
     _, one, _ = trajectory(tmp_path / "one")
@@ -196,9 +200,10 @@ def test_replay_writes_nav_fix_at_the_live_rate_and_every_row_when_asked(drive: 
 
 
 def test_replay_refuses_a_rate_that_is_none(drive: list[str], tmp_path: Path) -> None:
-    for bad in ("-1", "fast", "nan"):
+    for bad in ("-1", "fast", "nan", "1e-300"):  # 1e-300 passed and its period overflowed: a traceback
         r = replay(*drive, "--out", str(tmp_path / "x"), "--fix-hz", bad)
         assert r.returncode == 2 and "--fix-hz" in r.stderr and not (tmp_path / "x").exists()
+        assert "Traceback" not in r.stderr, r.stderr
 
 
 def test_an_output_path_that_cannot_be_a_folder_is_refused_before_the_run(drive: list[str], tmp_path: Path) -> None:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 from logger.cli.outputs import os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.exports.trajectory import run_filter, write_csv, write_mcap
-from logger.exports.whole import written_together
+from logger.exports.whole import retire, written_together
 from logger.nav.params import MODES, NavParams
 from logger.nav.solution import MAX_LATE_S, SolutionPolicy
 from logger.recording.drive import DriveFileError, cut_notes, damage_notes, open_drive
@@ -76,9 +76,12 @@ def rate_hz(text: str) -> float:
         hz = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(hz) and hz >= 0.0):
-        raise argparse.ArgumentTypeError(f"a rate is 0 (every row) or more Hz: {text!r}")
+    if not (math.isfinite(hz) and (hz == 0.0 or hz >= MIN_FIX_HZ)):
+        raise argparse.ArgumentTypeError(f"a rate is 0 (every row) or {MIN_FIX_HZ:g} Hz or more: {text!r}")
     return hz
+
+
+MIN_FIX_HZ = 1e-3  # one /nav/fix in about 17 minutes; a smaller rate's period overflowed a time in ns (a traceback)
 
 
 @contextmanager
@@ -133,6 +136,16 @@ def main(argv: list[str]) -> int:
         params = NavParams()
     if args.mode is not None:
         params.mode = args.mode
+    if params.mode == "gnss" and args.gnss_solution is not None:
+        # GNSS-only mode passes the receiver's fixes through: there is no filter to fuse a solution with.
+        print(f"logger replay: --gnss-solution needs the filter (mode 15 or 17); mode gnss passes the receiver's "
+              f"fixes through{' (the mode of ' + str(args.config) + ')' if args.mode is None else ''}",
+              file=sys.stderr)
+        return 2
+    if params.mode == "gnss" and args.smooth:
+        print("logger replay: --smooth needs the filter (mode 15 or 17); mode gnss passes the receiver's fixes "
+              f"through{' (the mode of ' + str(args.config) + ')' if args.mode is None else ''}", file=sys.stderr)
+        return 2
     solution: SolutionFile | None = None
     if args.gnss_solution is not None:
         from logger.recording.rtklib_pos import SolutionFileError, read_pos
@@ -186,9 +199,13 @@ def main(argv: list[str]) -> int:
     progress.stage("writing the trajectory")
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
+    stale_mcap = False
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         with no_cycle_collector(), written_together():  # the CSV and the MCAP of one run, or neither
+            stale_mcap = states is None and (args.out / "trajectory.mcap").is_file()
+            if stale_mcap:
+                retire(args.out / "trajectory.mcap")  # --no-mcap: an earlier run's MCAP is not this run's
             write_csv(args.out / "trajectory.csv", rows)
             if states is not None:
                 source_run = next((f.run[0] for f in files if f.run is not None), None)
@@ -219,12 +236,18 @@ def main(argv: list[str]) -> int:
     if smoothing is not None and smoothing.epochs:
         print(smoothing.summary())
     if states is not None:
-        print("trajectory.mcap: /nav/fix for every solution" if fix_hz == 0 else
-              f"trajectory.mcap: /nav/fix at {fix_hz:g} Hz, {fixes} of {plural(len(rows), 'solution')} "
-              "(--fix-hz 0: every one)")
+        if fix_hz == 0:
+            print("trajectory.mcap: /nav/fix for every solution")
+        elif fixes >= len(rows):  # a rate at or above the rows' own: every row, which "at 50 Hz" did not say
+            print(f"trajectory.mcap: /nav/fix for every solution ({fix_hz:g} Hz is the solutions' own rate or more)")
+        else:
+            print(f"trajectory.mcap: /nav/fix at {fix_hz:g} Hz, {fixes} of {plural(len(rows), 'solution')} "
+                  "(--fix-hz 0: every one)")
     print(f"wrote {args.out / 'trajectory.csv'}")
     if states is not None:
         print(f"wrote {args.out / 'trajectory.mcap'}")
+    elif stale_mcap:
+        print(f"removed {args.out / 'trajectory.mcap'}: an earlier run's (--no-mcap writes none)")
     return 0
 
 
@@ -244,6 +267,8 @@ def not_used(used: SolutionPolicy) -> list[str]:
              "near them)"] if used.unjoined else [])
     if used.before_start:
         left.append(f"{used.before_start} before the filter started")
+    if used.few_sv:
+        left.append(f"{used.few_sv} on fewer than {used.min_sv} satellites")
     if used.pending:
         left.append(f"{len(used.pending)} after the drive's end")
     return left

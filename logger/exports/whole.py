@@ -98,7 +98,7 @@ def written_together() -> Iterator[None]:
     on an error none is, and the folder keeps an earlier run's set as it was. A run's outputs are one set: a CSV
     and a ``trajectory.mcap``, or a GPX beside a CSV, from two runs would disagree without a word (a full disk
     after the first of them left exactly that)."""
-    done: list[tuple[Path, Path]] = []
+    done: _Set = []
     token = _TOGETHER.set(done)
     try:
         yield
@@ -122,19 +122,36 @@ def adopt(done: Path, path: Path) -> None:
     _complete(tmp, path)
 
 
-_TOGETHER: contextvars.ContextVar[list[tuple[Path, Path]] | None] = contextvars.ContextVar("together", default=None)
+def retire(path: Path) -> None:
+    """An earlier run's output this run does not make (``logger replay --no-mcap``: its ``trajectory.mcap``) is
+    removed when the run's outputs go in (inside :func:`written_together`; at once outside one): left, it would
+    stand beside this run's files as theirs. Nothing is done when there is none."""
+    together = _TOGETHER.get()
+    if together is None:
+        path.unlink(missing_ok=True)
+    else:
+        together.append((None, path))
 
 
-def _put_in_place(done: list[tuple[Path, Path]]) -> None:
-    """Rename each complete partial file over its output. A rename in one folder needs no space; what can refuse it
-    (an output's name taken by a folder) is looked for first, so that a set is not left half replaced."""
+# The set being written: (partial file, output) pairs, and (None, output) for an earlier output retired.
+_Set = list[tuple[Path | None, Path]]
+_TOGETHER: contextvars.ContextVar[_Set | None] = contextvars.ContextVar("together", default=None)
+
+
+def _put_in_place(done: _Set) -> None:
+    """Rename each complete partial file over its output, and remove the outputs retired. A rename in one folder
+    needs no space; what can refuse it (an output's name taken by a folder) is looked for first, so that a set is
+    not left half replaced."""
     try:
         for _, path in done:
             if path.is_dir() and not path.is_symlink():
                 raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
         for tmp, path in done:
             try:
-                os.replace(tmp, path)
+                if tmp is None:
+                    path.unlink(missing_ok=True)
+                else:
+                    os.replace(tmp, path)
             except OSError as exc:
                 _name_output(exc, path)
                 raise
@@ -152,10 +169,11 @@ def _complete(tmp: Path, path: Path) -> None:
         together.append((tmp, path))
 
 
-def _discard(done: list[tuple[Path, Path]]) -> None:
+def _discard(done: _Set) -> None:
     for tmp, _ in done:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
 
 
 def _name_output(exc: BaseException, path: Path) -> None:

@@ -111,6 +111,8 @@ class SolutionPolicy:
         self.used: dict[str, int] = {}  # epochs that went to the filter, per quality name
         self.unjoined = 0  # epochs placed too late behind the filter, or with no receiver time near them
         self.before_start = 0  # epochs placed before the filter had started
+        self.few_sv = 0  # epochs left out for too few satellites (gnss_min_sv): their figures are not trusted
+        self.min_sv = 0  # ... that many at least (the filter's gnss_min_sv), once one was left out
         self.next_ns = NEVER  # where the next pending epoch falls on the logger's clock (NEVER: unknown)
         self._offset: tuple[int, int, int] | None = None  # (sync - GNSS time, mono - sync, at) of the last fix
         self._t_prev_ns: int | None = None
@@ -151,6 +153,8 @@ class SolutionPolicy:
         q = QUALITY_NOISE[ep.quality]
         if q.code and ep.num_sv < core.params.gnss_min_sv:
             core.counters.gnss_few_sv += 1
+            self.few_sv += 1
+            self.min_sv = core.params.gnss_min_sv
             return "", None
         dt_s = 0.0 if self._t_prev_ns is None else (t_e - self._t_prev_ns) / NS
         self._t_prev_ns = t_e
