@@ -309,7 +309,13 @@ def test_a_folder_named_by_a_file_is_said_by_the_check_and_by_run(tmp_path: Path
     assert main(["config", "check", "--sim", str(p)]) == 1
     assert capsys.readouterr().err == f"{p}: logger.out_dir = {str(a_file)!r} exists and is not a folder\n"
     assert main(["run", "--sim", "--config", str(p), "--duration", "1"]) == 1
-    assert capsys.readouterr().err.endswith(f"logger: {a_file}: exists and is not a folder\n")
+    assert capsys.readouterr().err.endswith(f"logger: cannot make the output folder {a_file}: exists and is not a "
+                                            "folder\n")
+    # A folder under a path that cannot hold one: named as the output folder.
+    p.write_text(f'[logger]\nout_dir = "{a_file}/drives"\n')
+    assert main(["run", "--sim", "--config", str(p), "--duration", "1"]) == 1
+    assert capsys.readouterr().err.endswith(f"logger: cannot make the output folder {a_file}/drives: Not a "
+                                            "directory\n")
 
 
 def test_a_rinex_receiver_name_is_ascii() -> None:

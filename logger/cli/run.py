@@ -146,7 +146,12 @@ def _run(args: argparse.Namespace, cfg: Config) -> int:
         code = daemon.run(args.duration)
     except OSError as exc:  # the output folder or the socket cannot be created: say which, no traceback
         why = "exists and is not a folder" if isinstance(exc, FileExistsError) else exc.strerror or exc
-        print(f"logger: {exc.filename or ''}: {why}", file=sys.stderr)
+        out, name = Path(cfg["logger"]["out_dir"]), Path(exc.filename or "")
+        if name == out or name in out.parents:  # the folder, or the part of its path that stopped it
+            print(f"logger: cannot make the output folder {out}: {why}" + (f" ({name})" if name != out else ""),
+                  file=sys.stderr)
+        else:
+            print(f"logger: {exc.filename or ''}: {why}", file=sys.stderr)
         daemon.stop()
         return 1
     return finish(daemon, code)

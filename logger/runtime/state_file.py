@@ -62,13 +62,13 @@ def lock_state(folder: Path) -> int | None:
     start-up recovery rewriting the first one's open file as a crash's). The lock holds whatever the sockets, and
     is gone with its process, however that ends (no stale lock after a power cut). Raises :class:`StateInUse`
     when another process holds it; a folder that cannot be locked at all (made, written: the recorder says what
-    it can of such a folder) is a warning, and the run goes on as before the lock."""
+    it can of such a folder) is passed over (a debug line), and the run goes on as before the lock, its own
+    errors for that folder said where they happen."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
         fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
-    except OSError as exc:
-        log.warning("cannot lock the state folder %s (%s): a second logger on it would not be refused",
-                    folder, exc.strerror or exc)
+    except OSError as exc:  # a folder that cannot be made: what uses it says so (the run's folders, the state)
+        log.debug("cannot lock the state folder %s (%s)", folder, exc.strerror or exc)
         return None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
