@@ -218,7 +218,11 @@ class NavRerun:
         if self._due is not None:
             return  # found, waiting for build and adopt: what comes meanwhile is kept for them too
         eng = self.engine
-        if eng.mount_reopened_ns is not None:
+        # The first re-run comes with the engine's first reopening. After it, the engine in use is the re-run's,
+        # which may reopen while it filters the kept inputs again: a remount it makes itself, as live, and no
+        # second re-run (that one comes only with the forward axis held still, _refine_look). Taken for one, it
+        # re-ran at once, dated before the first, and its line said "forward axis held" of a hold never looked at.
+        if eng.mount_reopened_ns is not None and not self.reruns:
             m = eng.mount_applied
             self._due = ((round(float(m[0]), 3), round(float(m[1]), 3), round(float(m[2]), 3)),
                          eng.mount_reopened_ns)
