@@ -235,10 +235,20 @@ def test_chrony_is_only_given_real_time(tmp_path: Path) -> None:
     cfg = tmp_path / "logger.toml"
     cfg.write_text(real)
     cfg.chmod(0o640)
-    with pytest.raises(ConfigError) as e:  # the file is fine; `--sim` makes both sources simulated
+    with pytest.raises(ConfigError) as e:  # the file is fine; `--sim` simulates the sensors it leaves out
         resolve_config(parse_args(["--config", str(cfg), "--sim"]))
-    assert e.value.problems == ["sync.chrony_sock is set while gnss and pps are simulated: chrony would be given "
-                                "the simulation's time (leave chrony_sock empty for simulated runs)"]
+    (problem,) = e.value.problems
+    assert problem.endswith("sync.chrony_sock is set while imu and baro are simulated: the run's clock is then the "
+                            "simulated board's, not the host's, and chrony would be given its offset as the clock's "
+                            "error (leave chrony_sock empty for simulated runs)"), problem
+    # A real receiver and PPS beside a simulated IMU: the run's clock is the simulated board's, a few ms from the
+    # host's, and real edges reached chrony off by that (2.7 ms, behind an 11 us bound).
+    with pytest.raises(ConfigError) as e:
+        parse(real.replace('[obd]\nsource = "can"', '[imu]\nsource = "sim"\n[obd]\nsource = "can"'), "logger.toml")
+    (problem,) = e.value.problems
+    assert problem.endswith("sync.chrony_sock is set while imu is simulated: the run's clock is then the simulated "
+                            "board's, not the host's, and chrony would be given its offset as the clock's error "
+                            "(leave chrony_sock empty for simulated runs)"), problem
 
 
 def test_what_toml_itself_refuses_is_said_in_the_configuration_s_terms() -> None:
