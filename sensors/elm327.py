@@ -105,6 +105,7 @@ class Elm327(SpeedDriver):
         self.connect_problem: str | None = None  # why the vehicle did not answer during set-up, if it did not
         self._serial: serial.Serial | None = None
         self._rx = bytearray()
+        self._owed = False  # a command was given up on: its answer may still come (_command)
         self._family: str | None = None
         self._first_request = True
 
@@ -157,6 +158,7 @@ class Elm327(SpeedDriver):
     def close(self) -> None:
         ser, self._serial = self._serial, None
         self._rx.clear()
+        self._owed = False
         if ser is not None:
             try:
                 ser.close()
@@ -214,6 +216,7 @@ class Elm327(SpeedDriver):
 
     def _reset(self) -> str:
         """AT Z, and wait for the banner: answers to anything sent before the reset are skipped."""
+        self._owed = False
         heard = ""
         for _ in range(2):
             self._write("ATZ")
@@ -250,11 +253,23 @@ class Elm327(SpeedDriver):
     # ----------------------------------------------------------------- the serial line
 
     def _command(self, command: str, long_wait: bool = False) -> tuple[list[str], bool]:
-        """Send one command; the answer's lines without the echo, and whether an echo came back."""
+        """Send one command; the answer's lines without the echo, and whether an echo came back.
+
+        A command given up on (no prompt in time) may still be answered: a slow clone or Bluetooth bridge took
+        1.1 s over AT DPN. That late answer is waited for, once, and thrown away before the next command; read as
+        the next one's, it put every answer one behind for good (the speed taken for AT DPN's, 'A6' for the
+        speed)."""
+        if self._owed:
+            self._owed = False
+            try:
+                self._read_answer(self.timeout_s)
+            except _NoPrompt:
+                self._rx.clear()  # it never came: what there is belongs to no command
         self._write(command)
         try:
             answer = self._read_answer(self.timeout_s, self.search_timeout_s if long_wait else None)
         except _NoPrompt as e:
+            self._owed = True
             raise BusError(f"ELM327 on {self.port} stopped answering ({command}: {e})") from None
         wanted = command.replace(" ", "").upper()
         lines, echoed = [], False
@@ -419,7 +434,9 @@ class Elm327(SpeedDriver):
 
     def _ask_family(self, sample: str) -> str:
         """Which header layout the adapter found: AT DPN, or the line itself if a clone will not say."""
-        lines, _ = self._command("ATDPN")
+        # Asked once (the answer is kept), and given the search's wait: a slow clone answers it late (ELM327-emulator
+        # itself takes 0.5 s over it), and the whole family of the answers depends on it.
+        lines, _ = self._command("ATDPN", long_wait=True)
         number = lines[0].upper().removeprefix("A") if len(lines) == 1 else ""
         if number in FAMILY_OF_PROTOCOL:
             self.protocol_number = number

@@ -214,7 +214,8 @@ def test_ctrl_c_ends_a_command_with_one_line_and_the_shells_code() -> None:
             "import types\n"
             "m = types.ModuleType('slow_work')\n"
             "def main(args):\n"
-            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # as at a terminal: a job started in
+            "    os.kill(os.getpid(), signal.SIGINT)\n"  # the background (CI's) inherits SIGINT ignored
             "    time.sleep(30)\n"
             "    return 0\n"
             "m.main = main\n"

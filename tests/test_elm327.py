@@ -364,6 +364,19 @@ def test_slow_protocol_search_is_waited_for(port: PtyPort) -> None:
         assert model.commands.count("ATZ") == 1
 
 
+def test_an_answer_that_comes_after_its_command_was_given_up_is_not_the_next_ones(port: PtyPort) -> None:
+    """A slow clone answers AT DPN after the driver gave up on it (the search's wait, 1 s here): that late 'A6' was
+    read as the next request's answer, every answer after it one behind ('A6' for the speed, the speed for AT DPN,
+    and the header layout guessed wrong from it), the OBD never delivering again. It is waited out and dropped."""
+    with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))], ScaledClock(1.0),
+                 slow_commands={"ATDPN": 1.3}) as model, \
+            driver(port, timeout_s=1.0, search_timeout_s=1.0) as elm:
+        assert elm.connect_problem is not None and "(ATDPN: no prompt within 1 s)" in elm.connect_problem
+        model.slow_commands.clear()  # the clone answers in time from now on
+        assert [elm.read().speed_kmh for _ in range(3)] == [50, 50, 50]
+        assert elm.protocol_number == "6"
+
+
 def test_search_longer_than_allowed_is_reported_by_open(port: PtyPort) -> None:
     # The control for the test above: an adapter searching twice as long as the driver allows (0.5 s, 0.25 s).
     with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))], ScaledClock(1.0), search_delay_s=0.5), \

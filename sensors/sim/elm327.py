@@ -132,7 +132,8 @@ class Elm327Model(DeviceThread):
 
     ``vehicle_protocol`` is the bus the car has (the AT SP digit it would be found as). The delays are
     drive time: ``search_delay_s`` for a protocol search or K-line init, ``reset_delay_s`` for AT Z,
-    ``ecu_delay_s`` for the ECUs to answer a request once connected. ``seed`` drives the battery
+    ``ecu_delay_s`` for the ECUs to answer a request once connected, ``slow_commands`` for the answer to given
+    commands (a slow clone). ``seed`` drives the battery
     voltage noise and the bytes of injected garbage.
     """
 
@@ -149,6 +150,7 @@ class Elm327Model(DeviceThread):
         search_delay_s: float = 1.5,
         reset_delay_s: float = 0.5,
         ecu_delay_s: float = 0.02,
+        slow_commands: dict[str, float] | None = None,
         seed: int | np.random.Generator = 0,
     ) -> None:
         if vehicle_protocol not in PROTOCOL_NAMES:
@@ -161,6 +163,9 @@ class Elm327Model(DeviceThread):
         self.search_delay_s = search_delay_s
         self.reset_delay_s = reset_delay_s
         self.ecu_delay_s = ecu_delay_s
+        # Commands (spaces removed, upper case) answered only after this much drive time: a slow clone or Bluetooth
+        # bridge (ELM327-emulator itself takes 0.5 s over AT DPN), whose answer may come after the host gave up.
+        self.slow_commands = dict(slow_commands or {})
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self._lock = threading.RLock()
         self._faults: deque[ElmFault] = deque()
@@ -235,6 +240,8 @@ class Elm327Model(DeviceThread):
             self.commands.append(command)
             if len(self.commands) > 2 * COMMANDS_KEPT:
                 del self.commands[:-COMMANDS_KEPT]
+            if command in self.slow_commands:
+                self.clock.sleep(self.slow_commands[command])
             self._last_command = command
             if len(command) > MAX_COMMAND_CHARS:
                 self._answer(["?"])
