@@ -528,3 +528,17 @@ def test_a_silent_barometer_gets_no_verdict_on_its_offset(outage_drive):
     late = said[max(said)]
     assert not any(v.startswith("barometer offset") for v in late), late
     assert any(v.startswith("no barometer for 1") and "runs without it" in v for v in late), late
+
+
+def test_a_fix_held_past_a_second_is_placed_on_its_own_epoch_by_the_pps():
+    """Clock not locked yet, PPS edges known: the offset's whole seconds come from the shortest delay of the last
+    fixes, not from each fix's own: an NMEA epoch held until the next burst (1.5 s after it) took a second too many
+    and landed on its successor's time."""
+    clock = GnssEpochClock()
+    frac = 123_000_000  # the board clock 0.123 s past UTC's seconds
+    for k in range(5):
+        clock.pps(T0 + k * NS + frac)
+    for k in range(5):  # arriving 0.2 s after their epochs
+        assert clock.epoch_time(T0 + k * NS + frac + 200_000_000, T0 + k * NS, "free") == T0 + k * NS + frac
+    assert clock.method == "pps"
+    assert clock.epoch_time(T0 + 5 * NS + frac + 1_500_000_000, T0 + 5 * NS, "free") == T0 + 5 * NS + frac

@@ -13,6 +13,7 @@ states its epoch time (UTC), which is the measurement time once the logger's clo
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 
 NS = 1_000_000_000
@@ -20,6 +21,7 @@ NOMINAL_LATENCY_NS = 100_000_000
 ARRIVAL_SIGMA_S = 0.1  # spread of a receiver's solution and output latency (u-blox: some tens to 300 ms)
 MIN_LATENCY_SIGMA_S = 0.02  # the least spread taken for latencies learnt while the time was valid
 PPS_STALE_NS = 10 * NS
+RECENT_DELAYS = 10  # the fixes whose shortest arrival delay picks the offset's whole seconds
 
 
 class GnssEpochClock:
@@ -60,8 +62,10 @@ class GnssEpochClock:
         if self._pps and t_sync_ns - self._pps[-1][0] < PPS_STALE_NS:
             fracs = sorted(f for _, f in self._pps)
             frac = fracs[len(fracs) // 2]
-            # delay = offset + latency with 0 <= latency < 1 s: the whole seconds of the offset follow.
-            k = (delay - frac) // NS
+            # delay = offset + latency with 0 <= latency < 1 s: the whole seconds of the offset follow, from the
+            # shortest delay of the last few fixes (one held back past a second, an NMEA epoch sent with the next
+            # burst, took a whole second too many and landed on its successor's time).
+            k = (min(itertools.islice(reversed(self._delays), RECENT_DELAYS)) - frac) // NS
             self.method, self.offset_ns = "pps", frac + k * NS
             return gnss_time_ns + self.offset_ns
         self.method = "shortest delay"
