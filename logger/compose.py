@@ -173,7 +173,8 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
 
         port = devices.elm327_path if obd["source"] == "sim" else obd["port"]
         plans.append(Plan(ObdSource(lambda: Elm327(port, baudrate=obd["baud"], protocol=obd["protocol"],
-                                                   headers=obd["headers"]), "elm327", tb),
+                                                   headers=obd["headers"], timeout_s=obd["answer_timeout_s"]),
+                                    "elm327", tb),
                           obd["rate_hz"], obd["rate_hz"]))
     # gpsd: the one at gnss.gpsd_host, or the simulated vehicle's when sim.gpsd asks for it.
     sim_gpsd = bool(cfg["sim"]["gpsd"]) and devices is not None and devices.gpsd_port is not None

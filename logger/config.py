@@ -222,6 +222,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "baud": Key(int, 38400, _one_of(9600, 38400, 57600, 115200, 230400, 500000)),
         "protocol": Key(str, "0", _one_of(*"0123456789BC"), "ATSP protocol number, 0 = automatic"),
         "headers": Key(bool, True, None, "ask the adapter for headers: tells which ECU answered, prefers the engine"),
+        "answer_timeout_s": Key(NUM, 1.0, _range(0.2, 10),
+                                "silence after which an ELM327 command counts as unanswered (slow clones: 2-3)"),
         "channel": Key(str, "can0", _ifname, "SocketCAN interface for source = 'can'"),
         "extended_id": Key(bool, False, None, "29-bit OBD addressing"),
         "rate_hz": Key(NUM, 2, _range(0.1, 20)),

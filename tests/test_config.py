@@ -335,3 +335,18 @@ def test_a_rinex_receiver_name_is_ascii() -> None:
     assert "gnss.receiver_name" in msg and msg.endswith("ASCII only (a RINEX header is ASCII)"), msg
     assert parse(GOOD.replace('baud = 115200', 'baud = 115200\nreceiver_name = "SN42/NEO-M8T/TIM 1.10"'),
                  "logger.toml")["gnss"]["receiver_name"] == "SN42/NEO-M8T/TIM 1.10"
+
+
+def test_a_slow_elm327_clone_gets_the_answer_timeout_the_file_gives() -> None:
+    """A Bluetooth clone answers some commands after more than the default second: [obd] answer_timeout_s reaches
+    the adapter's driver (there was no way to give it)."""
+    from logger.compose import plans_from_config
+    from logger.runtime.timebase import TimeBase
+    from sensors.sim.vehicle import VehicleDevices
+
+    cfg = parse(GOOD.replace('port = "/dev/ttyUSB0"', 'port = "/dev/ttyUSB0"\nanswer_timeout_s = 2.5'),
+                "logger.toml")
+    (obd,) = [p for p in plans_from_config(cfg, TimeBase(), VehicleDevices()) if p.source.name == "obd"]
+    assert obd.source.make_driver().timeout_s == 2.5
+    (msg,) = _problems(GOOD.replace('port = "/dev/ttyUSB0"', 'port = "/dev/ttyUSB0"\nanswer_timeout_s = 0'))
+    assert "obd.answer_timeout_s = 0" in msg, msg
