@@ -240,7 +240,10 @@ def test_ready_waits_for_the_first_open_but_not_forever(tmp_path: Path, systemd:
         assert fake.pings_between(t0, t_ready) >= 2  # start-up is not a hang
         assert d.samplers[0].health.state == "starting"
         # An open under way is no fault for its first OPEN_GRACE_S (an ELM327's protocol search at every start)...
-        assert not [p for p in d.snapshot()["problems"] if p.startswith("slow")]
+        snap = d.snapshot()
+        assert not [p for p in snap["problems"] if p.startswith("slow")]
+        # ... but with no sensor delivering the verdict is critical, and says why (it said nothing).
+        assert snap["verdict"] == "critical" and snap["problems"] == ["sensors: none delivers yet (slow starting)"]
         # ... one that has not returned after it is (and says so: not "starting: " and nothing).
         d._started_mono -= int((OPEN_GRACE_S + 1) * 1e9)
         (said,) = [p for p in d.snapshot()["problems"] if p.startswith("slow")]

@@ -416,6 +416,9 @@ class Daemon:
             problems.append(f"clock: {mislabel[1]}")
         if self.samplers and all(s["state"] not in ("ok", NO_FIX) for s in sensors):
             critical = True
+            if not sensor_problems:  # every one still opening (OPEN_GRACE_S): the verdict still says why
+                problems.append("sensors: none delivers yet (" + ", ".join(f"{s['name']} {s['state']}"
+                                                                           for s in sensors) + ")")
         dropped = sum(rec.dropped.values())
         self._drop_history.append((now, dropped))
         while len(self._drop_history) > 2 and now - self._drop_history[0][0] > DROP_WINDOW_NS:
