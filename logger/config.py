@@ -548,18 +548,16 @@ def chrony_problem(cfg: Config) -> str:
         return ""
     sim = cfg.values["sim"]
     played = simulated_sections(cfg)
-    simulated = [s for s in SIM_SECTIONS if played[s]]
-    if any(played[s] for s in ("gnss", "pps")):
-        return (f"sync.chrony_sock is set while {' and '.join(s for s in ('gnss', 'pps') if played[s])} "
-                f"{'is' if sum(played[s] for s in ('gnss', 'pps')) == 1 else 'are'} simulated: chrony would be "
-                "given the simulation's time (leave chrony_sock empty for simulated runs)")
+    timing = [s for s in ("gnss", "pps") if played[s]]
+    # Any other simulated sensor makes the simulated vehicle's board clock the run's, a few milliseconds from the
+    # host's: real gpsd edges mapped through it reached chrony off by that (2.7 ms, with 11 us claimed).
+    simulated = timing or [s for s in SIM_SECTIONS if played[s]]
     if simulated:
-        # Any simulated sensor makes the simulated vehicle's board clock the run's, a few milliseconds from the
-        # host's: real gpsd edges mapped through it reached chrony off by that (2.7 ms, with 11 us claimed).
         named = simulated[0] if len(simulated) == 1 else f"{', '.join(simulated[:-1])} and {simulated[-1]}"
-        return (f"sync.chrony_sock is set while {named} {'is' if len(simulated) == 1 else 'are'} "
-                "simulated: the run's clock is then the simulated board's, not the host's, and chrony would be "
-                "given its offset as the clock's error (leave chrony_sock empty for simulated runs)")
+        why = ("chrony would be given the simulation's time" if timing else "the run's clock is then the simulated "
+               "board's, not the host's, and chrony would be given its offset as the clock's error")
+        return (f"sync.chrony_sock is set while {named} {'is' if len(simulated) == 1 else 'are'} simulated: {why} "
+                "(leave chrony_sock empty for simulated runs)")
     if sim["time_scale"] != 1.0:
         return (f"sync.chrony_sock is set with sim.time_scale = {sim['time_scale']:g}: chrony would be given time "
                 "running faster than real time")

@@ -26,8 +26,7 @@ def main(argv: list[str]) -> int:
         return 1
     # What the file alone cannot tell: a folder it names that is a file on this machine (run would fail on it).
     places = [f"{args.file}: logger.{key} = {cfg['logger'][key]!r} exists and is not a folder"
-              for key in ("out_dir", "state_dir") if Path(cfg["logger"][key]).exists()
-              and not Path(cfg["logger"][key]).is_dir()]
+              for key in ("out_dir", "state_dir") if (p := Path(cfg["logger"][key])).exists() and not p.is_dir()]
     if places:
         print("\n".join(places), file=sys.stderr)
         return 1

@@ -48,12 +48,7 @@ def drive_name(files: list[DriveFile]) -> str:
     first by the recorder, else the daemon's file whose name sorts first, else the first file given."""
     if not files:
         return "drive"
-    numbered = [f for f in files if f.run is not None]
-    live = [f for f in files if f.origin == "live"]
-    if numbered:
-        first = min(numbered, key=lambda f: (f.run[1] if f.run else 0, f.path.name)).path
-    elif live:
-        first = min(f.path for f in live)
-    else:
-        first = files[0].path
+    numbered = [(f.run[1], f.path.name, f.path) for f in files if f.run is not None]
+    live = [f.path for f in files if f.origin == "live"]
+    first = min(numbered)[2] if numbered else min(live) if live else files[0].path
     return drive_stem(first) or "drive"

@@ -136,15 +136,12 @@ def main(argv: list[str]) -> int:
         params = NavParams()
     if args.mode is not None:
         params.mode = args.mode
-    if params.mode == "gnss" and args.gnss_solution is not None:
-        # GNSS-only mode passes the receiver's fixes through: there is no filter to fuse a solution with.
-        print(f"logger replay: --gnss-solution needs the filter (mode 15 or 17); mode gnss passes the receiver's "
+    # GNSS-only mode passes the receiver's fixes through: no filter to fuse a solution with or to smooth.
+    needs_filter = "--gnss-solution" if args.gnss_solution is not None else "--smooth" if args.smooth else ""
+    if params.mode == "gnss" and needs_filter:
+        print(f"logger replay: {needs_filter} needs the filter (mode 15 or 17); mode gnss passes the receiver's "
               f"fixes through{' (the mode of ' + str(args.config) + ')' if args.mode is None else ''}",
               file=sys.stderr)
-        return 2
-    if params.mode == "gnss" and args.smooth:
-        print("logger replay: --smooth needs the filter (mode 15 or 17); mode gnss passes the receiver's fixes "
-              f"through{' (the mode of ' + str(args.config) + ')' if args.mode is None else ''}", file=sys.stderr)
         return 2
     solution: SolutionFile | None = None
     if args.gnss_solution is not None:

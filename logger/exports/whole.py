@@ -60,8 +60,6 @@ def remove_stale_stages(folder: Path) -> list[Path]:
 
 def _running(pid: int) -> bool:
     """Whether a process with this id exists (another user's counts: signalling it is refused, not unknown)."""
-    if pid == os.getpid():
-        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -126,11 +124,7 @@ def retire(path: Path) -> None:
     """An earlier run's output this run does not make (``logger replay --no-mcap``: its ``trajectory.mcap``) is
     removed when the run's outputs go in (inside :func:`written_together`; at once outside one): left, it would
     stand beside this run's files as theirs. Nothing is done when there is none."""
-    together = _TOGETHER.get()
-    if together is None:
-        path.unlink(missing_ok=True)
-    else:
-        together.append((None, path))
+    _complete(None, path)
 
 
 # The set being written: (partial file, output) pairs, and (None, output) for an earlier output retired.
@@ -160,8 +154,9 @@ def _put_in_place(done: _Set) -> None:
         raise
 
 
-def _complete(tmp: Path, path: Path) -> None:
-    """The partial file ``tmp`` of ``path`` is complete: in place now, or with its set at the end of it."""
+def _complete(tmp: Path | None, path: Path) -> None:
+    """The partial file ``tmp`` of ``path`` is complete (None: ``path`` is retired): in place now, or with its set
+    at the end of it."""
     together = _TOGETHER.get()
     if together is None:
         _put_in_place([(tmp, path)])
