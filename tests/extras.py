@@ -1,6 +1,6 @@
-"""The optional packages some tests need (the ``[test]`` extra: hypothesis, matplotlib, jsonschema): a test that
-needs one skips where it is not installed, with a reason naming it, instead of failing or taking its module's
-other tests down with it. A board with Debian's packages may lack one; CI installs them all, and there
+"""The optional packages some tests need (the ``[test]`` extra: hypothesis, matplotlib, jsonschema, ELM327-emulator,
+obd): a test that needs one skips where it is not installed, with a reason naming it, instead of failing or taking
+its module's other tests down with it. A board with Debian's packages may lack one; CI installs them all, and there
 ``LOGGER_TESTS_NO_SKIP=1`` makes such a skip fail the run (tests/conftest.py).
 """
 
