@@ -16,24 +16,31 @@ installs both (.ci/run) and where it fails instead.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import shutil
 import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import extras
 import pytest
 from helpers_drive import run_logger
 from mcap.reader import make_reader
-from test_schemas import DRIVES
+from test_schemas import CAPTURES, DRIVES, STAMP
 
+from logger.cli.gnss_decode import decode_pieces, strip_capture_comments
 from logger.recording.drive import iter_messages, open_drive
 from logger.recording.files import recover, walk
-from logger.recording.topics import IMU, IMU_BATCH, TOPICS
+from logger.recording.records import location_fix, stamped_record
+from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, TOPICS
+from sensors.ublox_decode import GnssFix
 
 ROOT = Path(__file__).resolve().parents[1]
 READER = ROOT / "tools" / "mcap_js" / "read.mjs"
+FOXGLOVE_SCHEMA = ROOT / "tools" / "mcap_js" / "foxglove_schema.mjs"
 NODE_MODULES = ROOT / "tools" / "mcap_js" / "node_modules"
 FIFO = next(d for d in DRIVES if d.name == "urban")  # test_schemas' default drive: the IMU's FIFO, /imu/batch
 # (compression, simulated seconds): the default, and the other compression the recorder offers, shorter.
@@ -47,7 +54,7 @@ def need_node() -> str:
     node = shutil.which("node")
     if node is None:
         pytest.skip("node is not installed (apt-get install nodejs npm)")
-    if not (NODE_MODULES / "@mcap" / "core").is_dir():
+    if not (NODE_MODULES / "@mcap" / "core").is_dir() or not (NODE_MODULES / "@foxglove" / "schemas").is_dir():
         pytest.skip("tools/mcap_js/node_modules is not installed (npm ci --prefix tools/mcap_js)")
     return node
 
@@ -170,3 +177,73 @@ def test_mcap_core_stream_walk_recovers_a_cut_file(recorded: tuple[str, Path], t
     assert "error" not in again, again
     assert again["counts"] == py.counts and again["messages"] == len(salvage.messages)
     assert again["time_range"] == py.time_range and again["imu_batch_samples"] == py.imu_batch_samples
+
+
+# ---- Foxglove's own schema ---------------------------------------------------------------------------------------
+def foxglove_schema(node: str, name: str) -> dict[str, Any]:
+    """Foxglove's JSON schema ``name`` as @foxglove/schemas publishes it."""
+    r = subprocess.run([node, str(FOXGLOVE_SCHEMA), name], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)[name]
+
+
+def location_fix_problems(validator: Any, record: dict[str, Any]) -> list[str]:
+    """Where a /gnss/fix or /nav/fix record breaks Foxglove's foxglove.LocationFix, but for the one documented
+    departure (docs/foxglove.md): ``altitude`` null on a position without a height (an NMEA epoch without GGA),
+    where Foxglove's schema has a number and any number would be a height nobody measured."""
+    return [f"{''.join(f'[{p!r}]' for p in err.absolute_path)}: {err.message}"
+            for err in validator.iter_errors(record)
+            if not (list(err.absolute_path) == ["altitude"] and record["altitude"] is None
+                    and record.get("fix_mode") != 3)]
+
+
+@functools.cache
+def location_fix_validator(node: str) -> Any:
+    jsonschema = extras.need("jsonschema")
+    schema = foxglove_schema(node, "LocationFix")
+    assert schema["title"] == "foxglove.LocationFix" and "altitude" in schema["required"]
+    cls = jsonschema.validators.validator_for(schema)
+    cls.check_schema(schema)
+    return cls(schema)
+
+
+@pytest.mark.parametrize("recorded", ["zstd"], indirect=True)  # the longer drive: the filter starts in it
+def test_location_fixes_are_foxglove_s_location_fixes(recorded: tuple[str, Path], tmp_path: Path) -> None:
+    """Our topics named foxglove.LocationFix hold to Foxglove's own schema of that name (the Map panel reads them
+    by it), not only to the schema our files embed: fields, types, the covariance's length, the time's range. The
+    drive's /gnss/fix and live /nav/fix, and the /nav/fix of its replay (the live filter may not have started
+    within a short drive on a busy host; the replay's rows are the same record)."""
+    node, path = recorded
+    validator = location_fix_validator(node)
+    r = subprocess.run([sys.executable, "-m", "logger.cli", "replay", str(path), "--out", str(tmp_path)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    counts: Counter[str] = Counter()
+    for name, source in (("drive", path), ("replay", tmp_path / "trajectory.mcap")):
+        with open(source, "rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(topics=[GNSS_FIX, NAV_FIX]):
+                record = json.loads(message.data)
+                counts[f"{name} {channel.topic}"] += 1
+                assert not location_fix_problems(validator, record), (name, channel.topic, record)
+    assert counts[f"drive {GNSS_FIX}"] >= 10 and counts[f"replay {NAV_FIX}"] >= 5, counts
+    # The check can fail: a covariance of eight, a time before 1970, a latitude as text, a covariance type of 4.
+    with open(path, "rb") as f:
+        fix = next(json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=[GNSS_FIX]))
+    for broken in ({**fix, "position_covariance": [0.0] * 8}, {**fix, "timestamp": {"sec": -1, "nsec": 0}},
+                   {**fix, "latitude": "48.1"}, {**fix, "position_covariance_type": 4}):
+        assert location_fix_problems(validator, broken), broken
+
+
+def test_what_real_receivers_send_is_a_foxglove_location_fix() -> None:
+    """Every fix the receiver reader makes of the real captures (the GPSD project's, tests/data/gpsd-ublox: UBX and
+    NMEA-only receivers), recorded as the daemon records it, against Foxglove's schema."""
+    validator = location_fix_validator(need_node())
+    per_capture: Counter[str] = Counter()
+    for capture in sorted(CAPTURES.glob("*.log")):
+        data = strip_capture_comments(capture.read_bytes())
+        for item in decode_pieces([data]).items:
+            if isinstance(item, GnssFix):
+                record = json.loads(json.dumps(stamped_record(1_000, STAMP, 0, location_fix(item, 1_000))))
+                assert not location_fix_problems(validator, record), (capture.name, record)
+                per_capture[capture.name] += 1
+    assert len(per_capture) >= 20 and sum(per_capture.values()) >= 500, per_capture
