@@ -1,8 +1,13 @@
-"""The end-of-run summary's judgement of the rates: a periodic sensor that fell behind in drive time is named."""
+"""The end-of-run summary's judgement of the rates (a periodic sensor that fell behind in drive time is named), and
+the exit of a run that recorded nothing."""
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
 from types import SimpleNamespace
+
+from helpers_drive import run_logger
 
 from logger.runtime.sampler import SensorHealth
 from logger.runtime.summary import shortfalls
@@ -67,3 +72,23 @@ def test_a_fifo_imu_is_judged_by_the_samples_it_delivered_not_by_its_reads() -> 
         "against 20 Hz"]
     assert shortfalls(daemon, host_only=True) == [
         "imu let 470 of its 1801 samples pass unsampled (26.1%), 14.54 Hz of drive time against 20 Hz"]
+
+
+def test_a_run_of_which_nothing_is_on_disk_exits_4_and_says_so(tmp_path: Path) -> None:
+    """A run that recorded nothing (here a disk with less free than `[recorder] min_free_mb` asks, 1 TiB, from the
+    start to the end) exited 0 after a summary saying "recorded 0.0 s ... into 0 files": a script, or systemd after
+    the stop, took it for a drive."""
+    assert shutil.disk_usage(tmp_path).free < (1 << 40), "this test needs a disk with under 1 TiB free"
+    cfg = tmp_path / "logger.toml"
+    cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n[recorder]\nmin_free_mb = {1 << 20}\n')
+    r = run_logger("--sim", "--duration", "2", "--out", str(tmp_path / "drive"), "--status-socket",
+                   str(tmp_path / "s.sock"), "--config", str(cfg))
+    assert r.returncode == 4, r.stdout + r.stderr
+    assert r.stdout.startswith("logger: recorded 0.0 s of a ") and " into 0 files" in r.stdout, r.stdout
+    assert r.stderr.endswith("logger: nothing of this run is on disk (see above: the recorder's state and the log "
+                             "say why)\n"), r.stderr
+    # The same run with the default minimum free space records (exit 0, or 3 on a host too busy to hold the rates).
+    cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n')
+    r = run_logger("--sim", "--duration", "2", "--out", str(tmp_path / "drive"), "--status-socket",
+                   str(tmp_path / "s.sock"), "--config", str(cfg))
+    assert r.returncode in (0, 3) and " into 1 file" in r.stdout, r.stdout + r.stderr

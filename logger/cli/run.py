@@ -107,6 +107,7 @@ def sim_places(cfg: Config) -> None:
 
 
 RATES_NOT_HELD = 3  # exit code of a simulated drive whose sensors fell short of their rates
+NOTHING_RECORDED = 4  # exit code of a run of which no record is on disk (a full or missing disk throughout)
 FILE_UMASK = 0o027  # recorded drives, the clock's state: group-readable (the operators' group), never the world's
 
 
@@ -158,12 +159,21 @@ def _run(args: argparse.Namespace, cfg: Config) -> int:
 
 
 def finish(daemon: Daemon, code: int) -> int:
-    """After the daemon stopped: the run's summary on stdout, and the exit code (``RATES_NOT_HELD`` for a paced
-    simulated drive that still fell short of a sensor's rate: it measured the host, not the code)."""
+    """After the daemon stopped: the run's summary on stdout, and the exit code (``NOTHING_RECORDED`` for a run of
+    which nothing is on disk, a logger's one job; ``RATES_NOT_HELD`` for a paced simulated drive that still fell
+    short of a sensor's rate: it measured the host, not the code).
+
+    A run that recorded nothing exits non-zero so that a script, and systemd (the unit shows failed after the stop,
+    with this line in the journal), do not take it for a drive. Restart= does not act on a stop, so the service
+    is not restarted for it; the daemon itself never ends on a full disk, it waits for space."""
     try:
         print(run_summary(daemon), flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
+    if code == 0 and not any(daemon.recorder.status().written.values()):
+        print("logger: nothing of this run is on disk (see above: the recorder's state and the log say why)",
+              file=sys.stderr)
+        return NOTHING_RECORDED
     if code == 0 and daemon.tb.pace() is not None and shortfalls(daemon, host_only=True):
         print("logger: the simulated drive did not hold its sensors' rates even at real time (see above): this "
               "host is too slow or too busy for it; the recording is not one a real drive would give",
