@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
+import subprocess
+import sys
 import time
+import zlib
 from pathlib import Path
 
 import pytest
@@ -24,9 +29,11 @@ tmpfs           /tmp            tmpfs   defaults                 0 0
 """
 
 
-def mountinfo_line(point: Path | str) -> str:
+def mountinfo_line(point: Path | str, device: str | None = None) -> str:
+    """A mountinfo line; each mount point a filesystem of its own (its device) unless ``device`` is given."""
     where = str(point).replace(" ", "\\040")
-    return f"36 25 179:2 / {where} rw,noatime shared:7 - ext4 /dev/mmcblk1p1 rw\n"
+    device = device or ("179:2" if str(point) == "/" else f"8:{zlib.crc32(str(point).encode()) % 250 + 1}")
+    return f"36 25 {device} / {where} rw,noatime shared:7 - ext4 /dev/mmcblk1p1 rw\n"
 
 
 def tables(tmp_path: Path, card: Path, mounted: bool) -> tuple[Path, Path]:
@@ -68,6 +75,48 @@ def test_the_innermost_listed_mount_point_is_the_one_that_must_be_mounted(tmp_pa
     info.write_text(mountinfo_line("/") + mountinfo_line(disk))
     assert str(card) in (storage_problem(card / "drives", fstab, info) or "")
     assert storage_problem(disk / "other", fstab, info) is None
+
+
+def test_the_service_s_own_bind_of_the_mount_point_is_not_the_card(tmp_path: Path) -> None:
+    """The unit's drop-in ``ReadWritePaths=`` binds the mount point onto itself in the service's namespace, so it is
+    always in the service's mount table: the root filesystem's own folder there is no card (the service recorded on
+    the root filesystem, status OK, the file hidden once the card was mounted). A card mounted over the bind, or
+    one mounted before the service started (the bind is then of the card), is."""
+    card = tmp_path / "card"
+    fstab, info = tables(tmp_path, card, mounted=False)
+    info.write_text(mountinfo_line("/") + mountinfo_line(card, "179:2"))  # the root's folder bound onto itself
+    assert storage_problem(card / "drives", fstab, info) == f"{card} is not mounted (listed in /etc/fstab); waiting " \
+        "for it"
+    info.write_text(mountinfo_line("/") + mountinfo_line(card, "179:2") + mountinfo_line(card, "179:33"))
+    assert storage_problem(card / "drives", fstab, info) is None  # mounted later, over the bind
+    info.write_text(mountinfo_line("/") + mountinfo_line(card, "179:33") + mountinfo_line(card, "179:33"))
+    assert storage_problem(card / "drives", fstab, info) is None  # mounted first, then bound
+    # A bind mount that fstab itself lists is the storage it names, whatever filesystem it is on.
+    fstab.write_text(f"/srv/drives {card} none bind,nofail 0 0\n")
+    info.write_text(mountinfo_line("/") + mountinfo_line(card, "179:2"))
+    assert storage_problem(card / "drives", fstab, info) is None
+    info.write_text(mountinfo_line("/"))
+    assert storage_problem(card / "drives", fstab, info) is not None
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("unshare") is None,
+                    reason="needs root: a mount namespace of its own (unshare -m), as the service has")
+def test_a_bind_of_the_mount_point_onto_itself_in_a_real_namespace_is_not_mounted_storage(tmp_path: Path) -> None:
+    """The same, read from the kernel's own table: a mount namespace with the empty mount point bound onto itself
+    (what systemd makes of ``ReadWritePaths=``), then a tmpfs mounted over it (the card)."""
+    card = tmp_path / "card"
+    card.mkdir()
+    fstab = tmp_path / "fstab"
+    fstab.write_text(f"LABEL=DRIVES {card} ext4 nofail 0 2\n")
+    ask = ("import sys; from pathlib import Path; from logger.recording.storage import storage_problem; "
+           "print(storage_problem(Path(sys.argv[1]), Path(sys.argv[2])))")
+    script = (f'mount --bind "$1" "$1" && {sys.executable} -c "$2" "$1/drives" "$3" '
+              f'&& mount -t tmpfs -o size=1m card "$1" && {sys.executable} -c "$2" "$1/drives" "$3"')
+    r = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script, "sh", str(card), ask,
+                        str(fstab)], capture_output=True, text=True, timeout=60,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == [f"{card} is not mounted (listed in /etc/fstab); waiting for it", "None"]
 
 
 def wait_until(predicate, timeout_s: float = 20.0) -> bool:
