@@ -621,7 +621,13 @@ class PpsClock(StampClock):
         tmp = self.state_path.with_suffix(".tmp")
         try:
             self.state_path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps(state))
+            # Flushed to the card before the rename, as the daemon's other state files (logger.runtime.state_file,
+            # which sync may not import): a power cut, how a car's logger stops, leaves the old state or the new
+            # one, never an empty file that renamed over the old.
+            with open(tmp, "w") as f:
+                f.write(json.dumps(state))
+                f.flush()
+                os.fsync(f.fileno())
             os.replace(tmp, self.state_path)
         except OSError as exc:
             log.warning("cannot save clock state to %s: %s", self.state_path, exc.strerror or exc)

@@ -227,6 +227,22 @@ def test_a_restart_from_the_state_file_slews_at_the_lock(tmp_path: Path) -> None
     assert np.abs(np.diff(r[:, 1])).max() <= 6_000
 
 
+def test_the_state_file_is_on_the_card_before_it_replaces_the_last(tmp_path: Path, monkeypatch) -> None:
+    """The saved state is flushed to the card before its rename over the last one (a power cut, how a car's logger
+    stops, must leave the old state or the new, never an empty file), as the daemon's other state files are."""
+    import sync.clock as clock_module
+
+    path = tmp_path / "clock.json"
+    stream = make_stream(120, seed=3)
+    clock, _ = run(stream, state_path=path, clock_id="boot")
+    events: list[str] = []
+    real_fsync, real_replace = clock_module.os.fsync, clock_module.os.replace
+    monkeypatch.setattr(clock_module.os, "fsync", lambda fd: (events.append("fsync"), real_fsync(fd))[1])
+    monkeypatch.setattr(clock_module.os, "replace", lambda a, b: (events.append("replace"), real_replace(a, b))[1])
+    clock.save()
+    assert events == ["fsync", "replace"] and json.loads(path.read_text())["clock_id"] == "boot"
+
+
 def test_runs_test_drops_a_stale_head() -> None:
     rng = np.random.default_rng(3)
     x = np.arange(64.0)
