@@ -41,6 +41,7 @@ class GnssRead:
 
     raw: bytes
     items: list[GnssItem]
+    mark: int = 0  # the receiver's number for this read (GnssReceiver.reads), which the fixes' opened_mark names
 
 
 class GnssReceiver:
@@ -55,6 +56,7 @@ class GnssReceiver:
         self.path = path if path is not None else str(getattr(port, "port", "") or "")
         self.framer = UbxNmeaFramer()
         self.decoder = GnssDecoder()
+        self.reads = 0  # reads that returned bytes: the read marks of GnssFix.opened_mark
         # Good UBX frames by (class, id) since the port was opened: which messages the receiver still sends (a
         # receiver restarted under the open port comes back without the ones the host's set-up turned on).
         self.ubx_counts: Counter[tuple[int, int]] = Counter()
@@ -102,12 +104,15 @@ class GnssReceiver:
             raise BusError(f"GNSS receiver on {self.path}: serial port lost: {_one_line(err)}") from err
         items: list[GnssItem] = []
         if data:
+            # Each read its number: an epoch's fix names the read its first message came in (GnssFix.opened_mark),
+            # which the caller dated (GnssRead.mark is this one).
+            self.decoder.read_mark = self.reads = self.reads + 1
             self.framer.decode_nmea = not self.decoder.ignores_nmea  # what the decoder would discard is not parsed
             for frame in self.framer.feed(data):
                 if frame.kind == KIND_UBX:
                     self.ubx_counts[frame.raw[2], frame.raw[3]] += 1
                 items += self.decoder.push(frame)
-        return GnssRead(raw=bytes(data), items=items)
+        return GnssRead(raw=bytes(data), items=items, mark=self.reads)
 
     def write(self, data: bytes) -> None:
         """Send bytes (UBX configuration) to the receiver."""

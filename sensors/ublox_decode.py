@@ -21,7 +21,7 @@ import datetime as dt
 import math
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sensors.geodesy import (
@@ -82,6 +82,11 @@ class GnssFix:
     # such second: ``time_utc_ns`` is then POSIX's value for it, that of the 00:00:00 that follows, so the flag is
     # what tells the two epochs (and the clock, which second a PPS edge marks) apart.
     leap_second: bool = False
+    # The decoder's ``read_mark`` when the epoch's first message came (GnssReceiver: the read of the port it came
+    # in): the reader knows when that read was, which is when the epoch began to arrive. A receiver at 9600 baud
+    # sending u-blox's factory NMEA finishes an epoch more than a second after its pulse, so the time it ends says
+    # nothing of which pulse it follows; the time it begins does. None where nobody marks the reads.
+    opened_mark: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -262,6 +267,7 @@ class _Burst:
     key: float | None
     parts: dict[str, Any] = field(default_factory=dict)
     order: list[str] = field(default_factory=list)
+    opened: int | None = None  # the decoder's read_mark when its first message came
 
     def add(self, ident: str, msg: Any) -> None:
         self.parts[ident] = msg
@@ -289,6 +295,9 @@ class GnssDecoder:
         self._date: dt.date | None = None
         self._last_tod_s: float | None = None
         self.rejected = 0
+        # The caller's number for what it is pushing now (GnssReceiver: one per read of the port); an epoch's fix
+        # carries the one its first message came under (GnssFix.opened_mark). None: not marked.
+        self.read_mark: int | None = None
 
     # ---- public
 
@@ -363,7 +372,7 @@ class GnssDecoder:
         if self._ubx is not None and not _same_itow(itow, self._ubx.key):
             items += self._finish_ubx(learn=True)
         if self._ubx is None:
-            self._ubx = _Burst(itow)
+            self._ubx = _Burst(itow, opened=self.read_mark)
         self._ubx.add(ident, msg)
         if ident in ("NAV-EOE", self._ubx_ender):
             items += self._finish_ubx(learn=ident == "NAV-EOE")
@@ -381,7 +390,7 @@ class GnssDecoder:
         except _CONTENT_ERRORS:
             self.rejected += 1  # only this epoch is lost, not the message that closed it
             return []
-        return [fix] if fix is not None else []
+        return [] if fix is None else [fix if burst.opened is None else replace(fix, opened_mark=burst.opened)]
 
     def _time_pulse(self, msg: Any) -> TimePulse:
         utc_base = _flag(msg, "timeBase")
@@ -651,13 +660,14 @@ class GnssDecoder:
                     self._bootstrap_date(msg, kind, self._nmea.key, key)
                 items += self._finish_nmea(learn=True)
             if self._nmea is None:
-                self._nmea = _Burst(key)
+                self._nmea = _Burst(key, opened=self.read_mark)
             elif self._nmea.key is None:
                 self._nmea.key = key
         elif self._nmea is None:
             if kind not in ("GSA", "VTG"):
                 return items
-            self._nmea = _Burst(None)  # a time-less sentence opens the burst; the next timed one names it
+            # a time-less sentence opens the burst; the next timed one names it
+            self._nmea = _Burst(None, opened=self.read_mark)
         self._nmea.add(kind, msg)
         self._nmea.order[-1] = ident
         if ident == self._nmea_ender and self._nmea.key is not None:
@@ -704,7 +714,7 @@ class GnssDecoder:
         except _CONTENT_ERRORS:
             self.rejected += 1
             return []
-        return [fix] if fix is not None else []
+        return [] if fix is None else [fix if burst.opened is None else replace(fix, opened_mark=burst.opened)]
 
     def _fix_from_nmea(self, burst: _Burst) -> GnssFix | None:
         parts = burst.parts

@@ -32,3 +32,7 @@ class FixEpoch:
     # The epoch is 23:59:60 UTC, an inserted leap second: gnss_time_ns is POSIX's value for it (the 00:00:00 after
     # it), and the clock learns from it that the next second repeats that Unix second.
     leap_second: bool = False
+    # When its first message came (board monotonic ns), where that was before the read it was completed in: an
+    # epoch that takes long on the line (9600 baud, u-blox's factory NMEA: over a second) ends after the next
+    # pulse, so the edge it follows is the one before its beginning. None: it came in one read.
+    opened_ns: int | None = None

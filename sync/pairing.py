@@ -139,7 +139,9 @@ class EdgeLabeller:
         if fix.late_read:
             self.late_reads += 1  # read a second or more after it came: the edge before its read is not its own
         elif abs(utc - whole) <= WHOLE_SECOND_TOLERANCE_NS:
-            self._reported.append((received_ns, self.to_cont(whole, fix.leap_second)))
+            # Its edge is the one before its first message (an epoch can end after the next pulse on a slow line).
+            began = fix.opened_ns if fix.opened_ns is not None and fix.opened_ns < received_ns else received_ns
+            self._reported.append((began, self.to_cont(whole, fix.leap_second)))
         return self._match(predict)
 
     # ---- leap seconds ----------------------------------------------------------------------------------------

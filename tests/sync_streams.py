@@ -38,11 +38,14 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
                 fixes: bool = True, double_edges: tuple[int, ...] = (), spurious: tuple[float, ...] = (),
                 late_fix_at: tuple[int, ...] = (), swing_period_s: float | None = None,
                 stall_until_s: float = 0.0, stall_s: float = 0.0, flag_late_reads: bool = False,
-                rate_pulse: tuple[float, float, float] | None = None) -> Stream:
+                rate_pulse: tuple[float, float, float] | None = None, fix_line_s: float = 0.0) -> Stream:
     """A drive of ``duration_s`` true seconds; PPS (and time messages) missing inside ``outages`` (start, end).
 
     ``rate_pulse`` (start s, length s, ppm): the board clock runs that much faster for a while, its temperature
     unchanged, as CLOCK_MONOTONIC does while NTP (chrony) slews the system clock.
+
+    ``fix_line_s``: each fix's epoch takes that long on the line (a 9600-baud NMEA burst): it is completed that long
+    after its first message came, which the record says (``opened_mono_ns``), as the receiver's source does.
 
     ``stall_s``: messages before ``stall_until_s`` are seen that late; with ``flag_late_reads`` those late by half a
     second or more say so (``late_read``), as the receiver's source does when one read holds two seconds of them."""
@@ -86,8 +89,10 @@ def make_stream(duration_s: float, seed: int = 0, offset_ppm: float = 30.0, swin
         if fixes:
             delay = 1_300_000_000 if k in late_fix_at else int(rng.uniform(40e6, 390e6))
             gps_tow_ms = ((utc - UNIX_AT_GPS + LEAP_S * NS) % (604_800 * NS)) // 1_000_000
-            ev.append((osc.board_ns(k * NS + delay + late), "/gnss/fix",
-                       {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms), **flag}))
+            line = int(fix_line_s * NS)
+            opened = {"opened_mono_ns": osc.board_ns(k * NS + delay + late)} if line else {}
+            ev.append((osc.board_ns(k * NS + delay + line + late), "/gnss/fix",
+                       {"gnss_time_ns": utc, "itow_ms": int(gps_tow_ms), **flag, **opened}))
     for t in spurious:
         ev.append((osc.board_ns(int(t * NS)), "/pps", {"seqno": -1}))
     n_imu = int(duration_s * imu_rate_hz)

@@ -549,3 +549,42 @@ def test_write_to_a_vanished_port_is_bus_error() -> None:
             for _ in range(50):  # the tty layer may buffer the first writes
                 receiver.write(b"\xb5\x62\x06\x08\x00\x00\x0e\x30" * 64)
         receiver.close()
+
+
+def test_an_epoch_read_in_pieces_says_when_its_first_message_came() -> None:
+    """At 9600 baud u-blox's factory NMEA takes over a second of line an epoch, so the read that completes it
+    comes after the next pulse: the record says when the epoch's first message came (``opened_mono_ns``: the time
+    of the read it came in), which the clock pairs it by (tests/test_sync.py)."""
+    from logger.recording.records import fix_epoch
+    from logger.recording.topics import GNSS_FIX
+    from logger.runtime.sources import GnssSource
+    from logger.runtime.timebase import TimeBase
+
+    def head(hhmmss: str) -> bytes:
+        return (nmea(f"GPRMC,{hhmmss},A,4845.9259,N,00907.4074,E,0.5,45.0,061226,,,A")
+                + nmea("GPVTG,45.0,T,,M,0.5,N,0.9,K,A")
+                + nmea(f"GPGGA,{hhmmss},4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,"))
+
+    def tail(hhmmss: str) -> bytes:
+        return (nmea("GPGSA,A,3,01,02,03,04,05,06,,,,,,,1.5,0.9,1.2")
+                + nmea(f"GPGLL,4845.9259,N,00907.4074,E,{hhmmss},A,A"))
+
+    now = [10 * NS]
+    with PtyPort() as device:
+        source = GnssSource(device.path, 9600, configure=False, tb=TimeBase(lambda: now[0], 1e6))
+        source.open()
+        readings = []
+        try:
+            for at_s, data in ((10.0, head("120000.00") + tail("120000.00")),  # one read: GLL is learnt to end one
+                               (11.0, head("120001.00")), (12.2, tail("120001.00"))):
+                now[0] = round(at_s * NS)
+                device.write(data)
+                target = source.offset + len(data)
+                while source.offset < target:
+                    readings += source.read()
+        finally:
+            source.close()
+    fixes = [(r.t_mono_ns, r.payload) for r in readings if r.topic == GNSS_FIX]
+    assert [(t, f.get("opened_mono_ns")) for t, f in fixes] == [(11 * NS, 10 * NS), (12_200_000_000, 11 * NS)]
+    epoch = fix_epoch(fixes[1][1])
+    assert epoch is not None and epoch.opened_ns == 11 * NS and epoch.gnss_time_ns % (86_400 * NS) == 43_201 * NS

@@ -112,9 +112,11 @@ def pps_record(seqno: int, lost: int, gnss_time_ns: int | None = None) -> dict[s
     return {"seqno": seqno, "lost": lost, "gnss_time_ns": gnss_time_ns}
 
 
-def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[str, Any]:
+def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False, opened_mono_ns: int | None = None
+                 ) -> dict[str, Any]:
     """A GnssFix as a foxglove.LocationFix plus the receiver's own fields; ``late_read`` when the host read it
-    together with a later second's fix, so that its arrival (``t_mono_ns``) is known only as an upper bound."""
+    together with a later second's fix, so that its arrival (``t_mono_ns``) is known only as an upper bound;
+    ``opened_mono_ns`` when the epoch's first message came in an earlier read than its last (a slow line)."""
     sec_ns = fix.time_utc_ns if fix.time_utc_ns is not None else 0
     lat = fix.lat_deg if fix.lat_deg is not None else 0.0
     lon = fix.lon_deg if fix.lon_deg is not None else 0.0
@@ -141,6 +143,7 @@ def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False) -> dict[
         "num_sv": fix.num_sv, "pdop": fix.pdop, "hdop": fix.hdop,
         "vdop": fix.vdop, "source": fix.source, "late_read": late_read,
         **({"leap_second": True} if fix.leap_second else {}),
+        **({"opened_mono_ns": opened_mono_ns} if opened_mono_ns is not None else {}),
     }
 
 
@@ -194,7 +197,7 @@ def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
     """A ``/gnss/fix`` record as the clock's input; None while the receiver's time is not valid."""
     t = payload.get("gnss_time_ns")
     return None if t is None else FixEpoch(t, payload.get("itow_ms"), bool(payload.get("late_read")),
-                                           bool(payload.get("leap_second")))
+                                           bool(payload.get("leap_second")), payload.get("opened_mono_ns"))
 
 
 def clock_observer(clock: StampClock) -> dict[str, ClockInput]:

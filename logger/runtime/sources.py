@@ -8,6 +8,7 @@ of clocks and threads; samplers stay free of sensor knowledge.
 from __future__ import annotations
 
 import logging
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -48,6 +49,7 @@ LATE_READ_SPAN_NS = 500_000_000  # epochs this far apart in one read: the older 
 # taken as late only when its epochs lie LATE_READ_SPAN_NS apart.
 EPOCH_BURST_BYTES = 320
 BURST_SETTLE_MAX_S = 0.35
+READ_MARKS_KEPT = 64  # reads whose time is kept to date an epoch's first message (a slow line's epoch spans ~5)
 # A receiver that restarts (a voltage dip while the engine cranks) comes back at the speed and with the messages its
 # flash holds, while the logger's port stays open at the speed the set-up raised it to. Bytes with not one message
 # in them for this many fix periods (at least this many seconds), or messages without the ones the set-up turned on
@@ -273,6 +275,8 @@ class GnssSource(Source):
         self.nmea_only = False  # the receiver answered no UBX when last opened, but spoke NMEA
         self.port_baud = baud  # the speed the port is opened at: the configured one, or the one the set-up set
         self.offset = 0  # bytes read since the port was opened (each /gnss/raw record says where it starts)
+        # (the receiver's read mark, drive time) of the latest reads: when an epoch began to arrive (_opened_at)
+        self._read_at: deque[tuple[int, int]] = deque(maxlen=READ_MARKS_KEPT)
         self._settle = lambda: tb.sleep(self.settle_s())
         self._raw_warned = False
         self._heard_ns = 0  # drive time of the last message of any kind
@@ -338,6 +342,7 @@ class GnssSource(Source):
 
         now = self.tb.monotonic_ns()
         self._heard_ns, self._restart = now, None
+        self._read_at.clear()  # a new receiver object numbers its reads from 1 again
         self._frames_ok, self._bad_frames = self.receiver.framer.frames_ok, self.receiver.framer.bad_checksum
         names = () if self.setup is None else (
             "NAV-PVT", "NAV-TIMEGPS", *(("RXM-RAWX",) if self.setup.raw_observations == "on" else ()))
@@ -368,6 +373,7 @@ class GnssSource(Source):
         t = self.tb.monotonic_ns()
         out: list[Reading] = []
         if got.raw:
+            self._read_at.append((got.mark, t))
             out.append(Reading(GNSS_RAW, raw_bytes_record(t, got.raw, self.offset), t, stamped=False))
             self.offset += len(got.raw)
             self._watch_for_a_restart(t)
@@ -382,10 +388,18 @@ class GnssSource(Source):
             if isinstance(item, GnssFix):
                 if item.source == "HNR-PVT":
                     continue  # already fused with the receiver's own sensors: not a GNSS measurement
-                out.append(Reading(GNSS_FIX, location_fix(item, t, late), t))
+                out.append(Reading(GNSS_FIX, location_fix(item, t, late, self._opened_at(item.opened_mark, t)), t))
             elif isinstance(item, TimePulse):
                 out.append(Reading(TIMEPULSE, timepulse_record(item, late), t))
         return out
+
+    def _opened_at(self, mark: int | None, t_ns: int) -> int | None:
+        """When the read an epoch's first message came in was taken (drive time), where that was an earlier read
+        than this one; None when it was this one, or is not known any more."""
+        for read_mark, at in reversed(self._read_at):
+            if read_mark == mark:
+                return at if at < t_ns else None
+        return None
 
     def _watch_for_a_restart(self, t_ns: int) -> None:
         """Note a ProtocolError for the next read (the sampler then closes the port and opens it again, which sets
