@@ -20,7 +20,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 INSTALL = ROOT / "tools" / "install-board.sh"
 BOARD_CHECK = ROOT / "tools" / "board-check.sh"
-STANDINS = ("apt-get", "systemd-sysusers", "usermod", "udevadm", "systemctl", "install", "ln", "python3", "id")
+STANDINS = ("apt-get", "systemd-sysusers", "usermod", "udevadm", "systemctl", "install", "ln", "python3", "id",
+            "runuser")
 
 
 def _standins(tmp_path: Path, failing: dict[str, int] | None = None) -> tuple[Path, Path]:
@@ -77,6 +78,18 @@ def test_every_step_done_on_a_system_that_takes_them(tmp_path: Path) -> None:
     assert "udevadm control --reload" in calls and "systemctl daemon-reload" in calls
     assert "systemctl enable vehicle-logger.service" in calls
     assert not any(c.startswith("systemctl restart") for c in calls)  # --no-start
+    # The configuration is checked as the service reads it: as its user (a kept root-only file passed as root).
+    assert (f"runuser -u vehicle-logger -- {tmp_path / 'opt'}/venv/bin/logger config check "
+            "/etc/vehicle-logger/logger.toml") in calls
+
+
+def test_an_operator_who_is_no_user_is_refused_before_any_step(tmp_path: Path) -> None:
+    """A mistyped --operator failed step 3 after apt and pip had run, and with it steps 5 and 6: the board was left
+    without its configuration and service."""
+    r, calls = _run(tmp_path, "--operator", "surveyor", failing={"id": 1})
+    assert r.returncode == 2 and r.stderr == ("install-board.sh: --operator surveyor: no such user (give the "
+                                              "operator's own login, e.g. debian)\n"), r.stderr
+    assert "==" not in r.stdout and calls == ["id -u", "id -u surveyor"]  # am I root; is the operator a user
 
 
 def test_a_failed_step_is_named_and_the_independent_steps_still_run(tmp_path: Path) -> None:

@@ -68,6 +68,12 @@ if [ "$DRY_RUN" = 0 ] && [ "$(id -u)" != 0 ]; then
     echo "install-board.sh: run as root (sudo), or with --dry-run to see the steps" >&2
     exit 1
 fi
+# A mistyped operator would fail step 3 after apt and pip had run, and with it the configuration and the service:
+# refused before anything is done.
+if [ -n "$OPERATOR" ] && [ "$DRY_RUN" = 0 ] && ! id -u "$OPERATOR" >/dev/null 2>&1; then
+    echo "install-board.sh: --operator $OPERATOR: no such user (give the operator's own login, e.g. debian)" >&2
+    exit 2
+fi
 if [ -n "$WHEELS" ] && [ "$DRY_RUN" = 0 ] && [ ! -d "$WHEELS" ]; then
     echo "install-board.sh: --wheels $WHEELS is not a directory (make one with --fetch-wheels DIR)" >&2
     exit 2
@@ -198,7 +204,9 @@ configuration() {
     run install -d -m 0755 /etc/vehicle-logger
     unless_present "$CONFIG" configuration \
         install -m 0640 -o root -g vehicle-logger "$SRC/systemd/logger.toml" "$CONFIG"
-    run "$VENV/bin/logger" config check "$CONFIG"
+    # Checked as the service reads it: a configuration kept from before that the service's user may not read (root's
+    # 0600) passed a check run as root, then the service failed at every start.
+    run runuser -u vehicle-logger -- "$VENV/bin/logger" config check "$CONFIG"
 }
 
 service() {
