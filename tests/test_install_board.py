@@ -78,6 +78,13 @@ def test_every_step_done_on_a_system_that_takes_them(tmp_path: Path) -> None:
     assert "udevadm control --reload" in calls and "systemctl daemon-reload" in calls
     assert "systemctl enable vehicle-logger.service" in calls
     assert not any(c.startswith("systemctl restart") for c in calls)  # --no-start
+    # pip builds from a copy of the package's files, not in the operator's checkout (root's build/ and egg-info
+    # there broke their own `pip install -e .`), and the copy is gone after.
+    pip = [c.split() for c in (tmp_path / "opt" / "calls.log").read_text().splitlines() if c.startswith("venv-pip")]
+    stage = Path(pip[0][-1])
+    assert stage.name.startswith("vehicle-logger-build.") and not stage.exists(), pip
+    assert f"tar -C {ROOT} --exclude=__pycache__ -cf {stage}/tree.tar pyproject.toml README.md logger sensors sync" \
+        in r.stdout
     # The configuration is checked as the service reads it: as its user (a kept root-only file passed as root).
     assert (f"runuser -u vehicle-logger -- {tmp_path / 'opt'}/venv/bin/logger config check "
             "/etc/vehicle-logger/logger.toml") in calls

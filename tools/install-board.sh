@@ -174,8 +174,19 @@ apt_packages() {
 venv() {
     run install -d -m 0755 "$PREFIX"
     unless_present "$VENV/bin/python" "virtual environment" python3 -m venv --system-site-packages "$VENV"
+    # pip builds a source tree in place, as root (build/, vehicle_logger.egg-info/): the operator's own checkout
+    # then refused their `pip install -e .`, and a module deleted from the tree was installed again from the old
+    # build/. It builds from a copy of what the package is made of instead, removed after.
+    if [ "$DRY_RUN" = 1 ]; then
+        stage=/tmp/vehicle-logger-build.XXXXXX
+    else
+        stage=$(mktemp -d /tmp/vehicle-logger-build.XXXXXX)
+        trap 'rm -rf "$stage"' EXIT
+    fi
+    run tar -C "$SRC" --exclude=__pycache__ -cf "$stage/tree.tar" pyproject.toml README.md logger sensors sync
+    run tar -C "$stage" -xf "$stage/tree.tar"
     # shellcheck disable=SC2046 # pip_source is meant to split into words
-    run "$VENV/bin/pip" install --no-cache-dir $(pip_source) "$SRC"
+    run "$VENV/bin/pip" install --no-cache-dir $(pip_source) "$stage"
 }
 
 users() {
