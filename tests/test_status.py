@@ -227,6 +227,30 @@ def test_a_user_outside_the_loggers_group_is_told_so_not_that_it_is_not_running(
         server.close()
 
 
+def test_a_member_added_since_this_login_is_told_to_log_in_again(tmp_path: Path, monkeypatch) -> None:
+    """install-board.sh --operator adds the operator to the group, but their open SSH session keeps the groups it
+    started with: "add yourself to the logger's group" was wrong advice there."""
+    import grp
+    import pwd
+    from types import SimpleNamespace
+
+    import logger.runtime.status_socket as status_socket
+
+    sock = tmp_path / "status.sock"
+    sock.write_text("")
+    gid = sock.stat().st_gid
+    me = pwd.getpwuid(os.getuid()).pw_name
+    real = grp.getgrgid(gid)
+    monkeypatch.setattr(status_socket.grp, "getgrgid", lambda g: SimpleNamespace(gr_name="vehicle-logger",
+                                                                                  gr_mem=[me], gr_gid=real.gr_gid))
+    monkeypatch.setattr(status_socket.os, "getgroups", lambda: [g for g in (gid + 1, gid + 2)])
+    assert str(status_socket.denied(sock)) == (f"not allowed to read {sock}: you were added to the group "
+                                               "vehicle-logger after this login: log in again (or run `newgrp "
+                                               "vehicle-logger`)")
+    monkeypatch.setattr(status_socket.os, "getgroups", lambda: [gid])  # a member in this session: not that
+    assert "sudo usermod -a -G vehicle-logger $USER" in str(status_socket.denied(sock))
+
+
 def test_status_reads_the_socket_from_a_simulated_runs_configuration_and_says_what_is_wrong_with_one(
         tmp_path: Path, capsys) -> None:
     """`logger status --config FILE` loaded FILE as a hardware configuration: a simulated run's file (no device

@@ -19,7 +19,16 @@ from typing import Any
 
 from logger.cli.status_view import COLUMNS, render
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
-from logger.runtime.status_socket import EXIT, NOT_RUNNING, UNKNOWN, StatusBusy, StatusDenied, fetch, sim_sockets
+from logger.runtime.status_socket import (
+    EXIT,
+    NOT_RUNNING,
+    UNKNOWN,
+    StatusBusy,
+    StatusDenied,
+    denied,
+    fetch,
+    sim_sockets,
+)
 
 HOME, CLEAR_SCREEN, CLEAR_LINE, CLEAR_BELOW = "\x1b[H", "\x1b[2J", "\x1b[K", "\x1b[J"
 
@@ -33,7 +42,7 @@ def find_socket() -> tuple[Path, dict[str, Any]]:
         try:
             there = p.exists()
         except PermissionError:  # its folder may not be read (/run/vehicle-logger is the logger group's)
-            raise StatusDenied(f"not allowed to read {p.parent}: add yourself to the logger's group") from None
+            raise denied(p.parent) from None
         if there:
             try:
                 return p, fetch(p, timeout_s=1.0)

@@ -14,9 +14,11 @@ not running.
 from __future__ import annotations
 
 import contextlib
+import grp
 import json
 import logging
 import os
+import pwd
 import socket
 import threading
 import time
@@ -151,6 +153,35 @@ class StatusServer(threading.Thread):
             self.join(2.0)
 
 
+def denied(path: Path) -> StatusDenied:
+    """Not allowed to read ``path`` (the socket, or its folder): what to do about it, by the group that owns it."""
+    return StatusDenied(f"not allowed to read {path}: {group_advice(path)}")
+
+
+def group_advice(path: Path) -> str:
+    """How to get the right to read ``path``: join the group that owns it (or its folder, if it cannot be looked
+    at), or, for a member added since this login (install-board.sh --operator), log in again: a session keeps the
+    groups it started with."""
+    gid = None
+    for p in (path, path.parent):
+        try:
+            gid = p.stat().st_gid
+            break
+        except OSError:
+            continue
+    try:
+        name = grp.getgrgid(gid).gr_name if gid is not None else None
+        members = grp.getgrgid(gid).gr_mem if gid is not None else []
+        user = pwd.getpwuid(os.getuid()).pw_name
+    except KeyError:
+        name, members, user = None, [], None
+    if name is None:
+        return "add yourself to the logger's group"
+    if user in members and gid not in os.getgroups():
+        return f"you were added to the group {name} after this login: log in again (or run `newgrp {name}`)"
+    return f"add yourself to the logger's group: sudo usermod -a -G {name} $USER, then log in again"
+
+
 def _connect_error(exc: OSError, path: str | os.PathLike[str], timeout_s: float) -> ConnectionError:
     """Why a connection to the status socket failed, in words."""
     if isinstance(exc, FileNotFoundError):
@@ -158,7 +189,7 @@ def _connect_error(exc: OSError, path: str | os.PathLike[str], timeout_s: float)
     if isinstance(exc, ConnectionRefusedError):
         return ConnectionError(f"logger is not running (nobody answers on {path})")
     if isinstance(exc, PermissionError):
-        return StatusDenied(f"not allowed to read {path}: add yourself to the logger's group")
+        return denied(Path(path))
     if isinstance(exc, TimeoutError):
         return StatusBusy(f"logger did not answer on {path} within {timeout_s:g} s")
     return ConnectionError(f"cannot reach the logger on {path}: {exc.strerror or exc}")
