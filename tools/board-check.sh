@@ -44,6 +44,7 @@ WHEELS=/var/cache/vehicle-logger/wheels   # inside the root
 TREE=/usr/local/src/vehicle-logger        # inside the root
 DRIVES=/root/drives                       # inside the root
 mkdir -p "$LOGS"
+rm -f "$LOGS"/tests-*.log  # the test line at the end is this run's, or none (an earlier run's was shown)
 TABLE=""
 FAILURES=0
 
@@ -111,32 +112,34 @@ build_root() {
     rm -rf "$ROOT"
     mkdir -p "$ROOT"
     # systemd and udev as on a board's image (sysusers, offline enable); a user 'debian' as BeagleBone images have.
+    # Each command's failure ends the step with its status (a function's status is its last command's: a failed
+    # debootstrap followed by a useradd that worked said "ok").
     debootstrap --arch=armhf --variant=minbase --include=systemd,udev,ca-certificates,passwd \
-        bookworm "$ROOT" "$MIRROR"
+        bookworm "$ROOT" "$MIRROR" || return
     in_root useradd -m -s /bin/bash debian
 }
 
 prepare_root() {
-    mountpoint -q "$ROOT/proc" || mount -t proc proc "$ROOT/proc"
-    mountpoint -q "$ROOT/sys" || mount -t sysfs sys "$ROOT/sys"
-    mountpoint -q "$ROOT/dev" || mount --bind /dev "$ROOT/dev"
-    mountpoint -q "$ROOT/dev/pts" || mount --bind /dev/pts "$ROOT/dev/pts"
-    cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
+    mountpoint -q "$ROOT/proc" || mount -t proc proc "$ROOT/proc" || return
+    mountpoint -q "$ROOT/sys" || mount -t sysfs sys "$ROOT/sys" || return
+    mountpoint -q "$ROOT/dev" || mount --bind /dev "$ROOT/dev" || return
+    mountpoint -q "$ROOT/dev/pts" || mount --bind /dev/pts "$ROOT/dev/pts" || return
+    cp /etc/resolv.conf "$ROOT/etc/resolv.conf" || return
     # A site's own certificate authorities (a proxy that inspects TLS) are trusted in the root as on the host,
     # as they would be on a board behind the same proxy.
     if ls /usr/local/share/ca-certificates/*.crt >/dev/null 2>&1; then
         mkdir -p "$ROOT/usr/local/share/ca-certificates"
         cp /usr/local/share/ca-certificates/*.crt "$ROOT/usr/local/share/ca-certificates/"
-        in_root update-ca-certificates
+        in_root update-ca-certificates || return
     fi
     # Packages installed into a chroot must not start services.
     printf '#!/bin/sh\nexit 101\n' > "$ROOT/usr/sbin/policy-rc.d"
     chmod 0755 "$ROOT/usr/sbin/policy-rc.d"
     # The tree as committed plus what is changed in the work tree (git's list; no venvs, caches or drives).
     rm -rf "$ROOT$TREE"
-    mkdir -p "$ROOT$TREE"
+    mkdir -p "$ROOT$TREE" || return
     (cd "$SRC" && git ls-files -z --cached --others --exclude-standard | xargs -0 tar -cf - 2>/dev/null) \
-        | tar -xf - -C "$ROOT$TREE"
+        | tar -xf - -C "$ROOT$TREE" || return
     # The tests' own Debian packages (pytest and what the suite imports); no network needed later. Not matplotlib
     # (its three tests skip, saying so), and not RTKLIB, an office tool: Debian's armhf rtklib 2.4.3 b34 under
     # qemu-user reads none of the observations its x86 build reads from the same files (rnx2rtkp "no obs data",
@@ -214,21 +217,26 @@ if [ "$REUSE" = 1 ] && [ -x "$ROOT/usr/bin/python3" ]; then
 else
     check debootstrap build_root
 fi
-check prepare prepare_root
-check wheelhouse in_root sh "$TREE/tools/install-board.sh" --fetch-wheels "$WHEELS"
-in_root sh "$TREE/tools/install-board.sh" --dry-run --image --operator debian > "$LOGS/dry-run-before.txt" 2>&1
-check install-offline install_image
-check install-again install_image
-check dry-run-same same_dry_run
-check config-check in_root /usr/local/bin/logger config check /etc/vehicle-logger/logger.toml
-check sim-drive-60s sim_drive
-check info info
-check replay replay
-if [ "$SUITE" != none ]; then
-    check "tests-$SUITE" suite
-fi
-if [ "$BENCH" = 1 ]; then
-    check bench-daemon bench
+[ "$FAILURES" -gt 0 ] || check prepare prepare_root
+if [ "$FAILURES" -gt 0 ]; then
+    # Every later step runs in the root: without one, each would fail for that reason alone.
+    echo "the armhf root could not be made or prepared (see above and $LOGS): the steps that need it are not run"
+else
+    check wheelhouse in_root sh "$TREE/tools/install-board.sh" --fetch-wheels "$WHEELS"
+    in_root sh "$TREE/tools/install-board.sh" --dry-run --image --operator debian > "$LOGS/dry-run-before.txt" 2>&1
+    check install-offline install_image
+    check install-again install_image
+    check dry-run-same same_dry_run
+    check config-check in_root /usr/local/bin/logger config check /etc/vehicle-logger/logger.toml
+    check sim-drive-60s sim_drive
+    check info info
+    check replay replay
+    if [ "$SUITE" != none ]; then
+        check "tests-$SUITE" suite
+    fi
+    if [ "$BENCH" = 1 ]; then
+        check bench-daemon bench
+    fi
 fi
 
 echo
