@@ -165,6 +165,9 @@ def test_dry_run_lists_the_same_steps_before_and_after_an_installation(tmp_path:
         r = subprocess.run(["sh", str(INSTALL), "--dry-run", "--operator", "survey", "--prefix", str(prefix)],
                            capture_output=True, text=True, timeout=30)
         assert r.returncode == 0, r.stderr
+        # it says it did nothing (it ended "done: systemctl status vehicle-logger; ..." as if it had installed)
+        assert r.stdout.splitlines()[-1] == ("dry run: nothing was done; run it again without --dry-run, as root, "
+                                             "to install")
         return [line.replace(str(prefix), "PREFIX") for line in r.stdout.splitlines()]
 
     fresh = tmp_path / "fresh"

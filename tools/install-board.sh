@@ -315,7 +315,9 @@ if [ "$failed" != 0 ]; then
     echo "install-board.sh: $failed step(s) did not complete; the output above each FAILED line says why" >&2
     exit 1
 fi
-if [ -n "$FETCH" ]; then
+if [ "$DRY_RUN" = 1 ]; then
+    echo "dry run: nothing was done; run it again without --dry-run, as root, to install"
+elif [ -n "$FETCH" ]; then
     echo "done: copy $FETCH to the board, then: sudo tools/install-board.sh --wheels DIR"
 elif [ "$IMAGE" = 1 ]; then
     echo "done: the image starts vehicle-logger at first boot"
