@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import os
 import shlex
+import shutil
 import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,6 +24,18 @@ INSTALL = ROOT / "tools" / "install-board.sh"
 BOARD_CHECK = ROOT / "tools" / "board-check.sh"
 STANDINS = ("apt-get", "systemd-sysusers", "usermod", "udevadm", "systemctl", "install", "ln", "python3", "id",
             "runuser")
+
+
+def _base(tmp_path: Path) -> Path:
+    """Where a test installs (--prefix): not under /tmp, which the unit hides (PrivateTmp=) and the script refuses;
+    /dev/shm, removed after each test."""
+    return Path("/dev/shm") / f"install-board-test-{os.getpid()}-{tmp_path.name}"
+
+
+@pytest.fixture(autouse=True)
+def _remove_base(tmp_path: Path) -> Iterator[None]:
+    yield
+    shutil.rmtree(_base(tmp_path), ignore_errors=True)
 
 
 def _standins(tmp_path: Path, failing: dict[str, int] | None = None) -> tuple[Path, Path]:
@@ -50,7 +64,7 @@ def _venv(prefix: Path, pip_rc: int = 0) -> None:
 def _run(tmp_path: Path, *args: str, failing: dict[str, int] | None = None, pip_rc: int = 0
          ) -> tuple[subprocess.CompletedProcess[str], list[str]]:
     bin_dir, log = _standins(tmp_path, failing)
-    prefix = tmp_path / "opt"
+    prefix = _base(tmp_path) / "opt"
     _venv(prefix, pip_rc)
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
     r = subprocess.run(["sh", str(INSTALL), "--prefix", str(prefix), *args], capture_output=True, text=True,
@@ -80,13 +94,14 @@ def test_every_step_done_on_a_system_that_takes_them(tmp_path: Path) -> None:
     assert not any(c.startswith("systemctl restart") for c in calls)  # --no-start
     # pip builds from a copy of the package's files, not in the operator's checkout (root's build/ and egg-info
     # there broke their own `pip install -e .`), and the copy is gone after.
-    pip = [c.split() for c in (tmp_path / "opt" / "calls.log").read_text().splitlines() if c.startswith("venv-pip")]
+    venv_calls = (_base(tmp_path) / "opt" / "calls.log").read_text().splitlines()
+    pip = [c.split() for c in venv_calls if c.startswith("venv-pip")]
     stage = Path(pip[0][-1])
     assert stage.name.startswith("vehicle-logger-build.") and not stage.exists(), pip
     assert f"tar -C {ROOT} --exclude=__pycache__ -cf {stage}/tree.tar pyproject.toml README.md logger sensors sync" \
         in r.stdout
     # The configuration is checked as the service reads it: as its user (a kept root-only file passed as root).
-    assert (f"runuser -u vehicle-logger -- {tmp_path / 'opt'}/venv/bin/logger config check "
+    assert (f"runuser -u vehicle-logger -- {_base(tmp_path) / 'opt'}/venv/bin/logger config check "
             "/etc/vehicle-logger/logger.toml") in calls
 
 
@@ -148,7 +163,7 @@ def test_offline_wheelhouse_keeps_pip_off_the_network(tmp_path: Path) -> None:
     wheels.mkdir()
     r, _ = _run(tmp_path, "--image", "--no-apt", "--wheels", str(wheels))
     assert r.returncode == 0, r.stdout + r.stderr
-    calls = (tmp_path / "opt" / "calls.log").read_text().splitlines()
+    calls = (_base(tmp_path) / "opt" / "calls.log").read_text().splitlines()
     pip = [c for c in calls if c.startswith("venv-pip install")]
     assert pip and all(f"--no-index --find-links {wheels}" in c and "--no-build-isolation" in c for c in pip)
     assert "skipped: --no-apt" in _summary(r.stdout)["1"]
@@ -170,8 +185,8 @@ def test_dry_run_lists_the_same_steps_before_and_after_an_installation(tmp_path:
                                              "to install")
         return [line.replace(str(prefix), "PREFIX") for line in r.stdout.splitlines()]
 
-    fresh = tmp_path / "fresh"
-    installed = tmp_path / "installed"
+    fresh = _base(tmp_path) / "fresh"
+    installed = _base(tmp_path) / "installed"
     _venv(installed)
     before, after = steps(fresh), steps(installed)
     assert before == after
@@ -192,7 +207,7 @@ def test_another_prefix_points_the_unit_at_its_venv(tmp_path: Path) -> None:
     same command from the venv that was installed (the unit itself stays as shipped)."""
     r, calls = _run(tmp_path, "--no-start")
     assert r.returncode == 0, r.stdout + r.stderr
-    prefix = tmp_path / "opt"
+    prefix = _base(tmp_path) / "opt"
     dropin = "/etc/systemd/system/vehicle-logger.service.d/prefix.conf"
     assert f"install -D -m 0644 {prefix}/prefix.conf {dropin}" in calls
     lines = (prefix / "prefix.conf").read_text().splitlines()
@@ -203,7 +218,11 @@ def test_another_prefix_points_the_unit_at_its_venv(tmp_path: Path) -> None:
     assert calls.index(f"install -D -m 0644 {prefix}/prefix.conf {dropin}") < calls.index("systemctl daemon-reload")
 
 
-@pytest.mark.parametrize("prefix, says", [("opt/vl", "must be an absolute path"), ("/srv/v l", "holds a space")])
+@pytest.mark.parametrize("prefix, says", [("opt/vl", "must be an absolute path"), ("/srv/v l", "holds a space"),
+                                          ("/home/debian/vl", "the unit hides /home"),
+                                          ("/var/tmp/vl", "the unit hides /var/tmp"), ("/tmp", "the unit hides /tmp"),
+                                          ("/run/user/1000/vl", "the unit hides /run/user"),
+                                          ("/root/vl", "the unit hides /root")])
 def test_a_prefix_the_unit_could_not_run_from_is_refused(tmp_path: Path, prefix: str, says: str) -> None:
     r = subprocess.run(["sh", str(INSTALL), "--dry-run", "--prefix", prefix], capture_output=True, text=True,
                        timeout=60)

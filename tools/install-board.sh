@@ -26,7 +26,7 @@
 #                  --fetch-wheels DIR on a machine of the same architecture and Debian release that has a network.
 # --fetch-wheels DIR  runs step 1, then puts into DIR a wheel of everything step 2 would fetch, and stops.
 # --prefix DIR     installs the venv under DIR instead of /opt/vehicle-logger; a drop-in then points the unit's
-#                  ExecStart at it (not under /home, /root or /run/user: the unit's ProtectHome hides those).
+#                  ExecStart at it (not under /home, /root, /run/user, /tmp or /var/tmp, which the unit hides: refused).
 # --dry-run        shows every step's commands without doing anything, the same whatever is already installed.
 set -u
 
@@ -56,7 +56,16 @@ while [ $# -gt 0 ]; do
                       /*) ;;
                       *) echo "install-board.sh: --prefix $PREFIX must be an absolute path (the unit runs from it)" >&2
                          exit 2 ;;
-                  esac ;;
+                  esac
+                  # What the unit hides from the service (ProtectHome=, PrivateTmp=): it could not start from there.
+                  for hidden in /home /root /run/user /tmp /var/tmp; do
+                      case "$PREFIX" in
+                          "$hidden" | "$hidden"/*)
+                             echo "install-board.sh: --prefix $PREFIX: the unit hides $hidden from the service" \
+                                  "(ProtectHome=, PrivateTmp=), which could not start from there; try /srv or /opt" >&2
+                             exit 2 ;;
+                      esac
+                  done ;;
         -h|--help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "install-board.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
