@@ -428,7 +428,8 @@ class PpsClock(StampClock):
 
     def _on_temperature(self, t_ns: int, temp: float) -> None:
         last = self._last_temp
-        if last is None and self._restored and self._temp_at_fit is not None and self._last_sample_ns is not None:
+        bridge = last is None and self._restored and self._temp_at_fit is not None and self._last_sample_ns is not None
+        if bridge:
             # Restarted from a saved mapping: bridge the time the daemon was down with what is known of it.
             last = (self._last_sample_ns, self._temp_at_fit)
         self._last_temp = (t_ns, temp)
@@ -439,7 +440,11 @@ class PpsClock(StampClock):
         k = self.tempco.coefficient()
         if k is not None:
             self._comp_ns += k * d_temp * dt * NS
-        self._comp_abs_ns += self._tempco_uncertainty() * abs(d_temp) * dt * NS
+        # Between two readings a second apart the mean is the temperature's path; over the minutes the daemon was
+        # down it is only a guess (the cabin may have warmed just after the stop): the bound takes the worst path
+        # between the two readings, at the further of them all the time.
+        spread = max(abs(temp - self._temp_at_fit), abs(last[1] - self._temp_at_fit)) if bridge else abs(d_temp)
+        self._comp_abs_ns += self._tempco_uncertainty() * spread * dt * NS
 
     def _tempco_uncertainty(self) -> float:
         k_sigma = self.tempco.sigma()
