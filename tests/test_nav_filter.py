@@ -759,3 +759,15 @@ def test_the_start_ups_provisional_attitudes_are_let_go_once_the_filter_runs() -
             held = max(held, len(engine.startup._prov_hist))
     assert engine.state is not None and held > 0
     assert len(engine.startup._prov_hist) == 0
+
+
+def test_no_imu_sample_no_filter_whatever_the_fixes_say(outage) -> None:
+    """An IMU that never delivers (a chip on the wrong bus) with fixes that give a course: the heading start-up took
+    the course and started the filter with nothing to integrate, dated board time 0 (the status showed a position
+    "16.0 h old", the host's uptime). It now waits for the IMU and says so."""
+    _, _, recs = outage
+    engine = run([r for r in recs if r[1] not in ("/imu", "/imu/batch")])
+    assert engine.counters.gnss_fixes > 100 and engine.counters.imu == 0
+    assert engine.state is None and engine.rows == [] and engine.current() is None
+    assert engine.waiting_for() == "waiting for the IMU: no sample yet"
+    assert run(recs).state is not None  # the same drive with its IMU starts

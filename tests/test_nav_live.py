@@ -499,3 +499,17 @@ def test_before_its_first_turn_the_filter_does_not_say_the_imu_is_silent():
     nav.offer("/imu", msg)
     nav.offer("/imu", {**msg, "t_sync_ns": 2, "t_mono_ns": 2})
     assert nav.section()["verdicts"] == ["initialising: 2 records waiting for the filter's first turn"]
+
+
+def test_after_its_first_turn_records_waiting_do_not_stand_for_a_silent_imu():
+    """An IMU that never delivers (the chip on another bus) beside a receiver that does: after the filter's first
+    turn, the GNSS records waiting for the next one kept "records waiting for the filter's first turn" up for the
+    whole run, over the IMU's silence."""
+    nav = Navigator(NavParams())  # no thread started: turns by hand
+    fix = {"t_sync_ns": 1_700_000_000 * 10**9, "t_mono_ns": 10**9, "gnss_time_ns": None, "sync_state": "locked",
+           "fix_ok": True, "fix_mode": 3, "latitude": 48.1, "longitude": 11.5, "altitude": 520.0,
+           "vel_ned_mps": [10.0, 0.0, None], "h_acc_m": 2.0, "v_acc_m": 3.0}
+    with nav._lock:
+        nav.take([("/gnss/fix", fix)])
+    nav.offer("/gnss/fix", {**fix, "t_sync_ns": fix["t_sync_ns"] + 10**9, "t_mono_ns": 2 * 10**9})
+    assert nav.section()["verdicts"] == ["initialising: waiting for the IMU: no sample yet"]

@@ -601,13 +601,15 @@ class NavEngine:
         return obd is not None and obd[1] != 0.0
 
     def _try_heading_init(self, fix: PreparedFix) -> None:
+        if self._t_last is None:
+            return  # no IMU sample yet: nothing to integrate (a course alone started a filter dated 0, "16 h old")
         if self.startup.late_config_heading():  # levelled before the first fix: the configured heading now
-            self._initialise(self._t_last or fix.t_ns, None, CONFIG_HEADING, fix, CONFIG_HEADING_VAR)
+            self._initialise(self._t_last, None, CONFIG_HEADING, fix, CONFIG_HEADING_VAR)
             return
         heading = self.startup.heading_from_course(fix)
         if heading is not None:
             yaw, method, heading_var = heading
-            self._initialise(self._t_last or fix.t_ns, yaw, method, fix, heading_var)
+            self._initialise(self._t_last, yaw, method, fix, heading_var)
 
     def _initialise(self, t_ns: int, yaw_or_none: float | None, method: str, fix: PreparedFix,
                     heading_var: float) -> None:

@@ -411,9 +411,10 @@ class Navigator:
             sol = self.engine.current()
             # Before the first solution nothing is published, so no verdict was drawn: say what the start waits for.
             verdicts = list(self._verdicts) if sol is not None else self.judge.verdicts(self.engine, 0.0)
-            if sol is None and self.engine.counters.imu == 0 and self.queued:
+            if sol is None and self.engine.counters.imu == 0 and self.queued and self.processed == 0:
                 # The IMU delivers, the thread has not had its turn yet (it wakes every WAKE_S): "no sample yet"
-                # beside an IMU row that says ok was not true.
+                # beside an IMU row that says ok was not true. After its first turn the records waiting are not
+                # why (an IMU that never delivers left this line up for a whole run beside the GNSS's records).
                 verdicts = [f"initialising: {plural(self.queued, 'record')} waiting for the filter's first turn"]
             out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
                                    "source": "", "mode": self.engine.mode, "verdicts": verdicts,
