@@ -136,7 +136,8 @@ def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], i
                      state_path=Path(cfg["logger"]["state_dir"]) / "clock.json", clock_id=clock_id,
                      wall_trusted=wall_trusted)
     if sc["chrony_sock"]:
-        clock.on_sample = ChronySock(sc["chrony_sock"]).send_edge
+        clock.chrony = ChronySock(sc["chrony_sock"])
+        clock.on_sample = clock.chrony.send_edge
     return clock
 
 

@@ -32,6 +32,9 @@ class ChronySock:
         self.path = path
         self.sent = 0
         self.failed = 0
+        # Why the last send failed, while it is the last send (a later one that worked clears it): what the status
+        # shows, since a journal line once per outage was all an operator had (chrony's clock unfed for hours).
+        self.error: str | None = None
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
         self._warned = False
@@ -44,8 +47,10 @@ class ChronySock:
             self._sock.sendto(pack_sample(system_ns, (edge_true_unix_ns - system_ns) / 1e9), self.path)
             self.sent += 1
             self._warned = False
+            self.error = None
         except OSError as exc:
             self.failed += 1
+            self.error = exc.strerror or str(exc)
             if not self._warned:
                 if isinstance(exc, PermissionError):  # chronyd made it root's: the unit drop-in gives it our group
                     log.warning("chrony SOCK refclock %s refuses this user (%s): chronyd makes it root's; "
@@ -55,6 +60,10 @@ class ChronySock:
                     log.warning("chrony SOCK refclock %s not reachable (%s): is chronyd running with it "
                                 "configured?", self.path, exc.strerror or exc)
                 self._warned = True
+
+    def section(self) -> dict[str, object]:
+        """For ``logger status``: the socket, samples sent and failed, and why the last one failed if it did."""
+        return {"path": self.path, "sent": self.sent, "failed": self.failed, "error": self.error}
 
     def close(self) -> None:
         self._sock.close()

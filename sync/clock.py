@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
@@ -123,6 +124,7 @@ class PpsClock(StampClock):
         self._last_offset_ns: int | None = None
         self.last_mislabel: tuple[int, str] | None = None  # (board ns, what) of the last pairing found wrong
         self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
+        self.chrony: ChronySock | None = None  # the chrony socket on_sample feeds, when it is one (its counts)
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0, "late_reads": 0,
                        "mislabels": 0}
         self._load()

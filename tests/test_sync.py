@@ -860,3 +860,37 @@ def test_the_chrony_drop_in_lets_the_loggers_user_send_to_chronyds_socket(tmp_pa
     finally:
         server.close()
         shutil.rmtree(where)
+
+
+def test_samples_that_do_not_reach_chrony_are_a_problem_in_the_status(tmp_path: Path) -> None:
+    """With `[sync] chrony_sock` set and no chronyd listening, the status said "clock locked" and nothing else: one
+    journal line was all, while the system clock went unfed for hours. The failing feed is a problem now, with
+    its counts in the sync section, and clears with the first sample that gets through."""
+    import socket as socket_module
+
+    from logger.config import defaults
+    from logger.runtime.daemon import Daemon
+    from sync.chrony_sock import ChronySock
+
+    cfg = defaults(sim=True)
+    cfg.values["logger"].update(out_dir=str(tmp_path / "drives"), status_socket=str(tmp_path / "status.sock"),
+                                state_dir=str(tmp_path / "state"))
+    clock = PpsClock(SyncSettings())
+    clock.chrony = ChronySock(str(tmp_path / "chrony.sock"))
+    daemon = Daemon(cfg, [], clock=clock)
+    clock.chrony.send_edge(time_ns := 10**9, 1_700_000_000 * NS)
+    snap = daemon.snapshot()
+    line = ("clock: PPS samples do not reach chrony (No such file or directory; 1 failed): is chronyd running "
+            "with its SOCK refclock?")
+    assert line in snap["problems"] and snap["verdict"] != "ok", snap["problems"]
+    assert snap["sync"]["chrony"] == {"path": str(tmp_path / "chrony.sock"), "sent": 0, "failed": 1,
+                                      "error": "No such file or directory"}
+    listening = socket_module.socket(socket_module.AF_UNIX, socket_module.SOCK_DGRAM)
+    listening.bind(str(tmp_path / "chrony.sock"))
+    try:
+        clock.chrony.send_edge(time_ns + NS, 1_700_000_001 * NS)
+        snap = daemon.snapshot()
+        assert line not in snap["problems"] and snap["sync"]["chrony"]["sent"] == 1
+    finally:
+        listening.close()
+        clock.chrony.close()

@@ -414,6 +414,10 @@ class Daemon:
         mislabel = getattr(self.clock, "last_mislabel", None)
         if mislabel is not None and now - mislabel[0] <= MISLABEL_SHOW_S * 1e9:
             problems.append(f"clock: {mislabel[1]}")
+        chrony = getattr(self.clock, "chrony", None)
+        if chrony is not None and chrony.error is not None:
+            problems.append(f"clock: PPS samples do not reach chrony ({chrony.error}; {chrony.failed} failed): "
+                            "is chronyd running with its SOCK refclock?")
         if self.samplers and all(s["state"] not in ("ok", NO_FIX) for s in sensors):
             critical = True
             if not sensor_problems:  # every one still opening (OPEN_GRACE_S): the verdict still says why
@@ -511,10 +515,12 @@ class Daemon:
     def _sync_section(self, now: int) -> dict[str, Any]:
         """The clock's part of the snapshot: its tracking report, or the state and bound of its stamps."""
         report = self.clock.report(now)
+        chrony = getattr(self.clock, "chrony", None)
+        extra = {"chrony": chrony.section()} if chrony is not None else {}
         if report is not None:
-            return sync_record(report)
+            return {**sync_record(report), **extra}
         st = self.clock.stamp(now)
-        return {"state": st.state, "err_ns": st.err_ns}
+        return {"state": st.state, "err_ns": st.err_ns, **extra}
 
     def _health_loop(self) -> None:
         last = self.tb.monotonic_ns()
