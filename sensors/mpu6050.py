@@ -382,11 +382,14 @@ class Mpu6050:
         """Frames that were in the FIFO at the last read but not delivered by it (a bounded read, a split frame)."""
         return self._backlog_frames
 
-    def read_fifo(self, read_time_ns: int | None = None, max_bytes: int | None = None) -> ImuBatch:
+    def read_fifo(self, read_time_ns: int | None = None, max_bytes: int | None = None,
+                  now_ns: Callable[[], int] | None = None) -> ImuBatch:
         """All complete samples waiting in the FIFO (or up to ``max_bytes`` of them), oldest first.
 
         ``read_time_ns`` is the caller's monotonic time of this read. It is used only to count the
         samples lost when the FIFO overflowed since the previous read; without it that count is None.
+        ``now_ns``, the caller's clock, dates the reset after an overflow: what came between the read's time and
+        the reset (a host stalled inside the read) is lost with the rest, and counted.
         ``max_bytes`` bounds how long one call holds the bus; bytes of a frame cut by it are kept for
         the next call. After an overflow the FIFO is reset and the batch is empty.
         """
@@ -395,7 +398,7 @@ class Mpu6050:
         count_raw = self._read_block(FIFO_COUNTH, 2, "reading FIFO_COUNT")
         count = int.from_bytes(count_raw, "big")
         if self._overflow_seen or count >= FIFO_SIZE_BYTES:
-            return self._recover_from_overflow(read_time_ns)
+            return self._recover_from_overflow(read_time_ns, now_ns)
         want = count if max_bytes is None else min(count, max_bytes)
         remaining = want
         if want and self._combined:
@@ -413,7 +416,7 @@ class Mpu6050:
         # said so one read late, once the misaligned batch had been delivered and recorded.
         self._int_status()
         if self._overflow_seen:
-            return self._recover_from_overflow(read_time_ns)
+            return self._recover_from_overflow(read_time_ns, now_ns)
         whole = len(self._partial) // FIFO_FRAME_BYTES * FIFO_FRAME_BYTES
         frames = bytes(self._partial[:whole])
         del self._partial[:whole]
@@ -450,17 +453,19 @@ class Mpu6050:
                             for i in range(0, n, SMBUS_BLOCK_MAX))
         return bytes(read)
 
-    def _recover_from_overflow(self, read_time_ns: int | None) -> ImuBatch:
-        """The oldest bytes were overwritten, so frame boundaries are lost: reset, and count the loss."""
-        lost: int | None = None
-        if read_time_ns is not None and self._last_read_ns is not None:
-            elapsed_s = (read_time_ns - self._last_read_ns) / 1e9
-            lost = round(elapsed_s * self.sample_rate_hz) + self._backlog_frames
+    def _recover_from_overflow(self, read_time_ns: int | None, now_ns: Callable[[], int] | None = None) -> ImuBatch:
+        """The oldest bytes were overwritten, so frame boundaries are lost: reset, and count the loss: every sample
+        since the last read up to the reset (the caller's clock dates it; without one, the read's time)."""
         self._reset_fifo()
+        reset_ns = now_ns() if now_ns is not None and read_time_ns is not None else read_time_ns
+        lost: int | None = None
+        if reset_ns is not None and self._last_read_ns is not None:
+            elapsed_s = (reset_ns - self._last_read_ns) / 1e9
+            lost = round(elapsed_s * self.sample_rate_hz) + self._backlog_frames
         self._read_byte(INT_STATUS, "clearing status flags")
         self._overflow_seen = False
         self._backlog_frames = 0
-        self._last_read_ns = read_time_ns
+        self._last_read_ns = reset_ns
         empty = np.empty((0, 3))
         return ImuBatch(empty, empty.copy(), self.read_temperature_degc(), self.sample_period_s,
                         overflowed=True, lost_samples=lost)

@@ -166,7 +166,7 @@ class ImuSource(Source):
                 self._check_awake(t1)
             return [Reading(IMU, imu_record(s.accel_mps2, s.gyro_rps, s.temp_degc, False, 0), (t0 + t1) // 2)]
         t_read = self.tb.monotonic_ns()
-        batch = self.driver.read_fifo(t_read)
+        batch = self.driver.read_fifo(t_read, now_ns=self.tb.monotonic_ns)
         t_done = self.tb.monotonic_ns()
         if self._fifo_clock is None:
             self._fifo_clock = FifoClock(batch.period_s * 1e9)
