@@ -399,6 +399,22 @@ def test_fifo_overflow_is_detected_counted_and_recovered(rig) -> None:
     assert r.model.fifo_bytes_dropped > 0
 
 
+def stall_inside_reads(r: Rig) -> list[float]:
+    """The model's FIFO data reads made to stall: the next one first advances the clock by the list's one value
+    (then 0), as a host stalled between FIFO_COUNT and the burst; set the value to stall a read."""
+    pending = [0.0]
+    read = r.model.read
+
+    def stalled(reg: int, n: int) -> bytes:
+        if reg == drv.FIFO_R_W and pending[0]:
+            r.clock.advance(pending[0])
+            pending[0] = 0.0
+        return read(reg, n)
+
+    r.model.read = stalled  # type: ignore[method-assign]
+    return pending
+
+
 @pytest.mark.parametrize("burst", [True, False])
 def test_a_fifo_that_overflows_while_it_is_read_gives_no_misaligned_frames(rig, burst: bool) -> None:
     """The host stalls between FIFO_COUNT and the burst with the FIFO 80 frames full: ten more come, the chip drops
@@ -409,16 +425,7 @@ def test_a_fifo_that_overflows_while_it_is_read_gives_no_misaligned_frames(rig, 
     d.configure()
     r.clock.advance(0.1)
     d.read_fifo(r.clock.now_ns())
-    stall_s = [0.0]
-    read = r.model.read
-
-    def stalled(reg: int, n: int) -> bytes:
-        if reg == drv.FIFO_R_W and stall_s[0]:
-            r.clock.advance(stall_s[0])
-            stall_s[0] = 0.0
-        return read(reg, n)
-
-    r.model.read = stalled  # type: ignore[method-assign]
+    stall_s = stall_inside_reads(r)
     r.clock.advance(0.08)
     stall_s[0] = 0.01
     batch = d.read_fifo(r.clock.now_ns())
@@ -651,16 +658,7 @@ def test_samples_lost_to_a_stall_inside_a_read_are_counted(stall_s: float) -> No
         r.clock.advance(0.1)
         d.read_fifo(r.clock.now_ns(), now_ns=r.clock.now_ns)
         start = r.model.samples_generated
-        pending = [0.0]
-        read = r.model.read
-
-        def stalled(reg: int, n: int) -> bytes:
-            if reg == drv.FIFO_R_W and pending[0]:
-                r.clock.advance(pending[0])
-                pending[0] = 0.0
-            return read(reg, n)
-
-        r.model.read = stalled
+        pending = stall_inside_reads(r)
         delivered = lost = 0
         for k in range(40):  # 40 reads 40 ms apart, the daemon's 25 a second
             r.clock.advance(0.04)
