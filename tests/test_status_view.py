@@ -46,6 +46,7 @@ BUSY = {
                  "dropped": {}, "queue_depth": 12, "queue_size": 20000, "on_disk_mono_ns": {"/imu": 89_600_000_000}},
 }
 BUSY["sensors"][0]["incidents"] = {"fifo overflow": 3}
+BUSY["sensors"][0]["samples_lost"] = 1234
 BUSY["sensors"][3]["origin"] = "serial /dev/serial/by-id/usb-u-blox_AG_-_www.u-blox.com_u-blox_GNSS_receiver-if00"
 
 
@@ -71,6 +72,8 @@ def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on
     assert any(line.startswith("rec     recording drive_20261201T220721Z_0001.mcap") for line in screen)
     # What went to make room: where the data come from and the per-incident totals first, then the last verdicts.
     assert not any(line.startswith(("source ", "imu     fifo overflow: 3 since start")) for line in screen)
+    # The samples those overflows destroyed, in all (the incident's line says only the last 30 s'), on the full view.
+    assert "imu     samples lost to FIFO overflows: 1234 since start" in full
     assert "filter restarted from GNSS 2 times" not in "\n".join(screen)
 
 

@@ -248,8 +248,8 @@ _add(HEALTH, "vehicle_logger.Health", {
     "problems": ("string[]", "one line per problem"),
     "sensors": ("object[]", "per sensor: state (ok, silent, no fix, starting: opening it, or open and nothing from "
                             "it yet within its rate's limit, retrying, missing, no-data, stalled, stopped), measured "
-                            "rate (null while not delivering), errors, gaps, late, missed, reconnects, last_error "
-                            "(cleared on recovery)"),
+                            "rate (null while not delivering), errors, gaps, late, missed, reconnects, samples_lost "
+                            "(a FIFO's samples its overflows destroyed), last_error (cleared on recovery)"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
     "pace": ("object?", "a simulated drive's pace: ceiling (the --time-scale asked), now, achieved (on average), "
                         "slowest, held_back_s (host seconds below the ceiling); null for a real drive"),

@@ -134,6 +134,7 @@ class SensorHealth:
                 "last_sample_age_s": age,
                 "samples": self.samples, "errors": self.errors, "late": self.late, "missed": self.missed,
                 "delayed": self.delayed, "gaps": self.gaps, "reconnects": self.reconnects,
+                "samples_lost": self.samples_lost,
                 "last_error": self.last_error, "origin": self.origin,
                 "incidents": dict(self.incidents), "last_incident": self.last_incident,
                 "last_incident_age_s": (now_ns - self.last_incident_mono_ns) / 1e9
