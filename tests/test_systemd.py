@@ -212,7 +212,8 @@ def test_install_script_dry_run_covers_every_step() -> None:
     assert "systemd-sysusers /etc/sysusers.d/vehicle-logger.conf" in steps
     assert "usermod -a -G vehicle-logger survey" in steps
     assert "systemctl enable vehicle-logger.service" in steps
-    assert f"{VENV_LOGGER} config check {DEFAULT_PATH}" in steps
+    # checked as the service reads it, as its user
+    assert f"runuser -u vehicle-logger -- {VENV_LOGGER} config check {DEFAULT_PATH}" in steps
     # Every file it installs is one this tree ships, and lands where the unit and the rules expect it.
     installed = {}
     for s in steps:
