@@ -647,11 +647,18 @@ def test_an_epoch_that_ends_after_the_next_pulse_is_paired_by_its_first_message(
     fixes = [(board, p) for board, topic, p in stream.events if topic == "/gnss/fix"]
     assert all(board - p["opened_mono_ns"] > 0.99 * NS for board, p in fixes)
     clock, r = run(stream)
-    # Each edge's sample comes with the epoch's end, over a second after it: the newest is up to 2.4 s old, so
-    # the clock is in holdover between them (honestly: its bound widens for the age), never a second off.
-    following = r["state"] != "freerun"
-    assert following.sum() > 250 and np.abs(r["err"][following]).max() <= 100_000 and covered(r)
+    # Each edge's sample comes with the epoch's end, over a second after it: the newest is up to 2.4 s old, which
+    # the clock allows for (its labels' lag); it said holdover a good part of each second with every edge there.
+    locked = r["state"] == "locked"
+    assert locked.sum() >= (r["state"] != "freerun").sum() - 1 > 250
+    assert np.abs(r["err"][locked]).max() <= 100_000 and covered(r)
     assert clock.counts["mislabels"] == 0 and clock.counts["samples"] > 250
+    # The PPS lost then: holdover after holdover_after_s plus that lag, not 1.5 s.
+    lost = make_stream(300, seed=5, timepulse=False, fix_line_s=1.0, outages=((200, 260),))
+    _, r = run(lost)
+    board_s = (r["board"] - lost.osc.board_ns(0)) / NS
+    assert (r["state"][(board_s > 202.5) & (board_s < 259.0)] == "holdover").all()
+    assert (r["state"][(board_s > 190) & (board_s < 199)] == "locked").all() and covered(r)
 
 
 def test_tempco_fit_is_computed_once_per_new_point_even_when_there_is_none() -> None:
