@@ -132,6 +132,9 @@ def test_a_failed_prerequisite_skips_only_what_needs_it(tmp_path: Path) -> None:
     assert r.returncode == 1
     summary = _summary(r.stdout)
     assert "FAILED" in summary["2"] and "pip install" in summary["2"] and "exited 1" in summary["2"]
+    # Offline, pip's own reason is far above: the line says where to look and what to do instead.
+    assert "exited 1 (no network? pip needs the package index; offline, install from a wheelhouse: --wheels DIR" \
+        in r.stdout
     for n in ("5", "6", "7"):
         assert "skipped: step" in summary[n], summary[n]
     for n in ("1", "3", "4"):

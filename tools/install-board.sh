@@ -37,7 +37,7 @@ APT_PACKAGES="python3-numpy python3-serial python3-smbus2 python3-can python3-zs
 python3-venv python3-dev python3-setuptools python3-wheel gcc"
 CONFIG=/etc/vehicle-logger/logger.toml
 
-DRY_RUN=0 APT=1 START=1 LINK=1 IMAGE=0 OPERATOR="" WHEELS="" FETCH=""
+DRY_RUN=0 APT=1 START=1 LINK=1 IMAGE=0 OPERATOR="" WHEELS="" FETCH="" RUN_HINT=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --dry-run) DRY_RUN=1 ;;
@@ -103,7 +103,7 @@ run() {
     if [ "$rc" = 127 ]; then
         echo "\`$1\` was not found (not installed, or not on PATH: $PATH)" > "$REASON"
     else
-        echo "\`$*\` exited $rc" > "$REASON"
+        echo "\`$*\` exited $rc${RUN_HINT:+ ($RUN_HINT)}" > "$REASON"
     fi
     exit "$rc"
 }
@@ -194,8 +194,12 @@ venv() {
     fi
     run tar -C "$SRC" --exclude=__pycache__ -cf "$stage/tree.tar" pyproject.toml README.md logger sensors sync
     run tar -C "$stage" -xf "$stage/tree.tar"
+    # Offline, pip's own reason ("No matching distribution found for setuptools>=61") is far above its exit.
+    [ -n "$WHEELS" ] || RUN_HINT="no network? pip needs the package index; offline, install from a wheelhouse: \
+--wheels DIR, see README"
     # shellcheck disable=SC2046 # pip_source is meant to split into words
     run "$VENV/bin/pip" install --no-cache-dir $(pip_source) "$stage"
+    RUN_HINT=""
 }
 
 users() {
