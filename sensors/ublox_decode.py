@@ -274,6 +274,13 @@ class _Burst:
         self.order.append(ident)
 
 
+def _marked(fix: GnssFix | None, burst: _Burst) -> list[GnssItem]:
+    """A burst's fix (none: nothing) with the read its burst opened in, where the reads are marked."""
+    if fix is None:
+        return []
+    return [fix if burst.opened is None else replace(fix, opened_mark=burst.opened)]
+
+
 class GnssDecoder:
     """Frames -> epochs: ``push(frame)`` returns what the frame completes, ``flush()`` the rest.
 
@@ -390,7 +397,7 @@ class GnssDecoder:
         except _CONTENT_ERRORS:
             self.rejected += 1  # only this epoch is lost, not the message that closed it
             return []
-        return [] if fix is None else [fix if burst.opened is None else replace(fix, opened_mark=burst.opened)]
+        return _marked(fix, burst)
 
     def _time_pulse(self, msg: Any) -> TimePulse:
         utc_base = _flag(msg, "timeBase")
@@ -714,7 +721,7 @@ class GnssDecoder:
         except _CONTENT_ERRORS:
             self.rejected += 1
             return []
-        return [] if fix is None else [fix if burst.opened is None else replace(fix, opened_mark=burst.opened)]
+        return _marked(fix, burst)
 
     def _fix_from_nmea(self, burst: _Burst) -> GnssFix | None:
         parts = burst.parts

@@ -57,7 +57,7 @@ MISS_GROWTH_MARGIN = 2.0
 # interrupts: the fit starts again from them. CONFIRM_EDGES: as many as a fit needs to refuse one of its own.
 CHANGE_EDGES = CONFIRM_EDGES
 # The longest a sample's labelling (its time message's arrival) may lag its edge and still count as the clock
-# following the PPS (_fresh_ns): a solution that completes after the next pulse (9600-baud NMEA) comes ~1.4 s late.
+# following the PPS (PpsClock._fresh_ns): a solution completing after the next pulse (9600-baud NMEA) is ~1.4 s late.
 PAIR_LAG_MAX_NS = 1_500_000_000
 
 
@@ -123,8 +123,12 @@ class PpsClock(StampClock):
         self._recent_misses: deque[float] = deque(maxlen=CHANGE_EDGES)
         # How long after their edges the newest samples were labelled (their time message's arrival), at most
         # PAIR_LAG_MAX_NS: the clock follows the PPS while its newest sample is no older than holdover_after_s plus
-        # that (:meth:`_fresh_ns`).
+        # the longest of them (_fresh_ns, set as a sample comes, read at every stamp). A receiver at 9600 baud with
+        # u-blox's factory NMEA labels each edge over a second after it, with its epoch's end: between two labels
+        # the newest sample is up to 2.4 s old though every edge comes, and the clock said holdover all the time
+        # (its bound is the same either way: it grows from the newest sample).
         self._pair_lags: deque[int] = deque(maxlen=CHANGE_EDGES)
+        self._fresh_ns = round(self.s.holdover_after_s * NS)  # what _pair_lags make of it, kept as they change
         self._last_temp: tuple[int, float] | None = None
         self._saved_at: int | None = None
         self._restored = False
@@ -200,6 +204,7 @@ class PpsClock(StampClock):
         self._restored = False
         self._last_sample_ns = None
         self._pair_lags.clear()
+        self._fresh_ns = round(self.s.holdover_after_s * NS)
         self._slew_from_ns = None
         self._slew_ns = 0.0
         self._unconfirmed_ns = 0.0
@@ -256,6 +261,7 @@ class PpsClock(StampClock):
         self._offsets.append(offset)
         self._last_sample_ns = edge_ns
         self._pair_lags.append(min(PAIR_LAG_MAX_NS, max(0, self._mono() - edge_ns)))
+        self._fresh_ns = round(self.s.holdover_after_s * NS) + max(self._pair_lags)
         self.counts["samples"] += 1
         self._refit()
         if self._follow_change():
@@ -462,18 +468,10 @@ class PpsClock(StampClock):
         return self.s.tempco_bound_ppm_per_degc * 1e-6 if k_sigma is None else 3.0 * k_sigma
 
     # ---- what a stamp is ------------------------------------------------------------------------------------
-    def _fresh_ns(self) -> int:
-        """How old the newest sample may be while the clock still follows the PPS: holdover_after_s, plus how late
-        the newest samples were labelled. A receiver at 9600 baud with u-blox's factory NMEA labels each edge over
-        a second after it, with its epoch's end: between two labels the newest sample is up to 2.4 s old though
-        every edge comes, and the clock said holdover a good part of each second (its bound is the same either
-        way: it grows from the newest sample)."""
-        return round(self.s.holdover_after_s * NS) + (max(self._pair_lags) if self._pair_lags else 0)
-
     def _state_at(self, t_ns: int) -> str:
         if not self._locked_once and not self._restored:
             return FREERUN
-        if self._last_sample_ns is not None and (t_ns - self._last_sample_ns) <= self._fresh_ns():
+        if self._last_sample_ns is not None and (t_ns - self._last_sample_ns) <= self._fresh_ns:
             return LOCKED if self._locked_once else HOLDOVER
         return HOLDOVER
 
@@ -534,7 +532,7 @@ class PpsClock(StampClock):
             last = self._last_sample_ns
             s = self.s
             if (len(t) and last is not None and self._locked_once and times_ns[0] > last
-                    and times_ns[-1] - last <= self._fresh_ns()
+                    and times_ns[-1] - last <= self._fresh_ns
                     and (self._slew_from_ns is None or times_ns[0] - self._slew_from_ns >= self._slew_len_ns)):
                 # A read wholly after the last edge, fresh and out of any slew (89 % of a simulated 1 kHz run's
                 # reads, 47 % at 20 Hz, whose half-second reads straddle an edge as often as not): the forms
@@ -551,7 +549,7 @@ class PpsClock(StampClock):
                               np.maximum(1, np.rint(err + leap_err)).astype(np.int64).tolist(), imu_cnt.tolist(),
                               timer_cnt.tolist())
             # _state_at, per sample
-            fresh = (t - last) <= self._fresh_ns() if last is not None else np.zeros(len(t), bool)
+            fresh = (t - last) <= self._fresh_ns if last is not None else np.zeros(len(t), bool)
             locked = fresh if self._locked_once else np.zeros(len(t), bool)
             # _offset_at, per sample, in its order of operations
             x = (t - self._fit_origin_ns) / NS

@@ -116,7 +116,7 @@ def storage_problem(out_dir: Path, fstab: Path | None = None, mountinfo: Path | 
     if info is None:
         return None
     mounts = _mounts(info)
-    if (point in mounted_points(info)) if bind else _storage_mounted(point, mounts):
+    if any(where == point for where, _ in mounts) if bind else _storage_mounted(point, mounts):
         return None
     # Short: the status screen's problem line (80 columns). The recorder's log line says what is not done.
     return f"{point} is not mounted (listed in /etc/fstab); waiting for it"

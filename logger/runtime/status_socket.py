@@ -170,14 +170,14 @@ def group_advice(path: Path) -> str:
         except OSError:
             continue
     try:
-        name = grp.getgrgid(gid).gr_name if gid is not None else None
-        members = grp.getgrgid(gid).gr_mem if gid is not None else []
+        group = grp.getgrgid(gid) if gid is not None else None
         user = pwd.getpwuid(os.getuid()).pw_name
     except KeyError:
-        name, members, user = None, [], None
-    if name is None:
+        group = None
+    if group is None:
         return "add yourself to the logger's group"
-    if user in members and gid not in os.getgroups():
+    name = group.gr_name
+    if user in group.gr_mem and gid not in os.getgroups():
         return f"you were added to the group {name} after this login: log in again (or run `newgrp {name}`)"
     return f"add yourself to the logger's group: sudo usermod -a -G {name} $USER, then log in again"
 
