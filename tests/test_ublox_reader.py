@@ -7,6 +7,7 @@ import math
 import os
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from extras import given, settings, st
@@ -588,3 +589,57 @@ def test_an_epoch_read_in_pieces_says_when_its_first_message_came() -> None:
     assert [(t, f.get("opened_mono_ns")) for t, f in fixes] == [(11 * NS, 10 * NS), (12_200_000_000, 11 * NS)]
     epoch = fix_epoch(fixes[1][1])
     assert epoch is not None and epoch.opened_ns == 11 * NS and epoch.gnss_time_ns % (86_400 * NS) == 43_201 * NS
+
+
+def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
+    """A real u-blox M9N's NMEA output as it came (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV x12, GLL,
+    GST, ZDA, GBS, about 1.5 kB an epoch), each epoch on the line from 0.3 s after its pulse to 1.2 s, read by the
+    GNSS source in three reads (at 0.6, 0.9 and 1.2 s): every epoch completes after the next pulse. Its records,
+    PPS edges at each pulse, through the clock: locked to the right second (paired by the read that completed
+    it, every epoch took the next second's edge: a clock a second off)."""
+    from logger.cli.gnss_decode import strip_capture_comments
+    from logger.recording.records import clock_observer
+    from logger.recording.topics import GNSS_FIX, PPS
+    from logger.runtime.sources import GnssSource
+    from logger.runtime.timebase import TimeBase
+    from sync.clock import PpsClock
+
+    capture = strip_capture_comments(
+        (Path(__file__).parent / "data" / "gpsd-ublox" / "ublox-neo-m9n-nmea.log").read_bytes())
+    epochs = [b"$GNRMC" + part for part in capture.split(b"$GNRMC")[1:]][:20]
+    assert all(1000 < len(e) < 2000 for e in epochs)
+    first_utc_s = calendar.timegm((2020, 7, 11, 22, 37, 45))  # the capture's first epoch, 223745.00 on 110720
+    base = 100 * NS  # board time of the first epoch's pulse
+    now = [base]
+    clock = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    observe = clock_observer(clock)
+    records = []
+    with PtyPort() as device:
+        source = GnssSource(device.path, 9600, configure=False, tb=TimeBase(lambda: now[0], 1e6))
+        source.open()
+        try:
+            for k, epoch in enumerate(epochs):
+                now[0] = base + k * NS + 7_000  # the pulse of epoch k, its interrupt 7 us late
+                observe[PPS]({"gnss_time_ns": None}, now[0])
+                third = len(epoch) // 3
+                for j, piece in enumerate((epoch[:third], epoch[third:2 * third], epoch[2 * third:])):
+                    now[0] = base + k * NS + (600 + 300 * j) * 1_000_000
+                    device.write(piece)
+                    target = source.offset + len(piece)
+                    while source.offset < target:
+                        for r in source.read():
+                            if r.topic == GNSS_FIX:
+                                records.append((r.t_mono_ns, r.payload))
+                                observe[GNSS_FIX](r.payload, r.t_mono_ns)
+        finally:
+            source.close()
+    # Each epoch's fix completes at 1.2 s (the next epoch's RMC, or its own learnt end), opened at 0.6 s.
+    assert len(records) >= 18
+    for t, fix in records:
+        k = round(fix["gnss_time_ns"] / NS - first_utc_s)
+        assert t - (base + k * NS) >= NS and fix["opened_mono_ns"] == base + k * NS + 600_000_000, (k, t, fix)
+    probe = base + 19 * NS + 500_000_000
+    now[0] = probe
+    stamp = clock.stamp(probe)
+    assert stamp.state == "locked" and clock.counts["mislabels"] == 0
+    assert abs(stamp.t_sync_ns - ((first_utc_s + 19) * NS + 500_000_000)) < 100_000, stamp
