@@ -180,20 +180,26 @@ apt_packages() {
     run env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $APT_PACKAGES
 }
 
+copy_tree() {
+    # copy_tree DIR: what the package is built from, copied into DIR for pip. pip prepares a source tree in place,
+    # as root (build/, vehicle_logger.egg-info/), even for a report of what it would install: the operator's own
+    # checkout then refused their `pip install -e .`, and a module deleted from the tree was installed again from
+    # the old build/.
+    run install -d -m 0755 "$1"
+    run tar -C "$SRC" --exclude=__pycache__ -cf "$1/tree.tar" pyproject.toml README.md logger sensors sync
+    run tar -C "$1" -xf "$1/tree.tar"
+}
+
 venv() {
     run install -d -m 0755 "$PREFIX"
     unless_present "$VENV/bin/python" "virtual environment" python3 -m venv --system-site-packages "$VENV"
-    # pip builds a source tree in place, as root (build/, vehicle_logger.egg-info/): the operator's own checkout
-    # then refused their `pip install -e .`, and a module deleted from the tree was installed again from the old
-    # build/. It builds from a copy of what the package is made of instead, removed after.
     if [ "$DRY_RUN" = 1 ]; then
         stage=/tmp/vehicle-logger-build.XXXXXX
     else
         stage=$(mktemp -d /tmp/vehicle-logger-build.XXXXXX)
         trap 'rm -rf "$stage"' EXIT
     fi
-    run tar -C "$SRC" --exclude=__pycache__ -cf "$stage/tree.tar" pyproject.toml README.md logger sensors sync
-    run tar -C "$stage" -xf "$stage/tree.tar"
+    copy_tree "$stage"
     # Offline, pip's own reason ("No matching distribution found for setuptools>=61") is far above its exit.
     [ -n "$WHEELS" ] || RUN_HINT="no network? pip needs the package index; offline, install from a wheelhouse: \
 --wheels DIR, see README"
@@ -285,10 +291,12 @@ fetch_wheels() {
     if [ "$DRY_RUN" = 1 ]; then
         build=/tmp/wheelhouse.XXXXXX
     else
-        build=$(mktemp -d)
+        build=$(mktemp -d /tmp/wheelhouse.XXXXXX)
+        trap 'rm -rf "$build"' EXIT
     fi
+    copy_tree "$build/tree"
     run python3 -m venv --system-site-packages "$build/venv"
-    run "$build/venv/bin/pip" install --dry-run --quiet --report "$build/report.json" "$SRC"
+    run "$build/venv/bin/pip" install --dry-run --quiet --report "$build/report.json" "$build/tree"
     run install -d "$FETCH"
     if [ "$DRY_RUN" = 1 ]; then
         echo "+ $build/venv/bin/pip wheel --no-deps --wheel-dir $FETCH <each package in the report>"
