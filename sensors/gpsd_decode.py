@@ -107,6 +107,21 @@ def pps_report(msg: Mapping[str, Any]) -> PpsReport | None:
                      clock_s * NS_PER_S + clock_ns, integer(msg.get("qErr")), integer(msg.get("precision")))
 
 
+def toff_real_ns(msg: Mapping[str, Any]) -> int | None:
+    """The epoch a TOFF object names (its ``real_sec``/``real_nsec``: the fix time gpsd latched), else None.
+
+    gpsd sends a TOFF (to watchers that asked for ``pps``) when it latches an epoch's time, at the first sentence
+    that carries it, and its TPV only when the cycle is over: 0.12 s against 0.92 s after the epoch for a receiver
+    sending u-blox's factory NMEA at 9600 baud (gpsd 3.22, measured). The TOFF's arrival is when the epoch began
+    to come in, which the clock's pairing needs (sync.pairing); gpsd sends none for its first fixes."""
+    if msg.get("class") != "TOFF":
+        return None
+    sec, nsec = integer(msg.get("real_sec")), integer(msg.get("real_nsec"))
+    if sec is None or nsec is None or sec <= 0 or not 0 <= nsec < NS_PER_S:
+        return None
+    return sec * NS_PER_S + nsec
+
+
 def _first(tpv: Mapping[str, Any], *keys: str) -> float | None:
     for key in keys:
         value = number(tpv.get(key))

@@ -876,3 +876,102 @@ def test_the_epoch_open_when_gpsd_closes_the_socket_is_recorded() -> None:
         src.close()
         server.stop()
     assert [r.payload["gnss_time_ns"] for r in got] == [T0 + NS, T0 + 2 * NS]
+
+
+def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse() -> None:
+    """A real gpsd 3.22 reading a real u-blox M9N's NMEA (the GPSD project's capture, about 1.5 kB an epoch) on a
+    pty, each epoch written in three parts at 0.35, 0.7 and 1.05 s after its pulse, as a 9600-baud line brings it:
+    gpsd's TPV comes after the next pulse, its TOFF (the epoch's time latched at its first sentence) before it.
+    Our source's records and PPS edges at each pulse, through the clock: every fix gpsd sent a TOFF for records
+    that read as its opened time, and the clock locks to the right second (without the TOFF the pairing took
+    each fix's completion, after the next edge: a clock a second off behind a bound of microseconds).
+    The drive runs at twice the host's pace (gpsd goes by the sentences' times, not by when they come)."""
+    import os
+    import pty
+    import tty
+
+    from logger.recording.records import clock_observer
+    from logger.recording.topics import GNSS_FIX, PPS
+
+    if shutil.which("gpsd") is None:
+        pytest.skip("gpsd is not installed")
+    capture = strip_capture_comments(
+        (Path(__file__).parent / "data" / "gpsd-ublox" / "ublox-neo-m9n-nmea.log").read_bytes())
+    epochs = [b"$GNRMC" + part for part in capture.split(b"$GNRMC")[1:]][:16]
+    first_utc_s = calendar.timegm((2020, 7, 11, 22, 37, 45))  # the capture's first epoch, 223745.00 on 110720
+    scale = 2.0
+    host0 = time.monotonic_ns()
+
+    def drive_ns() -> int:
+        return round((time.monotonic_ns() - host0) * scale)
+
+    t0 = 2 * NS  # drive time of the first epoch's pulse: gpsd is listening by then
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    os.chmod(os.ttyname(slave), 0o666)  # gpsd drops root for its own user before it opens the device
+    port = _free_port()
+    gpsd = subprocess.Popen(["gpsd", "-N", "-n", "-b", "-S", str(port), "-s", "9600", os.ttyname(slave)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    source = GpsdSource("127.0.0.1", port, None, TimeBase(drive_ns, scale))
+    done = threading.Event()
+
+    def feed() -> None:
+        try:
+            for k, epoch in enumerate(epochs):
+                third = len(epoch) // 3
+                for j, piece in enumerate((epoch[:third], epoch[third:2 * third], epoch[2 * third:])):
+                    at = t0 + k * NS + (350 + 350 * j) * 1_000_000
+                    time.sleep(max(0.0, (at - drive_ns()) / NS / scale))
+                    os.write(master, piece)
+        finally:
+            done.set()
+
+    records: list[tuple[int, dict[str, Any]]] = []
+    try:
+        end = time.monotonic() + 10.0
+        while True:
+            try:
+                source.open()
+                break
+            except SensorError:
+                if time.monotonic() > end:
+                    raise
+                time.sleep(0.05)
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        stop_at = None
+        while stop_at is None or drive_ns() < stop_at:
+            records += [(r.t_mono_ns, r.payload) for r in source.read() if r.topic == GNSS_FIX]
+            if done.is_set() and stop_at is None:
+                stop_at = drive_ns() + 2 * NS
+        feeder.join()
+    finally:
+        source.close()
+        gpsd.terminate()
+        gpsd.wait(timeout=10)
+        os.close(master)
+        os.close(slave)
+    fixes = [(t, fix) for t, fix in records if fix.get("gnss_time_ns") is not None]
+    assert len(fixes) >= 14, records
+    opened = late = 0
+    for t, fix in fixes:
+        k = round(fix["gnss_time_ns"] / NS - first_utc_s)
+        pulse = t0 + k * NS
+        late += t - pulse > NS  # gpsd reported the first epoch at its RMC, every later one at its end (1.05 s)
+        if "opened_mono_ns" in fix:
+            opened += 1
+            assert 350_000_000 <= fix["opened_mono_ns"] - pulse < 700_000_000, (k, fix["opened_mono_ns"] - pulse)
+    assert late >= len(fixes) - 2 and opened >= len(fixes) - 4, (late, opened)  # no TOFF for gpsd's first fix
+    now = [0]
+    clock = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    observe = clock_observer(clock)
+    events = [(t0 + k * NS + 7_000, PPS, {"gnss_time_ns": None}) for k in range(len(epochs))]
+    events += [(t, GNSS_FIX, fix) for t, fix in records]
+    for t, topic, payload in sorted(events, key=lambda e: e[0]):
+        now[0] = t
+        observe[topic](payload, t)
+    probe = t0 + (len(epochs) - 1) * NS + 500_000_000
+    now[0] = probe
+    stamp = clock.stamp(probe)
+    assert stamp.state == "locked", stamp
+    assert abs(stamp.t_sync_ns - ((first_utc_s + len(epochs) - 1) * NS + 500_000_000)) < 1_000_000, stamp

@@ -142,7 +142,8 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
     "late_read": LATE_READ,
     "opened_mono_ns": ("integer?", "board monotonic time of the read the epoch's first message came in, ns, when "
                                    "that was before the read that completed it (t_mono_ns; a slow line: 9600 baud "
-                                   "NMEA ends an epoch after the next pulse); absent when one read held it all"),
+                                   "NMEA ends an epoch after the next pulse; through gpsd, the read its TOFF came "
+                                   "in); absent when one read held it all"),
     "leap_second": ("boolean?", "true for the epoch 23:59:60 UTC, an inserted leap second: gnss_time_ns and timestamp "
                                 "are then POSIX's Unix time for it, that of the 00:00:00 after it (absent otherwise)"),
 }

@@ -19,7 +19,7 @@ from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, NoData
 from sensors.gpsd import GpsdClient
-from sensors.gpsd_decode import GpsdEpochs, pps_report
+from sensors.gpsd_decode import GpsdEpochs, pps_report, toff_real_ns
 from sync.realtime import RealtimeMap
 
 NS = 1_000_000_000
@@ -28,6 +28,7 @@ LEAP_EDGE_GAP_NS = 500_000_000  # a midnight second's repeat this long after its
 READ_WAIT_S = 0.2  # longest wait for gpsd per read, host seconds: the thread's heartbeat and stop latency
 SETTLE_S = 0.3  # an epoch is complete when its reports stopped coming for this long (drive time)
 QUIET_S = 3.0  # this long without a record, gpsd's own word on a missing receiver becomes the sensor's state
+TOFF_KEEP = 64  # epochs whose TOFF arrival is kept until their fix completes (6 s at 10 Hz)
 
 
 def _origin(host: str, port: int, device: str | None) -> str:
@@ -81,7 +82,9 @@ class GpsdSource(_GpsdConnection):
     """Fixes from gpsd's TPV and SKY reports, one ``/gnss/fix`` record per epoch (see sensors.gpsd_decode).
 
     A fix's acquisition time is the arrival of its epoch's last TPV, as a serial fix's is the read that
-    completed its epoch.
+    completed its epoch; when gpsd's TOFF for the epoch came in an earlier read, that read's time is the fix's
+    ``opened_mono_ns``, as a serial epoch spread over several reads has it: gpsd reports a TPV only once the
+    cycle's last sentence is in, which on a slow line (u-blox's factory NMEA at 9600 baud) is after the next pulse.
     """
 
     name = "gnss"
@@ -94,10 +97,12 @@ class GpsdSource(_GpsdConnection):
         # Epochs still being collected when the connection ended (gpsd restarted, the socket closed): complete as
         # far as gpsd got, so they are recorded with the next read instead of lost with the old assembler.
         self._carried: list[Reading] = []
+        self._toff: dict[int, int] = {}  # epoch time (Unix ns, as gpsd names it) -> the read its TOFF came in
 
     def open(self) -> None:
         self._connect()
         self.epochs = GpsdEpochs(self.settle_ns)
+        self._toff = {}
 
     def read(self) -> list[Reading]:
         carried, self._carried = self._carried, []
@@ -113,6 +118,11 @@ class GpsdSource(_GpsdConnection):
         t = self.tb.monotonic_ns()
         done = []
         for msg in messages:
+            real = toff_real_ns(msg)
+            if real is not None:
+                self._toff.setdefault(real, t)
+                if len(self._toff) > TOFF_KEEP:
+                    del self._toff[next(iter(self._toff))]
             done += self.epochs.push(msg, t)
         done += self.epochs.poll(t)
         out = carried + self._readings(done)
@@ -125,9 +135,14 @@ class GpsdSource(_GpsdConnection):
             self.epochs = None
         super().close()
 
-    @staticmethod
-    def _readings(done: list[tuple[Any, int]]) -> list[Reading]:
-        return [Reading(GNSS_FIX, location_fix(fix, t_fix), t_fix) for fix, t_fix in done]
+    def _readings(self, done: list[tuple[Any, int]]) -> list[Reading]:
+        return [Reading(GNSS_FIX, location_fix(fix, t_fix, opened_mono_ns=self._opened_at(fix, t_fix)), t_fix)
+                for fix, t_fix in done]
+
+    def _opened_at(self, fix: Any, t_fix: int) -> int | None:
+        """The read the epoch's TOFF came in, where that was an earlier read than the one that completed it."""
+        opened = self._toff.pop(fix.time_utc_ns, None) if fix.time_utc_ns is not None else None
+        return opened if opened is not None and opened < t_fix else None
 
 
 class GpsdPpsSource(_GpsdConnection):
