@@ -386,6 +386,18 @@ class GpsdEpochs:
                 _midnight_second(key) and t_ns - self._done_first_ns >= LEAP_REPEAT_NS):
             self.counters.late += 1  # a TPV completing an epoch that was already reported
             return out
+        elif open_ is not None and open_.key is None and key is not None and \
+                t_ns - open_.first_ns < self._untimed_ns(msg):
+            # The same burst, its time known now: gpsd's first report of an NMEA receiver comes at its GGA, before
+            # any RMC gave the date, so without a time (gpsd 3.22: a 3D fix 67 ms before the timed TPV of the
+            # same epoch). Reported apart, it was an epoch of its own: a fix without a time, then the same again.
+            kept = {k: open_.tpv[k] for k in FIRST_FIGURES if k in open_.tpv}
+            open_.tpv.update(msg)
+            open_.tpv.update(kept)
+            open_.key, open_.last_ns = key, t_ns
+            if self._gst is not None and self._gst[0] == key:
+                open_.gst, self._gst = self._gst[1], None
+            return out
         out += self._finish(leap_second=leap)
         epoch = _Epoch(key, dict(msg), None, t_ns, t_ns)
         pending = self._sky

@@ -975,3 +975,23 @@ def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse(
     stamp = clock.stamp(probe)
     assert stamp.state == "locked", stamp
     assert abs(stamp.t_sync_ns - ((first_utc_s + len(epochs) - 1) * NS + 500_000_000)) < 1_000_000, stamp
+
+
+def test_the_first_tpv_of_a_burst_before_the_date_is_known_joins_its_epoch() -> None:
+    """gpsd 3.22 reading an NMEA receiver (GGA, RMC, GSA; GP talker) from its first burst: a 3D TPV without a time
+    at the GGA (no date yet), then the timed TPVs of the same epoch 67 and 134 ms later (measured). One fix, with
+    its time; before, the first was a record of its own, fix_ok and no time, the same position again after it."""
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
+    first = {k: v for k, v in tpv(T0).items() if k != "time"}
+    out = e.push(first, 0)
+    out += e.push({**tpv(T0), "speed": 10.0}, 67_000_000) + e.push(tpv(T0), 134_000_000)
+    out += e.push(tpv(T0 + NS), NS) + e.flush()
+    assert [f.time_utc_ns for f, _ in out] == [T0, T0 + NS]
+    assert out[0][1] == 134_000_000 and out[0][0].fix_ok
+    # A TPV without a time half a cycle before a timed one is another cycle's (gpsd without a fix): its own record.
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
+    out = e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 0) + e.push(tpv(T0), 600_000_000)
+    out += e.flush()
+    assert [(f.fix_mode, f.time_utc_ns) for f, _ in out] == [(1, None), (3, T0)]
