@@ -753,16 +753,49 @@ def test_a_drive_through_gpsd_records_fixes_at_1hz_and_locks_the_clock_to_its_pp
     assert all(abs(e["gnss_time_ns"] - round(e["gnss_time_ns"] / NS) * NS) < 100 for e in edges)
     assert msgs["/sync"][-1]["state"] == "locked" and msgs["/sync"][-1]["rejected"] == 0
     # stamps of the IMU, once locked, against the true time at their board time
+    errors = [error for error, _ in locked_imu_errors(msgs)]
+    assert len(errors) > 500 and max(errors) < 20_000, (len(errors), max(errors))
+
+
+def locked_imu_errors(msgs: dict[str, list[dict[str, Any]]]) -> list[tuple[float, int]]:
+    """Each locked /imu stamp's error against the true time at its board time (/truth/clock), with its bound."""
     clock = sorted((m["t_mono_ns"], m["t_true_ns"]) for m in msgs["/truth/clock"])
     board = [c[0] for c in clock]
-    errors = []
+    out = []
     for m in msgs["/imu"]:
         i = bisect.bisect_left(board, m["t_mono_ns"])
         if m["sync_state"] != "locked" or not 0 < i < len(clock):
             continue
         (m0, t0), (m1, t1) = clock[i - 1], clock[i]
-        errors.append(abs(m["t_sync_ns"] - (t0 + (t1 - t0) * (m["t_mono_ns"] - m0) / (m1 - m0))))
-    assert len(errors) > 500 and max(errors) < 20_000, (len(errors), max(errors))
+        out.append((abs(m["t_sync_ns"] - (t0 + (t1 - t0) * (m["t_mono_ns"] - m0) / (m1 - m0))), m["sync_err_ns"]))
+    return out
+
+
+@pytest.mark.slow_on_board
+def test_fixes_through_gpsd_at_5hz_with_the_boards_own_pps_line_lock_the_clock_to_the_right_second(
+        tmp_path: Path) -> None:
+    """GNSS from the simulated gpsd at 5 Hz, the PPS on the board's GPIO line: the clock pairs each edge with the
+    fix of its second by when the epoch began (gpsd's TOFF). The simulated gpsd once sent a TOFF for every epoch,
+    named by the nearest whole second: the x.0 epoch's TOFF was the one of x-0.4 s, before the edge of x, and
+    the clock, paired a second off, disagreed with the system clock and never locked."""
+    cfg = tmp_path / "logger.toml"
+    cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n[gnss]\nsource = "gpsd"\n[pps]\nsource = "sim"\n'
+                   '[obd]\nsource = "sim"\n[sim]\ngpsd = true\ngnss_rate_hz = 5\n')
+    duration_s = 30
+    proc = subprocess.run([sys.executable, "-m", "logger.cli", "run", "--sim", "--config", str(cfg), "--duration",
+                           str(duration_s), "--time-scale", "4", "--out", str(tmp_path)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=drive_timeout(duration_s))
+    assert proc.returncode == 0, proc.stderr
+    msgs: dict[str, list[dict[str, Any]]] = collections.defaultdict(list)
+    for path in sorted(tmp_path.glob("*.mcap")):
+        for topic, items in read_file(path).items():
+            msgs[topic] += items
+    fixes = [f for f in msgs["/gnss/fix"] if f["gnss_time_ns"] is not None]
+    assert len(fixes) >= 5 * (duration_s - 8), len(fixes)
+    assert all(f["opened_mono_ns"] < f["t_mono_ns"] for f in fixes if "opened_mono_ns" in f)
+    assert msgs["/sync"][-1]["state"] == "locked" and msgs["/sync"][-1]["relocks"] == 0, msgs["/sync"][-1]
+    beyond = [error - bound for error, bound in locked_imu_errors(msgs)]
+    assert len(beyond) > 300 and max(beyond) <= 0, (len(beyond), max(beyond))
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -47,9 +47,14 @@ _GNSS_ID = {"G": 0, "E": 2, "R": 6}  # u-blox gnssId, which gpsd passes on
 _PRN_BASE = {"G": 0, "E": 300, "R": 64}  # gpsd's PRN numbering: GPS 1-32, GLONASS 65-96, Galileo 301-336
 
 
+def to_ms(unix_ns: int) -> int:
+    """Unix ns rounded to gpsd's millisecond, as whole ms."""
+    return (unix_ns + NS_PER_MS // 2) // NS_PER_MS
+
+
 def iso_ms(unix_ns: int) -> str:
     """Unix ns -> gpsd's time format, ISO 8601 UTC rounded to the millisecond."""
-    ms = (unix_ns + NS_PER_MS // 2) // NS_PER_MS
+    ms = to_ms(unix_ns)
     stamp = dt.datetime(1970, 1, 1, tzinfo=dt.UTC) + dt.timedelta(milliseconds=ms)
     return stamp.strftime("%Y-%m-%dT%H:%M:%S.") + f"{ms % 1000:03d}Z"
 
@@ -414,6 +419,7 @@ class ReceiverFeed:
         self._pps_since = self.clock.now_ns()
         self._pps_last_k: int | None = None
         self._time_known = False
+        self._toff_second: int | None = None  # the UTC second of the last TOFF sent
         self._activated = iso_ms(time.time_ns())
 
     def devices(self) -> list[dict[str, Any]]:
@@ -458,18 +464,25 @@ class ReceiverFeed:
         excess = min(float(self._rng.exponential(mean)), self.receiver.latency_cap_s)
         ready = rec.drive_ns + round((lo + excess + uart_s) * NS_PER_S)
         tpv, sky = self._tpv(rec), self._sky(rec)
+        # gpsd latches an epoch's time when the receiver's first message of it comes, and sends the TOFF then,
+        # before the epoch's reports; only for the first epoch of each second (gpsd 3.22 skips "not a new time":
+        # at 5 Hz the x.0 epoch), naming that epoch's own time as its TPV does.
+        real = to_ms(self._utc_ns(rec)) * NS_PER_MS if "time" in tpv else None
+        if real is not None and self._board_ns is not None and real // NS_PER_S != self._toff_second:
+            self._toff_second = real // NS_PER_S
+            clock = self._board_ns(ready) + self.realtime_offset_ns
+            self._push(ready, {"class": "TOFF", "device": self.device, "real_sec": real // NS_PER_S,
+                               "real_nsec": real % NS_PER_S, "clock_sec": clock // NS_PER_S,
+                               "clock_nsec": clock % NS_PER_S, "precision": -2})
         self._push(ready, sky)
         self._push(ready + NS_PER_MS, tpv)
-        if "time" in tpv and self._board_ns is not None:
-            second = (rec.gps_ns + NS_PER_S // 2) // NS_PER_S * NS_PER_S
-            real = self.timeline.utc_unix_ns(second)
-            clock = self._board_ns(ready) + self.realtime_offset_ns
-            self._push(ready + NS_PER_MS, {"class": "TOFF", "device": self.device, "real_sec": real // NS_PER_S,
-                                           "real_nsec": real % NS_PER_S, "clock_sec": clock // NS_PER_S,
-                                           "clock_nsec": clock % NS_PER_S, "precision": -2})
 
     def _push(self, due_ns: int, obj: dict[str, Any]) -> None:
         heapq.heappush(self._queue, (int(due_ns), next(self._seq), obj))
+
+    def _utc_ns(self, rec: EpochRecord) -> int:
+        """The epoch's time as the receiver states it (its own time error included), Unix ns."""
+        return self.timeline.utc_unix_ns(rec.gps_ns + round(rec.time_error_ns))
 
     def _tpv(self, rec: EpochRecord) -> dict[str, Any]:
         fix = rec.fix_type >= 2
@@ -479,8 +492,7 @@ class ReceiverFeed:
         if fix:
             tpv["status"] = 1
         if self._time_known:
-            utc = self.timeline.utc_unix_ns(rec.gps_ns + round(rec.time_error_ns))
-            tpv.update(time=iso_ms(utc), leapseconds=self.timeline.leap_s, ept=0.005)
+            tpv.update(time=iso_ms(self._utc_ns(rec)), leapseconds=self.timeline.leap_s, ept=0.005)
         if not fix:
             return tpv
         hae = round(rec.height_m * 1000) / 1000
