@@ -29,6 +29,7 @@ from sensors.errors import DeviceNotFound
 from sensors.sim.profile import SimProfile
 from sync.chrony_sock import ChronySock
 from sync.clock import PpsClock
+from sync.kernel_slew import raw_clock_ns
 from sync.settings import SyncSettings
 from sync.wallclock import boot_id, system_clock_synchronized
 
@@ -132,9 +133,12 @@ def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], i
     keys to fields; what the settings do not hold (state file, chrony socket) is wired here."""
     sc = cfg["sync"]
     settings = SyncSettings.from_config(sc, imu_rate_hz=cfg["imu"]["rate_hz"])
+    # On the host's own clock its raw twin tells what NTP does to it (sync.kernel_slew); a simulated drive's clock
+    # has no NTP, and the host's raw clock has nothing to do with it.
+    host = tb.monotonic_ns is time.monotonic_ns
     clock = PpsClock(settings, monotonic_ns=tb.monotonic_ns, wall_ns=wall_ns,
                      state_path=Path(cfg["logger"]["state_dir"]) / "clock.json", clock_id=clock_id,
-                     wall_trusted=wall_trusted)
+                     wall_trusted=wall_trusted, raw_ns=raw_clock_ns if host else None)
     if sc["chrony_sock"]:
         clock.chrony = ChronySock(sc["chrony_sock"])
         clock.on_sample = clock.chrony.send_edge

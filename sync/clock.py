@@ -28,6 +28,7 @@ import numpy as np
 
 from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
+from sync.kernel_slew import KernelSlew
 from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
@@ -66,8 +67,11 @@ class PpsClock(StampClock):
 
     def __init__(self, settings: SyncSettings | None = None, monotonic_ns: Callable[[], int] = time.monotonic_ns,
                  wall_ns: Callable[[], int] = time.time_ns, state_path: Path | None = None,
-                 clock_id: str = "", wall_trusted: bool = False) -> None:
+                 clock_id: str = "", wall_trusted: bool = False, raw_ns: Callable[[], int] | None = None) -> None:
         self.s = settings or SyncSettings()
+        # With the board's raw clock (CLOCK_MONOTONIC_RAW beside the monotonic clock), what NTP does to the
+        # monotonic clock beyond the rate the fit's edges showed is taken out past the newest edge (sync.kernel_slew)
+        self.kslew = KernelSlew(monotonic_ns, raw_ns) if raw_ns is not None else None
         # A synchronised system clock (NTP) is checked against at the first lock: a chain of edges labelled with
         # the wrong second (messages that reached us seconds late) is consistent in itself and only this sees it.
         self.wall_trusted = wall_trusted
@@ -260,6 +264,8 @@ class PpsClock(StampClock):
         self._edges.append(true_board_ns)
         self._offsets.append(offset)
         self._last_sample_ns = edge_ns
+        if self.kslew is not None:
+            self.kslew.mark_edge(true_board_ns)
         self._pair_lags.append(min(PAIR_LAG_MAX_NS, max(0, self._mono() - edge_ns)))
         self._fresh_ns = round(self.s.holdover_after_s * NS) + max(self._pair_lags)
         self.counts["samples"] += 1
@@ -483,6 +489,8 @@ class PpsClock(StampClock):
         off = self._base_ns + fit.offset(x)
         if t_ns > self._last_sample_ns:
             off += self._comp_ns
+            if self.kslew is not None and self._edges:
+                off -= self.kslew.excess(t_ns, self._edges[0])
         if slewed and self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
@@ -504,6 +512,8 @@ class PpsClock(StampClock):
         since = max(0.0, (t_ns - (self._last_sample_ns or t_ns)) / NS)
         if state == HOLDOVER or since > 0:
             err += self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
+            if self.kslew is not None:
+                err += self.kslew.margin_ns
         if with_doubts:
             err += self._unconfirmed_ns
             if self._miss_ns or self._miss_growth:
@@ -516,6 +526,8 @@ class PpsClock(StampClock):
 
     def stamp(self, t_mono_ns: int) -> Stamp:
         with self._lock:
+            if self.kslew is not None:
+                self.kslew.sample()
             return self._stamp(t_mono_ns)
 
     def stamp_many(self, times_ns: Sequence[int]) -> Stamps:
@@ -524,6 +536,9 @@ class PpsClock(StampClock):
         with self._lock:
             t = np.asarray(times_ns, dtype=np.int64)
             imu_cnt, timer_cnt = self.paper.counters_many(times_ns)
+            kslew = self.kslew
+            if kslew is not None:
+                kslew.sample()
             fit = self._fit
             if fit is None or (not self._locked_once and not self._restored):
                 n = len(t)
@@ -541,6 +556,9 @@ class PpsClock(StampClock):
                 off = self._base_ns + (fit.offset_at_ref + fit.slope * u) + self._comp_ns
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
                 err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
+                if kslew is not None:
+                    off = off - kslew.excess_many(t, self._edges[0])
+                    err = err + kslew.margin_ns
                 err = err + self._unconfirmed_ns
                 if self._miss_ns or self._miss_growth:
                     err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * (t - last))
@@ -556,11 +574,14 @@ class PpsClock(StampClock):
             off = self._base_ns + (fit.offset_at_ref + fit.slope * (x - fit.x_ref))
             if last is not None:
                 off = np.where(t > last, off + self._comp_ns, off)
+                if kslew is not None and self._edges:
+                    off = np.where(t > last, off - kslew.excess_many(t, self._edges[0]), off)
             # _err_at, per sample
             err = self.s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * (x - fit.x_ref)) + self.s.pps_latency_spread_ns
             since = np.maximum(0.0, (t - (last if last is not None else t)) / NS)
             grow = ~locked | (since > 0)
-            err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns), err)
+            err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
+                                        + (kslew.margin_ns if kslew is not None else 0.0)), err)
             err = err + self._unconfirmed_ns
             if self._miss_ns or self._miss_growth:
                 err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS)

@@ -11,7 +11,7 @@ import pytest
 from extras import given, settings, st
 from sync_streams import NS, Stream, feed, make_stream
 
-from logger.recording.records import observe_clock
+from logger.recording.records import clock_observer, observe_clock
 from sync.clock import NO_BOUND_NS, PpsClock
 from sync.paper import PaperCounters, split_count
 from sync.regress import count_runs, critical_runs, fit_line
@@ -901,3 +901,102 @@ def test_samples_that_do_not_reach_chrony_are_a_problem_in_the_status(tmp_path: 
     finally:
         listening.close()
         clock.chrony.close()
+
+
+def _slewed_outage(raw: bool, fifo: bool) -> tuple[float, int, list[tuple[float, int, int]]]:
+    """A 60 s PPS outage during which NTP slews CLOCK_MONOTONIC (the kernel slews it with the system clock): a 1 ms
+    offset correction at 500 ppm for 2 s, 20 s in, while NTP's frequency correction before it was 3 ppm. Edges and
+    fixes before and after; stamps every 0.1 s (one at a time, or a FIFO read of five every 0.5 s). The board's raw
+    clock is its crystal alone, 30 ppm fast. Returns the worst error over its bound, the samples seen and
+    (true s, error, bound) of every stamp taken in the outage."""
+    from sync.inputs import FixEpoch
+
+    t0_unix, outage_at, outage_s, slew_at, slew_s, slew_ppm, freq, ntp_ppm = 1_796_000_000, 120, 60, 20, 2.0, 500.0, \
+        30e-6, 3.0
+
+    def raw_at(true_s: float) -> int:
+        return round(5000 * NS + true_s * (1 + freq) * NS)
+
+    def mono_at(true_s: float) -> int:
+        into = true_s - (outage_at + slew_at)
+        extra = min(max(0.0, into), slew_s) * slew_ppm * 1e-6 + true_s * ntp_ppm * 1e-6
+        return raw_at(true_s) + 777 * NS + round(extra * NS)
+
+    true_now = [0.0]
+    clk = PpsClock(monotonic_ns=lambda: mono_at(true_now[0]), wall_ns=lambda: 0,
+                   raw_ns=(lambda: raw_at(true_now[0])) if raw else None)
+    worst, seen = 0.0, []
+    for k in range(outage_at + outage_s + 30):
+        if not outage_at <= k < outage_at + outage_s:
+            true_now[0] = k + 7e-6
+            clk.on_edge(mono_at(true_now[0]))
+            true_now[0] = k + 0.15
+            clk.on_fix_epoch(FixEpoch((t0_unix + k) * NS, None), mono_at(true_now[0]))
+        for f in (range(0, 10, 5) if fifo else range(10)):
+            count = 5 if fifo else 1
+            times = [k + 0.05 + 0.1 * (f + j) for j in range(count)]
+            true_now[0] = times[-1] + 0.001
+            stamps = clk.stamp_many([mono_at(t) for t in times])
+            for t, unix, state, bound in zip(times, stamps.t_sync_ns, stamps.state, stamps.err_ns, strict=True):
+                if state == "freerun":
+                    continue
+                err = unix - round((t0_unix + t) * NS)
+                worst = max(worst, abs(err) / bound)
+                if outage_at <= t < outage_at + outage_s:
+                    seen.append((t, err, bound))
+    return worst, len(seen), seen
+
+
+@pytest.mark.parametrize("fifo", [False, True])
+def test_ntp_slewing_the_monotonic_clock_in_holdover_is_taken_out_with_the_raw_clock(fifo: bool) -> None:
+    """Without the raw clock the slew's 1 ms stood in every stamp after it, behind a holdover bound of 34 us (the
+    bound knows the oscillator, not what NTP does to the clock it is read through). With it, the slew is measured as
+    it happens (CLOCK_MONOTONIC minus CLOCK_MONOTONIC_RAW beyond the rate it had over the fit's edges) and taken
+    out: every stamp within its bound, the outage's within a microsecond of the truth but where a FIFO read's
+    samples, stamped back to the read before, straddle the slew's start or end (up to 20 us: K is known at the
+    reads, taken as linear between them, and the bound has the worst of that since the last edge)."""
+    worst, n, seen = _slewed_outage(raw=False, fifo=fifo)
+    assert worst > 20 and n > 100  # the defect, as the review measured it
+    worst, n, seen = _slewed_outage(raw=True, fifo=fifo)
+    assert worst <= 1.0 and n > 100, worst
+    errors = np.abs([err for _, err, _ in seen])
+    assert np.percentile(errors, 95) < 1_000 and errors.max() < (25_000 if fifo else 1_000), errors.max()
+
+
+def test_the_raw_clock_changes_nothing_when_ntp_leaves_the_clock_alone() -> None:
+    """A raw clock that runs with the monotonic one (no NTP, or NTP's frequency correction unchanged): the same
+    stamps as without it, locked and through a minute's outage, but for the bound's few ns of read windows."""
+    stream = make_stream(duration_s=200, seed=3, outages=((80.0, 140.0),))
+    now = [0]
+    plain = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: 0)
+    watched = PpsClock(monotonic_ns=lambda: now[0], wall_ns=lambda: 0, raw_ns=lambda: now[0] - 123_456_789)
+    observers = clock_observer(plain), clock_observer(watched)
+    compared = 0
+    for board, topic, payload in stream.events:
+        now[0] = board
+        for observe in observers:
+            if topic in observe:
+                observe[topic](payload, board)
+        if topic != "/imu":
+            continue
+        times = [board - 300_000_000, board]
+        a, b = plain.stamp_many(times), watched.stamp_many(times)
+        assert a.t_sync_ns == b.t_sync_ns and a.state == b.state, (board, a, b)
+        assert all(0 <= y - x <= 10 for x, y in zip(a.err_ns, b.err_ns, strict=True)), (a.err_ns, b.err_ns)
+        compared += a.state.count("holdover") + a.state.count("locked")
+    assert compared > 300
+
+
+def test_the_daemons_clock_watches_ntp_on_the_host_clock_only(tmp_path: Path) -> None:
+    """The clock the daemon builds reads CLOCK_MONOTONIC_RAW beside the host's monotonic clock; on a simulated
+    drive's clock (scaled, no NTP) it does not, since the host's raw clock says nothing of it."""
+    from logger.compose import make_clock
+    from logger.config import parse
+    from logger.runtime.timebase import TimeBase, host_timebase
+
+    cfg = parse(f'[logger]\nstate_dir = "{tmp_path}"\n', "logger.toml", sim=True)
+    host = make_clock(cfg, host_timebase(), "")
+    assert host.kslew is not None
+    sample = host.kslew.sample()  # this machine's: NTP's adjustments so far, and a read window of a few us
+    assert sample.spread_ns < 1_000_000
+    assert make_clock(cfg, TimeBase(lambda: 0, 10.0), "").kslew is None

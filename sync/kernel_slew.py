@@ -1,0 +1,165 @@
+"""How far NTP has moved CLOCK_MONOTONIC, measured against CLOCK_MONOTONIC_RAW, which nothing adjusts.
+
+Linux slews CLOCK_MONOTONIC with the system clock: chronyd's frequency and offset corrections (up to 83 333 ppm by
+chronyd's default ``maxslewrate``, 500 ppm under ntpd) move every stamp this daemon takes, the PPS edges' too.
+While edges come, the clock's fit follows them. In holdover it carries on at the rate the edges last showed, which
+holds the kernel's rate of then: a slew that begins meanwhile (chronyd turning to NTP servers over a mobile network
+when the PPS it was fed stops, in a tunnel) moved stamps 1 ms off behind a 34 us bound. CLOCK_MONOTONIC_RAW runs on
+the board's oscillator alone, so ``K = MONOTONIC - MONOTONIC_RAW`` is the sum of the kernel's adjustments, and what
+K did beyond the rate it had over the fit's edges is what a holdover must take out (:meth:`KernelSlew.excess`).
+Reading both clocks needs no privilege: the unit's ProtectClock= forbids adjtimex, not clock_gettime.
+"""
+
+from __future__ import annotations
+
+import time
+from bisect import bisect_left
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_GAP_NS = 20_000_000  # K is read at most this often (50 Hz): its slews last seconds
+
+
+def raw_clock_ns() -> int:
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW)
+
+
+@dataclass(frozen=True, slots=True)
+class Adjustment:
+    """K = MONOTONIC - MONOTONIC_RAW at ``mono_ns``, known to within +-``spread_ns`` (half the read window)."""
+
+    mono_ns: int
+    k_ns: int
+    spread_ns: int
+
+
+class KernelSlew:
+    """K sampled when asked (the clock asks at every stamp and edge), and K at the clock's samples (its edges).
+
+    Between samples K is taken as linear (a FIFO read's samples, stamped up to half a second back, fall between the
+    reads that sample K); past the newest it carries on at the last rate seen.
+    """
+
+    def __init__(self, monotonic_ns: Callable[[], int] = time.monotonic_ns,
+                 raw_ns: Callable[[], int] = raw_clock_ns, keep: int = 256, keep_edges: int = 256) -> None:
+        self._mono = monotonic_ns
+        self._raw = raw_ns
+        self._samples: deque[Adjustment] = deque(maxlen=keep)
+        self._edges: deque[tuple[int, float]] = deque(maxlen=keep_edges)  # (board ns of an edge, K there)
+        # Between two samples K is taken as linear; where its rate changed in between (chronyd changes it at its
+        # updates) the line is off by up to a quarter of the change times the gap. The largest such since the
+        # newest edge, with the samples' read windows, is what the bound adds (margin_ns).
+        self._margin_ns = 0.0
+        self._segment_ns = 0.0  # the newest sample's part of it
+        self._rate_key: tuple[int, int] | None = None
+        self._rate = 0.0
+
+    def sample(self) -> Adjustment:
+        """Read K now: the tightest of three monotonic-raw-monotonic windows; kept when later than the last. Within
+        MIN_GAP_NS of the last one that one stands (every sensor thread stamps through here: the samples stay
+        sparse enough that a FIFO read's span, half a second back, covers a few of them)."""
+        s = self._samples
+        if s and self._mono() - s[-1].mono_ns < MIN_GAP_NS:
+            return s[-1]
+        best: Adjustment | None = None
+        for _ in range(3):
+            m1 = self._mono()
+            r = self._raw()
+            m2 = self._mono()
+            mid = (m1 + m2) // 2
+            if best is None or m2 - m1 < 2 * best.spread_ns:
+                best = Adjustment(mid, mid - r, (m2 - m1 + 1) // 2)
+        assert best is not None
+        if s and best.mono_ns <= s[-1].mono_ns:
+            return best
+        if len(s) >= 2:
+            a, b = s[-2], s[-1]
+            before = (b.k_ns - a.k_ns) / (b.mono_ns - a.mono_ns)
+            after = (best.k_ns - b.k_ns) / (best.mono_ns - b.mono_ns)
+            gap = max(b.mono_ns - a.mono_ns, best.mono_ns - b.mono_ns)
+            self._segment_ns = abs(after - before) * gap / 4 + 2 * (best.spread_ns + b.spread_ns)
+            self._margin_ns = max(self._margin_ns, self._segment_ns)
+        s.append(best)
+        return best
+
+    def at(self, t_ns: int) -> float:
+        """K at a board time, from the samples around it (a sample is taken first when there is none)."""
+        if not self._samples:
+            self.sample()
+        s = self._samples
+        newest = s[-1]
+        if t_ns >= newest.mono_ns:
+            if len(s) < 2:
+                return float(newest.k_ns)
+            prev = s[-2]
+            return newest.k_ns + (newest.k_ns - prev.k_ns) * (t_ns - newest.mono_ns) / (newest.mono_ns - prev.mono_ns)
+        times = [a.mono_ns for a in s]
+        i = bisect_left(times, t_ns)
+        if i == 0:
+            return float(s[0].k_ns)
+        a, b = s[i - 1], s[i]
+        return a.k_ns + (b.k_ns - a.k_ns) * (t_ns - a.mono_ns) / (b.mono_ns - a.mono_ns)
+
+    def at_many(self, t_ns: np.ndarray) -> np.ndarray:
+        """:meth:`at` for an array of board times."""
+        if not self._samples:
+            self.sample()
+        s = self._samples
+        earliest = int(t_ns.min()) if len(t_ns) else 0
+        n = 2  # the newest samples back to the first before the earliest time: a read's span, not the whole deque
+        while n < len(s) and s[-n].mono_ns > earliest:
+            n += 1
+        tail = [s[-i] for i in range(min(n, len(s)), 0, -1)]
+        times = np.fromiter((a.mono_ns for a in tail), dtype=np.float64, count=len(tail))
+        ks = np.fromiter((a.k_ns for a in tail), dtype=np.float64, count=len(tail))
+        out = np.interp(t_ns.astype(np.float64), times, ks)
+        if len(s) >= 2:
+            rate = (ks[-1] - ks[-2]) / (times[-1] - times[-2])
+            beyond = t_ns > times[-1]
+            out = np.where(beyond, ks[-1] + rate * (t_ns - times[-1]), out)
+        return out
+
+    def mark_edge(self, edge_ns: int) -> None:
+        """An edge the clock took as a sample: K there (sampled now, interpolated back to the edge)."""
+        self.sample()
+        if not self._edges or edge_ns > self._edges[-1][0]:
+            self._edges.append((edge_ns, self.at(edge_ns)))
+        self._margin_ns = self._segment_ns  # K at the edge is interpolated in the newest segment
+
+    @property
+    def margin_ns(self) -> float:
+        """How far K between samples since the newest edge may be from the lines through them, and the samples'
+        own read windows: ns for an error bound."""
+        return self._margin_ns
+
+    def _edge_rate(self, first_edge_ns: int) -> tuple[int, float, float] | None:
+        """(newest edge, K there, K's mean rate from the edge at or after ``first_edge_ns`` to it), or None."""
+        if not self._edges:
+            return None
+        last_t, last_k = self._edges[-1]
+        key = (first_edge_ns, last_t)
+        if self._rate_key != key:  # once per edge: every stamp between two edges asks the same
+            first = next(((t, k) for t, k in self._edges if t >= first_edge_ns), self._edges[-1])
+            self._rate = (last_k - first[1]) / (last_t - first[0]) if last_t > first[0] else 0.0
+            self._rate_key = key
+        return last_t, last_k, self._rate
+
+    def excess(self, t_ns: int, first_edge_ns: int) -> float:
+        """What the kernel moved CLOCK_MONOTONIC by between the newest edge and ``t_ns`` beyond the rate it moved it
+        at over the fit's edges (from ``first_edge_ns``): ns that board time gained with no time passing."""
+        edge = self._edge_rate(first_edge_ns)
+        if edge is None or t_ns <= edge[0]:
+            return 0.0
+        last_t, last_k, rate = edge
+        return (self.at(t_ns) - last_k) - rate * (t_ns - last_t)
+
+    def excess_many(self, t_ns: np.ndarray, first_edge_ns: int) -> np.ndarray | float:
+        """:meth:`excess` for an array of board times (0 where a time is not after the newest edge)."""
+        edge = self._edge_rate(first_edge_ns)
+        if edge is None:
+            return 0.0
+        last_t, last_k, rate = edge
+        return np.where(t_ns > last_t, (self.at_many(t_ns) - last_k) - rate * (t_ns - last_t), 0.0)
