@@ -76,7 +76,7 @@ def _i2c_address(v: int) -> str | None:
 
 
 def _imu_rate(v: float) -> str | None:
-    from sensors.mpu6050 import choose_sample_timing
+    from sensors.mpu6050_timing import choose_sample_timing
 
     if not 1 <= v <= 1000:
         return "must be between 1 and 1000"

@@ -350,3 +350,17 @@ def test_a_slow_elm327_clone_gets_the_answer_timeout_the_file_gives() -> None:
     assert obd.source.make_driver().timeout_s == 2.5
     (msg,) = _problems(GOOD.replace('port = "/dev/ttyUSB0"', 'port = "/dev/ttyUSB0"\nanswer_timeout_s = 0'))
     assert "obd.answer_timeout_s = 0" in msg, msg
+
+
+def test_checking_the_example_configuration_loads_no_numpy() -> None:
+    """``logger config check`` and ``logger status --config`` (an operator's SSH session, on the board's one core)
+    check ``[imu] rate_hz`` against the chip's dividers: that check once imported the driver, and numpy with it
+    (137 ms and 12 MB here, several times that on the board)."""
+    import subprocess
+    import sys
+
+    example = Path(__file__).parent.parent / "systemd" / "logger.toml"
+    code = ("import sys; from logger.config import load; load(sys.argv[1]); "
+            "print('numpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(example)], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out
