@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
 
 FREERUN = "freerun"
@@ -71,6 +72,11 @@ class StampClock(ABC):
     that learns nothing from PPS edges or time messages ignores them, one with nothing to persist saves nothing,
     and every clock can report its state. Inputs arrive from any thread.
     """
+
+    # What a clock may have found or feed, for the status: a pairing it found wrong lately (board ns, what), and
+    # the chrony socket it hands its samples to (its counts and its last error). None for a clock without them.
+    last_mislabel: tuple[int, str] | None = None
+    chrony: ChronySock | None = None
 
     @abstractmethod
     def stamp(self, t_mono_ns: int) -> Stamp:

@@ -218,3 +218,16 @@ def test_the_logger_spells_each_topic_name_once() -> None:
     spelled = ROOT / "logger" / "recording" / "topics.py"
     bad = [line for p in sorted((ROOT / "logger").rglob("*.py")) if p != spelled for line in topic_strings(p)]
     assert not bad, "use the constants of logger.recording.topics: " + "; ".join(bad)
+
+
+def test_the_logger_probes_none_of_its_own_objects_with_getattr() -> None:
+    """A contract's optional parts have their defaults in its base class (docs/architecture.md): the daemon once
+    asked the clock ``getattr(self.clock, "chrony", None)``, past ``StampClock``."""
+    probes = []
+    for path in sorted((ROOT / "logger").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "getattr":
+                target = ast.unparse(node.args[0]) if node.args else ""
+                if target.startswith("self.") or target in ("clock", "source", "driver"):
+                    probes.append(f"{path.relative_to(ROOT)}:{node.lineno} getattr({target}, ...)")
+    assert probes == []

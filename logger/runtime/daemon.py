@@ -411,10 +411,10 @@ class Daemon:
         no_raw = self.gnss_watch.raw_problem(now)
         if no_raw:
             problems.append(f"gnss: {no_raw}")
-        mislabel = getattr(self.clock, "last_mislabel", None)
+        mislabel = self.clock.last_mislabel
         if mislabel is not None and now - mislabel[0] <= MISLABEL_SHOW_S * 1e9:
             problems.append(f"clock: {mislabel[1]}")
-        chrony = getattr(self.clock, "chrony", None)
+        chrony = self.clock.chrony
         if chrony is not None and chrony.error is not None:
             problems.append(f"clock: PPS samples do not reach chrony ({chrony.error}; {chrony.failed} failed): "
                             "is chronyd running with its SOCK refclock?")
@@ -515,7 +515,7 @@ class Daemon:
     def _sync_section(self, now: int) -> dict[str, Any]:
         """The clock's part of the snapshot: its tracking report, or the state and bound of its stamps."""
         report = self.clock.report(now)
-        chrony = getattr(self.clock, "chrony", None)
+        chrony = self.clock.chrony
         extra = {"chrony": chrony.section()} if chrony is not None else {}
         if report is not None:
             return {**sync_record(report), **extra}
