@@ -380,7 +380,8 @@ class FailingSource(TickSource):
             raise BusError("no answer (no ACK): check wiring")
 
 
-def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[FakeSystemd, str]) -> None:
+def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[FakeSystemd, str],
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """A sensor that stopped answering just before the run was told to stop: the summary says it ended unwell,
     with its error (each sampler says "stopped" once it has, which the summary read before)."""
     from logger.runtime.summary import run_summary
@@ -404,6 +405,13 @@ def test_the_summary_says_a_sensor_ended_unwell(tmp_path: Path, systemd: tuple[F
     assert not any(line.startswith("  ! steady") for line in text.splitlines()), text
     # Its file deleted after the run: the first line no longer says the drive is all there.
     assert "next:" in text and f"  logger info {d.recorder.files()[0]}" in text
+    # The plot it suggests needs matplotlib, an optional extra: without it the line says so (the command, typed,
+    # only failed with "matplotlib is not installed").
+    plot = next(line for line in text.splitlines() if line.startswith("  logger plot "))
+    assert plot.endswith("--out plots/")
+    monkeypatch.setattr("logger.runtime.summary.find_spec", lambda name: None)
+    plot = next(line for line in run_summary(d).splitlines() if line.startswith("  logger plot "))
+    assert plot.endswith("--out plots/   (needs matplotlib: pip install matplotlib)"), plot
     (gone,) = d.recorder.files()
     gone.unlink()
     text = run_summary(d)

@@ -22,9 +22,11 @@ from collections.abc import Callable, Sequence
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "run": ("logger.cli.run", "run the logging daemon (--sim: on the simulated vehicle, no hardware needed)"),
-    "gnss-decode": ("logger.cli.gnss_decode", "decode a u-blox receiver capture to one JSON line per fix"),
+    "gnss-decode": ("logger.cli.gnss_decode",
+                    "decode a u-blox receiver capture: a line per fix (--json: one JSON line per fix)"),
     "status": ("logger.cli.status",
-               "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running)"),
+               "show the running logger's health (exit 0 ok, 1 degraded, 2 critical, 3 not running, "
+               "4 cannot tell: not answering, not allowed or a bad --config)"),
     "config": ("logger.cli.config_check", "check a configuration file without starting: logger config check FILE"),
     "info": ("logger.cli.info", "summarise a recorded MCAP file: topics, counts, rates, gaps"),
     "replay": ("logger.cli.replay", "run the navigation filter over recorded drives: trajectory CSV and MCAP"),

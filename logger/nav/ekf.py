@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from logger.nav.measurements import Observation, chi2_gate
+from logger.nav.params import NavParams
 
 
 @dataclass
@@ -28,7 +29,7 @@ class UpdateStats:
 
 
 class ErrorStateEkf:
-    def __init__(self, p0_diag: np.ndarray, gate_probability: float = 0.999) -> None:
+    def __init__(self, p0_diag: np.ndarray, gate_probability: float = NavParams.gate_probability) -> None:
         self.n = len(p0_diag)
         self.p = np.diag(np.asarray(p0_diag, float))
         self.gate_probability = gate_probability

@@ -54,7 +54,8 @@ class StartHeight:
         """The window, the barometer's noise and the multipath time the configuration gives."""
         return cls(window_s(params), params.baro_sigma_m, params.gnss_multipath_corr_s)
 
-    def __init__(self, window_s: float, baro_sigma_m: float = 0.5, multipath_corr_s: float = 5.0) -> None:
+    def __init__(self, window_s: float, baro_sigma_m: float = NavParams.baro_sigma_m,
+                 multipath_corr_s: float = NavParams.gnss_multipath_corr_s) -> None:
         self.window_ns = int(window_s * NS)
         self.baro_var = baro_sigma_m * baro_sigma_m
         self.corr_s = multipath_corr_s

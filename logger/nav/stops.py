@@ -24,6 +24,7 @@ from collections import deque
 import numpy as np
 
 from logger.nav.deferred import PENDING_MAX, BlockKeeper, Deferred
+from logger.nav.params import NavParams
 
 WINDOW_S = 1.0
 WINDOW_NS = int(WINDOW_S * 1e9)
@@ -95,7 +96,8 @@ def _moved_sums(sums: tuple[float, ...], v: np.ndarray, sign: float) -> tuple[fl
 
 
 class StopDetector(Deferred, BlockKeeper):
-    def __init__(self, still_accel_mps2: float = 0.05, still_gyro_rps: float = math.radians(0.5)) -> None:
+    def __init__(self, still_accel_mps2: float = NavParams.still_accel_mps2,
+                 still_gyro_rps: float = math.radians(0.5)) -> None:
         self.thr_a = still_accel_mps2**2
         self.thr_w = still_gyro_rps**2
         self._ceil_a, self._ceil_w = 4.0 * self.thr_a, 4.0 * self.thr_w

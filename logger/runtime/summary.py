@@ -10,6 +10,7 @@ how long the filter had a position, and the commands to look at the drive.
 from __future__ import annotations
 
 import math
+from importlib.util import find_spec
 from typing import Any
 
 from logger.recording.files import file_state
@@ -85,7 +86,9 @@ def run_summary(daemon: Daemon) -> str:
     there = [p for p, state in zip(files, states, strict=True) if state is not None]
     if there:  # the files still there: a command naming a deleted one fails on it
         drive = " ".join(map(str, there))
-        lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/",
+        # plot needs matplotlib, an optional extra (not on the board): said here, not after the command is typed
+        plot_needs = "" if find_spec("matplotlib") else "   (needs matplotlib: pip install matplotlib)"
+        lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/{plot_needs}",
                   f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
     return "\n".join(lines)
 
