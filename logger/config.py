@@ -57,8 +57,13 @@ IMU_READS = ("fifo", "register")  # [imu] read: the chip's FIFO in batches, or o
 REGISTER_READ_MAX_HZ = 50.0  # a thread woken per sample costs most of the IMU's CPU; above this it is not offered
 
 
+def _number(v: float) -> str:
+    """A bound as a person reads it: whole numbers in full (4294967295, not 4.29497e+09), others as %g."""
+    return str(int(v)) if float(v).is_integer() else f"{v:g}"
+
+
 def _range(lo: float, hi: float) -> Callable[[Any], str | None]:
-    return lambda v: None if lo <= v <= hi else f"must be between {lo:g} and {hi:g}"
+    return lambda v: None if lo <= v <= hi else f"must be between {_number(lo)} and {_number(hi)}"
 
 
 def _one_of(*choices: Any) -> Callable[[Any], str | None]:

@@ -150,7 +150,7 @@ def test_run_refuses_bad_numbers_on_its_command_line_in_one_line(tmp_path: Path,
 
     common = ["--out", str(tmp_path / "d"), "--status-socket", str(tmp_path / "s.sock")]
     assert main(["run", "--sim", "--seed", "-1", *common]) == 2
-    assert capsys.readouterr().err.startswith("logger: --seed -1 must be between 0 and ")
+    assert capsys.readouterr().err.startswith("logger: --seed -1 must be between 0 and 4294967295")
     assert main(["run", "--sim", "--duration", "nan", *common]) == 2
     assert capsys.readouterr().err == "logger: --duration must be a positive number of seconds\n"
     assert not (tmp_path / "d").exists()
