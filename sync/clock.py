@@ -661,6 +661,11 @@ class PpsClock(StampClock):
                 "err_ns": round(self._err_at(ref, LOCKED)), "tempco": self.tempco.coefficient(),
                 "temp_degc": self._temp_at_fit,
             }
+            edge = self.kslew.edge_rate(self._edges[0]) if self.kslew is not None and self._edges else None
+            if edge is not None:
+                # What NTP had done to the monotonic clock by the newest edge, and at what rate over the fit's: a
+                # restart on this boot takes out what it did meanwhile (sync.kernel_slew).
+                state["kernel"] = {"edge_ns": edge[0], "k_ns": edge[1], "rate": edge[2]}
         tmp = self.state_path.with_suffix(".tmp")
         try:
             self.state_path.parent.mkdir(parents=True, exist_ok=True)
@@ -702,4 +707,10 @@ class PpsClock(StampClock):
             self._fit_origin_ns = ref
             self._temp_at_fit = st.get("temp_degc")
             self._restored = True
+            kernel = st.get("kernel")
+            if self.kslew is not None and isinstance(kernel, dict):
+                try:
+                    self.kslew.restore(int(kernel["edge_ns"]), float(kernel["k_ns"]), float(kernel["rate"]))
+                except (KeyError, TypeError, ValueError):
+                    log.warning("ignoring the kernel adjustment in %s: unreadable", self.state_path)
             log.info("clock restored from %s: holdover from the previous run's mapping", self.state_path)

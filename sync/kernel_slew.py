@@ -56,6 +56,7 @@ class KernelSlew:
         self._segment_ns = 0.0  # the newest sample's part of it
         self._rate_key: tuple[int, int] | None = None
         self._rate = 0.0
+        self._restored: tuple[int, float] | None = None  # (edge, K's rate) of a previous run's state
 
     def sample(self) -> Adjustment:
         """Read K now: the tightest of three monotonic-raw-monotonic windows; kept when later than the last. Within
@@ -135,7 +136,7 @@ class KernelSlew:
         own read windows: ns for an error bound."""
         return self._margin_ns
 
-    def _edge_rate(self, first_edge_ns: int) -> tuple[int, float, float] | None:
+    def edge_rate(self, first_edge_ns: int) -> tuple[int, float, float] | None:
         """(newest edge, K there, K's mean rate from the edge at or after ``first_edge_ns`` to it), or None."""
         if not self._edges:
             return None
@@ -143,14 +144,24 @@ class KernelSlew:
         key = (first_edge_ns, last_t)
         if self._rate_key != key:  # once per edge: every stamp between two edges asks the same
             first = next(((t, k) for t, k in self._edges if t >= first_edge_ns), self._edges[-1])
-            self._rate = (last_k - first[1]) / (last_t - first[0]) if last_t > first[0] else 0.0
+            if last_t > first[0]:
+                self._rate = (last_k - first[1]) / (last_t - first[0])
+            else:  # one edge: a restored one's rate, as the previous run measured it
+                self._rate = self._restored[1] if self._restored is not None and self._restored[0] == last_t else 0.0
             self._rate_key = key
         return last_t, last_k, self._rate
+
+    def restore(self, edge_ns: int, k_ns: float, rate: float) -> None:
+        """K at the newest edge of a previous run on this boot and its rate then (the clock's state file): a
+        restart's holdover from that run's mapping takes out what NTP did while the logger was down."""
+        self._edges.append((edge_ns, float(k_ns)))
+        self._restored = (edge_ns, float(rate))
+        self._rate_key = None
 
     def excess(self, t_ns: int, first_edge_ns: int) -> float:
         """What the kernel moved CLOCK_MONOTONIC by between the newest edge and ``t_ns`` beyond the rate it moved it
         at over the fit's edges (from ``first_edge_ns``): ns that board time gained with no time passing."""
-        edge = self._edge_rate(first_edge_ns)
+        edge = self.edge_rate(first_edge_ns)
         if edge is None or t_ns <= edge[0]:
             return 0.0
         last_t, last_k, rate = edge
@@ -158,7 +169,7 @@ class KernelSlew:
 
     def excess_many(self, t_ns: np.ndarray, first_edge_ns: int) -> np.ndarray | float:
         """:meth:`excess` for an array of board times (0 where a time is not after the newest edge)."""
-        edge = self._edge_rate(first_edge_ns)
+        edge = self.edge_rate(first_edge_ns)
         if edge is None:
             return 0.0
         last_t, last_k, rate = edge
