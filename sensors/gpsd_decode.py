@@ -246,6 +246,7 @@ class EpochCounters:
     gst: int = 0
     epochs: int = 0
     late: int = 0  # TPVs of an epoch already reported
+    lost_fix: int = 0  # no-fix TPVs under a fixed epoch's time: gpsd's word that the receiver lost it (dropped)
     stale_sky: int = 0  # SKYs with an older time than the epoch they went with
     other: int = 0  # objects of other classes (VERSION, DEVICES, TOFF, PPS, ATT, ...)
 
@@ -262,6 +263,12 @@ LEAP_HOLD_NS = 1_500_000_000
 LEAP_MONTHS = (1, 4, 7, 10)
 FIRST_FIGURES = ("eph", "epv", "eps")  # an epoch's accuracy figures: its first TPV's (GpsdEpochs._tpv)
 UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
+
+
+def _has_fix(tpv: Mapping[str, Any]) -> bool:
+    """Whether a TPV reports a 2D or 3D fix (gpsd's ``mode``; 0 and 1 are none)."""
+    mode = integer(tpv.get("mode"))
+    return mode is not None and mode >= 2
 
 
 def _midnight_second(key: int | None) -> bool:
@@ -373,6 +380,13 @@ class GpsdEpochs:
                 pass  # another cycle's report without a time: an epoch of its own
             elif _midnight_second(key) and t_ns - open_.first_ns >= LEAP_REPEAT_NS:
                 leap = True  # the open epoch was 23:59:60 under 00:00:00's time; this is 00:00:00
+            elif _has_fix(open_.tpv) and not _has_fix(msg):
+                # gpsd's first report after the receiver's time fields went empty carries the last epoch's time
+                # with mode 1 and no position (gpsd 3.22 at 5-10 Hz, 89 ms after that epoch's 3D report): merged,
+                # it turned the epoch's fix into a no-fix without a time. The fix stands; the loss is the next
+                # epoch's to say (gpsd's next report, without a time).
+                self.counters.lost_fix += 1
+                return out
             else:
                 # The epoch's first TPV carries the receiver's own figures (u-blox driver: NAV-PVT's hAcc, vAcc,
                 # sAcc); gpsd's later report of the same epoch (at 5 Hz, after its cycle's NMEA) carries its own

@@ -1028,3 +1028,16 @@ def test_the_first_tpv_of_a_burst_before_the_date_is_known_joins_its_epoch() -> 
     out = e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 0) + e.push(tpv(T0), 600_000_000)
     out += e.flush()
     assert [(f.fix_mode, f.time_utc_ns) for f, _ in out] == [(1, None), (3, T0)]
+
+
+def test_a_no_fix_tpv_under_the_last_fixed_epochs_time_leaves_that_fix_as_it_was() -> None:
+    """gpsd 3.22 at 10 Hz, the receiver's time fields going empty: the 3D TPV of 27.700, then 89 ms later a mode-1
+    TPV with no position under the same time (gpsd keeps the last one), then mode-1 TPVs without a time. The 27.7
+    fix is recorded as the fix it was; merged, it became a no-fix without a time and the last fix was lost."""
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 0.1}, 0)
+    out = e.push(tpv(T0), 762_000_000)
+    out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1, "time": iso(T0)}, 851_000_000)
+    out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 951_000_000) + e.flush()
+    assert [(f.fix_mode, f.fix_ok, f.time_utc_ns) for f, _ in out] == [(3, True, T0), (1, False, None)]
+    assert e.counters.lost_fix == 1
