@@ -185,7 +185,10 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
     sim_gpsd = bool(cfg["sim"]["gpsd"]) and devices is not None and devices.gpsd_port is not None
     gpsd_at = (devices.gpsd_host, devices.gpsd_port) if sim_gpsd else (gnss["gpsd_host"], gnss["gpsd_port"])
     if gnss["source"] == "gpsd":
-        plans.append(Plan(GpsdSource(*gpsd_at, gnss["gpsd_device"], tb), None, 1.0))
+        # The rate the receiver behind gpsd runs at, as it is set (gpsd does not set it): the status's expected rate
+        # and silence limit (a 5 Hz receiver silent for 3.4 s was "ok 5.0/1"); a simulated one's, its profile's.
+        g_rate = 1000.0 / devices.gnss_meas_period_ms if sim_gpsd and devices.gnss_meas_period_ms else gnss["rate_hz"]
+        plans.append(Plan(GpsdSource(*gpsd_at, gnss["gpsd_device"], tb), None, g_rate))
     else:
         g_path = devices.gnss_path if gnss["source"] == "sim" else gnss["port"]
         g_baud = devices.gnss_baud if gnss["source"] == "sim" else gnss["baud"]

@@ -1041,3 +1041,14 @@ def test_a_no_fix_tpv_under_the_last_fixed_epochs_time_leaves_that_fix_as_it_was
     out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 951_000_000) + e.flush()
     assert [(f.fix_mode, f.fix_ok, f.time_utc_ns) for f, _ in out] == [(3, True, T0), (1, False, None)]
     assert e.counters.lost_fix == 1
+
+
+def test_a_receiver_behind_gpsd_is_expected_at_its_configured_rate(tmp_path: Path) -> None:
+    """The status judges the gnss sensor by the rate the receiver is set to: one behind gpsd was expected at 1 Hz
+    whatever ``[gnss] rate_hz`` said (a 10 Hz receiver showed "10.0/1", and a 5 Hz one silent for 3.4 s was ok)."""
+    from logger.compose import plans_from_config
+
+    cfg = parse(f'[logger]\nstate_dir = "{tmp_path}"\n[gnss]\nsource = "gpsd"\nrate_hz = 5\n[pps]\nsource = "none"\n'
+                '[obd]\nsource = "can"\n', "logger.toml")  # nothing is opened: the plans only
+    (plan,) = [p for p in plans_from_config(cfg, host_timebase()) if isinstance(p.source, GpsdSource)]
+    assert plan.expected_hz == 5
