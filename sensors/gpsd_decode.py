@@ -261,6 +261,7 @@ LEAP_REPEAT_NS = 600_000_000
 # reports that second's epoch when the next second's TPV comes, about 1 s late, four times a year.
 LEAP_HOLD_NS = 1_500_000_000
 LEAP_MONTHS = (1, 4, 7, 10)
+UNTIMED_CYCLE_SHARE = 0.9  # of the receiver's cycle, TPVs without a time are one epoch (GpsdEpochs._untimed_ns)
 FIRST_FIGURES = ("eph", "epv", "eps")  # an epoch's accuracy figures: its first TPV's (GpsdEpochs._tpv)
 UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
 
@@ -365,10 +366,12 @@ class GpsdEpochs:
         return values.pop() if len(values) == 1 else None
 
     def _untimed_ns(self, tpv: Mapping[str, Any]) -> int:
-        """How long TPVs without a time may still belong to one epoch: half the receiver's cycle, at most the
-        settle time (gpsd reports such a TPV per sentence, all within an epoch's burst)."""
+        """How long TPVs without a time may still belong to one epoch: nine tenths of the receiver's cycle (else
+        the settle time). gpsd reports such a TPV per sentence, and a burst may fill the cycle (u-blox's factory
+        NMEA at 9600 baud: 0.9 s of a second); at half the cycle, at most the settle time, a second's burst was
+        cut in two records (gpsd 3.22, 1 Hz: a no-fix record at .23 and another at .30 of every second)."""
         cycle = self._of_device(self._cycles, tpv)
-        return self.settle_ns if cycle is None else min(self.settle_ns, round(cycle * NS_PER_S / 2))
+        return self.settle_ns if cycle is None else round(cycle * NS_PER_S * UNTIMED_CYCLE_SHARE)
 
     def _tpv(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
         key = parse_time_ns(msg.get("time"))

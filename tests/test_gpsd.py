@@ -1022,10 +1022,10 @@ def test_the_first_tpv_of_a_burst_before_the_date_is_known_joins_its_epoch() -> 
     out += e.push(tpv(T0 + NS), NS) + e.flush()
     assert [f.time_utc_ns for f, _ in out] == [T0, T0 + NS]
     assert out[0][1] == 134_000_000 and out[0][0].fix_ok
-    # A TPV without a time half a cycle before a timed one is another cycle's (gpsd without a fix): its own record.
+    # A TPV without a time a cycle before a timed one is another cycle's (gpsd without a fix): its own record.
     e = GpsdEpochs()
     e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
-    out = e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 0) + e.push(tpv(T0), 600_000_000)
+    out = e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, 0) + e.push(tpv(T0), 950_000_000)
     out += e.flush()
     assert [(f.fix_mode, f.time_utc_ns) for f, _ in out] == [(1, None), (3, T0)]
 
@@ -1052,3 +1052,25 @@ def test_a_receiver_behind_gpsd_is_expected_at_its_configured_rate(tmp_path: Pat
                 '[obd]\nsource = "can"\n', "logger.toml")  # nothing is opened: the plans only
     (plan,) = [p for p in plans_from_config(cfg, host_timebase()) if isinstance(p.source, GpsdSource)]
     assert plan.expected_hz == 5
+
+
+def test_a_burst_of_tpvs_without_time_filling_the_cycle_is_one_record() -> None:
+    """gpsd 3.22 reading u-blox's factory NMEA at 9600 baud from a receiver without time: a TPV per sentence from
+    0.05 s to 0.89 s of each second. One record a second; a window of half the cycle (at most 0.3 s) cut each
+    second's burst in two records ("no fix 2.0/1" in the status)."""
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
+    out = []
+    for k in range(12):
+        for j in range(13):
+            t = k * NS + (50 + 70 * j) * 1_000_000
+            out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1 if j % 2 else 0}, t) + e.poll(t)
+    out += e.flush()
+    assert len(out) == 12 and not any(f.fix_ok for f, _ in out), len(out)
+    # gpsd started (or restarted) in the middle of a burst: its only report of that burst is the last sentence's,
+    # a position without a date; the next burst's first report has the time. One fix, with it, not a fix without.
+    e = GpsdEpochs()
+    e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
+    out = e.push({k: v for k, v in tpv(T0).items() if k != "time"}, 930_000_000)
+    out += e.push(tpv(T0 + NS), 1_100_000_000) + e.push(tpv(T0 + 2 * NS), 2_100_000_000) + e.flush()
+    assert [f.time_utc_ns for f, _ in out] == [T0 + NS, T0 + 2 * NS]
