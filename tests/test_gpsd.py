@@ -1067,8 +1067,10 @@ def test_a_burst_of_tpvs_without_time_filling_the_cycle_is_one_record() -> None:
             out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1 if j % 2 else 0}, t) + e.poll(t)
     out += e.flush()
     assert len(out) == 12 and not any(f.fix_ok for f, _ in out), len(out)
-    # gpsd started (or restarted) in the middle of a burst: its only report of that burst is the last sentence's,
-    # a position without a date; the next burst's first report has the time. One fix, with it, not a fix without.
+    # gpsd started in the middle of a burst, reporting per sentence (before it has learnt which sentence ends the
+    # cycle): its last report of that burst is a position without a date, the next burst's first one 0.17 s later
+    # has the time. One fix, with it, not a fix without. (Where gpsd reports at the cycle's end, a second after
+    # the untimed one, that burst stays a fix of its own without a time: its epoch cannot be told.)
     e = GpsdEpochs()
     e.push({**NMEA_DEVICE, "cycle": 1.0}, 0)
     out = e.push({k: v for k, v in tpv(T0).items() if k != "time"}, 930_000_000)
