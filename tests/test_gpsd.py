@@ -559,46 +559,52 @@ def through_gpsd() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[
     it, by epoch time. gpsfake feeds the capture to gpsd on a pty, a packet every 10 ms, once (``-1``); ``-b``
     keeps gpsd from probing or reconfiguring the "receiver" (a log cannot answer). Fed faster than real time gpsd
     reports fewer epochs than the capture holds (its cycle detection runs on arrival times): what it reported is
-    what is compared. The source reads until gpsd goes away with the end of the capture."""
+    what is compared. The source reads until gpsd goes away with the end of the capture. The captures go through
+    gpsds of their own at once (each is paced by gpsfake, not by the CPU: one after the other took 72 s)."""
     if _gpsfake_missing():
         pytest.skip("gpsd (gpsfake, with python3-gps) is not installed")
-    out = {}
-    for log in GPSFAKE_CAPTURES:
-        port = _free_port()
-        fake = subprocess.Popen(["gpsfake", "-1", "-q", "-c", "0.01", "-P", str(port), "--options=-b",
-                                 str(DATA_DIR / log)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        src = GpsdSource("127.0.0.1", port, None, host_timebase())
-        got: list[Reading] = []
-        try:
-            watcher = _connect(src, port)
-            end, quiet_since = time.monotonic() + 60.0, None
-            while time.monotonic() < end:
-                try:
-                    new = src.read()
-                except SensorError:  # gpsd gone with the end of the capture, or its device closed
-                    break
-                got += new
-                if new or fake.poll() is None:
-                    quiet_since = None
-                elif quiet_since is None:
-                    quiet_since = time.monotonic()
-                elif time.monotonic() - quiet_since > 2.0:  # the capture fed and nothing more for 2 s
-                    break
-            watcher.join(10.0)
-        finally:
-            src.close()
-            fake.kill()
-            fake.wait()
-        records: dict[int, dict[str, Any]] = {}
-        for r in got:
-            ts = r.payload["timestamp"]
-            key = ts["sec"] * NS + ts["nsec"]
-            if key == 0:  # a report without a time (gpsd's first 2D fix of ublox-8.log): compared by time below
-                continue
-            assert key not in records, (log, key)  # one record per epoch
-            records[key] = r.payload
-        out[log] = (merged_tpvs(watcher.lines), records)
-    return out
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(GPSFAKE_CAPTURES)) as pool:
+        return dict(zip(GPSFAKE_CAPTURES, pool.map(_through_gpsd, GPSFAKE_CAPTURES), strict=True))
+
+
+def _through_gpsd(log: str) -> tuple[dict[int, dict[str, Any]], dict[int, dict[str, Any]]]:
+    """One capture through its own gpsfake: gpsd's reports merged per epoch, and our records, by epoch time."""
+    port = _free_port()
+    fake = subprocess.Popen(["gpsfake", "-1", "-q", "-c", "0.01", "-P", str(port), "--options=-b",
+                             str(DATA_DIR / log)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    src = GpsdSource("127.0.0.1", port, None, host_timebase())
+    got: list[Reading] = []
+    try:
+        watcher = _connect(src, port)
+        end, quiet_since = time.monotonic() + 60.0, None
+        while time.monotonic() < end:
+            try:
+                new = src.read()
+            except SensorError:  # gpsd gone with the end of the capture, or its device closed
+                break
+            got += new
+            if new or fake.poll() is None:
+                quiet_since = None
+            elif quiet_since is None:
+                quiet_since = time.monotonic()
+            elif time.monotonic() - quiet_since > 2.0:  # the capture fed and nothing more for 2 s
+                break
+        watcher.join(10.0)
+    finally:
+        src.close()
+        fake.kill()
+        fake.wait()
+    records: dict[int, dict[str, Any]] = {}
+    for r in got:
+        ts = r.payload["timestamp"]
+        key = ts["sec"] * NS + ts["nsec"]
+        if key == 0:  # a report without a time (gpsd's first 2D fix of ublox-8.log): compared by time below
+            continue
+        assert key not in records, (log, key)  # one record per epoch
+        records[key] = r.payload
+    return merged_tpvs(watcher.lines), records
 
 
 @pytest.mark.parametrize("log", GPSFAKE_CAPTURES)
