@@ -13,7 +13,6 @@ Reading both clocks needs no privilege: the unit's ProtectClock= forbids adjtime
 from __future__ import annotations
 
 import time
-from bisect import bisect_left
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MIN_GAP_NS = 20_000_000  # K is read at most this often (50 Hz): its slews last seconds
+LINEAR_SPAN_NS = 2 * MIN_GAP_NS  # a read this short takes K as a line between its ends (excess_many)
 
 
 def raw_clock_ns() -> int:
@@ -59,21 +59,17 @@ class KernelSlew:
         self._restored: tuple[int, float] | None = None  # (edge, K's rate) of a previous run's state
 
     def sample(self) -> Adjustment:
-        """Read K now: the tightest of three monotonic-raw-monotonic windows; kept when later than the last. Within
-        MIN_GAP_NS of the last one that one stands (every sensor thread stamps through here: the samples stay
-        sparse enough that a FIFO read's span, half a second back, covers a few of them)."""
+        """Read K now (monotonic, raw, monotonic: the middle of the window, half of it the spread); kept when later
+        than the last. Within MIN_GAP_NS of the last one that one stands (every sensor thread stamps through here:
+        the samples stay sparse enough that a FIFO read's span, half a second back, covers a few of them)."""
         s = self._samples
-        if s and self._mono() - s[-1].mono_ns < MIN_GAP_NS:
+        m1 = self._mono()
+        if s and m1 - s[-1].mono_ns < MIN_GAP_NS:
             return s[-1]
-        best: Adjustment | None = None
-        for _ in range(3):
-            m1 = self._mono()
-            r = self._raw()
-            m2 = self._mono()
-            mid = (m1 + m2) // 2
-            if best is None or m2 - m1 < 2 * best.spread_ns:
-                best = Adjustment(mid, mid - r, (m2 - m1 + 1) // 2)
-        assert best is not None
+        r = self._raw()
+        m2 = self._mono()
+        mid = (m1 + m2) // 2
+        best = Adjustment(mid, mid - r, (m2 - m1 + 1) // 2)
         if s and best.mono_ns <= s[-1].mono_ns:
             return best
         if len(s) >= 2:
@@ -97,8 +93,9 @@ class KernelSlew:
                 return float(newest.k_ns)
             prev = s[-2]
             return newest.k_ns + (newest.k_ns - prev.k_ns) * (t_ns - newest.mono_ns) / (newest.mono_ns - prev.mono_ns)
-        times = [a.mono_ns for a in s]
-        i = bisect_left(times, t_ns)
+        i = len(s) - 1  # from the newest back: the times asked about are the latest reads'
+        while i > 0 and s[i - 1].mono_ns > t_ns:
+            i -= 1
         if i == 0:
             return float(s[0].k_ns)
         a, b = s[i - 1], s[i]
@@ -168,9 +165,22 @@ class KernelSlew:
         return (self.at(t_ns) - last_k) - rate * (t_ns - last_t)
 
     def excess_many(self, t_ns: np.ndarray, first_edge_ns: int) -> np.ndarray | float:
-        """:meth:`excess` for an array of board times (0 where a time is not after the newest edge)."""
+        """:meth:`excess` for an array of board times (0 where a time is not after the newest edge). A short read
+        (a fast FIFO's, LINEAR_SPAN_NS or less) takes K as a line between its ends: it holds at most one read of K
+        inside, and the bound's margin has what a change of rate there does; a longer one is interpolated between
+        every read of K it spans."""
         edge = self.edge_rate(first_edge_ns)
-        if edge is None:
+        if edge is None or not len(t_ns):
             return 0.0
         last_t, last_k, rate = edge
+        t0, t1 = max(int(t_ns[0]), last_t), int(t_ns[-1])
+        if t1 <= last_t:
+            return 0.0
+        if t1 - t0 <= LINEAR_SPAN_NS:
+            e0, e1 = self.excess(t0, first_edge_ns), self.excess(t1, first_edge_ns)
+            if abs(e1 - e0) < 0.5 and t0 > last_t:
+                return e0  # one number for the read (stamps are whole ns): no arrays
+            slope = (e1 - e0) / (t1 - t0) if t1 > t0 else 0.0
+            line = e0 + slope * (t_ns - t0)
+            return line if t0 > last_t else np.where(t_ns > last_t, line, 0.0)
         return np.where(t_ns > last_t, (self.at_many(t_ns) - last_k) - rate * (t_ns - last_t), 0.0)
