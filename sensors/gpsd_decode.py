@@ -236,6 +236,13 @@ class _Epoch:
     first_ns: int = 0  # arrival of its first TPV
     gst: dict[str, Any] | None = None
 
+    def merge(self, tpv: Mapping[str, Any], t_ns: int, keep_first_figures: bool) -> None:
+        """A later TPV of the epoch, field by field over the earlier ones (their accuracy figures kept if asked)."""
+        kept = {k: self.tpv[k] for k in FIRST_FIGURES if k in self.tpv} if keep_first_figures else {}
+        self.tpv.update(tpv)
+        self.tpv.update(kept)
+        self.last_ns = t_ns
+
 
 @dataclass
 class EpochCounters:
@@ -381,37 +388,35 @@ class GpsdEpochs:
         if open_ is not None and open_.key == key:
             if key is None and t_ns - open_.first_ns >= self._untimed_ns(msg):
                 pass  # another cycle's report without a time: an epoch of its own
-            elif _midnight_second(key) and t_ns - open_.first_ns >= LEAP_REPEAT_NS:
-                leap = True  # the open epoch was 23:59:60 under 00:00:00's time; this is 00:00:00
             elif _has_fix(open_.tpv) and not _has_fix(msg):
                 # gpsd's first report after the receiver's time fields went empty carries the last epoch's time
                 # with mode 1 and no position (gpsd 3.22 at 5-10 Hz, 89 ms after that epoch's 3D report): merged,
                 # it turned the epoch's fix into a no-fix without a time. The fix stands; the loss is the next
-                # epoch's to say (gpsd's next report, without a time).
+                # epoch's to say (gpsd's next report, without a time). Before the leap test: no leap repeats
+                # a fix as a no-fix.
                 self.counters.lost_fix += 1
                 return out
+            elif _midnight_second(key) and t_ns - open_.first_ns >= LEAP_REPEAT_NS:
+                leap = True  # the open epoch was 23:59:60 under 00:00:00's time; this is 00:00:00
             else:
                 # The epoch's first TPV carries the receiver's own figures (u-blox driver: NAV-PVT's hAcc, vAcc,
                 # sAcc); gpsd's later report of the same epoch (at 5 Hz, after its cycle's NMEA) carries its own
                 # model's, 80 times the receiver's sAcc: the first ones stand.
-                kept = {k: open_.tpv[k] for k in FIRST_FIGURES if k in open_.tpv}
-                open_.tpv.update(msg)
-                open_.tpv.update(kept)
-                open_.last_ns = t_ns
+                open_.merge(msg, t_ns, keep_first_figures=True)
                 return out
         elif key is not None and self._done == key and not (
                 _midnight_second(key) and t_ns - self._done_first_ns >= LEAP_REPEAT_NS):
             self.counters.late += 1  # a TPV completing an epoch that was already reported
             return out
-        elif open_ is not None and open_.key is None and key is not None and \
-                t_ns - open_.first_ns < self._untimed_ns(msg):
+        elif open_ is not None and open_.key is None and key is not None and _has_fix(open_.tpv) and \
+                _has_fix(msg) and t_ns - open_.first_ns < self._untimed_ns(msg):
             # The same burst, its time known now: gpsd's first report of an NMEA receiver comes at its GGA, before
             # any RMC gave the date, so without a time (gpsd 3.22: a 3D fix 67 ms before the timed TPV of the
             # same epoch). Reported apart, it was an epoch of its own: a fix without a time, then the same again.
-            kept = {k: open_.tpv[k] for k in FIRST_FIGURES if k in open_.tpv}
-            open_.tpv.update(msg)
-            open_.tpv.update(kept)
-            open_.key, open_.last_ns = key, t_ns
+            # The timed report's figures, and its arrival as the epoch's first (the leap test counts from it); a
+            # no-fix report without a time stays a record of its own.
+            open_.merge(msg, t_ns, keep_first_figures=False)
+            open_.key, open_.first_ns = key, t_ns
             if self._gst is not None and self._gst[0] == key:
                 open_.gst, self._gst = self._gst[1], None
             return out

@@ -1082,3 +1082,33 @@ def test_a_burst_of_tpvs_without_time_filling_the_cycle_is_one_record() -> None:
     out = e.push({k: v for k, v in tpv(T0).items() if k != "time"}, 930_000_000)
     out += e.push(tpv(T0 + NS), 1_100_000_000) + e.push(tpv(T0 + 2 * NS), 2_100_000_000) + e.flush()
     assert [f.time_utc_ns for f, _ in out] == [T0 + NS, T0 + 2 * NS]
+
+
+def test_only_a_fix_without_a_time_joins_the_timed_epoch_and_a_lost_fix_is_no_leap_second() -> None:
+    """The second reading's three cases (gpsd's DEVICE cycle 1.0 s, as for an NMEA receiver it cannot query):
+    A, an untimed fix merged into the timed 00:00:00 of 1 January counted its arrival as the epoch's first, and
+    gpsd's later report of that epoch 0.65 s after it was taken for a leap second's repeat; B, untimed no-fix reports
+    of a 0.4 s loss merged into the recovered fix (no record of the loss; its accuracy gpsd's 4294967 m); C, a
+    no-fix report under 00:00:00 a second later (the receiver's time fields gone empty) was a leap second."""
+    midnight = calendar.timegm((2027, 1, 1, 0, 0, 0)) * NS
+    untimed = {k: v for k, v in tpv(midnight).items() if k != "time"}
+    e = GpsdEpochs()
+    e.push(NMEA_DEVICE, 0)
+    out = e.push(untimed, 1_000_000_000) + e.push(tpv(midnight), 1_500_000_000) + e.push(tpv(midnight), 1_650_000_000)
+    out += e.flush()
+    assert [(f.time_utc_ns, f.leap_second) for f, _ in out] == [(midnight, False)]
+    e = GpsdEpochs()
+    e.push(UBLOX_DEVICE, 0)
+    out = e.push(tpv(T0, eph=2.5), 100_000_000)
+    out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1, "time": iso(T0)}, 189_000_000)
+    for k in range(2, 5):
+        out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1, "eph": 4294967.0}, k * 100_000_000)
+    out += e.push(tpv(T0 + NS // 2, eph=3.0), 600_000_000) + e.flush()
+    assert [(f.fix_ok, f.time_utc_ns) for f, _ in out] == [(True, T0), (False, None), (True, T0 + NS // 2)]
+    assert out[2][0].h_acc_m is not None and out[2][0].h_acc_m < 10
+    e = GpsdEpochs()
+    e.push(NMEA_DEVICE, 0)
+    out = e.push(tpv(midnight), 100_000_000) + e.poll(500_000_000)
+    out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1, "time": iso(midnight)}, 1_100_000_000)
+    out += e.flush()
+    assert [(f.fix_ok, f.leap_second) for f, _ in out] == [(True, False)] and e.counters.lost_fix == 1
