@@ -442,6 +442,14 @@ class PpsClock(StampClock):
             self._slope_prior = fit.slope / NS
             self._skew_prior = max(fit.skew / NS, 1e-9)
 
+    def _kernel_window(self) -> tuple[int, bool]:
+        """The fit's oldest edge in use (the runs test drops stale ones) and whether its slope is its prior (too few
+        edges): what the kernel's rate must be measured over to be the one in the fit's slope (sync.kernel_slew)."""
+        fit = self._fit
+        if fit is None:
+            return self._edges[0], True
+        return self._edges[min(fit.n_dropped_old, len(self._edges) - 1)], fit.n_used < MIN_SAMPLES_FOR_SLOPE
+
     def _current_slope(self, t_ns: int) -> float:
         slope = self._fit.slope / NS if self._fit is not None else (self._slope_prior or 0.0)
         k = self.tempco.coefficient()
@@ -490,7 +498,7 @@ class PpsClock(StampClock):
         if t_ns > self._last_sample_ns:
             off += self._comp_ns
             if self.kslew is not None and self._edges:
-                off -= self.kslew.excess(t_ns, self._edges[0])
+                off -= self.kslew.excess(t_ns, *self._kernel_window())
         if slewed and self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
@@ -557,7 +565,7 @@ class PpsClock(StampClock):
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
                 err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
                 if kslew is not None:
-                    off = off - kslew.excess_many(t, self._edges[0])
+                    off = off - kslew.excess_many(t, *self._kernel_window())
                     err = err + kslew.margin_ns
                 err = err + self._unconfirmed_ns
                 if self._miss_ns or self._miss_growth:
@@ -575,7 +583,7 @@ class PpsClock(StampClock):
             if last is not None:
                 off = np.where(t > last, off + self._comp_ns, off)
                 if kslew is not None and self._edges:
-                    off = np.where(t > last, off - kslew.excess_many(t, self._edges[0]), off)
+                    off = np.where(t > last, off - kslew.excess_many(t, *self._kernel_window()), off)
             # _err_at, per sample
             err = self.s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * (x - fit.x_ref)) + self.s.pps_latency_spread_ns
             since = np.maximum(0.0, (t - (last if last is not None else t)) / NS)
@@ -661,7 +669,7 @@ class PpsClock(StampClock):
                 "err_ns": round(self._err_at(ref, LOCKED)), "tempco": self.tempco.coefficient(),
                 "temp_degc": self._temp_at_fit,
             }
-            edge = self.kslew.edge_rate(self._edges[0]) if self.kslew is not None and self._edges else None
+            edge = self.kslew.edge_rate(*self._kernel_window()) if self.kslew is not None and self._edges else None
             if edge is not None:
                 # What NTP had done to the monotonic clock by the newest edge, and at what rate over the fit's: a
                 # restart on this boot takes out what it did meanwhile (sync.kernel_slew).

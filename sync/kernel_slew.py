@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MIN_GAP_NS = 20_000_000  # K is read at most this often (50 Hz): its slews last seconds
-LINEAR_SPAN_NS = 2 * MIN_GAP_NS  # a read this short takes K as a line between its ends (excess_many)
+MIN_GAP_NS = 5_000_000  # K is read at most this often (200 Hz): a stamp is then at most this far past a read of it
+LINEAR_SPAN_NS = 40_000_000  # a read this short takes K as a line between its ends (excess_many)
+MIN_EDGES_FOR_RATE = 3  # as the fit's slope (sync.regress.MIN_SAMPLES_FOR_SLOPE): fewer, and the prior stands
 
 
 def raw_clock_ns() -> int:
@@ -56,7 +57,7 @@ class KernelSlew:
         self._segment_ns = 0.0  # the newest sample's part of it
         self._rate_key: tuple[int, int] | None = None
         self._rate = 0.0
-        self._restored: tuple[int, float] | None = None  # (edge, K's rate) of a previous run's state
+        self._prior_rate: float | None = None  # K's rate over the last window of enough edges, or a restored one
 
     def sample(self) -> Adjustment:
         """Read K now (monotonic, raw, monotonic: the middle of the window, half of it the spread); kept when later
@@ -133,18 +134,22 @@ class KernelSlew:
         own read windows: ns for an error bound."""
         return self._margin_ns
 
-    def edge_rate(self, first_edge_ns: int) -> tuple[int, float, float] | None:
-        """(newest edge, K there, K's mean rate from the edge at or after ``first_edge_ns`` to it), or None."""
+    def edge_rate(self, first_edge_ns: int, use_prior: bool = False) -> tuple[int, float, float] | None:
+        """(newest edge, K there, K's mean rate from the edge at or after ``first_edge_ns`` to it), or None. The
+        rate is the prior (the last one measured over MIN_EDGES_FOR_RATE edges or more, or a restored one) where
+        the clock's fit takes its slope from its prior (``use_prior``: too few edges), as a fit of fewer edges does:
+        the slope it extrapolates then holds the kernel's rate of then, which a rate of 0 took out a second time
+        (20 ppm of steady NTP: 111 us off behind 69 us after a relock)."""
         if not self._edges:
             return None
         last_t, last_k = self._edges[-1]
-        key = (first_edge_ns, last_t)
+        key = (first_edge_ns, last_t, use_prior)
         if self._rate_key != key:  # once per edge: every stamp between two edges asks the same
-            first = next(((t, k) for t, k in self._edges if t >= first_edge_ns), self._edges[-1])
-            if last_t > first[0]:
-                self._rate = (last_k - first[1]) / (last_t - first[0])
-            else:  # one edge: a restored one's rate, as the previous run measured it
-                self._rate = self._restored[1] if self._restored is not None and self._restored[0] == last_t else 0.0
+            window = [(t, k) for t, k in self._edges if t >= first_edge_ns]
+            if not use_prior and len(window) >= MIN_EDGES_FOR_RATE and last_t > window[0][0]:
+                self._rate = self._prior_rate = (last_k - window[0][1]) / (last_t - window[0][0])
+            else:
+                self._rate = self._prior_rate if self._prior_rate is not None else 0.0
             self._rate_key = key
         return last_t, last_k, self._rate
 
@@ -152,24 +157,24 @@ class KernelSlew:
         """K at the newest edge of a previous run on this boot and its rate then (the clock's state file): a
         restart's holdover from that run's mapping takes out what NTP did while the logger was down."""
         self._edges.append((edge_ns, float(k_ns)))
-        self._restored = (edge_ns, float(rate))
+        self._prior_rate = float(rate)
         self._rate_key = None
 
-    def excess(self, t_ns: int, first_edge_ns: int) -> float:
+    def excess(self, t_ns: int, first_edge_ns: int, use_prior: bool = False) -> float:
         """What the kernel moved CLOCK_MONOTONIC by between the newest edge and ``t_ns`` beyond the rate it moved it
         at over the fit's edges (from ``first_edge_ns``): ns that board time gained with no time passing."""
-        edge = self.edge_rate(first_edge_ns)
+        edge = self.edge_rate(first_edge_ns, use_prior)
         if edge is None or t_ns <= edge[0]:
             return 0.0
         last_t, last_k, rate = edge
         return (self.at(t_ns) - last_k) - rate * (t_ns - last_t)
 
-    def excess_many(self, t_ns: np.ndarray, first_edge_ns: int) -> np.ndarray | float:
+    def excess_many(self, t_ns: np.ndarray, first_edge_ns: int, use_prior: bool = False) -> np.ndarray | float:
         """:meth:`excess` for an array of board times (0 where a time is not after the newest edge). A short read
         (a fast FIFO's, LINEAR_SPAN_NS or less) takes K as a line between its ends: it holds at most one read of K
         inside, and the bound's margin has what a change of rate there does; a longer one is interpolated between
         every read of K it spans."""
-        edge = self.edge_rate(first_edge_ns)
+        edge = self.edge_rate(first_edge_ns, use_prior)
         if edge is None or not len(t_ns):
             return 0.0
         last_t, last_k, rate = edge
@@ -177,7 +182,7 @@ class KernelSlew:
         if t1 <= last_t:
             return 0.0
         if t1 - t0 <= LINEAR_SPAN_NS:
-            e0, e1 = self.excess(t0, first_edge_ns), self.excess(t1, first_edge_ns)
+            e0, e1 = self.excess(t0, first_edge_ns, use_prior), self.excess(t1, first_edge_ns, use_prior)
             if abs(e1 - e0) < 0.5 and t0 > last_t:
                 return e0  # one number for the read (stamps are whole ns): no arrays
             slope = (e1 - e0) / (t1 - t0) if t1 > t0 else 0.0

@@ -1041,3 +1041,39 @@ def test_a_restart_on_the_same_boot_takes_out_what_ntp_did_while_the_logger_was_
     (off_plain, bound_plain), (off_raw, bound_raw) = results[False], results[True]
     assert abs(off_plain) > 900_000 > bound_plain  # the defect: the slew stood in the stamp
     assert abs(off_raw) < 2_000 and abs(off_raw) <= bound_raw, results
+
+
+def test_a_relock_on_one_edge_keeps_the_kernels_rate_in_the_slope_it_extrapolates() -> None:
+    """NTP steadily correcting the crystal by 20 ppm, no slew: locked 120 s, a 40 s outage (past the restart
+    window), one edge, holdover again. The fit of that one edge extrapolates the previous slope, the kernel's 20 ppm
+    in it; the kernel's rate over one edge was taken as 0 and its 20 ppm taken out a second time (the second reading:
+    111 us off behind 69 us, 591 us at 30 s). With the raw clock the stamps are as good as without it."""
+    from sync.inputs import FixEpoch
+
+    t0_unix = 1_796_000_000
+
+    def raw_at(true_s: float) -> int:
+        return round(5000 * NS + true_s * (1 + 30e-6) * NS)
+
+    def mono_at(true_s: float) -> int:
+        return raw_at(true_s) + 777 * NS + round(true_s * 20e-6 * NS)
+
+    for raw in (False, True):
+        now = [0.0]
+        clk = PpsClock(monotonic_ns=lambda: mono_at(now[0]), wall_ns=lambda: 0,
+                       raw_ns=(lambda: raw_at(now[0])) if raw else None)
+        worst = 0.0
+        for k in range(190):
+            if k < 120 or k == 160:
+                now[0] = k + 7e-6
+                clk.on_edge(mono_at(now[0]))
+                now[0] = k + 0.15
+                clk.on_fix_epoch(FixEpoch((t0_unix + k) * NS, None), mono_at(now[0]))
+            for f in range(10):
+                t = k + 0.05 + 0.1 * f
+                now[0] = t + 0.001
+                st = clk.stamp(mono_at(t))
+                if k >= 160:
+                    worst = max(worst, abs(st.t_sync_ns - round((t0_unix + t) * NS)))
+                    assert abs(st.t_sync_ns - round((t0_unix + t) * NS)) <= st.err_ns, (raw, t, st)
+        assert worst < 2_000, (raw, worst)
