@@ -1060,8 +1060,8 @@ def test_a_relock_on_one_edge_keeps_the_kernels_rate_in_the_slope_it_extrapolate
 
     for raw in (False, True):
         now = [0.0]
-        clk = PpsClock(monotonic_ns=lambda: mono_at(now[0]), wall_ns=lambda: 0,
-                       raw_ns=(lambda: raw_at(now[0])) if raw else None)
+        clk = PpsClock(monotonic_ns=lambda now=now: mono_at(now[0]), wall_ns=lambda: 0,
+                       raw_ns=(lambda now=now: raw_at(now[0])) if raw else None)
         worst = 0.0
         for k in range(190):
             if k < 120 or k == 160:
