@@ -86,7 +86,7 @@ def choose_sample_timing(rate_hz: float, dlpf_cfg: int | None = None) -> SampleT
     if best is None:
         if 1000.0 % rate_hz:
             raise ValueError(f"MPU-6050 rate {rate_hz:g} Hz: must divide 1000 Hz (e.g. 20, 50, 100, 200, "
-                             "500, 1000)")
+                             "500, 1000), or above 512 Hz divide 8000 Hz (800)")
         raise ValueError(f"MPU-6050 rate {rate_hz:g} Hz: even the narrowest filter (5 Hz) is not below "
                          "half the rate; use 20 Hz or more, or set dlpf_cfg")
     return best

@@ -780,10 +780,11 @@ def locked_imu_errors(msgs: dict[str, list[dict[str, Any]]]) -> list[tuple[float
 @pytest.mark.slow_on_board
 def test_fixes_through_gpsd_at_5hz_with_the_boards_own_pps_line_lock_the_clock_to_the_right_second(
         tmp_path: Path) -> None:
-    """GNSS from the simulated gpsd at 5 Hz, the PPS on the board's GPIO line: the clock pairs each edge with the
-    fix of its second by when the epoch began (gpsd's TOFF). The simulated gpsd once sent a TOFF for every epoch,
-    named by the nearest whole second: the x.0 epoch's TOFF was the one of x-0.4 s, before the edge of x, and
-    the clock, paired a second off, disagreed with the system clock and never locked."""
+    """GNSS from the simulated gpsd at 5 Hz, the PPS on the board's GPIO line. The simulated gpsd once sent a TOFF
+    for every epoch, named by the nearest whole second: the x.0 epoch's TOFF was the one of x-0.4 s, before the
+    edge of x, and the clock, paired a second off, disagreed with the system clock and never locked. (Its TOFF now
+    comes 1 ms before the TPV, mostly in the same read: these fixes are paired by their TPV's arrival; the
+    real-gpsd test above is the one of a TOFF read apart.)"""
     cfg = tmp_path / "logger.toml"
     cfg.write_text(f'[logger]\nstate_dir = "{tmp_path / "state"}"\n[gnss]\nsource = "gpsd"\n[pps]\nsource = "sim"\n'
                    '[obd]\nsource = "sim"\n[sim]\ngpsd = true\ngnss_rate_hz = 5\n')

@@ -28,7 +28,7 @@ LEAP_EDGE_GAP_NS = 500_000_000  # a midnight second's repeat this long after its
 READ_WAIT_S = 0.2  # longest wait for gpsd per read, host seconds: the thread's heartbeat and stop latency
 SETTLE_S = 0.3  # an epoch is complete when its reports stopped coming for this long (drive time)
 QUIET_S = 3.0  # this long without a record, gpsd's own word on a missing receiver becomes the sensor's state
-TOFF_KEEP = 64  # epochs whose TOFF arrival is kept until their fix completes (6 s at 10 Hz)
+TOFF_KEEP = 64  # TOFF arrivals kept until their fix completes (gpsd sends one a second: a minute's)
 
 
 def _origin(host: str, port: int, device: str | None) -> str:
