@@ -11,12 +11,15 @@ import argparse
 import bisect
 import calendar
 import collections
+import contextlib
 import datetime as dt
 import itertools
 import json
 import math
+import os
 import re
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -572,8 +575,11 @@ def through_gpsd() -> dict[str, tuple[dict[int, dict[str, Any]], dict[int, dict[
 def _through_gpsd(log: str) -> tuple[dict[int, dict[str, Any]], dict[int, dict[str, Any]]]:
     """One capture through its own gpsfake: gpsd's reports merged per epoch, and our records, by epoch time."""
     port = _free_port()
+    # In a session of its own: gpsfake starts a gpsd, which its kill below would leave running (one daemon per
+    # capture per run, found idling after many runs); the session's group goes whole.
     fake = subprocess.Popen(["gpsfake", "-1", "-q", "-c", "0.01", "-P", str(port), "--options=-b",
-                             str(DATA_DIR / log)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                             str(DATA_DIR / log)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
     src = GpsdSource("127.0.0.1", port, None, host_timebase())
     got: list[Reading] = []
     try:
@@ -594,7 +600,8 @@ def _through_gpsd(log: str) -> tuple[dict[int, dict[str, Any]], dict[int, dict[s
         watcher.join(10.0)
     finally:
         src.close()
-        fake.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(fake.pid, signal.SIGKILL)
         fake.wait()
     records: dict[int, dict[str, Any]] = {}
     for r in got:
