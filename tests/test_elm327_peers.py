@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import extras
 import pytest
@@ -35,12 +36,17 @@ obd = extras.need("obd")  # python-OBD
 
 
 @pytest.fixture
-def emulator() -> Iterator[object]:
+def emulator(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[object]:
     """ELM327-emulator on a pty of its own, playing its "car" scenario (an 11-bit CAN car, engine ECU 7E8).
 
     The pty is made before the emulator's thread starts: the thread makes it too when there is none, and both
     at once (the pattern of its README) could race into an emulator that stops on "Pseudo-tty port connection
-    failed"."""
+    failed". Its thread configures Python's logging from its own file unless ELM_LOG_CFG names another: the root
+    logger at DEBUG into ./elm.log and stdout for the rest of the test run. An incremental configuration that
+    names nothing leaves the logging as it was."""
+    quiet = tmp_path / "elm-logging.yaml"
+    quiet.write_text("version: 1\nincremental: true\n")
+    monkeypatch.setenv("ELM_LOG_CFG", str(quiet))
     em = elm.Elm()
     em.set_sorted_obd_msg("car")
     assert em.get_pty(), "ELM327-emulator opened no pty"
