@@ -15,9 +15,10 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
+
+from sync.realtime import OffsetSample, read_offset
 
 MIN_GAP_NS = 5_000_000  # K is read at most this often (200 Hz): a stamp is then at most this far past a read of it
 LINEAR_SPAN_NS = 40_000_000  # a read this short takes K as a line between its ends (excess_many)
@@ -28,13 +29,9 @@ def raw_clock_ns() -> int:
     return time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW)
 
 
-@dataclass(frozen=True, slots=True)
-class Adjustment:
-    """K = MONOTONIC - MONOTONIC_RAW at ``mono_ns``, known to within +-``spread_ns`` (half the read window)."""
-
-    mono_ns: int
-    k_ns: int
-    spread_ns: int
+def _k(sample: OffsetSample) -> int:
+    """K = MONOTONIC - MONOTONIC_RAW of a read of the raw clock against the monotonic one."""
+    return -sample.offset_ns
 
 
 class KernelSlew:
@@ -48,40 +45,34 @@ class KernelSlew:
                  raw_ns: Callable[[], int] = raw_clock_ns, keep: int = 256, keep_edges: int = 256) -> None:
         self._mono = monotonic_ns
         self._raw = raw_ns
-        self._samples: deque[Adjustment] = deque(maxlen=keep)
+        self._samples: deque[OffsetSample] = deque(maxlen=keep)  # raw - mono: -K
         self._edges: deque[tuple[int, float]] = deque(maxlen=keep_edges)  # (board ns of an edge, K there)
         # Between two samples K is taken as linear; where its rate changed in between (chronyd changes it at its
         # updates) the line is off by up to a quarter of the change times the gap. The largest such since the
         # newest edge, with the samples' read windows, is what the bound adds (margin_ns).
         self._margin_ns = 0.0
         self._segment_ns = 0.0  # the newest sample's part of it
-        self._rate_key: tuple[int, int] | None = None
+        self._rate_key: tuple[int, int, bool] | None = None
         self._rate = 0.0
         self._prior_rate: float | None = None  # K's rate over the last window of enough edges, or a restored one
 
-    def sample(self) -> Adjustment:
-        """Read K now (monotonic, raw, monotonic: the middle of the window, half of it the spread); kept when later
-        than the last. Within MIN_GAP_NS of the last one that one stands (every sensor thread stamps through here:
-        the samples stay sparse enough that a FIFO read's span, half a second back, covers a few of them)."""
+    def sample(self) -> OffsetSample:
+        """Read K now (sync.realtime's window: monotonic, raw, monotonic); kept when later than the last. Within
+        MIN_GAP_NS of the last one that one stands (every sensor thread stamps through here: the samples stay
+        sparse enough that a FIFO read's span, half a second back, covers a few of them)."""
         s = self._samples
-        m1 = self._mono()
-        if s and m1 - s[-1].mono_ns < MIN_GAP_NS:
+        if s and self._mono() - s[-1].mono_ns < MIN_GAP_NS:
             return s[-1]
-        r = self._raw()
-        m2 = self._mono()
-        mid = (m1 + m2) // 2
-        best = Adjustment(mid, mid - r, (m2 - m1 + 1) // 2)
-        if s and best.mono_ns <= s[-1].mono_ns:
-            return best
+        new = read_offset(self._mono, self._raw)
         if len(s) >= 2:
             a, b = s[-2], s[-1]
-            before = (b.k_ns - a.k_ns) / (b.mono_ns - a.mono_ns)
-            after = (best.k_ns - b.k_ns) / (best.mono_ns - b.mono_ns)
-            gap = max(b.mono_ns - a.mono_ns, best.mono_ns - b.mono_ns)
-            self._segment_ns = abs(after - before) * gap / 4 + 2 * (best.spread_ns + b.spread_ns)
+            before = (_k(b) - _k(a)) / (b.mono_ns - a.mono_ns)
+            after = (_k(new) - _k(b)) / (new.mono_ns - b.mono_ns)
+            gap = max(b.mono_ns - a.mono_ns, new.mono_ns - b.mono_ns)
+            self._segment_ns = abs(after - before) * gap / 4 + 2 * (new.spread_ns + b.spread_ns)
             self._margin_ns = max(self._margin_ns, self._segment_ns)
-        s.append(best)
-        return best
+        s.append(new)
+        return new
 
     def at(self, t_ns: int) -> float:
         """K at a board time, from the samples around it (a sample is taken first when there is none)."""
@@ -91,16 +82,16 @@ class KernelSlew:
         newest = s[-1]
         if t_ns >= newest.mono_ns:
             if len(s) < 2:
-                return float(newest.k_ns)
+                return float(_k(newest))
             prev = s[-2]
-            return newest.k_ns + (newest.k_ns - prev.k_ns) * (t_ns - newest.mono_ns) / (newest.mono_ns - prev.mono_ns)
+            return _k(newest) + (_k(newest) - _k(prev)) * (t_ns - newest.mono_ns) / (newest.mono_ns - prev.mono_ns)
         i = len(s) - 1  # from the newest back: the times asked about are the latest reads'
         while i > 0 and s[i - 1].mono_ns > t_ns:
             i -= 1
         if i == 0:
-            return float(s[0].k_ns)
+            return float(_k(s[0]))
         a, b = s[i - 1], s[i]
-        return a.k_ns + (b.k_ns - a.k_ns) * (t_ns - a.mono_ns) / (b.mono_ns - a.mono_ns)
+        return _k(a) + (_k(b) - _k(a)) * (t_ns - a.mono_ns) / (b.mono_ns - a.mono_ns)
 
     def at_many(self, t_ns: np.ndarray) -> np.ndarray:
         """:meth:`at` for an array of board times."""
@@ -113,7 +104,7 @@ class KernelSlew:
             n += 1
         tail = [s[-i] for i in range(min(n, len(s)), 0, -1)]
         times = np.fromiter((a.mono_ns for a in tail), dtype=np.float64, count=len(tail))
-        ks = np.fromiter((a.k_ns for a in tail), dtype=np.float64, count=len(tail))
+        ks = np.fromiter((_k(a) for a in tail), dtype=np.float64, count=len(tail))
         out = np.interp(t_ns.astype(np.float64), times, ks)
         if len(s) >= 2:
             rate = (ks[-1] - ks[-2]) / (times[-1] - times[-2])

@@ -21,11 +21,21 @@ NS = 1_000_000_000
 
 @dataclass(frozen=True, slots=True)
 class OffsetSample:
-    """REALTIME - MONOTONIC at ``mono_ns``, known to within +-``spread_ns`` (half the read window)."""
+    """Another clock minus MONOTONIC (REALTIME here; MONOTONIC_RAW in sync.kernel_slew) at ``mono_ns``, known to
+    within +-``spread_ns`` (half the read window)."""
 
     mono_ns: int
     offset_ns: int
     spread_ns: int
+
+
+def read_offset(monotonic_ns: Callable[[], int], other_ns: Callable[[], int]) -> OffsetSample:
+    """One monotonic-other-monotonic window: the other clock's reading at the window's middle."""
+    m1 = monotonic_ns()
+    r = other_ns()
+    m2 = monotonic_ns()
+    mid = (m1 + m2) // 2
+    return OffsetSample(mid, r - mid, (m2 - m1 + 1) // 2)
 
 
 class RealtimeMap:
@@ -44,14 +54,7 @@ class RealtimeMap:
 
     def sample(self) -> OffsetSample:
         """Read the offset now: the tightest of three monotonic-realtime-monotonic windows."""
-        reads = []
-        for _ in range(3):
-            m1 = self._mono()
-            r = self._real()
-            m2 = self._mono()
-            mid = (m1 + m2) // 2
-            reads.append(OffsetSample(mid, r - mid, (m2 - m1 + 1) // 2))
-        best = min(reads, key=lambda s: s.spread_ns)
+        best = min((read_offset(self._mono, self._real) for _ in range(3)), key=lambda s: s.spread_ns)
         self._samples.append(best)
         return best
 
