@@ -81,10 +81,10 @@ def _i2c_address(v: int) -> str | None:
 
 
 def _imu_rate(v: float) -> str | None:
-    from sensors.mpu6050_timing import choose_sample_timing
+    from sensors.mpu6050_timing import MAX_RATE_HZ, choose_sample_timing
 
-    if not 1 <= v <= 1000:
-        return "must be between 1 and 1000"
+    if not 1 <= v <= MAX_RATE_HZ:
+        return f"must be between 1 and {_number(MAX_RATE_HZ)}"
     try:
         choose_sample_timing(v)
     except ValueError as exc:
