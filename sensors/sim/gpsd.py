@@ -463,11 +463,12 @@ class ReceiverFeed:
         uart_s = 100 * 10 / self.receiver.baud  # a NAV-PVT frame on the line, 8N1
         excess = min(float(self._rng.exponential(mean)), self.receiver.latency_cap_s)
         ready = rec.drive_ns + round((lo + excess + uart_s) * NS_PER_S)
-        tpv, sky = self._tpv(rec), self._sky(rec)
+        utc = self.timeline.utc_unix_ns(rec.gps_ns + round(rec.time_error_ns))  # as the receiver states it
+        tpv, sky = self._tpv(rec, utc), self._sky(rec)
         # gpsd latches an epoch's time when the receiver's first message of it comes, and sends the TOFF then,
         # before the epoch's reports; only for the first epoch of each second (gpsd 3.22 skips "not a new time":
         # at 5 Hz the x.0 epoch), naming that epoch's own time as its TPV does.
-        real = to_ms(self._utc_ns(rec)) * NS_PER_MS if "time" in tpv else None
+        real = to_ms(utc) * NS_PER_MS if "time" in tpv else None
         if real is not None and self._board_ns is not None and real // NS_PER_S != self._toff_second:
             self._toff_second = real // NS_PER_S
             clock = self._board_ns(ready) + self.realtime_offset_ns
@@ -480,11 +481,7 @@ class ReceiverFeed:
     def _push(self, due_ns: int, obj: dict[str, Any]) -> None:
         heapq.heappush(self._queue, (int(due_ns), next(self._seq), obj))
 
-    def _utc_ns(self, rec: EpochRecord) -> int:
-        """The epoch's time as the receiver states it (its own time error included), Unix ns."""
-        return self.timeline.utc_unix_ns(rec.gps_ns + round(rec.time_error_ns))
-
-    def _tpv(self, rec: EpochRecord) -> dict[str, Any]:
+    def _tpv(self, rec: EpochRecord, utc_ns: int) -> dict[str, Any]:
         fix = rec.fix_type >= 2
         self._time_known = self._time_known or fix
         tpv: dict[str, Any] = {"class": "TPV", "device": self.device, "mode": 3 if rec.fix_type == 3 else 2 if fix
@@ -492,7 +489,7 @@ class ReceiverFeed:
         if fix:
             tpv["status"] = 1
         if self._time_known:
-            tpv.update(time=iso_ms(self._utc_ns(rec)), leapseconds=self.timeline.leap_s, ept=0.005)
+            tpv.update(time=iso_ms(utc_ns), leapseconds=self.timeline.leap_s, ept=0.005)
         if not fix:
             return tpv
         hae = round(rec.height_m * 1000) / 1000
