@@ -18,6 +18,7 @@ this module reads no clock itself.
 from __future__ import annotations
 
 import calendar
+import collections
 import math
 import re
 import time
@@ -269,6 +270,9 @@ LEAP_REPEAT_NS = 600_000_000
 LEAP_HOLD_NS = 1_500_000_000
 LEAP_MONTHS = (1, 4, 7, 10)
 UNTIMED_CYCLE_SHARE = 0.9  # of the receiver's cycle, TPVs without a time are one epoch (GpsdEpochs._untimed_ns)
+# The receiver's cycle as its fixes show it: the least interval between consecutive timed epochs over the last this
+# many (gpsd's DEVICE says 1.00 s for any NMEA receiver, 10 Hz included; an epoch gpsd skipped doubles one interval).
+CYCLE_INTERVALS_KEPT = 8
 FIRST_FIGURES = ("eph", "epv", "eps")  # an epoch's accuracy figures: its first TPV's (GpsdEpochs._tpv)
 UBLOX_DRIVER = "u-blox"  # gpsd's driver that passes the receiver's hAcc, vAcc, sAcc on as eph, epv, eps
 
@@ -311,6 +315,8 @@ class GpsdEpochs:
         self._done_first_ns = 0  # arrival of its first TPV
         self._drivers: dict[str, str] = {}  # device path -> gpsd driver
         self._cycles: dict[str, float] = {}  # device path -> the receiver's cycle, s
+        self._last_timed: int | None = None  # time of the last timed epoch reported ...
+        self._intervals: collections.deque[int] = collections.deque(maxlen=CYCLE_INTERVALS_KEPT)  # ... and before
         self.counters = EpochCounters()
 
     def push(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
@@ -376,9 +382,28 @@ class GpsdEpochs:
         """How long TPVs without a time may still belong to one epoch: nine tenths of the receiver's cycle (else
         the settle time). gpsd reports such a TPV per sentence, and a burst may fill the cycle (u-blox's factory
         NMEA at 9600 baud: 0.9 s of a second); at half the cycle, at most the settle time, a second's burst was
-        cut in two records (gpsd 3.22, 1 Hz: a no-fix record at .23 and another at .30 of every second)."""
+        cut in two records (gpsd 3.22, 1 Hz: a no-fix record at .23 and another at .30 of every second).
+
+        The cycle is gpsd's DEVICE figure or, where shorter, the one the receiver's timed epochs showed: gpsd 3.22
+        gives 1.00 s for a 10 Hz NMEA receiver, and a loss of fix and time there was one record a second."""
         cycle = self._of_device(self._cycles, tpv)
-        return self.settle_ns if cycle is None else round(cycle * NS_PER_S * UNTIMED_CYCLE_SHARE)
+        cycle_ns = None if cycle is None else cycle * NS_PER_S
+        if self._intervals:
+            seen = min(self._intervals)
+            cycle_ns = seen if cycle_ns is None else min(cycle_ns, seen)
+        return self.settle_ns if cycle_ns is None else round(cycle_ns * UNTIMED_CYCLE_SHARE)
+
+    def _learn_cycle(self, key: int | None) -> None:
+        """An epoch reported: with the last timed one before it, an interval of the receiver's cycle (only those
+        up to a second, or up to gpsd's cycle where it has one: a loss between them is no cycle)."""
+        if key is None:
+            return
+        last, self._last_timed = self._last_timed, key
+        if last is None or key <= last:
+            return
+        longest = max(self._cycles.values(), default=1.0) * NS_PER_S
+        if key - last <= longest:
+            self._intervals.append(key - last)
 
     def _tpv(self, msg: Mapping[str, Any], t_ns: int) -> list[tuple[GnssFix, int]]:
         key = parse_time_ns(msg.get("time"))
@@ -467,6 +492,7 @@ class GpsdEpochs:
         self._done = epoch.key
         self._done_first_ns = epoch.first_ns
         self.counters.epochs += 1
+        self._learn_cycle(epoch.key)
         fix = fix_from_tpv(epoch.tpv, epoch.sky, epoch.gst,
                            receiver_figures=self._of_device(self._drivers, epoch.tpv) == UBLOX_DRIVER)
         if leap_second and fix.time_utc_ns is not None:

@@ -925,6 +925,19 @@ def test_the_epoch_open_when_gpsd_closes_the_socket_is_recorded() -> None:
     assert [r.payload["gnss_time_ns"] for r in got] == [T0 + NS, T0 + 2 * NS]
 
 
+def _open_once_listening(source: GpsdSource) -> None:
+    """Open the source on a gpsd just started (it listens a moment after its start), within 10 s."""
+    end = time.monotonic() + 10.0
+    while True:
+        try:
+            source.open()
+            return
+        except SensorError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.05)
+
+
 def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse() -> None:
     """A real gpsd 3.22 reading a real u-blox M9N's NMEA (the GPSD project's capture, about 1.5 kB an epoch) on a
     pty, each epoch written in three parts at 0.35, 0.7 and 1.05 s after its pulse, as a 9600-baud line brings it:
@@ -975,15 +988,7 @@ def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse(
 
     records: list[tuple[int, dict[str, Any]]] = []
     try:
-        end = time.monotonic() + 10.0
-        while True:
-            try:
-                source.open()
-                break
-            except SensorError:
-                if time.monotonic() > end:
-                    raise
-                time.sleep(0.05)
+        _open_once_listening(source)
         feeder = threading.Thread(target=feed, daemon=True)
         feeder.start()
         stop_at = None
@@ -1057,6 +1062,33 @@ def test_a_no_fix_tpv_under_the_last_fixed_epochs_time_leaves_that_fix_as_it_was
     assert e.counters.lost_fix == 1
 
 
+def test_the_receivers_cycle_is_learnt_from_its_timed_epochs() -> None:
+    """gpsd's DEVICE cycle is 1.00 s for any NMEA receiver: at 10 Hz the reports without a time (three an epoch,
+    one per sentence) are one record an epoch once the timed epochs showed 0.1 s; a loss between two timed epochs
+    is no cycle, and a receiver never seen with a time keeps gpsd's figure."""
+    def loss(e: GpsdEpochs, t0_ns: int) -> list[tuple[Any, int]]:
+        out = []
+        for k in range(10):
+            for j in range(3):
+                t = t0_ns + k * NS // 10 + j * 100_000
+                out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1}, t) + e.poll(t)
+        return out
+
+    e = GpsdEpochs()
+    e.push(NMEA_DEVICE, 0)
+    out = []
+    for k in range(5):
+        out += e.push(tpv(T0 + k * NS // 10), k * NS // 10)
+    out += loss(e, NS // 2) + e.push(tpv(T0 + 3 * NS), 3 * NS) + e.flush()
+    assert [f.fix_mode for f, _ in out] == [3] * 5 + [1] * 10 + [3]
+    # the loss's interval (0.4 -> 3.0 s) taught nothing: the next loss is again one record an epoch
+    out = loss(e, 4 * NS) + e.flush()
+    assert len(out) == 10
+    e = GpsdEpochs()
+    e.push(NMEA_DEVICE, 0)
+    assert len(loss(e, 0) + e.flush()) == 2  # never a time: gpsd's cycle, 0.9 s of it an epoch (10 epochs over 0.9 s)
+
+
 def test_a_receiver_behind_gpsd_is_expected_at_its_configured_rate(tmp_path: Path) -> None:
     """The status judges the gnss sensor by the rate the receiver is set to: one behind gpsd was expected at 1 Hz
     whatever ``[gnss] rate_hz`` said (a 10 Hz receiver showed "10.0/1", and a 5 Hz one silent for 3.4 s was ok)."""
@@ -1120,3 +1152,124 @@ def test_only_a_fix_without_a_time_joins_the_timed_epoch_and_a_lost_fix_is_no_le
     out += e.push({"class": "TPV", "device": "/dev/ttyACM0", "mode": 1, "time": iso(midnight)}, 1_100_000_000)
     out += e.flush()
     assert [(f.fix_ok, f.leap_second) for f, _ in out] == [(True, False)] and e.counters.lost_fix == 1
+
+
+def _nmea(body: str) -> bytes:
+    """One NMEA sentence with its checksum and line end."""
+    cs = 0
+    for ch in body.encode():
+        cs ^= ch
+    return f"${body}*{cs:02X}\r\n".encode()
+
+
+def _nmea_epoch(utc_s: float | None, k: int) -> bytes:
+    """RMC, GGA and GSA of one epoch of an NMEA-only receiver (GN talker, as a u-blox M8 or later): a 3D fix at
+    ``utc_s`` moving north by a metre an epoch, or, with no time, no fix and every time field empty (a receiver
+    that lost its fix and its time, as after a cold start or a long tunnel)."""
+    if utc_s is None:
+        return (_nmea("GNRMC,,V,,,,,,,,,,N,V") + _nmea("GNGGA,,,,,,0,00,99.99,,,,,,")
+                + _nmea("GNGSA,A,1,,,,,,,,,,,,,99.99,99.99,99.99,1"))
+    t = dt.datetime.fromtimestamp(utc_s, dt.UTC)
+    hms, date = f"{t:%H%M%S}.{t.microsecond // 10_000:02d}", f"{t:%d%m%y}"
+    lat = f"4717.{11399 + 54 * k:05d}"  # 1e-5 minute is 1.85 cm
+    return (_nmea(f"GNRMC,{hms},A,{lat},N,00833.91590,E,1.944,0.00,{date},,,A,V")
+            + _nmea(f"GNGGA,{hms},{lat},N,00833.91590,E,1,12,0.80,499.6,M,48.0,M,,")
+            + _nmea("GNGSA,A,3,01,02,03,04,05,06,07,08,,,,,1.50,0.80,1.27,1"))
+
+
+def _gpsd_through_a_time_loss(rate_hz: int, before: int, lost: int, after: int
+                              ) -> tuple[list[float], list[dict[str, Any]], Any]:
+    """A real gpsd reading an NMEA receiver on a pty at ``rate_hz``: ``before`` epochs with a fix, ``lost``
+    without fix or time, ``after`` with a fix again, each epoch's sentences written 20 ms after its time, at the
+    host's pace (gpsd tells its cycle by when sentences come). Returns the fixed epochs' times (s), our source's
+    /gnss/fix records in order, and its epoch assembler's counters."""
+    import pty
+    import tty
+
+    from logger.recording.topics import GNSS_FIX
+
+    period = 1.0 / rate_hz
+    first_utc_s = calendar.timegm((2026, 12, 7, 10, 0, 0))
+    plan = [first_utc_s + k * period if not before <= k < before + lost else None
+            for k in range(before + lost + after)]
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    os.chmod(os.ttyname(slave), 0o666)  # gpsd drops root for its own user before it opens the device
+    port = _free_port()
+    gpsd = subprocess.Popen(["gpsd", "-N", "-n", "-b", "-S", str(port), "-s", "115200", os.ttyname(slave)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    source = GpsdSource("127.0.0.1", port, None, host_timebase())
+    records: list[dict[str, Any]] = []
+    try:
+        _open_once_listening(source)
+        start = time.monotonic() + 0.5
+        done = threading.Event()
+
+        def feed() -> None:  # its own thread: a read waits for gpsd's next report
+            try:
+                for k, utc_s in enumerate(plan):
+                    time.sleep(max(0.0, start + k * period + 0.02 - time.monotonic()))
+                    os.write(master, _nmea_epoch(utc_s, k))
+            finally:
+                done.set()
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        quiet_until = None
+        while quiet_until is None or time.monotonic() < quiet_until:
+            records += [r.payload for r in source.read() if r.topic == GNSS_FIX]
+            if done.is_set() and quiet_until is None:
+                quiet_until = time.monotonic() + 2.0 + 2 * period
+        feeder.join()
+        counters = source.epochs.counters
+    finally:
+        source.close()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(gpsd.pid, signal.SIGTERM)
+        gpsd.wait(timeout=10)
+        os.close(master)
+        os.close(slave)
+    return [u for u in plan if u is not None], records, counters
+
+
+TIME_LOSS_CASES = [(10, 25, 10, 25), (1, 3, 3, 3)]  # rate (Hz), epochs with a fix, without, with again
+
+
+@pytest.fixture(scope="module")
+def time_losses() -> dict[tuple[int, int, int, int], tuple[list[float], list[dict[str, Any]], Any]]:
+    """Each case through its own gpsd, at once (each is paced by the clock, not by the CPU)."""
+    if _gpsfake_missing():  # gpsd itself; gpsfake is not used, but the same package brings both
+        pytest.skip("gpsd is not installed")
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(TIME_LOSS_CASES)) as pool:
+        return dict(zip(TIME_LOSS_CASES, pool.map(lambda c: _gpsd_through_a_time_loss(*c), TIME_LOSS_CASES),
+                        strict=True))
+
+
+@pytest.mark.parametrize(("rate_hz", "before", "lost", "after"), TIME_LOSS_CASES)
+def test_a_receiver_losing_fix_and_time_through_a_real_gpsd_is_one_record_an_epoch(
+        time_losses, rate_hz: int, before: int, lost: int, after: int) -> None:
+    """A real gpsd 3.22 and an NMEA receiver whose fix and time go away for a while (every time field empty)
+    and come back: every fixed epoch recorded once, with its time; the loss as one no-fix record an epoch
+    (give or take the one at each edge), none of them a fix. gpsd 3.22 says "cycle": 1.00 for an NMEA receiver
+    at 10 Hz too, and reports a TPV per sentence: before the cycle was learnt from the timed epochs, a second of
+    the loss at 10 Hz was one record (10 epochs, 2 records)."""
+    fixed_s, records, counters = time_losses[(rate_hz, before, lost, after)]
+    timed = [r for r in records if r.get("gnss_time_ns") is not None]
+    untimed = [r for r in records if r.get("gnss_time_ns") is None]
+    times = [r["gnss_time_ns"] for r in timed]
+    assert len(times) == len(set(times)), "an epoch recorded twice"
+    assert all(r["fix_ok"] for r in timed) and not any(r["fix_ok"] for r in untimed), records
+    expected = {round(u * NS) for u in fixed_s}
+    assert set(times) <= expected
+    first_after = round(fixed_s[before] * NS)
+    # gpsd may start reporting an epoch or two into the stream; from then on, nothing is missing
+    assert {t for t in expected if round(fixed_s[2] * NS) <= t} <= set(times), sorted(expected - set(times))
+    assert lost - 1 <= len(untimed) <= lost + 1, [(r.get("fix_mode"), r.get("gnss_time_ns")) for r in records]
+    # the loss's records sit between the last fix before it and the first after it
+    order = [r.get("gnss_time_ns") for r in records]
+    i_last_before = order.index(round(fixed_s[before - 1] * NS))
+    i_first_after = order.index(first_after)
+    assert all(t is None for t in order[i_last_before + 1:i_first_after])
+    assert counters.epochs >= len(records) - 1
