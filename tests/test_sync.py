@@ -1041,6 +1041,20 @@ def test_a_restart_on_the_same_boot_takes_out_what_ntp_did_while_the_logger_was_
     (off_plain, bound_plain), (off_raw, bound_raw) = results[False], results[True]
     assert abs(off_plain) > 900_000 > bound_plain  # the defect: the slew stood in the stamp
     assert abs(off_raw) < 2_000 and abs(off_raw) <= bound_raw, results
+    # A state file without what NTP had done (an older version's, or one saved before the first edge) gives the
+    # frequency only: its mapping kept the downtime's slew behind a bound of tens of us (1 ms off behind 53 us after
+    # an upgrade). A file of another format is not read at all (before format 2 "freq" was the temperature-corrected
+    # slope, corrected again on restore).
+    saved = json.loads(path.read_text())
+    for name, text in (("no kernel", {k: v for k, v in saved.items() if k != "kernel"}),
+                       ("kernel null", {**saved, "kernel": None}),
+                       ("older format", {k: v for k, v in saved.items() if k != "format"})):
+        path.write_text(json.dumps(text))
+        again = PpsClock(monotonic_ns=lambda: mono_at(now[0]), wall_ns=lambda: 0, state_path=path,
+                         clock_id="boot-A", raw_ns=lambda: raw_at(now[0]))
+        st = again.stamp(mono_at(150.0))
+        assert st.state == "freerun", (name, st)
+        assert (again._slope_prior is not None) == (name != "older format"), name
 
 
 def test_a_relock_on_one_edge_keeps_the_kernels_rate_in_the_slope_it_extrapolates() -> None:
