@@ -251,6 +251,10 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     cut.write_bytes(path.read_bytes()[:-100])
     assert main(["info", str(cut)]) == 0
     assert "NO (cut short)" in capsys.readouterr().out
+    # Just written, not closed: it may be a logger's open file (an older logger holds no lock on it): refused
+    assert main(["recover", str(cut)]) == 1
+    assert "a logger may still be recording it" in capsys.readouterr().err and not is_finished(cut)
+    os.utime(cut, (time.time() - 60, time.time() - 60))  # a minute since its last write: a crash's
     assert main(["recover", str(cut)]) == 0
     assert "recovered 50 messages" in capsys.readouterr().out
     assert is_finished(cut)

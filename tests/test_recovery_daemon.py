@@ -10,6 +10,7 @@ The recovery is held back by a gate here, standing in for a long one.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -182,13 +183,13 @@ def test_recover_names_its_output_and_leaves_no_half_copy(tmp_path: Path) -> Non
     """`logger recover FILE -o OUT`: a folder as OUT takes the file under its name (it said "FILE: Is a directory"
     of the input and left OUT.recovering beside it); OUT in a folder that does not exist is said of OUT (it said
     "FILE: no such file" of an input that was there). The recovered file keeps the source's permissions."""
-    import os
     import subprocess
     import sys
 
     cut = tmp_path / "drive_0001.mcap"
     cut_file(cut, 400)
     cut.chmod(0o640)
+    os.utime(cut, (time.time() - 60, time.time() - 60))  # cut a minute ago: no logger's open file
     folder = tmp_path / "out"
     folder.mkdir()
 
@@ -238,7 +239,6 @@ def test_a_second_simulated_run_into_the_same_folder_is_refused(tmp_path: Path) 
     """`logger run --sim --out DIR` twice: the second took a status socket of its own (so as not to take the
     first's) and recorded into DIR beside the first, two drives in one folder and one clock state. The state
     folder's lock refuses it, whatever the sockets; a run into another folder beside it goes on."""
-    import os
     import signal
     import subprocess
     import sys

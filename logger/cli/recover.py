@@ -10,9 +10,22 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
-from logger.recording.files import McapFileError, being_written, is_finished, recover, walk
+from logger.recording.files import MAGIC, McapFileError, being_written, is_finished, recover, walk
+
+# An unfinished file written to this recently may be one a logger is still recording: a logger older than the lock
+# (files.hold_for_writing) gives no other sign, and recovering its open file under it lost what it wrote next (an
+# upgrade installed while the old service still ran: `logger info` said "cut short", recover rewrote it, and the
+# old logger's next second went with the file it had open). The recorder writes a chunk a second.
+RECENT_WRITE_S = 10.0
+
+
+def _mcap(path: Path) -> bool:
+    """Whether the file begins as an MCAP file does (anything else is refused by the recovery itself, as such)."""
+    with open(path, "rb") as f:
+        return f.read(len(MAGIC)) == MAGIC
 
 
 def main(argv: list[str]) -> int:
@@ -22,7 +35,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("file", metavar="FILE")
     parser.add_argument("-o", "--out", metavar="OUT", help="write here instead of replacing FILE")
     parser.add_argument("--force", action="store_true",
-                        help="rewrite even a file that was closed cleanly and whose chunks all hold")
+                        help="rewrite even a file that was closed cleanly and whose chunks all hold, or an unfinished "
+                             f"one written to in the last {RECENT_WRITE_S:.0f} s")
     args = parser.parse_args(argv)
     src = Path(args.file)
     out = Path(args.out) if args.out is not None else None
@@ -49,6 +63,11 @@ def main(argv: list[str]) -> int:
             if not found.losses and not args.force:
                 print(f"{args.file}: closed cleanly and every chunk's CRC holds: nothing to recover")
                 return 0
+        elif not args.force and _mcap(src) and (age := time.time() - src.stat().st_mtime) < RECENT_WRITE_S:
+            print(f"logger recover: {src}: not closed, and written to {max(0.0, age):.0f} s ago: a logger may still "
+                  "be recording it (one older than this version marks no file it writes); stop that logger first, "
+                  "or recover with --force", file=sys.stderr)
+            return 1
         report = recover(src, out, found=found)
     except McapFileError as exc:
         print(f"logger recover: {exc}", file=sys.stderr)
