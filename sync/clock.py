@@ -33,7 +33,7 @@ from sync.pairing import EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
 from sync.settings import SyncSettings
-from sync.stamp import FREERUN, HOLDOVER, LOCKED, Stamp, StampClock, Stamps, TrackingReport
+from sync.stamp import FREERUN, HOLDOVER, LOCKED, NO_BOUND_NS, Stamp, StampClock, Stamps, TrackingReport
 from sync.tempco import TempcoEstimator
 
 log = logging.getLogger(__name__)
@@ -46,10 +46,6 @@ WALL_PATIENCE_NS = 60 * NS
 READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
 ANNOUNCEMENT_LEAD_NS = 1_500_000_000  # a TIM-TP comes at most this long before the edge it announces
 CONFIRM_EDGES = MIN_SAMPLES_FOR_SLOPE + 1  # edges a fit needs to refuse one of them as an outlier (fit_line)
-# A free-running stamp's bound when the system clock was not synchronised at start: none the logger can stand
-# behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
-# so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
-NO_BOUND_NS = 2**62
 # A missed edge's growth is put in the bound at this multiple: a frequency still changing (a temperature ramp, a
 # slew of the monotonic clock beginning) makes the next miss larger than a straight line through two predicts.
 MISS_GROWTH_MARGIN = 2.0

@@ -17,6 +17,10 @@ from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
 
 FREERUN = "freerun"
+# A free-running stamp's bound when the system clock was not synchronised at start: none the logger can stand
+# behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
+# so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
+NO_BOUND_NS = 2**62
 LOCKED = "locked"
 HOLDOVER = "holdover"
 

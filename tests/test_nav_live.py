@@ -513,3 +513,38 @@ def test_after_its_first_turn_records_waiting_do_not_stand_for_a_silent_imu():
         nav.take([("/gnss/fix", fix)])
     nav.offer("/gnss/fix", {**fix, "t_sync_ns": fix["t_sync_ns"] + 10**9, "t_mono_ns": 2 * 10**9})
     assert nav.section()["verdicts"] == ["initialising: waiting for the IMU: no sample yet"]
+
+
+def test_records_stamped_before_gnss_time_on_a_clock_with_no_bound_never_reach_the_filter() -> None:
+    """A board without RTC or network boots in 1970 (or at its image's date) and the receiver's cold start takes
+    30 s: until the lock every record is stamped free-running with no bound. The filter levelled on those stamps,
+    then crossed the jump of 56 years at the lock: /nav/fix latitudes up to 207281 deg behind a status 'logger OK'
+    (or an OverflowError and a restart). Now such records are not offered (live) or fed (replay); the filter
+    starts on GNSS time."""
+    from logger.exports.trajectory import NavEngine
+    from logger.recording.nav_rerun import NavRerun
+    from sync.stamp import NO_BOUND_NS
+
+    drive = make_drive("urban", seed=1, duration_s=90)
+    recs = records(drive, 90, seed=4)
+    t0 = recs[0][0]
+    shift = 1_796_000_000 * 1_000_000_000 - 30 * 1_000_000_000  # the board's 1970 against GNSS time
+    for t, _, msg in recs:
+        if t - t0 < 30 * 1_000_000_000:
+            msg["t_sync_ns"] -= shift
+            msg["sync_state"], msg["sync_err_ns"] = "freerun", NO_BOUND_NS
+    before = sum(1 for t, _, _ in recs if t - t0 < 30 * 1_000_000_000)
+    nav = Navigator(NavParams())
+    for _, topic, msg in recs[:before]:
+        nav.offer(topic, msg)
+    assert nav.queued == 0 and nav.unplaced == before
+    rerun = NavRerun(NavParams(), lambda p: NavEngine(p))
+    for _, topic, msg in recs:  # replay's feeding, record by record
+        rerun.feed(topic, msg)
+    assert rerun.unplaced == before
+    s = rerun.engine.state
+    assert s is not None
+    truth = drive.state(90.0)
+    north_m = (s.lat - truth.lat_rad) * 6.37e6
+    east_m = (s.lon - truth.lon_rad) * 6.37e6 * math.cos(truth.lat_rad)
+    assert math.hypot(north_m, east_m) < 10.0, (north_m, east_m)

@@ -53,7 +53,7 @@ from typing import Any
 from logger.nav.engine import REOPEN_DEG, NavEngine
 from logger.nav.mounting import FORWARD, LEARNING, SETTLED, USABLE_SIGMA_DEG, forward_axis_deg
 from logger.nav.params import NavParams
-from logger.recording.records import NAV_INPUT_KEYS, feed_reads, nav_feeder
+from logger.recording.records import NAV_INPUT_KEYS, feed_reads, nav_feeder, unplaced
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED
 
 log = logging.getLogger(__name__)
@@ -178,10 +178,14 @@ class NavRerun:
         self._refining = False  # after the first re-run: the tape kept for a second (the forward axis held still)
         self._looks: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=REFINE_LOOKS)
         self.reruns: list[tuple[tuple[float, float, float], float]] = []  # (mounting, s into the tape) of each
+        self.unplaced = 0  # records left out: stamped before GNSS time was known, on a clock with no bound
 
     # ---- feeding ----------------------------------------------------------------------------------------
     def feed(self, topic: str, msg: dict[str, Any]) -> None:
-        """One record, as :func:`nav_feeder` takes it."""
+        """One record, as :func:`nav_feeder` takes it; one whose stamp has no bound is left out (:func:`unplaced`)."""
+        if unplaced(msg):
+            self.unplaced += 1
+            return
         self._feed[topic](msg)
         if self._tape is not None:
             if topic == IMU_BATCH:
@@ -191,7 +195,13 @@ class NavRerun:
                 self._keep(topic, _slim(topic, msg), int(msg["t_sync_ns"]))
 
     def feed_reads(self, msgs: Sequence[dict[str, Any]]) -> None:
-        """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it."""
+        """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it (without unplaced ones)."""
+        if any(unplaced(m) for m in msgs):
+            kept = [m for m in msgs if not unplaced(m)]
+            self.unplaced += len(msgs) - len(kept)
+            msgs = kept
+            if not msgs:
+                return
         feed_reads(self.engine, msgs)
         if self._tape is not None and msgs:
             self._keep("", [self._columns.add(m) for m in msgs], int(msgs[0]["t_sync_ns"][0]),

@@ -24,7 +24,7 @@ from logger.nav.inputs import GnssObservation
 from logger.nav.state import N_FULL, STATE_NAMES
 from logger.recording.topics import BARO, GAP_PERIODS, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS, TIMEPULSE
 from sync.inputs import FixEpoch, TimeAnnouncement
-from sync.stamp import Stamp, StampClock, Stamps, TrackingReport
+from sync.stamp import NO_BOUND_NS, Stamp, StampClock, Stamps, TrackingReport
 
 if TYPE_CHECKING:  # the receiver driver (and pyserial behind it) is not needed to replay a drive
     from sensors.bmp085 import BaroSample
@@ -286,6 +286,18 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
 
 _ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
 _GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
+
+
+def unplaced(m: dict[str, Any]) -> bool:
+    """Whether a record's stamp has no bound: free-running on a system clock that was not synchronised at start
+    (a board without RTC or network boots at its image's date, or 1970), its time the board's guess until GNSS
+    time is known. The filter integrates over time and cannot take it: levelled on such stamps, it crossed the
+    jump of decades at the lock and published positions thousands of degrees off. A FIFO read's samples are
+    stamped under one state, so its first says."""
+    err = m.get("sync_err_ns")
+    if isinstance(err, list):
+        err = err[0] if err else None
+    return isinstance(err, int) and err >= NO_BOUND_NS
 
 
 def follows_on(m: dict[str, Any], last: int | None) -> bool:

@@ -43,6 +43,7 @@ from logger.recording.records import (
     follows_on,
     nav_fix_record,
     nav_state_record,
+    unplaced,
 )
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
 from logger.runtime import mount_state, tempco_state
@@ -107,6 +108,7 @@ class Navigator:
         self._q_lock = threading.Lock()  # the bound and the append together, for offers from many threads
         self.dropped = 0
         self.processed = 0
+        self.unplaced = 0  # records not offered to the filter: stamped before GNSS time, on a clock with no bound
         self.cpu_s = 0.0
         self._halt = threading.Event()
         # Set by an offer that fills a quarter of the queue: a fast simulated drive (or a 1 kHz burst) is taken
@@ -154,7 +156,11 @@ class Navigator:
     def offer(self, topic: str, payload: dict[str, Any]) -> None:
         if topic not in INPUT_TOPICS:
             return
+        skip = unplaced(payload)  # the filter waits for GNSS time (records.unplaced): its stamps jump at the lock
         with self._q_lock:
+            if skip:
+                self.unplaced += 1
+                return
             if len(self._q) < self.params.queue_size:
                 self._q.append((topic, payload))
                 if len(self._q) >= self._wake_at:
