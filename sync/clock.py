@@ -56,6 +56,12 @@ CHANGE_EDGES = CONFIRM_EDGES
 # The longest a sample's labelling (its time message's arrival) may lag its edge and still count as the clock
 # following the PPS (PpsClock._fresh_ns): a solution completing after the next pulse (9600-baud NMEA) is ~1.4 s late.
 PAIR_LAG_MAX_NS = 1_500_000_000
+# No receiver's time pairs before this instant (2020-01-01 UTC): an earlier date is a GPS week-number rollover (an
+# old firmware counting 1024 weeks: 19.6 years early, and with every validity flag set) or a receiver that has no
+# date yet. Paired, it locked the clock to 2007 behind a 12 us bound, and after a minute even over a synchronised
+# system clock. Such times are not used, and the journal says so (WRONG_DATE_LOG_S apart).
+GNSS_TIME_FLOOR_NS = 1_577_836_800 * NS
+WRONG_DATE_LOG_S = 60
 # The state file's format (``"format"``), which a restart reads only if it is its own: 2 has the fit's own frequency
 # (before, the temperature-corrected one, corrected again on restore) and, on the host's clock, what NTP had done to
 # the monotonic clock (``"kernel"``; without it a restart on the same boot kept NTP's slews of the downtime in its
@@ -142,7 +148,8 @@ class PpsClock(StampClock):
         self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
         self.chrony: ChronySock | None = None  # the chrony socket on_sample feeds, when it is one (its counts)
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0, "late_reads": 0,
-                       "mislabels": 0}
+                       "mislabels": 0, "wrong_dates": 0}
+        self._wrong_date_logged_ns: int | None = None  # board time of the last "before GNSS_TIME_FLOOR_NS" line
         self._load()
 
     # ---- observation (from the record layer, for the records that tell time; any thread) ---------------------
@@ -165,7 +172,9 @@ class PpsClock(StampClock):
         with self._lock:
             self.counts["edges"] += 1
             self.paper.on_edge(t_mono_ns)
-            if gnss_time_ns is None:
+            if gnss_time_ns is not None and self._wrong_date(int(gnss_time_ns), t_mono_ns, "PPS report"):
+                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))  # an edge, its label not used
+            elif gnss_time_ns is None:
                 self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
             else:
                 self._take(self.labeller.on_labelled_edge(t_mono_ns, int(gnss_time_ns), self._predict_unix_ns))
@@ -174,6 +183,8 @@ class PpsClock(StampClock):
         """The receiver announced the GNSS time of its next pulse (seen at ``t_mono_ns``)."""
         with self._lock:
             label = self.labeller.timepulse_unix_ns(announcement)
+            if label is not None and self._wrong_date(label, t_mono_ns, "time pulse announcement"):
+                return
             if label is not None:
                 self._check_read_after(self.labeller.to_cont(label) - ANNOUNCEMENT_LEAD_NS, t_mono_ns,
                                        "time pulse announcement", label)
@@ -182,9 +193,26 @@ class PpsClock(StampClock):
     def on_fix_epoch(self, epoch: FixEpoch, t_mono_ns: int) -> None:
         """A navigation solution for a valid GNSS second arrived (at ``t_mono_ns``, after that second's pulse)."""
         with self._lock:
+            if self._wrong_date(epoch.gnss_time_ns, t_mono_ns, "fix"):
+                return
             self._check_read_after(self.labeller.to_cont(epoch.gnss_time_ns, epoch.leap_second), t_mono_ns, "fix",
                                    epoch.gnss_time_ns)
             self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
+
+    def _wrong_date(self, unix_ns: int, t_mono_ns: int, what: str) -> bool:
+        """Whether a receiver's time is before GNSS_TIME_FLOOR_NS (a week rollover, or no date): not to be paired.
+        Counted (``wrong_dates``) and logged at most every WRONG_DATE_LOG_S."""
+        if unix_ns >= GNSS_TIME_FLOOR_NS:
+            return False
+        self.counts["wrong_dates"] += 1
+        last = self._wrong_date_logged_ns
+        if last is None or t_mono_ns - last >= WRONG_DATE_LOG_S * NS:
+            self._wrong_date_logged_ns = t_mono_ns
+            date = dt.datetime.fromtimestamp(unix_ns / NS, dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
+            log.warning("the receiver's %s says %s UTC, before %s: a GPS week-number rollover (an old firmware's "
+                        "date, 1024 weeks early) or no date yet; its times are not used", what, date,
+                        dt.datetime.fromtimestamp(GNSS_TIME_FLOOR_NS / NS, dt.UTC).strftime("%Y-%m-%d"))
+        return True
 
     def _check_read_after(self, earliest_ns: int, t_mono_ns: int, what: str, epoch_unix_ns: int) -> None:
         """A message cannot be read before the GNSS time it could first be sent: when this clock says it was,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -732,11 +733,12 @@ def test_a_fifo_reads_stamps_at_once_are_the_stamps_of_each_sample(seed: int) ->
 
 
 # ---- leap seconds -----------------------------------------------------------------------------------------------
-# A positive leap second, 2016-12-31 23:59:60 UTC. The board's clock is true SI time; an edge every SI second, the
-# fix of its second 150 ms after it. Edge k is the k-th second after T0 = 23:59:00; k = 60 is 23:59:60. Published
-# stamps are Unix time: POSIX's for the leap second (23:59:60.x is 00:00:00.x's Unix time), then the second the
-# Unix scale lost is slewed out at max_slew_ppm, the part left in the bound.
-LEAP_T0 = 1_483_228_740  # 2016-12-31T23:59:00Z
+# A positive leap second at the end of June 2027, as one would be announced (the last was 2016-12-31 23:59:60; a date
+# before 2020 is no receiver's time the clock takes: GNSS_TIME_FLOOR_NS). The board's clock is true SI time; an edge
+# every SI second, the fix of its second 150 ms after it. Edge k is the k-th second after T0 = 23:59:00; k = 60 is
+# 23:59:60. Published stamps are Unix time: POSIX's for the leap second (23:59:60.x is 00:00:00.x's Unix time), then
+# the second the Unix scale lost is slewed out at max_slew_ppm, the part left in the bound.
+LEAP_T0 = 1_814_399_940  # 2027-06-30T23:59:00Z
 LEAP_MIDNIGHT_NS = (LEAP_T0 + 60) * NS
 
 
@@ -1091,3 +1093,27 @@ def test_a_relock_on_one_edge_keeps_the_kernels_rate_in_the_slope_it_extrapolate
                     worst = max(worst, abs(st.t_sync_ns - round((t0_unix + t) * NS)))
                     assert abs(st.t_sync_ns - round((t0_unix + t) * NS)) <= st.err_ns, (raw, t, st)
         assert worst < 2_000, (raw, worst)
+
+
+@pytest.mark.parametrize("wall", [None, 3_000_000])
+def test_a_receivers_week_rollover_date_is_never_paired(wall: int | None, caplog) -> None:
+    """An old firmware whose GPS week number rolled over gives its fixes and time pulses 1024 weeks early (2007
+    for 2026), every validity flag set: the clock locked to 2007 behind a 12 us bound, and over a synchronised
+    system clock it gave in to GNSS after a minute. A receiver's time before GNSS_TIME_FLOOR_NS is never paired:
+    the clock stays free-running on the wall clock (bounded where it is synchronised), and the journal says why,
+    once a minute."""
+    floor_ns = 1_577_836_800 * NS  # 2020-01-01, sync.clock.GNSS_TIME_FLOOR_NS
+    rollover = 1024 * 7 * 86_400 * NS
+    stream = make_stream(200)
+    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] - rollover} if t == "/gnss/fix" else
+                         {**p, "week": p["week"] - 1024} if t == "/gnss/timepulse" else p)
+                        for b, t, p in stream.events]
+    with caplog.at_level(logging.WARNING, logger="sync.clock"):
+        clock, r = run(stream, wall_error_ns=wall)
+    assert set(r["state"]) == {"freerun"}
+    if wall is not None:
+        assert (r["sync"] > floor_ns).all()  # never a 2007 stamp
+        assert covered(r)  # the synchronised wall clock's stamps, within their bound
+    assert clock.counts["wrong_dates"] >= 190
+    lines = [m for m in caplog.messages if "week-number rollover" in m]
+    assert 3 <= len(lines) <= 5 and "before 2020-01-01" in lines[0], lines
