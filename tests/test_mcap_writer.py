@@ -21,7 +21,9 @@ from mcap.writer import CompressionType, Writer
 
 from logger.recording.mcap_writer import COMPRESSIONS, McapWriter
 
-_text = st.text(st.characters(codec="utf-8", exclude_categories=("Cs",)), max_size=12)
+# Any text UTF-8 can hold: text()'s own alphabet leaves out the surrogates (as Debian 12's Hypothesis 6.67 has it,
+# which knows no characters(codec=...): the board's suite stopped while collecting this file).
+_text = st.text(max_size=12)
 _op = st.one_of(
     st.tuples(st.just("schema"), _text, st.binary(max_size=40)),
     st.tuples(st.just("channel"), _text, st.dictionaries(_text, _text, max_size=3)),
