@@ -206,17 +206,29 @@ def test_disk_below_minimum_free_stops_recording_with_a_clear_state(tmp_path: Pa
     assert list(tmp_path.glob("*.mcap")) == []
 
 
-def test_rotation_by_duration_of_log_time(tmp_path: Path) -> None:
+def test_rotation_by_duration_of_board_time(tmp_path: Path) -> None:
+    """A new file every rotate_duration_s of the board's clock, whatever the log times do: before GNSS time is known
+    a board without RTC logs at its boot date, and the log time jumps at the lock (by log time, decades forward cut
+    the file there; a clock a day ahead rotated no file for a day)."""
     rec = Recorder(RecorderSettings(out_dir=tmp_path, rotate_duration_s=10.0, flush_interval_s=0.05), TOPICS)
     rec.start()
     t0 = 1_700_000_000_000_000_000
     for i in range(35):
-        rec.submit("/a", {"x": i}, t0 + i * 1_000_000_000, i)
+        rec.submit("/a", {"x": i}, t0 + i * 1_000_000_000, i * 1_000_000_000)
     rec.stop()
     files = sorted(tmp_path.glob("*.mcap"))
     assert len(files) == 4
     assert all(is_finished(f) for f in files)
     assert sum(len(_read_all(f)) for f in files) == 35
+    for name, jump in (("behind", 50 * 365 * 86_400 * 10**9), ("ahead", -86_400 * 10**9)):
+        out = tmp_path / name
+        rec = Recorder(RecorderSettings(out_dir=out, rotate_duration_s=10.0, flush_interval_s=0.05), TOPICS)
+        rec.start()
+        for i in range(25):  # the lock at 5 s: the log time jumps, the board's clock goes on
+            rec.submit("/a", {"x": i}, t0 + i * 1_000_000_000 - (jump if i < 5 else 0), i * 1_000_000_000)
+        rec.stop()
+        parts = sorted(out.glob("*.mcap"), key=lambda f: f.name[-9:])
+        assert [len(_read_all(f)) for f in parts] == [11, 11, 3], name  # not cut at the lock
 
 
 def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
@@ -557,7 +569,7 @@ def test_a_failed_open_takes_no_part_number_and_every_file_says_its_run(tmp_path
         cut.write_bytes(first.read_bytes())  # as a kill -9 leaves it
         assert not is_finished(cut) and run_identity(cut) == (rec.run_id, 1)
         cut.unlink()
-        rec.submit("/a", {"x": 10}, 1_700_000_000_000_000_009 + 2 * 10**9, 10)  # rotated: part 2, not 12
+        rec.submit("/a", {"x": 10}, 1_700_000_000_000_000_009 + 2 * 10**9, 9 + 2 * 10**9)  # rotated: part 2, not 12
     finally:
         rec.stop()
     names = sorted((p.name for p in tmp_path.glob("*.mcap")), key=lambda n: n[-9:])  # the first named by the wall

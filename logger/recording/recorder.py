@@ -223,6 +223,7 @@ class Recorder:
         self._schemas: dict[tuple[str, bytes], int] = {}
         self._file_started_mono = 0.0
         self._first_log_ns: int | None = None
+        self._first_pub_ns: int | None = None  # board (monotonic) time of the open file's first record
         self._sequence = 0  # the part number of the last file actually started (a failed open takes none)
         self._files_done = 0
         self._files: list[Path] = []  # every file this recorder started, by its current name
@@ -364,7 +365,7 @@ class Recorder:
             self._io_failed(exc)
             return
         if self._first_log_ns is None:
-            self._first_log_ns = log_ns
+            self._first_log_ns, self._first_pub_ns = log_ns, pub_ns
         self._newest_written[topic] = pub_ns
         stamps = payload.get("t_sync_ns")
         with self._lock:
@@ -375,7 +376,10 @@ class Recorder:
             self._topics_written.add(topic)
             if self.on_first_record is not None:
                 self.on_first_record(topic)
-        if self._first_log_ns is not None and log_ns - self._first_log_ns >= self.settings.rotate_duration_s * 1e9:
+        # By board time, not log time: before GNSS time is known a board without RTC logs at its boot date (1970, the
+        # image's), and the log time then jumps at the lock: decades forward (the file cut there, its first part a
+        # minute long with a "duration" of 56 years) or back (a clock a day ahead: no file rotated for a day).
+        if self._first_pub_ns is not None and pub_ns - self._first_pub_ns >= self.settings.rotate_duration_s * 1e9:
             self._rotate()
 
     def _channel(self, topic: str) -> int:
@@ -611,7 +615,7 @@ class Recorder:
             self._unnamed.append((path, start_mono, part))
         self._channels.clear()
         self._schemas.clear()
-        self._first_log_ns = None
+        self._first_log_ns = self._first_pub_ns = None
         self._file_started_mono = self._now()
         self._last_flush = self._now()
         self._set_state("recording", "")  # its detail is the open file's name (status)
