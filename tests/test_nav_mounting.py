@@ -3,6 +3,8 @@ uncertainty, a board that moves, and the filter taking the estimate once it has 
 
 from __future__ import annotations
 
+import json
+import logging
 import math
 
 import numpy as np
@@ -160,6 +162,12 @@ def test_a_settled_mounting_is_the_next_drives_first_guess_unless_the_configurat
     assert nav.engine.alignment.configured == pytest.approx(al.estimate().rpy_deg)
     # Learnt on another installation (a simulated board at other angles sharing the state folder): not used.
     assert mount_state.load(path, (0.0, 0.0, 0.0), mount_state.simulated((5.0, -4.0, 30.0))) is None
+    # An older logger's file (it kept no installation): not used either, and said (it was dropped without a word)
+    older = tmp_path / "older.json"
+    older.write_text(json.dumps({k: v for k, v in json.loads(path.read_text()).items() if k != "installation"}))
+    with caplog.at_level(logging.INFO, logger="logger.runtime.mount_state"):
+        assert mount_state.load(older, (0.0, 0.0, 0.0), mount_state.BOARD) is None
+    assert "written by an older version of the logger" in caplog.text
     # The installer says the board sits otherwise now: the configuration wins.
     moved = Navigator(NavParams(mounting_rpy_deg=(0.0, 0.0, 90.0)), mount_path=path)
     assert moved.engine.mount_applied == (0.0, 0.0, 90.0)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import math
 
 import numpy as np
@@ -237,6 +239,11 @@ def test_learnt_coefficients_are_kept_for_the_next_drive_of_the_same_part(tmp_pa
 
     path.write_text(path.read_text().replace('"sigma_chip": [', '"sigma_chip": [0.0, '))  # seven, one of them 0
     assert tempco_state.load(path, board, bounds) is None and "not six finite" in caplog.text
+    good = path.read_text()
+    path.write_text(json.dumps({k: v for k, v in json.loads(good).items() if k != "bounds"}))  # an older logger's
+    with caplog.at_level(logging.INFO, logger="logger.runtime.tempco_state"):
+        assert tempco_state.load(path, board, bounds) is None
+    assert "written by an older version of the logger (without bounds)" in caplog.text  # was: "...: 'bounds'"
     path.write_text("{not json")
     assert tempco_state.load(path, board, bounds) is None and "ignoring the saved IMU temperature" in caplog.text
 

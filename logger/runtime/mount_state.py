@@ -42,7 +42,12 @@ def load(path: Path, configured: tuple[float, float, float], installation: str) 
         log.warning("ignoring the saved mount alignment %s: %s", path, exc)
         return None
     if saved_on != installation:
-        return None  # learnt on another (simulated) installation: says nothing of this one
+        # Learnt on another (simulated) installation: says nothing of this one. A file without the key is an older
+        # logger's, which kept none: said, rather than dropped without a word after an upgrade.
+        if "installation" not in st:
+            log.info("the saved mount alignment %s was written by an older version of the logger (it does not say "
+                     "which installation it was learnt on): learning the mounting again", path)
+        return None
     if len(rpy) != 3 or any(abs(a - b) > 1e-6 for a, b in zip(saved_for, configured, strict=True)):
         log.info("the configured mounting changed since the mount alignment was saved: starting from the "
                  "configuration")

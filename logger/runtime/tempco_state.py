@@ -45,6 +45,11 @@ def load(path: Path, installation: str, bounds: list[float]) -> tuple[list[float
         return None
     try:
         st = json.loads(path.read_text())
+        if isinstance(st, dict) and "k_chip" in st and ("bounds" not in st or "installation" not in st):
+            log.info("the saved IMU temperature coefficients %s were written by an older version of the logger "
+                     "(without %s): learning them again", path,
+                     " and ".join(k for k in ("bounds", "installation") if k not in st))
+            return None
         k = [float(v) for v in st["k_chip"]]
         sigma = [float(v) * LOAD_WIDENING for v in st["sigma_chip"]]
         saved_bounds = [float(v) for v in st["bounds"]]
