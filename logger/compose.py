@@ -103,7 +103,8 @@ def build(cfg: Config, duration_s: float | None,
         clock = make_clock(cfg, tb, f"sim-{vehicle.oscillator.board_start_ns}-{vehicle.time_scale:g}",
                            wall_ns=vehicle.wall_clock_ns, wall_trusted=True)
     else:
-        clock = make_clock(cfg, tb, clock_id(), wall_trusted=system_clock_synchronized())
+        clock = make_clock(cfg, tb, clock_id(), wall_trusted=system_clock_synchronized(),
+                           wall_synchronized=system_clock_synchronized)
     attachments.close.append(clock.save)
     plans = plans_from_config(cfg, tb, vehicle.devices if vehicle else None)
     mode = f"simulated drive '{cfg['sim']['scenario']}'" if vehicle and all(simulated.values()) else (
@@ -128,7 +129,7 @@ def clock_id() -> str:
 
 
 def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], int] = time.time_ns,
-               wall_trusted: bool = False) -> PpsClock:
+               wall_trusted: bool = False, wall_synchronized: Callable[[], bool] | None = None) -> PpsClock:
     """The PPS clock of ``[sync]``: its settings come from :meth:`SyncSettings.from_config`, which alone maps the
     keys to fields; what the settings do not hold (state file, chrony socket) is wired here."""
     sc = cfg["sync"]
@@ -138,7 +139,8 @@ def make_clock(cfg: Config, tb: TimeBase, clock_id: str, wall_ns: Callable[[], i
     host = tb.monotonic_ns is time.monotonic_ns
     clock = PpsClock(settings, monotonic_ns=tb.monotonic_ns, wall_ns=wall_ns,
                      state_path=Path(cfg["logger"]["state_dir"]) / "clock.json", clock_id=clock_id,
-                     wall_trusted=wall_trusted, raw_ns=raw_clock_ns if host else None)
+                     wall_trusted=wall_trusted, raw_ns=raw_clock_ns if host else None,
+                     wall_synchronized=wall_synchronized)
     if sc["chrony_sock"]:
         clock.chrony = ChronySock(sc["chrony_sock"])
         clock.on_sample = clock.chrony.send_edge

@@ -41,6 +41,10 @@ log = logging.getLogger(__name__)
 NS = 1_000_000_000
 WALL_TOLERANCE_NS = 500_000_000
 WALL_PATIENCE_NS = 60 * NS
+# Before its first lock a clock started on an unsynchronised system clock looks again this often whether NTP has set
+# it since (a board without RTC boots at its image's date; the network may come seconds later): its free-running
+# stamps then follow it, with its bound, rather than the boot date for as long as no GNSS time comes (a garage).
+WALL_RECHECK_S = 30
 # A solution for second T is computed after T's pulse, so it is never read before T; a TIM-TP for T is sent after
 # the pulse before it. Read earlier than that by this clock (beyond this margin), the clock is whole seconds off.
 READ_BEFORE_EPOCH_MARGIN_NS = 50_000_000
@@ -74,7 +78,8 @@ class PpsClock(StampClock):
 
     def __init__(self, settings: SyncSettings | None = None, monotonic_ns: Callable[[], int] = time.monotonic_ns,
                  wall_ns: Callable[[], int] = time.time_ns, state_path: Path | None = None,
-                 clock_id: str = "", wall_trusted: bool = False, raw_ns: Callable[[], int] | None = None) -> None:
+                 clock_id: str = "", wall_trusted: bool = False, raw_ns: Callable[[], int] | None = None,
+                 wall_synchronized: Callable[[], bool] | None = None) -> None:
         self.s = settings or SyncSettings()
         # With the board's raw clock (CLOCK_MONOTONIC_RAW beside the monotonic clock), what NTP does to the
         # monotonic clock beyond the rate the fit's edges showed is taken out past the newest edge (sync.kernel_slew)
@@ -85,6 +90,8 @@ class PpsClock(StampClock):
         self._freerun_err_ns = self.s.freerun_err_ns if wall_trusted else NO_BOUND_NS
         self._wall = wall_ns
         self._wall_disagree_since: int | None = None
+        self._wall_check = wall_synchronized  # whether the system clock is synchronised now (recheck_wall)
+        self._wall_checked_ns: int | None = None
         self._mono = monotonic_ns
         self._lock = threading.RLock()
         mono = monotonic_ns()
@@ -198,6 +205,29 @@ class PpsClock(StampClock):
             self._check_read_after(self.labeller.to_cont(epoch.gnss_time_ns, epoch.leap_second), t_mono_ns, "fix",
                                    epoch.gnss_time_ns)
             self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
+
+    def recheck_wall(self, now_ns: int) -> None:
+        """Before the first lock, on a system clock that was not synchronised at start: every WALL_RECHECK_S, whether
+        it is now (NTP came after the logger); then the free-running stamps follow it with its bound, and the first
+        lock is checked against it. Stamps given before stay as they were (their bound said none)."""
+        check = self._wall_check
+        if check is None or self.wall_trusted or self._locked_once or self._restored:
+            return
+        if self._wall_checked_ns is not None and now_ns - self._wall_checked_ns < WALL_RECHECK_S * NS:
+            return
+        self._wall_checked_ns = now_ns
+        if not check():  # outside the lock: it may ask timedated (up to 2 s)
+            return
+        with self._lock:
+            if self._locked_once or self._restored:
+                return
+            old = self._freerun_offset_ns
+            self.wall_trusted = True
+            self._freerun_err_ns = self.s.freerun_err_ns
+            self._freerun_offset_ns = self._wall() - self._mono()
+        log.info("the system clock is synchronised now (it moved %+.3f s since the start): free-running stamps "
+                 "follow it, error bound %.0f s, until GNSS time is known", (self._freerun_offset_ns - old) / NS,
+                 self._freerun_err_ns / NS)
 
     def _wrong_date(self, unix_ns: int, t_mono_ns: int, what: str) -> bool:
         """Whether a receiver's time is before GNSS_TIME_FLOOR_NS (a week rollover, or no date): not to be paired.

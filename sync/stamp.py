@@ -119,6 +119,9 @@ class StampClock(ABC):
     def save(self) -> None:  # noqa: B027 - optional: nothing to persist by default
         """Persist what should survive a restart (a frequency, a mapping); called when the daemon stops."""
 
+    def recheck_wall(self, now_ns: int) -> None:  # noqa: B027 - optional: a clock without a wall clock to check
+        """Look again whether the system clock became synchronised (the daemon's health loop, once a second)."""
+
 
 class FreeRunClock(StampClock):
     """Unix time = wall clock read once at start + monotonic time elapsed since.

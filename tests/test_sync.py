@@ -1117,3 +1117,42 @@ def test_a_receivers_week_rollover_date_is_never_paired(wall: int | None, caplog
     assert clock.counts["wrong_dates"] >= 190
     lines = [m for m in caplog.messages if "week-number rollover" in m]
     assert 3 <= len(lines) <= 5 and "before 2020-01-01" in lines[0], lines
+
+
+def test_a_system_clock_synchronised_after_the_start_is_followed_until_gnss_time() -> None:
+    """A board without RTC boots at its image's date and NTP sets the clock a few seconds later: the wall clock
+    was read once, at start, and a drive that never saw the sky (a garage) was stamped at the boot date with no
+    bound throughout. Before the first lock the clock looks again every WALL_RECHECK_S: once the system clock is
+    synchronised, free-running stamps follow it with its bound."""
+    from sync.clock import WALL_RECHECK_S
+    from sync.stamp import NO_BOUND_NS
+
+    now = [1000 * NS]
+    true_unix = 1_796_000_000 * NS
+    synced = [False]
+    calls = [0]
+
+    def wall() -> int:
+        return (true_unix if synced[0] else 30 * NS) + now[0]  # 1970 until NTP steps it
+
+    def check() -> bool:
+        calls[0] += 1
+        return synced[0]
+
+    clock = PpsClock(monotonic_ns=lambda: now[0], wall_ns=wall, wall_synchronized=check)
+    assert clock.stamp(now[0]).err_ns == NO_BOUND_NS
+    clock.recheck_wall(now[0])
+    now[0] += 5 * NS
+    synced[0] = True  # NTP, 5 s in
+    clock.recheck_wall(now[0])  # within WALL_RECHECK_S of the last look: not asked
+    assert calls[0] == 1 and clock.stamp(now[0]).err_ns == NO_BOUND_NS
+    now[0] += WALL_RECHECK_S * NS
+    clock.recheck_wall(now[0])
+    st = clock.stamp(now[0])
+    assert calls[0] == 2 and st.state == "freerun" and st.err_ns == SyncSettings().freerun_err_ns
+    assert abs(st.t_sync_ns - (true_unix + now[0])) < 1_000_000
+    assert clock.wall_trusted  # the first lock is checked against it now
+    synced[0] = False
+    plain = PpsClock(monotonic_ns=lambda: now[0], wall_ns=wall)  # no check given: started as it is, stays so
+    plain.recheck_wall(now[0] + 100 * NS)
+    assert plain.stamp(now[0]).err_ns == NO_BOUND_NS and not plain.wall_trusted

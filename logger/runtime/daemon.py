@@ -529,6 +529,7 @@ class Daemon:
             now = self.tb.monotonic_ns()
             self._count_time_in_state(snap, (now - last) / 1e9)
             last = now
+            self.clock.recheck_wall(now)
             report = self.clock.report(now)
             if report is not None:
                 self.sink(Reading(SYNC, sync_record(report), now, stamped=False))
