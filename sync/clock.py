@@ -29,7 +29,7 @@ import numpy as np
 from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.kernel_slew import KernelSlew
-from sync.pairing import EdgeLabeller
+from sync.pairing import REPAIR_LABELS, EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
 from sync.settings import SyncSettings
@@ -155,7 +155,7 @@ class PpsClock(StampClock):
         self.on_sample: Callable[[int, int], None] | None = None  # (edge board ns, edge GNSS unix ns), e.g. chrony
         self.chrony: ChronySock | None = None  # the chrony socket on_sample feeds, when it is one (its counts)
         self.counts = {"edges": 0, "samples": 0, "rejected": 0, "relocks": 0, "unlabelled": 0, "late_reads": 0,
-                       "mislabels": 0, "wrong_dates": 0}
+                       "mislabels": 0, "wrong_dates": 0, "repairs": 0}
         self._wrong_date_logged_ns: int | None = None  # board time of the last "before GNSS_TIME_FLOOR_NS" line
         self._load()
 
@@ -229,6 +229,25 @@ class PpsClock(StampClock):
                  "follow it, error bound %.0f s, until GNSS time is known", (self._freerun_offset_ns - old) / NS,
                  self._freerun_err_ns / NS)
 
+    def _pair_again(self, diff_ns: int) -> None:
+        """GNSS time disagreed with the clock's by the same whole seconds for REPAIR_LABELS edges in a row, not at a
+        month's end (sync.pairing): the fit goes, and the clock locks again on the receiver's labels. Meanwhile it
+        runs free from its last mapping, the disagreement in its bound."""
+        now = self._mono()
+        if self._fit is not None and (self._locked_once or self._restored):
+            self._freerun_offset_ns = round(self._offset_at(now))
+            self._freerun_err_ns = abs(diff_ns) + round(self._err_at(now, HOLDOVER))
+        log.warning("GNSS time has disagreed with the clock's by %+.0f s for %d PPS edges (not at a month's end: no "
+                    "leap second); pairing again on the receiver's time (a receiver that corrected its leap seconds, "
+                    "or the clock's own chain was a second off)", diff_ns / NS, REPAIR_LABELS)
+        self.counts["repairs"] += 1
+        self.counts["rejected"] += len(self._edges)
+        self._edges.clear()
+        self._offsets.clear()
+        self._fit = None
+        self._locked_once = self._restored = False
+        self._forget_misses()
+
     def _wrong_date(self, unix_ns: int, t_mono_ns: int, what: str) -> bool:
         """Whether a receiver's time is before GNSS_TIME_FLOOR_NS (a week rollover, or no date): not to be paired.
         Counted (``wrong_dates``) and logged at most every WRONG_DATE_LOG_S."""
@@ -279,6 +298,9 @@ class PpsClock(StampClock):
     def _take(self, pairs: list[tuple[int, int]]) -> None:
         for edge_ns, label_ns in pairs:
             self._add_sample(edge_ns, label_ns)
+        repair = self.labeller.take_repair()
+        if repair is not None:
+            self._pair_again(repair)
         self.counts["rejected"] = self.labeller.rejected
         self.counts["unlabelled"] = self.labeller.unlabelled
         self.counts["late_reads"] = self.labeller.late_reads
@@ -582,7 +604,7 @@ class PpsClock(StampClock):
             if self.kslew is not None:
                 err += self.kslew.margin_ns
         if with_doubts:
-            err += self._unconfirmed_ns
+            err += self._unconfirmed_ns + self.labeller.doubt_ns  # a change not confirmed; GNSS time moved
             if self._miss_ns or self._miss_growth:
                 err += self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS
         if self._slew_from_ns is not None:
@@ -626,7 +648,7 @@ class PpsClock(StampClock):
                 if kslew is not None:
                     off = off - kslew.excess_many(t, *self._kernel_window())
                     err = err + kslew.margin_ns
-                err = err + self._unconfirmed_ns
+                err = err + (self._unconfirmed_ns + self.labeller.doubt_ns)
                 if self._miss_ns or self._miss_growth:
                     err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * (t - last))
                 unix, leap_err = self.labeller.publish_many(t + np.rint(off).astype(np.int64))
@@ -649,7 +671,7 @@ class PpsClock(StampClock):
             grow = ~locked | (since > 0)
             err = np.where(grow, err + (self.s.stability_ppm * 1e-6 * since * NS + self._comp_abs_ns
                                         + (kslew.margin_ns if kslew is not None else 0.0)), err)
-            err = err + self._unconfirmed_ns
+            err = err + (self._unconfirmed_ns + self.labeller.doubt_ns)
             if self._miss_ns or self._miss_growth:
                 err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * since * NS)
             if self._slew_from_ns is not None:
@@ -696,7 +718,8 @@ class PpsClock(StampClock):
         """Whether the newest edges disagree with the fit (misses in the bound) or it is a change not yet confirmed:
         a mapping saved then carried the change's transient rate, or lost what the bound knew of it, into the next
         start (a 50 ppm pulse saved just after the fit followed it: 2.1 ms off 45 s after the restart)."""
-        return bool(self._miss_ns or self._miss_growth or self._unconfirmed_ns or self._confirm_left)
+        return bool(self._miss_ns or self._miss_growth or self._unconfirmed_ns or self._confirm_left
+                    or self.labeller.doubt_ns)
 
     def _maybe_save(self, now_ns: int) -> None:
         if self.state_path is None or self._fit is None or not self._locked_once or self._in_doubt():

@@ -39,6 +39,14 @@ DAY_NS = 86_400 * NS
 # labels in a row a whole second off the prediction, the same way, after a month's end, are one. A single label a
 # second off is a solution of the previous second or a doubled edge, refused as ever.
 LEAP_CONFIRM_LABELS = 3
+# Anywhere else, labels that keep disagreeing with the prediction by the same whole seconds are GNSS time moved
+# against the clock's (a receiver that corrected its firmware's leap count once its almanac came, mid-month; or the
+# clock's own chain a second off): from DOUBT_LABELS in a row the clock's bound takes the disagreement in (from the
+# first: a stray label, a doubled edge, widens it until the next label agrees, and the bound never claims what a
+# label doubts), and from REPAIR_LABELS in a row it pairs again from the receiver's labels. Refused for good, such
+# a receiver held the clock in holdover 1 s off behind a bound of microseconds, every edge rejected.
+DOUBT_LABELS = 1
+REPAIR_LABELS = 10
 
 Predict = Callable[[int], "int | None"]
 
@@ -84,6 +92,8 @@ class EdgeLabeller:
         self.slew_ppm = 500.0  # the clock's slew rate, for the leap's slew
         self.now_ns: Callable[[], int] | None = None  # the clock's board time now, for when a leap became known
         self._candidate: tuple[int, int, int] | None = None  # (midnight, sign, labels so far) of a leap not yet sure
+        self._disagree: tuple[int, int] = (0, 0)  # (whole seconds, labels in a row) the labels say off the prediction
+        self.repair_due = False  # REPAIR_LABELS in a row disagreed: the clock is to pair again (take_repair)
         self._last_ambiguous = False  # the last label was a Unix second a leap second shares (gpsd's PPS)
         self._unsure_cache: tuple[object, int | None] | None = None
 
@@ -342,6 +352,7 @@ class EdgeLabeller:
         if p is not None and abs(p - label) > PREDICTION_TOLERANCE_NS:
             moved = self._leap_from_labels(label, p, predict)
             if moved is None:
+                self._count_disagreement(label - p)
                 return None
             label = moved
         if p is None and self._last is not None:
@@ -353,7 +364,35 @@ class EdgeLabeller:
             return None  # this second has a pulse already
         self._last = (edge, label)
         self._candidate = None
+        self._disagree = (0, 0)
         return label
+
+    def _count_disagreement(self, diff_ns: int) -> None:
+        """A label refused for disagreeing with the prediction: counted when by whole seconds, as the last ones."""
+        k = round(diff_ns / NS)
+        if k == 0 or abs(diff_ns - k * NS) > PREDICTION_TOLERANCE_NS:
+            self._disagree = (0, 0)
+            return
+        n = self._disagree[1] + 1 if self._disagree[0] == k else 1
+        self._disagree = (k, n)
+        if n >= REPAIR_LABELS:
+            self.repair_due = True
+
+    @property
+    def doubt_ns(self) -> int:
+        """The whole seconds the latest labels (DOUBT_LABELS or more in a row) say the clock is off: its bound's."""
+        k, n = self._disagree
+        return abs(k) * NS if n >= DOUBT_LABELS else 0
+
+    def take_repair(self) -> int | None:
+        """The disagreement (ns, labels minus prediction) when REPAIR_LABELS in a row said it, once; else None."""
+        if not self.repair_due:
+            return None
+        self.repair_due = False
+        k = self._disagree[0]
+        self._disagree = (0, 0)
+        self._last = None  # the receiver's labels make the chain from here
+        return k * NS
 
     def _expire(self) -> None:
         newest = max([*self._edges, *(r for r, _, _ in self._announced), *(r for r, _ in self._reported)], default=0)

@@ -1156,3 +1156,24 @@ def test_a_system_clock_synchronised_after_the_start_is_followed_until_gnss_time
     plain = PpsClock(monotonic_ns=lambda: now[0], wall_ns=wall)  # no check given: started as it is, stays so
     plain.recheck_wall(now[0] + 100 * NS)
     assert plain.stamp(now[0]).err_ns == NO_BOUND_NS and not plain.wall_trusted
+
+
+def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_paired_again(caplog) -> None:
+    """A receiver whose UTC is a second ahead (its firmware's leap count, before the almanac brings the broadcast
+    one) and then corrects it, mid-month: the labeller refused every later label as a second off its prediction,
+    and the clock stayed in holdover 1.000007 s off behind a bound growing from 14 us (479 us after 400 s), every
+    edge rejected. Now the first such label puts the second in the bound, ten in a row pair again on the
+    receiver's time, and the clock locks right; every stamp after the first lock is within its bound."""
+    stream = make_stream(300, timepulse=False)
+    t_fix = [b for b, t, _ in stream.events if t == "/gnss/fix"]
+    correct_at = t_fix[60]
+    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] + NS} if t == "/gnss/fix" and b < correct_at
+                         else p) for b, t, p in stream.events]
+    with caplog.at_level(logging.WARNING, logger="sync.clock"):
+        clock, r = run(stream)
+    after = r["board"] > correct_at
+    known = after & (r["state"] != "freerun")
+    assert np.all(np.abs(r["err"][known]) <= r["bound"][known])  # the second off was in the bound until repaired
+    late = r["board"] > correct_at + 20 * NS
+    assert set(r["state"][late]) == {"locked"} and np.abs(r["err"][late]).max() < 100_000
+    assert clock.counts["repairs"] == 1 and "pairing again on the receiver's time" in caplog.text
