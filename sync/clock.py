@@ -241,6 +241,8 @@ class PpsClock(StampClock):
                     "leap second); pairing again on the receiver's time (a receiver that corrected its leap seconds, "
                     "or the clock's own chain was a second off)", diff_ns / NS, REPAIR_LABELS)
         self.counts["repairs"] += 1
+        self.last_mislabel = (now, f"GNSS time moved {diff_ns / NS:+.0f} s against the clock's (no leap second): "
+                                   "paired again on the receiver's time; stamps before it may be off by that")
         self.counts["rejected"] += len(self._edges)
         self._edges.clear()
         self._offsets.clear()
@@ -254,6 +256,9 @@ class PpsClock(StampClock):
         if unix_ns >= GNSS_TIME_FLOOR_NS:
             return False
         self.counts["wrong_dates"] += 1
+        day = dt.datetime.fromtimestamp(unix_ns / NS, dt.UTC).strftime("%Y-%m-%d")
+        self.last_mislabel = (t_mono_ns, f"the receiver's time says {day}, before 2020: a GPS week-number rollover "
+                                         "(old firmware) or no date yet; not used, the clock runs free")
         last = self._wrong_date_logged_ns
         if last is None or t_mono_ns - last >= WRONG_DATE_LOG_S * NS:
             self._wrong_date_logged_ns = t_mono_ns

@@ -77,8 +77,9 @@ class StampClock(ABC):
     and every clock can report its state. Inputs arrive from any thread.
     """
 
-    # What a clock may have found or feed, for the status: a pairing it found wrong lately (board ns, what), and
-    # the chrony socket it hands its samples to (its counts and its last error). None for a clock without them.
+    # What a clock may have found or feed, for the status: a pairing it found wrong lately, or GNSS time it would not
+    # pair (board ns, what), and the chrony socket it hands its samples to (its counts and its last error). None for
+    # a clock without them.
     last_mislabel: tuple[int, str] | None = None
     chrony: ChronySock | None = None
 

@@ -1115,6 +1115,7 @@ def test_a_receivers_week_rollover_date_is_never_paired(wall: int | None, caplog
         assert (r["sync"] > floor_ns).all()  # never a 2007 stamp
         assert covered(r)  # the synchronised wall clock's stamps, within their bound
     assert clock.counts["wrong_dates"] >= 190
+    assert clock.last_mislabel is not None and "week-number rollover" in clock.last_mislabel[1]  # the status's line
     lines = [m for m in caplog.messages if "week-number rollover" in m]
     assert 3 <= len(lines) <= 5 and "before 2020-01-01" in lines[0], lines
 
@@ -1177,3 +1178,4 @@ def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_pair
     late = r["board"] > correct_at + 20 * NS
     assert set(r["state"][late]) == {"locked"} and np.abs(r["err"][late]).max() < 100_000
     assert clock.counts["repairs"] == 1 and "pairing again on the receiver's time" in caplog.text
+    assert clock.last_mislabel is not None and "paired again on the receiver's time" in clock.last_mislabel[1]
