@@ -383,7 +383,9 @@ def test_the_navigator_benchmark_compares_two_checkouts_side_by_side() -> None:
 def test_resident_set_natively_is_vmrss() -> None:
     import resident
 
-    assert not resident.emulated()
+    if resident.emulated():  # tools/board-check.sh's suite under qemu-user: the guest's window, not VmRSS (next test)
+        assert resident.source() != "VmRSS" and resident.rss_kb() > 0
+        return
     status = Path("/proc/self/status").read_text()
     vm = int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmRSS:")))
     assert abs(resident.rss_kb() - vm) < 4096 and resident.peak_kb() >= resident.rss_kb() // 2

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import extras
 import pytest
 from mcap.writer import Writer
 
@@ -105,6 +106,7 @@ def test_the_figures_into_a_closed_pipe_end_quietly(tmp_path: Path) -> None:
     import subprocess
     import sys
 
+    extras.need("matplotlib")  # the figures need it: a board's suite may lack the optional extra
     drive = locked_drive(tmp_path / "drive_20261205T094239Z_0001.mcap")
     p = subprocess.Popen([sys.executable, "-m", "logger.cli", "sync-report", str(drive), "--png-dir",
                           str(tmp_path / "png")], cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE,

@@ -88,7 +88,9 @@ def residual(rows: Sequence[TrajectoryRow]) -> Residual | None:
     # or more (stops, dead reckoning left out) do not count.
     moving_s = float(dt[(dt > 0.0) & (dt < 1.0)].sum())
     s, c = np.degrees(slip), np.degrees(climb)
-    block = (t - t[0]) // int(BLOCK_S * 1e9)
+    # As the platform's index type: np.bincount refuses int64 where that is 32 bits (the board's armhf numpy: a
+    # TypeError out of every mount refinement of `logger replay`, found by tools/board-check.sh's suite).
+    block = ((t - t[0]) // int(BLOCK_S * 1e9)).astype(np.intp)
     return Residual(float(s.mean()), float(c.mean()), _standard_error(s, block), _standard_error(c, block), moving_s)
 
 
