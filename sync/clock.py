@@ -13,6 +13,7 @@ States: FREERUN (no GNSS time yet: the wall clock read once at start), LOCKED, H
 
 from __future__ import annotations
 
+import calendar
 import datetime as dt
 import json
 import logging
@@ -64,7 +65,8 @@ PAIR_LAG_MAX_NS = 1_500_000_000
 # old firmware counting 1024 weeks: 19.6 years early, and with every validity flag set) or a receiver that has no
 # date yet. Paired, it locked the clock to 2007 behind a 12 us bound, and after a minute even over a synchronised
 # system clock. Such times are not used, and the journal says so (WRONG_DATE_LOG_S apart).
-GNSS_TIME_FLOOR_NS = 1_577_836_800 * NS
+FLOOR_YEAR = 2020
+GNSS_TIME_FLOOR_NS = calendar.timegm((FLOOR_YEAR, 1, 1, 0, 0, 0)) * NS
 WRONG_DATE_LOG_S = 60
 # The state file's format (``"format"``), which a restart reads only if it is its own: 2 has the fit's own frequency
 # (before, the temperature-corrected one, corrected again on restore) and, on the host's clock, what NTP had done to
@@ -179,10 +181,8 @@ class PpsClock(StampClock):
         with self._lock:
             self.counts["edges"] += 1
             self.paper.on_edge(t_mono_ns)
-            if gnss_time_ns is not None and self._wrong_date(int(gnss_time_ns), t_mono_ns, "PPS report"):
-                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))  # an edge, its label not used
-            elif gnss_time_ns is None:
-                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))
+            if gnss_time_ns is None or self._wrong_date(int(gnss_time_ns), t_mono_ns, "PPS report"):
+                self._take(self.labeller.on_edge(t_mono_ns, self._predict_unix_ns))  # a wrong date: its label unused
             else:
                 self._take(self.labeller.on_labelled_edge(t_mono_ns, int(gnss_time_ns), self._predict_unix_ns))
 
@@ -243,7 +243,6 @@ class PpsClock(StampClock):
         self.counts["repairs"] += 1
         self.last_mislabel = (now, f"GNSS time moved {diff_ns / NS:+.0f} s against the clock's (no leap second): "
                                    "paired again on the receiver's time; stamps before it may be off by that")
-        self.counts["rejected"] += len(self._edges)
         self._edges.clear()
         self._offsets.clear()
         self._fit = None
@@ -256,16 +255,16 @@ class PpsClock(StampClock):
         if unix_ns >= GNSS_TIME_FLOOR_NS:
             return False
         self.counts["wrong_dates"] += 1
-        day = dt.datetime.fromtimestamp(unix_ns / NS, dt.UTC).strftime("%Y-%m-%d")
-        self.last_mislabel = (t_mono_ns, f"the receiver's time says {day}, before 2020: a GPS week-number rollover "
-                                         "(old firmware) or no date yet; not used, the clock runs free")
+        said = dt.datetime.fromtimestamp(unix_ns / NS, dt.UTC)
+        self.last_mislabel = (t_mono_ns, f"the receiver's time says {said:%Y-%m-%d}, before {FLOOR_YEAR}: a GPS "
+                                         "week-number rollover (old firmware) or no date yet; not used, the clock "
+                                         "runs free")
         last = self._wrong_date_logged_ns
         if last is None or t_mono_ns - last >= WRONG_DATE_LOG_S * NS:
             self._wrong_date_logged_ns = t_mono_ns
-            date = dt.datetime.fromtimestamp(unix_ns / NS, dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
-            log.warning("the receiver's %s says %s UTC, before %s: a GPS week-number rollover (an old firmware's "
-                        "date, 1024 weeks early) or no date yet; its times are not used", what, date,
-                        dt.datetime.fromtimestamp(GNSS_TIME_FLOOR_NS / NS, dt.UTC).strftime("%Y-%m-%d"))
+            log.warning("the receiver's %s says %s UTC, before %d-01-01: a GPS week-number rollover (an old "
+                        "firmware's date, 1024 weeks early) or no date yet; its times are not used", what,
+                        f"{said:%Y-%m-%d %H:%M:%S}", FLOOR_YEAR)
         return True
 
     def _check_read_after(self, earliest_ns: int, t_mono_ns: int, what: str, epoch_unix_ns: int) -> None:

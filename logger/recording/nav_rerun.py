@@ -196,12 +196,11 @@ class NavRerun:
 
     def feed_reads(self, msgs: Sequence[dict[str, Any]]) -> None:
         """A run of FIFO reads that follow one another, as :func:`feed_reads` takes it (without unplaced ones)."""
-        if any(unplaced(m) for m in msgs):
-            kept = [m for m in msgs if not unplaced(m)]
-            self.unplaced += len(msgs) - len(kept)
-            msgs = kept
-            if not msgs:
-                return
+        kept = [m for m in msgs if not unplaced(m)]
+        self.unplaced += len(msgs) - len(kept)
+        if not kept:
+            return
+        msgs = kept
         feed_reads(self.engine, msgs)
         if self._tape is not None and msgs:
             self._keep("", [self._columns.add(m) for m in msgs], int(msgs[0]["t_sync_ns"][0]),
