@@ -535,9 +535,8 @@ def test_records_stamped_before_gnss_time_on_a_clock_with_no_bound_never_reach_t
             msg["sync_state"], msg["sync_err_ns"] = "freerun", NO_BOUND_NS
     before = sum(1 for t, _, _ in recs if t - t0 < 30 * 1_000_000_000)
     nav = Navigator(NavParams())
-    for _, topic, msg in recs[:before]:
-        nav.offer(topic, msg)
-    assert nav.queued == 0 and nav.unplaced == before
+    nav.take([(topic, msg) for _, topic, msg in recs[:before]])
+    assert nav.unplaced == before and nav.engine.t_last_ns is None  # not one reached the filter
     rerun = NavRerun(NavParams(), lambda p: NavEngine(p))
     for _, topic, msg in recs:  # replay's feeding, record by record
         rerun.feed(topic, msg)

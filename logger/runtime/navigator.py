@@ -108,7 +108,7 @@ class Navigator:
         self._q_lock = threading.Lock()  # the bound and the append together, for offers from many threads
         self.dropped = 0
         self.processed = 0
-        self.unplaced = 0  # records not offered to the filter: stamped before GNSS time, on a clock with no bound
+        self.unplaced = 0  # records not given to the filter: stamped before GNSS time, on a clock with no bound
         self.cpu_s = 0.0
         self._halt = threading.Event()
         # Set by an offer that fills a quarter of the queue: a fast simulated drive (or a 1 kHz burst) is taken
@@ -156,11 +156,7 @@ class Navigator:
     def offer(self, topic: str, payload: dict[str, Any]) -> None:
         if topic not in INPUT_TOPICS:
             return
-        skip = unplaced(payload)  # the filter waits for GNSS time (records.unplaced): its stamps jump at the lock
         with self._q_lock:
-            if skip:
-                self.unplaced += 1
-                return
             if len(self._q) < self.params.queue_size:
                 self._q.append((topic, payload))
                 if len(self._q) >= self._wake_at:
@@ -313,7 +309,11 @@ class Navigator:
         lost samples or out of order goes alone, as before. ``merge=False``: every read alone (what the
         benchmark and the tests compare with); ``release``: the measurements held go in too (:meth:`flush`)."""
         self.processed += len(records)
-        records = self.in_time_order(records, release)
+        # Before in_time_order (here, on this thread, not in offer on the sensors'): the filter waits for GNSS time
+        # (records.unplaced), and a boot date's stamps would stand as the newest times and release measurements early.
+        placed = [r for r in records if not unplaced(r[1])]
+        self.unplaced += len(records) - len(placed)
+        records = self.in_time_order(placed, release)
         rerun, run = self.rerun, []
         self._arm_tap()
         last: int | None = None  # the run's last sample
