@@ -98,6 +98,12 @@ class PpsClock(StampClock):
         self._lock = threading.RLock()
         mono = monotonic_ns()
         self._freerun_offset_ns = wall_ns() - mono
+        # A free run from a mapping the fit gave (_pair_again): its time, the fit's frequency kept from then, the
+        # temperature then and the bound the temperature has added since (the crystal drifts on without edges).
+        self._freerun_from_ns: int | None = None
+        self._freerun_slope = 0.0
+        self._freerun_temp: float | None = None
+        self._freerun_temp_ns = 0.0
         self.labeller = EdgeLabeller(self.s.pps_latency_ns)
         # Leap seconds: the fit runs in the labeller's continuous scale; a stamp becomes Unix time on the way out.
         self.labeller.now_ns = monotonic_ns
@@ -225,6 +231,7 @@ class PpsClock(StampClock):
             self.wall_trusted = True
             self._freerun_err_ns = self.s.freerun_err_ns
             self._freerun_offset_ns = self._wall() - self._mono()
+            self._freerun_from_ns = None
         log.info("the system clock is synchronised now (it moved %+.3f s since the start): free-running stamps "
                  "follow it, error bound %.0f s, until GNSS time is known", (self._freerun_offset_ns - old) / NS,
                  self._freerun_err_ns / NS)
@@ -232,11 +239,16 @@ class PpsClock(StampClock):
     def _pair_again(self, diff_ns: int) -> None:
         """GNSS time disagreed with the clock's by the same whole seconds for REPAIR_LABELS edges in a row, not at a
         month's end (sync.pairing): the fit goes, and the clock locks again on the receiver's labels. Meanwhile it
-        runs free from its last mapping, the disagreement in its bound."""
+        runs free from its last mapping, the disagreement in its bound, and the bound grows from then as a
+        holdover's does (a free run that outlasts the relock, after a later mislabel, may last hours)."""
         now = self._mono()
         if self._fit is not None and (self._locked_once or self._restored):
             self._freerun_offset_ns = round(self._offset_at(now))
             self._freerun_err_ns = abs(diff_ns) + round(self._err_at(now, HOLDOVER))
+            self._freerun_from_ns = now
+            self._freerun_slope = self._current_slope(now)
+            self._freerun_temp = self._last_temp[1] if self._last_temp is not None else None
+            self._freerun_temp_ns = 0.0
         log.warning("GNSS time has disagreed with the clock's by %+.0f s for %d PPS edges (not at a month's end: no "
                     "leap second); pairing again on the receiver's time (a receiver that corrected its leap seconds, "
                     "or the clock's own chain was a second off)", diff_ns / NS, REPAIR_LABELS)
@@ -549,9 +561,14 @@ class PpsClock(StampClock):
             # Restarted from a saved mapping: bridge the time the daemon was down with what is known of it.
             last = (self._last_sample_ns, self._temp_at_fit)
         self._last_temp = (t_ns, temp)
-        if last is None or t_ns <= last[0] or self._temp_at_fit is None:
+        if last is None or t_ns <= last[0]:
             return
         dt = (t_ns - last[0]) / NS
+        if self._freerun_from_ns is not None and self._freerun_temp is not None and t_ns > self._freerun_from_ns:
+            self._freerun_temp_ns += (self._tempco_uncertainty() * abs(0.5 * (temp + last[1]) - self._freerun_temp)
+                                      * dt * NS)
+        if self._temp_at_fit is None:
+            return
         d_temp = 0.5 * (temp + last[1]) - self._temp_at_fit
         k = self.tempco.coefficient()
         if k is not None:
@@ -635,8 +652,14 @@ class PpsClock(StampClock):
             fit = self._fit
             if fit is None or (not self._locked_once and not self._restored):
                 n = len(t)
-                return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self._freerun_err_ns] * n,
-                              imu_cnt.tolist(), timer_cnt.tolist())
+                if self._freerun_from_ns is None:
+                    return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self._freerun_err_ns] * n,
+                                  imu_cnt.tolist(), timer_cnt.tolist())
+                d = t - self._freerun_from_ns
+                off = self._freerun_offset_ns + np.rint(self._freerun_slope * d).astype(np.int64)
+                err = self._freerun_err_ns + np.rint(self.s.stability_ppm * 1e-6 * np.abs(d) + self._freerun_temp_ns)
+                return Stamps((t + off).tolist(), [FREERUN] * n, err.astype(np.int64).tolist(), imu_cnt.tolist(),
+                              timer_cnt.tolist())
             last = self._last_sample_ns
             s = self.s
             if (len(t) and last is not None and self._locked_once and times_ns[0] > last
@@ -693,7 +716,12 @@ class PpsClock(StampClock):
         imu_cnt, timer_cnt = self.paper.counters(t_mono_ns)
         state = self._state_at(t_mono_ns)
         if state == FREERUN or self._fit is None:
-            return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self._freerun_err_ns, imu_cnt, timer_cnt)
+            if self._freerun_from_ns is None:
+                return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self._freerun_err_ns, imu_cnt, timer_cnt)
+            d = t_mono_ns - self._freerun_from_ns
+            return Stamp(t_mono_ns + self._freerun_offset_ns + round(self._freerun_slope * d), FREERUN,
+                         self._freerun_err_ns + round(self.s.stability_ppm * 1e-6 * abs(d) + self._freerun_temp_ns),
+                         imu_cnt, timer_cnt)
         off = self._offset_at(t_mono_ns)
         unix, leap_err = self.labeller.publish(t_mono_ns + round(off))
         return Stamp(unix, state, max(1, round(self._err_at(t_mono_ns, state) + leap_err)), imu_cnt, timer_cnt)

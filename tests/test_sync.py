@@ -1159,6 +1159,15 @@ def test_a_system_clock_synchronised_after_the_start_is_followed_until_gnss_time
     assert plain.stamp(now[0]).err_ns == NO_BOUND_NS and not plain.wall_trusted
 
 
+def _second_ahead_until_the_60th_fix(stream: Stream) -> int:
+    """The receiver's time a second ahead until its 60th fix, then right: the board time it corrected at."""
+    t_fix = [b for b, t, _ in stream.events if t == "/gnss/fix"]
+    correct_at = t_fix[60]
+    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] + NS} if t == "/gnss/fix" and b < correct_at
+                         else p) for b, t, p in stream.events]
+    return correct_at
+
+
 def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_paired_again(caplog) -> None:
     """A receiver whose UTC is a second ahead (its firmware's leap count, before the almanac brings the broadcast
     one) and then corrects it, mid-month: the labeller refused every later label as a second off its prediction,
@@ -1166,10 +1175,7 @@ def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_pair
     edge rejected. Now the first such label puts the second in the bound, ten in a row pair again on the
     receiver's time, and the clock locks right; every stamp after the first lock is within its bound."""
     stream = make_stream(300, timepulse=False)
-    t_fix = [b for b, t, _ in stream.events if t == "/gnss/fix"]
-    correct_at = t_fix[60]
-    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] + NS} if t == "/gnss/fix" and b < correct_at
-                         else p) for b, t, p in stream.events]
+    correct_at = _second_ahead_until_the_60th_fix(stream)
     with caplog.at_level(logging.WARNING, logger="sync.clock"):
         clock, r = run(stream)
     after = r["board"] > correct_at
@@ -1179,3 +1185,19 @@ def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_pair
     assert set(r["state"][late]) == {"locked"} and np.abs(r["err"][late]).max() < 100_000
     assert clock.counts["repairs"] == 1 and "pairing again on the receiver's time" in caplog.text
     assert clock.last_mislabel is not None and "paired again on the receiver's time" in clock.last_mislabel[1]
+
+
+def test_a_free_run_after_pairing_again_keeps_its_bound_through_a_long_pps_outage(caplog) -> None:
+    """The receiver's second corrected mid-month, then the antenna lost for half an hour just after the clock
+    dropped its fit to pair again: the stamps run free from the fit's last mapping. That free run kept the bound
+    of its first moment (1 s + 22 us) while a crystal 30 ppm fast and 20 degC of cabin swing took it 53 ms past;
+    now it keeps the fit's frequency and its bound grows as a holdover's does, and holds at every stamp."""
+    stream = make_stream(2000, timepulse=False, outages=((71.5, 1900),), offset_ppm=30.0)
+    correct_at = _second_ahead_until_the_60th_fix(stream)
+    with caplog.at_level(logging.WARNING, logger="sync.clock"):
+        clock, r = run(stream)
+    assert clock.counts["repairs"] == 1
+    free = (r["board"] > correct_at) & (r["state"] == "freerun")
+    assert free.sum() > 1500  # the half hour without edges ran free
+    assert np.all(np.abs(r["err"][free]) <= r["bound"][free])
+    assert r["bound"][free][-1] - r["bound"][free][0] > 1_000_000  # it grew, by what the drift may have done
