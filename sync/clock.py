@@ -13,7 +13,6 @@ States: FREERUN (no GNSS time yet: the wall clock read once at start), LOCKED, H
 
 from __future__ import annotations
 
-import calendar
 import datetime as dt
 import json
 import logging
@@ -34,7 +33,18 @@ from sync.pairing import REPAIR_LABELS, EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
 from sync.settings import SyncSettings
-from sync.stamp import FREERUN, HOLDOVER, LOCKED, NO_BOUND_NS, Stamp, StampClock, Stamps, TrackingReport
+from sync.stamp import (
+    FLOOR_YEAR,
+    FREERUN,
+    GNSS_TIME_FLOOR_NS,
+    HOLDOVER,
+    LOCKED,
+    NO_BOUND_NS,
+    Stamp,
+    StampClock,
+    Stamps,
+    TrackingReport,
+)
 from sync.tempco import TempcoEstimator
 
 log = logging.getLogger(__name__)
@@ -61,12 +71,10 @@ CHANGE_EDGES = CONFIRM_EDGES
 # The longest a sample's labelling (its time message's arrival) may lag its edge and still count as the clock
 # following the PPS (PpsClock._fresh_ns): a solution completing after the next pulse (9600-baud NMEA) is ~1.4 s late.
 PAIR_LAG_MAX_NS = 1_500_000_000
-# No receiver's time pairs before this instant (2020-01-01 UTC): an earlier date is a GPS week-number rollover (an
-# old firmware counting 1024 weeks: 19.6 years early, and with every validity flag set) or a receiver that has no
-# date yet. Paired, it locked the clock to 2007 behind a 12 us bound, and after a minute even over a synchronised
-# system clock. Such times are not used, and the journal says so (WRONG_DATE_LOG_S apart).
-FLOOR_YEAR = 2020
-GNSS_TIME_FLOOR_NS = calendar.timegm((FLOOR_YEAR, 1, 1, 0, 0, 0)) * NS
+# No receiver's time pairs before GNSS_TIME_FLOOR_NS (sync.stamp, 2020-01-01 UTC): an earlier date is a GPS
+# week-number rollover (an old firmware counting 1024 weeks: 19.6 years early, and with every validity flag set) or a
+# receiver that has no date yet. Paired, it locked the clock to 2007 behind a 12 us bound, and after a minute even
+# over a synchronised system clock. Such times are not used, and the journal says so (WRONG_DATE_LOG_S apart).
 WRONG_DATE_LOG_S = 60
 # The state file's format (``"format"``), which a restart reads only if it is its own: 2 has the fit's own frequency
 # (before, the temperature-corrected one, corrected again on restore) and, on the host's clock, what NTP had done to

@@ -7,6 +7,7 @@ board without GNSS time has: the system's wall clock at start, carried on by the
 
 from __future__ import annotations
 
+import calendar
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -21,6 +22,11 @@ FREERUN = "freerun"
 # behind. A board without RTC or network boots at the time it last saved (days or months behind) or at any date,
 # so a fixed bound of seconds would be a claim; 2^62 ns (146 years) says "no bound" in an integer field.
 NO_BOUND_NS = 2**62
+# No time before this (2020-01-01 UTC) is a real one here: a receiver's is a GPS week rollover or no date yet (the
+# clock does not pair it), a stamp's is the board's own clock before any time was known (an image's 1970 or build
+# date), which `logger info` leaves out of a file's span.
+FLOOR_YEAR = 2020
+GNSS_TIME_FLOOR_NS = calendar.timegm((FLOOR_YEAR, 1, 1, 0, 0, 0)) * 1_000_000_000
 LOCKED = "locked"
 HOLDOVER = "holdover"
 

@@ -77,16 +77,18 @@ def test_a_cut_file_keeps_what_was_flushed_and_is_recovered(tmp_path: Path) -> N
     assert [t for t, _ in _read_all(cut)] == ["/a"] * 200
 
 
-def test_a_recovered_file_keeps_its_writers_name(tmp_path: Path) -> None:
+@pytest.mark.parametrize("library", ["vehicle-logger replay", "this"])
+def test_a_recovered_file_keeps_its_writers_name(tmp_path: Path, library: str) -> None:
     """Recovery writes the header's profile and library again: a cut replay output (`logger replay`'s
-    trajectory.mcap) is still told from a live recording after it is recovered."""
+    trajectory.mcap) is still told from a live recording after it is recovered, this release's (its version in
+    the name) and 0.1.0's (none)."""
     from logger.recording.drive import REPLAY_LIBRARY, open_drive
     from logger.recording.mcap_writer import McapWriter
 
     path = tmp_path / "trajectory.mcap"
     with open(path, "wb") as f:
         w = McapWriter(f)
-        w.start("", REPLAY_LIBRARY)
+        w.start("", REPLAY_LIBRARY if library == "this" else library)
         cid = w.register_channel("/nav/fix", "json", 0)
         for i in range(10):
             w.add_message(cid, 1_700_000_000_000_000_000 + i, b"{}", i)
@@ -279,6 +281,50 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     junk.write_bytes(b"hello world" * 10)
     assert main(["recover", str(junk)]) == 1
     assert "not an MCAP file" in capsys.readouterr().err
+
+
+def test_info_names_the_version_that_wrote_a_file_and_leaves_a_boot_dates_stamps_out_of_its_span(
+        tmp_path: Path, capsys) -> None:
+    """A board booted at its image's 1970 records its first seconds on its own clock, then GNSS time: the file's
+    Duration was the 56 years between. Undated stamps (before 2020) beside dated ones are now counted in their
+    topics and left out of the span and rates, and said so. The header names the release that wrote the file, and
+    a 0.1.0 file, which names none, is told as such."""
+    from mcap.writer import Writer
+
+    from logger import __version__
+    from logger.cli import main
+
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    path = rec.start()
+    assert path is not None
+    boot, t0 = 3_000_000_000, 1_700_000_000_000_000_000  # 1970-01-01 00:00:03, then GNSS time
+    for i in range(30):  # 3 s on the board's clock, then 10 s locked, at 10 Hz
+        rec.submit("/a", {"x": i}, boot + i * 100_000_000, i)
+    for i in range(100):
+        rec.submit("/a", {"x": i}, t0 + i * 100_000_000, 3_000_000_000 + i)
+    rec.stop()
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert f"Writer:    vehicle-logger {__version__}" in out
+    assert "Duration:  9.9 s" in out and "Start:     2023-11-14" in out and "Messages:  130" in out
+    assert "Undated:   30 messages stamped before 2020" in out and "left out of Start, End, Duration" in out
+    assert " 130 " in out and "10.00" in out  # /a counts every message; its rate is the dated span's
+    old = tmp_path / "old" / "old.mcap"
+    old.parent.mkdir()
+    with open(old, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="vehicle-logger")
+        sid = w.register_schema("test.A", "jsonschema", b"{}")
+        cid = w.register_channel("/a", "json", sid)
+        for i in range(5):  # a board that never learnt the time: every stamp undated, kept as they are
+            w.add_message(cid, log_time=boot + i * 1_000_000_000, data=b'{"x":1}',
+                          publish_time=boot + i * 1_000_000_000)
+        w.finish()
+    assert main(["info", str(old)]) == 0
+    out = capsys.readouterr().out
+    assert "Writer:    vehicle-logger (0.1.0: its files name no version)" in out
+    assert "Duration:  4.0 s" in out and "Undated:   5 messages stamped before 2020" in out
+    assert "left out" not in out
 
 
 def test_on_disk_tells_only_what_an_fsync_kept(tmp_path: Path, monkeypatch) -> None:

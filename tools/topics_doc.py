@@ -32,7 +32,9 @@ def render() -> str:
            "monotonic time mapped through the clock for reports; `publish_time` is the acquisition time on the",
            "board's monotonic clock (`t_mono_ns`). A field marked (optional) may be null or left out; every other",
            "field is in every message. Each topic's channel has a schema record of its own in the file, the one",
-           "below: `/gnss/fix` and `/nav/fix` both name theirs `foxglove.LocationFix`, with different fields.", ""]
+           "below: `/gnss/fix` and `/nav/fix` both name theirs `foxglove.LocationFix`, with different fields.",
+           "The MCAP header's `library` names the release that wrote the file (`vehicle-logger 0.2.0`,",
+           "`vehicle-logger replay 0.2.0` for `logger replay`'s output; 0.1.0's files say the names alone).", ""]
     for spec in TOPICS.values():
         out += [f"## `{spec.topic}`", "", f"{spec.description}. Schema `{spec.schema_name}`.", "",
                 "| field | type | meaning |", "| --- | --- | --- |"]

@@ -97,13 +97,9 @@ def hand_over(args: list[str]) -> int:
 
 def version() -> str:
     """This program's version, and the system logger's that everything else goes to."""
-    from importlib import metadata  # here, not at the top: 40 ms of every command's start (`logger status` too)
+    from logger import __version__  # the running code's own (an installed package's metadata can be another's)
 
-    try:
-        ours = metadata.version("vehicle-logger")
-    except metadata.PackageNotFoundError:
-        ours = "unknown (not installed)"
-    lines = [f"logger (vehicle-logger) {ours}"]
+    lines = [f"logger (vehicle-logger) {__version__}"]
     target = find_system_logger(os.environ.get("PATH"), [sys.argv[0], __file__])
     if target is None:
         lines.append(f"system logger: none found on PATH or at {SYSTEM_LOGGER}")

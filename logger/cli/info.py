@@ -21,7 +21,7 @@ from pathlib import Path
 from mcap.records import Channel, Chunk, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
-from logger.recording.drive import DriveFileError, drive_paths
+from logger.recording.drive import DriveFileError, describe_writer, drive_paths, header_library
 from logger.recording.files import (
     Loss,
     McapFileError,
@@ -33,6 +33,7 @@ from logger.recording.files import (
 )
 from logger.recording.intervals import GAP_FACTOR, regularity
 from logger.recording.topics import BARO, GNSS_FIX, IMU, IMU_BATCH, OBD_SPEED, PPS
+from sync.stamp import FLOOR_YEAR, GNSS_TIME_FLOOR_NS
 
 SENSOR_TOPIC = {"imu": IMU, "baro": BARO, "obd": OBD_SPEED, "gnss": GNSS_FIX, "pps": PPS}  # each sensor's samples
 ALSO_SAMPLES = {IMU: IMU_BATCH}  # a FIFO-read IMU's samples are in batches
@@ -74,6 +75,11 @@ class FileInfo:
     lost_messages: int = 0  # the messages they held (counted in no topic above)
     damage: str = ""  # the two above, and when, in words; empty for a file whose chunks all hold
     recording: bool = False  # a running logger has it open: unfinished because it is being written, not cut
+    # Messages logged at a time before FLOOR_YEAR: the board's own clock before any time was known (a board booted at
+    # its image's 1970). Beside dated ones they are left out of start, end, duration and rates (a span from 1970 said
+    # nothing); counted in their topics.
+    undated_messages: int = 0
+    writer: str = ""  # the MCAP header's library: the program and version that wrote the file
 
 
 # A topic whose last message lies more than this (and GAP_FACTOR of its usual interval) before the file's last is
@@ -138,13 +144,21 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
             note = "not closed cleanly: run `logger recover` to make it a finished, indexed file"
     topics = []
     all_times = [t for ts in times.values() for t in ts]
+    total = len(all_times)
+    undated = sum(1 for t in all_times if t < GNSS_TIME_FLOOR_NS)
+    floor = GNSS_TIME_FLOOR_NS if 0 < undated < total else None  # undated ones beside dated: left out
+    if floor is not None:
+        all_times = [t for t in all_times if t >= floor]
     start = min(all_times) if all_times else None
     end = max(all_times) if all_times else None
     for cid, ch in sorted(channels.items(), key=lambda kv: kv[1].topic):
         own = sorted(times.get(cid, []))
+        count = len(own)
+        if floor is not None:
+            own = [t for t in own if t >= floor]
         reg = regularity(own)
         ended = (end - own[-1]) / 1e9 if own and end is not None else 0.0
-        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), reg.count, reg.rate_hz,
+        topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), count, reg.rate_hz,
                                 reg.largest_interval_s, len(reg.gaps), round(ended, 3)))
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
     silent = silent_sensors(config, {t.topic: t.count for t in topics})
@@ -152,9 +166,9 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     if losses:
         damage = (f"{describe_losses(losses)}: every reader skips {'it' if len(losses) == 1 else 'them'} and reads the "
                   f"rest; `logger recover {p}` rewrites the file without {'it' if len(losses) == 1 else 'them'}")
-    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, len(all_times), topics, note, silent,
+    return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, total, topics, note, silent,
                     sum(x.chunks for x in losses), sum(x.messages for x in losses), damage,
-                    recording)
+                    recording, undated, header_library(p))
 
 
 def _utc(ns: int | None) -> str:
@@ -175,7 +189,13 @@ def render(info: FileInfo) -> str:
         f"End:       {_utc(info.end_ns)}",
         f"Duration:  {info.duration_s:.1f} s",
         f"Messages:  {info.messages}",
+        f"Writer:    {describe_writer(info.writer)}",
     ]
+    if info.undated_messages:
+        some = info.undated_messages < info.messages
+        lines.append(f"Undated:   {info.undated_messages} message{'s' if info.undated_messages != 1 else ''} stamped "
+                     f"before {FLOOR_YEAR}, by the board's own clock before any time was known"
+                     + ("; left out of Start, End, Duration and the rates" if some else ""))
     if info.damage:
         lines.append(f"Damaged:   {info.damage}")
     if info.note:

@@ -34,8 +34,11 @@ from typing import Any
 
 from mcap.reader import make_reader
 
+from logger import __version__
 from logger.recording.files import (
+    LIVE_NAME,
     MAGIC,
+    REPLAY_NAME,
     RUN_METADATA,
     Loss,
     McapFileError,
@@ -63,7 +66,7 @@ from logger.recording.topics import IMU as IMU_TOPIC
 from logger.recording.topics import IMU_BATCH
 from logger.words import plural
 
-REPLAY_LIBRARY = "vehicle-logger replay"  # what logger replay writes into the MCAP header
+REPLAY_LIBRARY = f"{REPLAY_NAME} {__version__}"  # what logger replay writes into the MCAP header
 # The metadata record a replay's trajectory.mcap begins with: the run id of the drive it was made from, so that it
 # is never read beside another drive's files as if it were theirs.
 REPLAY_OF_METADATA = "replay_of"
@@ -338,10 +341,13 @@ class DriveMessage:
     msg: dict[str, Any]
 
 
-def _header_library(path: Path) -> str:
-    """The ``library`` string of the MCAP header record (the first record after the magic)."""
-    with open(path, "rb") as f:
-        head = f.read(4096)
+def header_library(path: Path) -> str:
+    """The ``library`` string of the MCAP header record (the first record after the magic): who wrote the file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return ""
     try:
         op, _length = RECORD_HEAD.unpack_from(head, len(MAGIC))
         if op != OP_HEADER:
@@ -353,6 +359,23 @@ def _header_library(path: Path) -> str:
         return head[pos + 4:pos + 4 + n].decode("utf-8", "replace")
     except struct.error:
         return ""
+
+
+def _writer_name(library: str) -> str:
+    """The program part of a header's library, its version left off ("vehicle-logger replay 0.2.0")."""
+    if library in (LIVE_NAME, REPLAY_NAME):  # 0.1.0's, with no version
+        return library
+    head = library.rpartition(" ")[0]
+    return head if head in (LIVE_NAME, REPLAY_NAME) else library
+
+
+def describe_writer(library: str) -> str:
+    """A header's library for a person: which program wrote the file, and which version when it says."""
+    if not library:
+        return "unknown (no MCAP header library)"
+    if library in (LIVE_NAME, REPLAY_NAME):
+        return f"{library} (0.1.0: its files name no version)"
+    return library
 
 
 # The daemon's file names end in the drive's part number (recorder.default_file_name, boot_safe_file_name: 0001
@@ -546,7 +569,7 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
             raise DriveFileError(f"{p}: cannot open ({exc.strerror or exc})") from exc
         if magic != MAGIC:
             raise DriveFileError(f"{p}: not an MCAP file (no MCAP magic at the start)")
-        origin = "replay" if _header_library(p) == REPLAY_LIBRARY else "live"
+        origin = "replay" if _writer_name(header_library(p)) == REPLAY_NAME else "live"
         files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None,
                                replay_source(p) if origin == "replay" else None))
     runs = {f.run[0] for f in files if f.run is not None}

@@ -59,6 +59,10 @@ CHANNEL_TABLE = "vehicle-logger.channels"
 # {"run": a random id per recorder start, "part": its part number}. The drive reader groups files by run, so two
 # starts are two drives whatever their names say (logger.recording.drive.run_identity).
 RUN_METADATA = "drive"
+# The MCAP header's library: the program, then its version (logger.__version__): "vehicle-logger 0.2.0" for the
+# daemon's files, "vehicle-logger replay 0.2.0" for a replay's. Files of 0.1.0 have the bare names.
+LIVE_NAME = "vehicle-logger"
+REPLAY_NAME = "vehicle-logger replay"
 
 FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary offset start, summary crc
 

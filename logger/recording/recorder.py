@@ -27,7 +27,8 @@ from typing import Any
 
 import ujson
 
-from logger.recording.files import CHANNEL_TABLE, RUN_METADATA, hold_for_writing
+from logger import __version__
+from logger.recording.files import CHANNEL_TABLE, LIVE_NAME, RUN_METADATA, hold_for_writing
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.settings import RecorderSettings
 from logger.recording.storage import storage_problem
@@ -571,7 +572,7 @@ class Recorder:
             hold_for_writing(stream)  # no recovery (a second logger's, `logger recover`) takes it meanwhile
             writer = McapWriter(stream, chunk_size=self.settings.chunk_size_bytes,
                                 compression=self.settings.compression)
-            writer.start(profile=PROFILE, library="vehicle-logger")
+            writer.start(profile=PROFILE, library=f"{LIVE_NAME} {__version__}")
             # First after the header, outside any chunk: a reader finds it in the file's first bytes, cut or not.
             writer.add_metadata(RUN_METADATA, {"run": self.run_id, "part": str(part)})
             for name_, data in self.metadata.items():
