@@ -87,6 +87,10 @@ class GnssFix:
     # sending u-blox's factory NMEA finishes an epoch more than a second after its pulse, so the time it ends says
     # nothing of which pulse it follows; the time it begins does. None where nobody marks the reads.
     opened_mark: int | None = None
+    # Whether the receiver's leap-second count is the broadcast one (UBX NAV-TIMEGPS leapSValid, NAV-TIMEUTC
+    # validUTC in the same epoch); False: its UTC uses the firmware's default count, until the almanac brings it
+    # (a cold start's first 12.5 min at most), and may be whole seconds off. None: the receiver did not say (NMEA).
+    leap_known: bool | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -574,6 +578,8 @@ class GnssDecoder:
             time_utc = _ubx_utc_ns(timeutc)
             time_valid = time_utc is not None
             leap = time_utc is not None and _ubx_leap(timeutc)
+        leap_known = (_flag(timegps, "leapSValid") if timegps is not None
+                      else _flag(timeutc, "validUTC") if timeutc is not None else None)
         if week is None:
             week = self._week_for(itow, time_utc)
         if mode == 1:
@@ -600,6 +606,7 @@ class GnssDecoder:
             hdop=hdop,
             vdop=vdop,
             leap_second=leap,
+            leap_known=leap_known,
         )
 
     def _fix_from_hnr(self, msg: Any) -> GnssFix | None:

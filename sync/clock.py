@@ -29,7 +29,7 @@ import numpy as np
 from sync.chrony_sock import ChronySock
 from sync.inputs import FixEpoch, TimeAnnouncement
 from sync.kernel_slew import KernelSlew
-from sync.pairing import REPAIR_LABELS, EdgeLabeller
+from sync.pairing import LEAP_UNKNOWN_NS, REPAIR_LABELS, EdgeLabeller
 from sync.paper import PaperCounters
 from sync.regress import MIN_SAMPLES_FOR_SLOPE, OUTLIER_SIGMAS, LineFit, fit_line
 from sync.settings import SyncSettings
@@ -219,6 +219,12 @@ class PpsClock(StampClock):
             self._check_read_after(self.labeller.to_cont(epoch.gnss_time_ns, epoch.leap_second), t_mono_ns, "fix",
                                    epoch.gnss_time_ns)
             self._take(self.labeller.on_fix(epoch, t_mono_ns, self._predict_unix_ns))
+
+    def time_doubt(self) -> str | None:
+        if not self.labeller.leap_unknown:
+            return None
+        return (f"the receiver has no broadcast leap-second count yet (a cold start: up to 12.5 min): its UTC may be "
+                f"whole seconds off, stamps within {LEAP_UNKNOWN_NS // NS} s until it has")
 
     def recheck_wall(self, now_ns: int) -> None:
         """Before the first lock, on a system clock that was not synchronised at start: every WALL_RECHECK_S, whether

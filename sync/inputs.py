@@ -36,3 +36,7 @@ class FixEpoch:
     # epoch that takes long on the line (9600 baud, u-blox's factory NMEA: over a second) ends after the next
     # pulse, so the edge it follows is the one before its beginning. None: it came in one read.
     opened_ns: int | None = None
+    # The receiver said its leap-second count is not yet the broadcast one (UBX NAV-TIMEGPS leapSValid clear: a cold
+    # start's first 12.5 min at most, until the almanac page with the UTC parameters came): its UTC, and the GPS-UTC
+    # the clock learns from it, may be its firmware's default, whole seconds off. The clock's bound says so.
+    leap_unknown: bool = False

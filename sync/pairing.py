@@ -47,6 +47,10 @@ LEAP_CONFIRM_LABELS = 3
 # a receiver held the clock in holdover 1 s off behind a bound of microseconds, every edge rejected.
 DOUBT_LABELS = 1
 REPAIR_LABELS = 10
+# How far a receiver's UTC may be off while it says its leap count is not yet the broadcast one (UBX NAV-TIMEGPS
+# leapSValid clear): the count it uses then is its firmware's default, as old as the firmware. GPS-UTC was 15 s
+# from 2009 to mid-2012 and is 18 s since 2017-01-01, so firmware of u-blox 6 (2010) onwards is at most 3 s stale.
+LEAP_UNKNOWN_NS = 3 * NS
 
 Predict = Callable[[int], "int | None"]
 
@@ -93,6 +97,7 @@ class EdgeLabeller:
         self.now_ns: Callable[[], int] | None = None  # the clock's board time now, for when a leap became known
         self._candidate: tuple[int, int, int] | None = None  # (midnight, sign, labels so far) of a leap not yet sure
         self._disagree: tuple[int, int] = (0, 0)  # (whole seconds, labels in a row) the labels say off the prediction
+        self.leap_unknown = False  # the latest fix's receiver had no broadcast leap count yet (FixEpoch.leap_unknown)
         self.repair_due = False  # REPAIR_LABELS in a row disagreed: the clock is to pair again (take_repair)
         self._last_ambiguous = False  # the last label was a Unix second a leap second shares (gpsd's PPS)
         self._unsure_cache: tuple[object, int | None] | None = None
@@ -130,6 +135,7 @@ class EdgeLabeller:
 
     def on_fix(self, fix: FixEpoch, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
         utc = fix.gnss_time_ns
+        self.leap_unknown = fix.leap_unknown
         itow = fix.itow_ms
         if fix.leap_second and utc % DAY_NS < NS:
             # The receiver says this epoch is 23:59:60: the Unix second after it repeats this one's.
@@ -380,9 +386,11 @@ class EdgeLabeller:
 
     @property
     def doubt_ns(self) -> int:
-        """The whole seconds the latest labels (DOUBT_LABELS or more in a row) say the clock is off: its bound's."""
+        """The whole seconds the latest labels (DOUBT_LABELS or more in a row) say the clock is off, or a receiver
+        without its broadcast leap count may be (LEAP_UNKNOWN_NS): its bound's."""
         k, n = self._disagree
-        return abs(k) * NS if n >= DOUBT_LABELS else 0
+        said = abs(k) * NS if n >= DOUBT_LABELS else 0
+        return max(said, LEAP_UNKNOWN_NS) if self.leap_unknown else said
 
     def take_repair(self) -> int | None:
         """The disagreement (ns, labels minus prediction) when REPAIR_LABELS in a row said it, once; else None."""

@@ -89,6 +89,11 @@ class StampClock(ABC):
     last_mislabel: tuple[int, str] | None = None
     chrony: ChronySock | None = None
 
+    def time_doubt(self) -> str | None:
+        """What the receiver says now that keeps the clock's time from being trusted to the second (the status's
+        clock problem while it lasts); None when nothing does."""
+        return None
+
     @abstractmethod
     def stamp(self, t_mono_ns: int) -> Stamp:
         """The synchronised time, state and error bound of the instant ``t_mono_ns`` of the board's clock."""

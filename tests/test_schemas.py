@@ -221,9 +221,12 @@ def test_a_fix_without_vertical_velocity_or_any_optional_value_validates() -> No
     record = location_fix(bare, 1_000)
     nullable = {k for k, v in TOPICS[GNSS_FIX].schema["properties"].items() if "null" in v["type"]}
     # every optional value of the topic is null here, but the altitude of no position (0, as latitude and longitude),
-    # the leap second flag (absent but on 23:59:60) and when the epoch began (absent when one read held it)
-    assert {k for k, v in record.items() if v is None} == nullable - {"altitude", "leap_second", "opened_mono_ns"}
+    # the leap second flags (absent but on 23:59:60, and while a receiver says its leap count is not the broadcast
+    # one) and when the epoch began (absent when one read held it)
+    assert {k for k, v in record.items() if v is None} == nullable - {"altitude", "leap_second", "leap_unknown",
+                                                                      "opened_mono_ns"}
     assert "leap_second" not in record and "opened_mono_ns" not in record and record["altitude"] == 0.0
+    assert "leap_unknown" not in record
     validate(GNSS_FIX, location_fix(nmea_fix(), 2_000, opened_mono_ns=1_000))
     validate(GNSS_FIX, record)
 

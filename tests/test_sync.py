@@ -1159,13 +1159,37 @@ def test_a_system_clock_synchronised_after_the_start_is_followed_until_gnss_time
     assert plain.stamp(now[0]).err_ns == NO_BOUND_NS and not plain.wall_trusted
 
 
-def _second_ahead_until_the_60th_fix(stream: Stream) -> int:
-    """The receiver's time a second ahead until its 60th fix, then right: the board time it corrected at."""
+def _second_ahead_until_the_60th_fix(stream: Stream, said: dict[str, object] | None = None) -> int:
+    """The receiver's time a second ahead until its 60th fix, then right: the board time it corrected at. ``said``:
+    fields the fixes carry until then."""
     t_fix = [b for b, t, _ in stream.events if t == "/gnss/fix"]
     correct_at = t_fix[60]
-    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] + NS} if t == "/gnss/fix" and b < correct_at
-                         else p) for b, t, p in stream.events]
+    stream.events[:] = [(b, t, {**p, "gnss_time_ns": p["gnss_time_ns"] + NS, **(said or {})}
+                         if t == "/gnss/fix" and b < correct_at else p) for b, t, p in stream.events]
     return correct_at
+
+
+@pytest.mark.parametrize("timepulse", [False, True])
+def test_a_receiver_without_its_broadcast_leap_count_is_never_trusted_to_the_second(timepulse: bool) -> None:
+    """A cold start: until the almanac brings the UTC parameters (up to 12.5 min) a u-blox receiver counts leap
+    seconds by its firmware's default and says so (NAV-TIMEGPS leapSValid clear); a firmware of 2016 says 17 for
+    18. The clock locked on that second behind a bound of microseconds: a second off with a 14 us claim until the
+    receiver corrected. Now such fixes keep the bound at 3 s (sync.pairing.LEAP_UNKNOWN_NS) while they last, the
+    corrected second is doubted at once and paired again, and every stamp after the first lock is within its
+    bound; once right, the bound is microseconds again."""
+    stream = make_stream(300, timepulse=timepulse)
+    correct_at = _second_ahead_until_the_60th_fix(stream, {"leap_unknown": True})
+    clock, r = run(stream)
+    assert clock.time_doubt() is None  # the status's clock problem has gone with the receiver's doubt
+    known = r["state"] != "freerun"
+    assert known.sum() > 200 and np.all(np.abs(r["err"][known]) <= r["bound"][known])
+    before = known & (r["board"] < correct_at)
+    assert np.all(r["bound"][before] >= 3 * NS) and np.abs(r["err"][before]).min() > 0.9 * NS  # a second off
+    late = r["board"] > correct_at + 20 * NS
+    assert set(r["state"][late]) == {"locked"} and r["bound"][late].max() < 100_000
+    fix = next(p for _, t, p in stream.events if t == "/gnss/fix")
+    observe_clock(clock, "/gnss/fix", {**fix, "leap_unknown": True}, stream.events[-1][0])
+    assert "no broadcast leap-second count" in (clock.time_doubt() or "")
 
 
 def test_gnss_time_that_moves_a_whole_second_mid_month_is_in_the_bound_then_paired_again(caplog) -> None:

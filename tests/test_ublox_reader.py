@@ -643,3 +643,28 @@ def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_befo
     stamp = clock.stamp(probe)
     assert stamp.state == "locked" and clock.counts["mislabels"] == 0
     assert abs(stamp.t_sync_ns - ((first_utc_s + 19) * NS + 500_000_000)) < 100_000, stamp
+
+
+@pytest.mark.parametrize("flag", [0, 1])
+def test_a_fix_says_when_the_receiver_has_no_broadcast_leap_count(flag: int) -> None:
+    """NAV-PVT's validTime and fullyResolved are set on a cold start's firmware-default leap count too; the same
+    epoch's NAV-TIMEGPS says whether the count is the broadcast one (leapSValid). The fix record carries
+    `leap_unknown` while it is not (the clock widens its bound on it) and validates against its schema."""
+    import jsonschema
+
+    from logger.recording.records import fix_epoch, location_fix, stamped_record
+    from logger.recording.topics import GNSS_FIX, TOPICS
+    from sync.stamp import Stamp
+
+    itow, week = 345_600_250, 2304
+    timegps = UBXMessage("NAV", "NAV-TIMEGPS", GET, iTOW=itow, fTOW=0, week=week, leapS=17 + flag, towValid=1,
+                         weekValid=1, leapSValid=flag, tAcc=20).serialize()
+    (fix,) = [i for i in decode(nav_pvt(itow) + timegps) if isinstance(i, GnssFix)]
+    assert fix.time_valid and fix.leap_known is bool(flag)
+    record = location_fix(fix, 1_000)
+    assert record.get("leap_unknown", False) is not bool(flag)
+    jsonschema.validate(stamped_record(1_000, Stamp(2_000, "locked", 3, 0, 0), 0, record), TOPICS[GNSS_FIX].schema)
+    epoch = fix_epoch(record)
+    assert epoch is not None and epoch.leap_unknown is not bool(flag)
+    (alone,) = [i for i in decode(nav_pvt(itow)) if isinstance(i, GnssFix)]
+    assert alone.leap_known is None and "leap_unknown" not in location_fix(alone, 1_000)  # not said: nothing claimed

@@ -146,6 +146,9 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
                                    "in); absent when one read held it all"),
     "leap_second": ("boolean?", "true for the epoch 23:59:60 UTC, an inserted leap second: gnss_time_ns and timestamp "
                                 "are then POSIX's Unix time for it, that of the 00:00:00 after it (absent otherwise)"),
+    "leap_unknown": ("boolean?", "true when the receiver said its leap-second count is not yet the broadcast one (UBX "
+                                 "NAV-TIMEGPS leapSValid clear, up to 12.5 min after a cold start): gnss_time_ns may "
+                                 "be whole seconds off, and the clock's bound says so (absent otherwise)"),
 }
 
 TOPICS: dict[str, TopicSpec] = {}

@@ -414,6 +414,9 @@ class Daemon:
         mislabel = self.clock.last_mislabel
         if mislabel is not None and now - mislabel[0] <= MISLABEL_SHOW_S * 1e9:
             problems.append(f"clock: {mislabel[1]}")
+        doubt = self.clock.time_doubt()
+        if doubt is not None:
+            problems.append(f"clock: {doubt}")
         chrony = self.clock.chrony
         if chrony is not None and chrony.error is not None:
             problems.append(f"clock: PPS samples do not reach chrony ({chrony.error}; {chrony.failed} failed): "
