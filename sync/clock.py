@@ -223,8 +223,8 @@ class PpsClock(StampClock):
     def time_doubt(self) -> str | None:
         if not self.labeller.leap_unknown:
             return None
-        return (f"the receiver has no broadcast leap-second count yet (a cold start: up to 12.5 min): its UTC may be "
-                f"whole seconds off, stamps within {LEAP_UNKNOWN_NS // NS} s until it has")
+        return (f"receiver has no broadcast leap-second count yet (cold start, up to 12.5 min): stamps within "
+                f"{LEAP_UNKNOWN_NS // NS} s")
 
     def recheck_wall(self, now_ns: int) -> None:
         """Before the first lock, on a system clock that was not synchronised at start: every WALL_RECHECK_S, whether
