@@ -223,16 +223,22 @@ def drive_with_ppk(tmp_path_factory: pytest.TempPathFactory):
     solution from the truth with 2 cm errors, written by ppk_synth in rnx2rtkp's layout and read back."""
     drive = make_drive("outage-60s", seed=1, duration_s=110.0)
     recs = records(drive, 110.0, seed=4)
+    pos = tmp_path_factory.mktemp("ppk") / "drive.pos"
+    ppk_synth.write_pos(pos, ppk_rows(drive))
+    return drive, recs, pos
+
+
+def ppk_rows(drive, north_m: float = 0.0) -> list[str]:
+    """A fixed solution of the drive's truth with 2 cm errors, in rnx2rtkp's layout; ``north_m``: that far north
+    of it all the time (another vehicle's track at the same hours)."""
     rng = np.random.default_rng(8)
     rows = []
     for k in range(111):
         s = drive.state(float(k))
-        err = rng.standard_normal(3) * (0.02, 0.02, 0.04)
+        err = rng.standard_normal(3) * (0.02, 0.02, 0.04) + (north_m, 0.0, 0.0)
         rows.append(ppk_synth.pos_row(T0_NS + k * NS, s.lat_rad, s.lon_rad, s.height_m, err, 1, 14,
                                       (0.007, 0.006, 0.014), -0.2, 12.0))
-    pos = tmp_path_factory.mktemp("ppk") / "drive.pos"
-    ppk_synth.write_pos(pos, rows)
-    return drive, recs, pos
+    return rows
 
 
 def rms_moving(drive, rows) -> np.ndarray:
@@ -262,7 +268,7 @@ def test_replay_fuses_the_solution_and_says_so(drive_with_ppk, tmp_path: Path):
     from logger.recording.settings import RecorderSettings
     from logger.recording.topics import TOPICS
 
-    _, recs, pos = drive_with_ppk
+    drive, recs, pos = drive_with_ppk
     rec = Recorder(RecorderSettings(out_dir=tmp_path / "drive"), TOPICS)
     rec.start()
     for t, topic, msg in recs:
@@ -306,6 +312,14 @@ def test_replay_fuses_the_solution_and_says_so(drive_with_ppk, tmp_path: Path):
                                    "(111 after the drive's end): it spans "), r.stderr
         assert r.stderr.endswith(f"; nothing written to {tmp_path / 'out'}\n")
     assert (tmp_path / "out" / "trajectory.csv").stat().st_mtime_ns < next_day.stat().st_mtime_ns
+    # Another vehicle's solution of the same minutes, 200 m north all along: its times pass, its positions do not
+    # (fused, the gate refused most and the filter reset onto the rest, exit 0 and "used 111 fix").
+    other = tmp_path / "other_vehicle.pos"
+    ppk_synth.write_pos(other, ppk_rows(drive, north_m=200.0))
+    r = replay("--out", str(tmp_path / "out"), "--gnss-solution", str(other), "--no-mcap")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "its positions lie a median 200 m from the receiver's own fixes at the same GNSS epochs" in r.stderr
+    assert (tmp_path / "out" / "trajectory.csv").stat().st_mtime_ns < other.stat().st_mtime_ns
     # Epochs on too few satellites are named among those not used (the summary's counts add up to the file's).
     few = tmp_path / "few_sv.pos"
     few_lines = pos.read_text().splitlines(keepends=True)

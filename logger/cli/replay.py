@@ -11,7 +11,9 @@ could not start on writes nothing and exits 1, with what the start waited for.
 :mod:`logger.recording.rtklib_pos`): instead of the receiver's positions (``--gnss-solution-mode replace``, the
 default; its velocities still go in) or beside them (``add``). A file that cannot be read is one line naming it
 and the line, exit 2; so is a solution none of whose epochs the filter used (another drive's or day's: the line
-gives both time spans), and nothing is written. An ``--out`` that cannot be a folder is refused before the run.
+gives both time spans), or whose positions lie a median 30 m or more from the receiver's own fixes at the same
+epochs (another vehicle's of the same hours: ``logger.nav.solution.FOREIGN_SOLUTION_M``), and nothing is
+written. An ``--out`` that cannot be a folder is refused before the run.
 """
 
 from __future__ import annotations
@@ -193,6 +195,12 @@ def main(argv: list[str]) -> int:
         print(f"logger replay: {unused_solution(solution, engine.solution, rows)}; nothing written to {args.out}",
               file=sys.stderr)
         return 2
+    foreign = engine.solution.foreign() if solution is not None and engine.solution is not None else None
+    if foreign is not None:
+        # Another vehicle's solution of the same hours passes the time check: its positions do not pass this one.
+        print(f"logger replay: --gnss-solution {solution.path}: {foreign}; nothing written to {args.out}",
+              file=sys.stderr)
+        return 2
     progress.stage("writing the trajectory")
     fix_hz = params.publish_hz if args.fix_hz is None else args.fix_hz
     fixes = 0
@@ -252,9 +260,11 @@ def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) ->
     """What became of the solution's epochs, in one line."""
     counts = ", ".join(f"{n} {q}" for q, n in solution.counts().items())
     took = ", ".join(f"{n} {q}" for q, n in used.used.items()) or "none"
+    offered = sum(used.used.values())
     left = not_used(used)
     return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
             f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
+            + (f" (the filter's gate refused {offered - used.accepted})" if used.accepted < offered else "")
             + (f"; not used: {'; '.join(left)}" if left else ""))
 
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from logger.nav import earth
 from logger.nav.core import FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, PositionEvidence
 from logger.nav.gnss_noise import FixFigures
@@ -47,6 +48,12 @@ MAX_LATE_S = 2.0  # an epoch placed further behind the filter's latest IMU sampl
 MAX_CORR_GAP_S = 10.0  # epochs further apart than this are independent
 SOURCE = "solution"  # FixFigures.source of a solution epoch
 NEVER = 2**63 - 1
+# A solution whose positions lie further than this (median, horizontal) from the receiver's own fixes at the same
+# GNSS epochs is not this drive's: another vehicle's of the same day, a mixed-up file. A receiver's single-point
+# fixes are metres off a PPK solution (street canyons tens of metres, for minutes, not for a median); fused,
+# another vehicle's track passed the time check, the gate refused 826 of its 836 epochs, the filter reset twice onto
+# it and its 480 m error replaced the folder's trajectory with exit 0.
+FOREIGN_SOLUTION_M = 30.0
 RESTART_SPEED_SIGMA_MPS = 1.0  # a filter restarted from a solution epoch (which has no velocity) keeps its own
 
 
@@ -109,6 +116,12 @@ class SolutionPolicy:
         self.last_readings = last
         self.position = position
         self.used: dict[str, int] = {}  # epochs that went to the filter, per quality name
+        self.accepted = 0  # ... of which the filter's gate took
+        # The epochs by GNSS time (ms), for the receiver's fixes at the same epochs to be compared with: the
+        # horizontal distances found (m), to tell another drive's solution (FOREIGN_SOLUTION_M).
+        self._at_ms = {round(e.gnss_time_ns / 1e6): (math.radians(e.lat_deg), math.radians(e.lon_deg))
+                       for e in self.pending}
+        self.receiver_distances_m: list[float] = []
         self.unjoined = 0  # epochs placed too late behind the filter, or with no receiver time near them
         self.before_start = 0  # epochs placed before the filter had started
         self.few_sv = 0  # epochs left out for too few satellites (gnss_min_sv): their figures are not trusted
@@ -117,10 +130,29 @@ class SolutionPolicy:
         self._offset: tuple[int, int, int] | None = None  # (sync - GNSS time, mono - sync, at) of the last fix
         self._t_prev_ns: int | None = None
 
-    def map(self, gnss_time_ns: int, t_ns: int, t_mono_ns: int) -> None:
-        """A receiver fix with a GNSS time was placed at ``t_ns`` (``t_mono_ns``) on the logger's clock."""
+    def map(self, gnss_time_ns: int, t_ns: int, t_mono_ns: int, lat: float | None = None,
+            lon: float | None = None) -> None:
+        """A receiver fix with a GNSS time was placed at ``t_ns`` (``t_mono_ns``) on the logger's clock; its
+        position (rad), where it has one, is compared with the solution's at the same epoch."""
         self._offset = (t_ns - gnss_time_ns, t_mono_ns - t_ns, t_ns)
         self._schedule()
+        if lat is not None and lon is not None:
+            there = self._at_ms.get(round(gnss_time_ns / 1e6))
+            if there is not None:
+                dn, de, _ = earth.ned_offset_m(there[0], there[1], 0.0, lat, lon, 0.0)
+                self.receiver_distances_m.append(math.hypot(dn, de))
+
+    def foreign(self) -> str | None:
+        """Why the solution is not this drive's, when its positions lie a median FOREIGN_SOLUTION_M or more from
+        the receiver's fixes at the same epochs; None when they agree (or no epoch is shared)."""
+        d = self.receiver_distances_m
+        if not d:
+            return None
+        median = float(np.median(d))
+        if median < FOREIGN_SOLUTION_M:
+            return None
+        return (f"its positions lie a median {median:.0f} m from the receiver's own fixes at the same GNSS epochs "
+                f"({len(d)} shared; over {FOREIGN_SOLUTION_M:g} m: another vehicle's or drive's solution?)")
 
     def _schedule(self) -> None:
         off = self._offset
@@ -170,6 +202,7 @@ class SolutionPolicy:
         self.used[q.name] = self.used.get(q.name, 0) + 1
         last = self.last_readings
         if ok:
+            self.accepted += 1
             last.pos_ok = (t_e, fix.h_acc)
             last.height_in_ns = t_e
         if fix.h_acc < GOOD_FIX_H_ACC_M:
