@@ -173,7 +173,11 @@ def test_replay_writes_nav_fix_at_the_live_rate_and_every_row_when_asked(drive: 
     assert [f["t_sync_ns"] for f in fixes] == [times[i] for i in keep]
     assert f"trajectory.mcap: /nav/fix at {hz:g} Hz, {len(keep)} of {len(rows)} solutions (--fix-hz 0: every one)" \
         in r.stdout
-    assert len(states) >= 40 and all(b["t_sync_ns"] - a["t_sync_ns"] >= 1e9 for a, b in itertools.pairwise(states))
+    # /nav/state once a second: the first solution of every whole second of the rows (one a second after the last
+    # drifted by how late each came, 0.87-0.91 a second on recorded drives)
+    seconds = [m["t_sync_ns"] // 1_000_000_000 for m in states]
+    assert len(states) >= 40 and seconds == list(range(seconds[0], seconds[0] + len(seconds)))
+    assert seconds[-1] == times[-1] // 1_000_000_000
     for i, f in zip(keep, fixes, strict=True):  # the values the CSV row has, at full precision
         row = rows[i]
         assert abs(f["latitude"] - float(row["lat_deg"])) <= 5e-10 and abs(f["altitude"] - float(row["height_m"])) \

@@ -35,7 +35,13 @@ from logger.recording.drive import REPLAY_LIBRARY, REPLAY_OF_METADATA, ProgressF
 from logger.recording.intervals import next_due_ns
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
-from logger.recording.records import NAV_INPUT_TOPICS, follows_on, nav_fix_record, nav_state_record
+from logger.recording.records import (
+    NAV_INPUT_TOPICS,
+    follows_on,
+    nav_fix_record,
+    nav_state_record,
+    next_whole_second,
+)
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
 from logger.words import plural
 
@@ -183,7 +189,7 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
         t, mono = ((msg["t_sync_ns"], msg["t_mono_ns"]) if topic == IMU
                    else (msg["t_sync_ns"][-1], msg["t_mono_ns"][-1]))
         if t >= next_state:
-            next_state = t + 1_000_000_000
+            next_state = next_whole_second(t)
             states.append(nav_state_record(engine, t, mono))
 
     # Messages of the filter's topics that are not the logger's records (another tool's file with an /imu of other

@@ -326,5 +326,5 @@ _add(NAV_STATE, "vehicle_logger.NavState", {
     "verdicts": ("string[]", "plain health verdicts, one sentence each (live only)"),
     "dropped": ("integer?", "records the live navigator skipped because it was behind (live only)"),
     "cpu_s": ("number?", "CPU time the live navigator thread has used since the start, s (live only)"),
-}, "navigation filter state once a second: biases, scale factor, height offset, covariance, innovations",
-     stamped=False)
+}, "navigation filter state once a second (the first solution of each whole second of synchronised time): biases, "
+   "scale factor, height offset, covariance, innovations", stamped=False)

@@ -43,6 +43,7 @@ from logger.recording.records import (
     follows_on,
     nav_fix_record,
     nav_state_record,
+    next_whole_second,
     unplaced,
 )
 from logger.recording.topics import GNSS_FIX, IMU, IMU_BATCH, NAV_FIX, NAV_STATE
@@ -381,7 +382,7 @@ class Navigator:
         if t >= self._next_fix_ns:
             self._publish_fix(sol)
         if t >= self._next_state_ns:
-            self._next_state_ns = t + 1_000_000_000
+            self._next_state_ns = next_whole_second(t)
             self._verdicts = self.judge.verdicts(self.engine, t / 1e9)
             self._outage_line = self.judge.outage_line
             msg = nav_state_record(self.engine, t, sol.t_mono_ns, self._verdicts,
