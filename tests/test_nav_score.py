@@ -168,3 +168,18 @@ def test_inputs_it_cannot_use_are_named(tmp_path: Path, capsys) -> None:
     for args, words in cases:
         code, out, err = run(capsys, *args)
         assert code == 2 and out == "" and words in err and err.count("\n") == 1, (args, err)
+
+
+def test_a_drive_folder_a_replay_wrote_into_is_the_drive_and_the_trajectory(tmp_path: Path, capsys) -> None:
+    """``logger replay DRIVE --out DRIVE`` puts trajectory.csv and trajectory.mcap beside the drive's files; replay,
+    export and plot take that folder as the drive still. nav-score took it for the CSV alone: "nothing to score
+    against" for `nav-score DRIVE/trajectory.csv DRIVE`."""
+    d = drive(tmp_path / "drive").parent
+    trajectory(d / "trajectory.csv", 110, 190)
+    write_mcap(d / "trajectory.mcap", {NAV_FIX: [{"t_mono_ns": 0, "t_sync_ns": T0 + k * NS, "latitude": lat_at(
+        T0 + k * NS), "longitude": LON0, "altitude": H0} for k in range(10, 90)]})
+    for args in ((d / "trajectory.csv", d), (d,)):
+        code, out, err = run(capsys, *args, "--json")
+        assert code == 0, (args, err)
+        (score,) = json.loads(out).values()
+        assert score["rmse"][0] == pytest.approx(1.0, abs=0.01) and score["rows_scored"] == 801, args

@@ -40,15 +40,20 @@ from logger.recording.drive import (
 )
 
 PROG = "logger nav-score"
+TRAJECTORY_MCAP = "trajectory.mcap"  # logger replay's, beside its trajectory.csv: no drive's file
 
 
 def expand(paths: list[Path]) -> list[Path]:
     """Folders as a user has them: ``logger replay``'s output folder stands for its trajectory.csv, a drive's
-    folder for its MCAP files (:func:`logger.recording.drive.drive_paths`); files as named."""
+    folder for its MCAP files (:func:`logger.recording.drive.drive_paths`), a drive's folder that a replay wrote
+    into (``logger replay DIR --out DIR``) for both; files as named."""
     out: list[Path] = []
     for p in paths:
         if p.is_dir() and (p / "trajectory.csv").is_file():
-            out.append(p / "trajectory.csv")
+            if p / "trajectory.csv" not in out:
+                out.append(p / "trajectory.csv")
+            if any(f.name != TRAJECTORY_MCAP for f in p.glob("*.mcap")):
+                out += [f for f in drive_paths([p]) if f.name != TRAJECTORY_MCAP]
         else:
             out += drive_paths([p])
     return out
