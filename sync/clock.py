@@ -483,7 +483,7 @@ class PpsClock(StampClock):
                 or not (all(m > spread for m in recent) or all(m < -spread for m in recent))):
             return False
         x = (np.fromiter(self._edges, dtype=np.float64)[-k:] - float(self._edges[-1])) / NS
-        y = np.fromiter(self._offsets, dtype=np.float64)[-k:] - float(self._base_ns)
+        y = (np.fromiter(self._offsets, dtype=np.int64)[-k:] - self._base_ns).astype(np.float64)
         own = fit_line(x, y, min_sigma=self.s.min_sigma_ns)
         if own.n_outliers or own.rms > 0.5 * spread:
             return False
@@ -541,7 +541,7 @@ class PpsClock(StampClock):
 
     def _refit(self) -> None:
         x = (np.fromiter(self._edges, dtype=np.float64) - float(self._edges[-1])) / NS
-        y = np.fromiter(self._offsets, dtype=np.float64) - float(self._base_ns)
+        y = (np.fromiter(self._offsets, dtype=np.int64) - self._base_ns).astype(np.float64)
         prior = self._slope_prior * NS if self._slope_prior is not None else None  # ns of offset per s
         fit = fit_line(x, y, slope_prior=prior if len(x) < 3 else None, min_sigma=self.s.min_sigma_ns)
         if math.isnan(fit.skew):
@@ -605,21 +605,23 @@ class PpsClock(StampClock):
             return LOCKED if self._locked_once else HOLDOVER
         return HOLDOVER
 
-    def _offset_at(self, t_ns: int, slewed: bool = True) -> float:
-        """GNSS time minus board time at ``t_ns``, in ns."""
+    def _offset_at(self, t_ns: int, slewed: bool = True) -> int:
+        """GNSS time minus board time at ``t_ns``, in ns: the base (an integer of Unix time's size) plus the fitted
+        part, which alone is worked in float64. Summed in float64, 1.8e18 ns has a resolution of 256 ns: every
+        stamp and offset came out a multiple of it."""
         fit = self._fit
         assert fit is not None
         x = (t_ns - self._fit_origin_ns) / NS
-        off = self._base_ns + fit.offset(x)
+        rel = fit.offset(x)
         if t_ns > self._last_sample_ns:
-            off += self._comp_ns
+            rel += self._comp_ns
             if self.kslew is not None and self._edges:
-                off -= self.kslew.excess(t_ns, *self._kernel_window())
+                rel -= self.kslew.excess(t_ns, *self._kernel_window())
         if slewed and self._slew_from_ns is not None:
             left = 1.0 - (t_ns - self._slew_from_ns) / self._slew_len_ns
             if left > 0:
-                off += self._slew_ns * min(1.0, left)
-        return off
+                rel += self._slew_ns * min(1.0, left)
+        return self._base_ns + round(rel)
 
     def _predict_unix_ns(self, t_ns: int) -> int | None:
         """The clock's current idea of GNSS time at a board time, or None before it knows any."""
@@ -683,16 +685,16 @@ class PpsClock(StampClock):
                 # reads, 47 % at 20 Hz, whose half-second reads straddle an edge as often as not): the forms
                 # below without their per-sample choices, in the same order of operations.
                 u = (t - self._fit_origin_ns) / NS - fit.x_ref
-                off = self._base_ns + (fit.offset_at_ref + fit.slope * u) + self._comp_ns
+                rel = (fit.offset_at_ref + fit.slope * u) + self._comp_ns
                 err = s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * u) + s.pps_latency_spread_ns
                 err = err + (s.stability_ppm * 1e-6 * ((t - last) / NS) * NS + self._comp_abs_ns)
                 if kslew is not None:
-                    off = off - kslew.excess_many(t, *self._kernel_window())
+                    rel = rel - kslew.excess_many(t, *self._kernel_window())
                     err = err + kslew.margin_ns
                 err = err + (self._unconfirmed_ns + self.labeller.doubt_ns)
                 if self._miss_ns or self._miss_growth:
                     err = err + (self._miss_ns + MISS_GROWTH_MARGIN * self._miss_growth * (t - last))
-                unix, leap_err = self.labeller.publish_many(t + np.rint(off).astype(np.int64))
+                unix, leap_err = self.labeller.publish_many(t + self._base_ns + np.rint(rel).astype(np.int64))
                 return Stamps(unix.tolist(), [LOCKED] * len(t),
                               np.maximum(1, np.rint(err + leap_err)).astype(np.int64).tolist(), imu_cnt.tolist(),
                               timer_cnt.tolist())
@@ -701,11 +703,11 @@ class PpsClock(StampClock):
             locked = fresh if self._locked_once else np.zeros(len(t), bool)
             # _offset_at, per sample, in its order of operations
             x = (t - self._fit_origin_ns) / NS
-            off = self._base_ns + (fit.offset_at_ref + fit.slope * (x - fit.x_ref))
+            rel = fit.offset_at_ref + fit.slope * (x - fit.x_ref)
             if last is not None:
-                off = np.where(t > last, off + self._comp_ns, off)
+                rel = np.where(t > last, rel + self._comp_ns, rel)
                 if kslew is not None and self._edges:
-                    off = np.where(t > last, off - kslew.excess_many(t, *self._kernel_window()), off)
+                    rel = np.where(t > last, rel - kslew.excess_many(t, *self._kernel_window()), rel)
             # _err_at, per sample
             err = self.s.sigma_k * np.hypot(fit.sigma_offset, fit.skew * (x - fit.x_ref)) + self.s.pps_latency_spread_ns
             since = np.maximum(0.0, (t - (last if last is not None else t)) / NS)
@@ -718,11 +720,11 @@ class PpsClock(StampClock):
             if self._slew_from_ns is not None:
                 left = 1.0 - (t - self._slew_from_ns) / self._slew_len_ns
                 part = np.minimum(1.0, left)
-                off = np.where(left > 0, off + self._slew_ns * part, off)
+                rel = np.where(left > 0, rel + self._slew_ns * part, rel)
                 err = np.where(left > 0, err + abs(self._slew_ns) * part, err)
             states = ([LOCKED] * len(t) if locked.all() else
                       [HOLDOVER] * len(t) if not locked.any() else [LOCKED if k else HOLDOVER for k in locked.tolist()])
-            unix, leap_err = self.labeller.publish_many(t + np.rint(off).astype(np.int64))
+            unix, leap_err = self.labeller.publish_many(t + self._base_ns + np.rint(rel).astype(np.int64))
             return Stamps(unix.tolist(), states, np.maximum(1, np.rint(err + leap_err)).astype(np.int64).tolist(),
                           imu_cnt.tolist(), timer_cnt.tolist())
 

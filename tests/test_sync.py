@@ -1225,3 +1225,17 @@ def test_a_free_run_after_pairing_again_keeps_its_bound_through_a_long_pps_outag
     assert free.sum() > 1500  # the half hour without edges ran free
     assert np.all(np.abs(r["err"][free]) <= r["bound"][free])
     assert r["bound"][free][-1] - r["bound"][free][0] > 1_000_000  # it grew, by what the drift may have done
+
+
+def test_stamps_keep_nanoseconds() -> None:
+    """The offset GNSS - board is an integer of Unix time's size (1.8e18 ns) where float64 steps by 256 ns: summed
+    with the fit in float64, every stamp and /sync offset was a multiple of 256 ns. Now only the fitted part is
+    float64, and stamps (one at a time and a FIFO read's at once) take every nanosecond."""
+    clock, r = run(make_stream(120, seed=3))
+    locked = r["state"] == "locked"
+    assert locked.sum() > 80
+    board = r["board"][locked]
+    assert np.mean((r["sync"][locked] - board) % 256 != 0) > 0.9
+    times = [int(b) + k * 1_000_003 for b in board[-3:] for k in range(20)]
+    many = clock.stamp_many(times).t_sync_ns
+    assert many == [clock.stamp(t).t_sync_ns for t in times] and np.mean(np.array(many) % 256 != 0) > 0.9
