@@ -537,6 +537,9 @@ def test_records_stamped_before_gnss_time_on_a_clock_with_no_bound_never_reach_t
     nav = Navigator(NavParams())
     nav.take([(topic, msg) for _, topic, msg in recs[:before]])
     assert nav.unplaced == before and nav.engine.t_last_ns is None  # not one reached the filter
+    # The status says so, not "waiting for the IMU: no sample yet" beside an IMU row that says ok
+    assert nav.section()["verdicts"] == [f"initialising: waiting for GNSS time (the clock's first lock): {before} "
+                                         "records stamped without it left out"]
     rerun = NavRerun(NavParams(), lambda p: NavEngine(p))
     for _, topic, msg in recs:  # replay's feeding, record by record
         rerun.feed(topic, msg)

@@ -423,6 +423,11 @@ class Navigator:
                 # beside an IMU row that says ok was not true. After its first turn the records waiting are not
                 # why (an IMU that never delivers left this line up for a whole run beside the GNSS's records).
                 verdicts = [f"initialising: {plural(self.queued, 'record')} waiting for the filter's first turn"]
+            elif sol is None and self.engine.counters.imu == 0 and self.unplaced:
+                # Records stamped before GNSS time never reach the filter (take): its "no IMU sample yet" beside an
+                # IMU that delivers sent the operator to the wrong sensor, for as long as the receiver had no fix.
+                verdicts = [f"initialising: waiting for GNSS time (the clock's first lock): "
+                            f"{plural(self.unplaced, 'record')} stamped without it left out"]
             out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
                                    "source": "", "mode": self.engine.mode, "verdicts": verdicts,
                                    "dropped": self.dropped, "processed": self.processed,
