@@ -291,3 +291,44 @@ def test_a_sensor_open_with_nothing_from_it_yet_is_starting_not_ok_at_zero_hz() 
     flowing = {**base, "last_sample_age_s": 0.5, "measured_rate_hz": 1.0}
     assert Daemon._sensor_problem(fake, sampler, flowing, 2 * 10**9, None) == ""  # type: ignore[arg-type]
     assert flowing["state"] == "ok" and flowing["measured_rate_hz"] == 1.0
+
+
+@pytest.mark.parametrize("term", ["dumb", "", "xterm-256color"])
+def test_watch_moves_the_cursor_only_on_a_terminal_that_can(tmp_path: Path, term: str) -> None:
+    """`logger status --watch` on a phone's SSH with TERM=dumb (or none) sent its escape codes as text in every
+    frame; there it prints plain frames, as into a pipe."""
+    import pty
+    import subprocess
+    import sys
+    import time
+
+    sock = tmp_path / "status.sock"
+    server = StatusServer(sock, lambda: SNAP)
+    server.start()
+    master, slave = pty.openpty()
+    env = {**os.environ, "TERM": term, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen([sys.executable, "-m", "logger.cli", "status", "--watch", "0.2", "--socket", str(sock)],
+                            stdout=slave, stderr=slave, stdin=subprocess.DEVNULL, env=env)
+    try:
+        got = b""
+        deadline = time.monotonic() + 30.0
+        while got.count(b"DEGRADED") < 2 and time.monotonic() < deadline:
+            got += os.read(master, 65536)
+    finally:
+        proc.kill()
+        proc.wait()
+        os.close(master)
+        os.close(slave)
+        server.close()
+    assert got.count(b"DEGRADED") >= 2, got
+    assert (b"\x1b[" in got) is (term == "xterm-256color"), got[:200]
+
+
+@pytest.mark.parametrize("args", [["--jsn"], ["--watch", "abc"], ["extra"]])
+def test_a_mistyped_command_is_one_line_and_not_the_critical_exit(args: list[str], capsys) -> None:
+    """argparse's usage error exits 2, which for this command means "critical": a typo read as a critical logger
+    by a script or a phone widget. It is one line and exit 4 (nobody can say)."""
+    with pytest.raises(SystemExit) as stop:
+        main(["status", *args])
+    err = capsys.readouterr().err
+    assert stop.value.code == 4 and err.count("\n") == 1 and err.startswith("logger status: "), err

@@ -15,7 +15,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from logger.cli.status_view import COLUMNS, render
 from logger.config import DEFAULT_PATH, DEFAULT_SIM_SOCKET, SCHEMA, ConfigError, load
@@ -54,9 +54,24 @@ def find_socket() -> tuple[Path, dict[str, Any]]:
     raise ConnectionError("logger is not running; nobody answers on\n" + "\n".join(f"  {p}" for p in tried))
 
 
+class _Parser(argparse.ArgumentParser):
+    """The command line's own mistakes are one line and exit 4 (nobody can say): argparse's exit 2 is this
+    command's "critical", and a script or a widget read a typo (``--jsn``) as a critical logger."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"logger status: {message} (logger status --help)", file=sys.stderr)
+        raise SystemExit(UNKNOWN)
+
+
+def redraws_in_place(tty: bool) -> bool:
+    """Whether --watch may move the cursor: a terminal that says what it is, and not a dumb one (TERM=dumb, or
+    none: an Emacs shell, a serial console), where the escape codes came out as text in every frame."""
+    return tty and os.environ.get("TERM", "") not in ("", "dumb")
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="logger status", description="show the running logger's health",
-                                     epilog=COLUMNS, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="logger status", description="show the running logger's health",
+                     epilog=COLUMNS, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the raw snapshot")
     parser.add_argument("--watch", nargs="?", const=1.0, type=float, metavar="SECONDS",
                         help="redraw in place until Ctrl-C (default every second)")
@@ -103,7 +118,7 @@ def main(argv: list[str]) -> int:
             except ConnectionError as exc:
                 code, text = NOT_RUNNING, f"logger status: {exc}"
             if args.watch:
-                if tty:  # over the last frame, line by line, then clear what the last frame had below
+                if redraws_in_place(tty):  # over the last frame, line by line, then clear what it had below
                     frame = "".join(line + CLEAR_LINE + "\n" for line in text.split("\n"))
                     sys.stdout.write((CLEAR_SCREEN if first else "") + HOME + frame + CLEAR_BELOW)
                 else:
