@@ -72,6 +72,7 @@ class RecorderStatus:
     # On disk once, then deleted while recording: the file that held them, or the whole output folder (taken out
     # of ``written`` and ``samples`` then, which count only what is on disk).
     deleted: dict[str, int] = field(default_factory=dict)
+    deleted_samples: dict[str, int] = field(default_factory=dict)  # the samples those of a batch topic held
     # Failed because the storage the folder is on is not mounted (storage.py): a wait for the card, which a restart
     # of the service cannot end, unlike a writer that fails by itself.
     storage_missing: bool = False
@@ -193,6 +194,7 @@ class Recorder:
         self._pending_samples: Counter[str] = Counter()
         self._lost: Counter[str] = Counter()  # handed to the writer, never on disk (an I/O error)
         self._deleted: Counter[str] = Counter()  # on disk, then deleted with their file or folder
+        self._deleted_samples: Counter[str] = Counter()
         self._storage_missing = False  # the last open was refused: the storage is not mounted (storage.py)
         # What is on disk in the open file and in the output folder as it is now (files of this run; a folder made
         # again starts at zero), records and samples, and the newest records on disk before either was started:
@@ -277,7 +279,8 @@ class Recorder:
                 files_done=self._files_done, free_bytes=self._free,
                 written=dict(self._written), samples=dict(self._samples), dropped=dict(self._dropped),
                 unrecorded=dict(self._unrecorded), buffered=dict(self._pending), lost=dict(self._lost),
-                deleted=dict(self._deleted), storage_missing=self._storage_missing and self._state == "failed",
+                deleted=dict(self._deleted), deleted_samples=dict(self._deleted_samples),
+                storage_missing=self._storage_missing and self._state == "failed",
                 queue_depth=len(self._queue), queue_size=self.settings.queue_size,
                 on_disk_mono_ns=dict(self._on_disk), state_since_mono_ns=self._state_since,
                 down_s=max(0, down) / 1e9, out_dir=str(self.settings.out_dir))
@@ -497,6 +500,8 @@ class Recorder:
             self._written += Counter()  # drops the topics left at zero
             self._samples += Counter()
             self._deleted.update(records)
+            self._deleted_samples.update(samples)
+            self._deleted_samples += Counter()
             self._on_disk = dict(self._on_disk_before_file if gone == "file" else self._on_disk_before_dir)
         self._newest_written = dict(self._on_disk)
         for c in (*self._in_file, *self._in_dir) if gone == "folder" else self._in_file:

@@ -42,19 +42,26 @@ def run_summary(daemon: Daemon) -> str:
             note = "" if state[1] else "  (not finished: `logger recover` it)"
             lines.append(f"  {p}  {state[0] / 1e6:.1f} MB{note}")
     written = rec.written
-    if written:
-        width = max(len(t) for t in written)
+    if written or rec.deleted:
+        topics = sorted({*written, *rec.deleted})
+        width = max(len(t) for t in topics)
         # Rates over the time the recorder recorded: over the whole run, a disk full for half of it halved them.
+        # And of every record that reached the disk: those deleted since were recorded at the sensors' rates (the
+        # messages column is what is still there).
         rec_s = span_s - down_s if down_s >= DOWN_SHOWN_S else span_s
         lines.append(f"  {'topic':<{width}}  {'messages':>9}  {'rate Hz':>8}"
-                     + ("  (rates while recording)" if rec_s < span_s else ""))
-        for topic in sorted(written):
-            rate = written[topic] / rec_s if rec_s > 0 else math.nan
+                     + ("  (rates while recording)" if rec_s < span_s else "")
+                     + ("  (rates of all recorded, deleted too)" if rec.deleted else ""))
+        for topic in topics:
+            recorded = written.get(topic, 0) + rec.deleted.get(topic, 0)
+            rate = recorded / rec_s if rec_s > 0 else math.nan
             samples = rec.samples.get(topic)
             # A batch topic's messages are reads: the samples they hold are what its rate is judged by.
+            if samples is not None or topic in rec.deleted_samples:
+                samples = (samples or 0) + rec.deleted_samples.get(topic, 0)
             held = (f"  ({samples} samples, {samples / rec_s:.2f} Hz)" if samples is not None and rec_s > 0
                     else "")
-            lines.append(f"  {topic:<{width}}  {written[topic]:>9}  {rate:>8.2f}{held}")
+            lines.append(f"  {topic:<{width}}  {written.get(topic, 0):>9}  {rate:>8.2f}{held}")
     losses = recorder_losses(down_s, rec.unrecorded, rec.lost, rec.dropped, rec.deleted)
     lines += [f"  ! {line}" for line in losses]
     # The rows as they were when the run was told to stop (a sampler says "stopped" once it has), with the daemon's
