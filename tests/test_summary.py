@@ -92,3 +92,23 @@ def test_a_run_of_which_nothing_is_on_disk_exits_4_and_says_so(tmp_path: Path) -
     r = run_logger("--sim", "--duration", "2", "--out", str(tmp_path / "drive"), "--status-socket",
                    str(tmp_path / "s.sock"), "--config", str(cfg))
     assert r.returncode in (0, 3) and " into 1 file" in r.stdout, r.stdout + r.stderr
+
+
+def test_the_summary_fits_a_terminal_and_keeps_commands_and_paths_whole() -> None:
+    """On a phone's 80 columns the clock and nav lines (108-118 columns) and a recorder's loss (about 160) ran past
+    the edge; on a terminal they wrap under their own indent. Commands and paths are copied whole: never cut."""
+    from logger.runtime.summary import fitted
+
+    clock = ("  clock locked at the end, error bound 14.2 us, 20 PPS edges, 0 relocks (locked 84%, freerun 16% of the "
+             "run)")
+    loss = ("  ! not recording for 36 s of the run (disk full, write errors or the storage not mounted: see the log); "
+            "1695 records came meanwhile and were not recorded")
+    plot = "  logger plot /var/lib/vehicle-logger/drives/drive_20261207T093650Z_0001.mcap --out plots/"
+    path = "  /var/lib/vehicle-logger/drives/drive_20261207T093650Z_0001.mcap  12.3 MB  (not finished: recover it)"
+    text = "\n".join(["logger: recorded 80.0 s of drive into 1 file, 0.4 MB", clock, loss, "next:", plot, path])
+    out = fitted(text, 80).split("\n")
+    assert all(len(line) <= 80 for line in out if line not in (plot, path)) and plot in out and path in out
+    assert " ".join(line.strip() for line in out[1:3]) == clock.strip()  # the words all there, in order
+    assert out[1].startswith("  clock ") and out[2].startswith("    ") and out[3].startswith("  ! not recording")
+    assert all(line.startswith("      ") for line in out[4:out.index("next:")])  # the loss's own indent
+    assert fitted(text, 200) == text

@@ -11,6 +11,7 @@ import argparse
 import logging
 import math
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from logger.runtime import logs
 from logger.runtime.daemon import Daemon
 from logger.runtime.state_file import StateInUse, lock_state, unlock_state
 from logger.runtime.status_socket import free_sim_socket
-from logger.runtime.summary import run_summary, shortfalls
+from logger.runtime.summary import fitted, run_summary, shortfalls
 
 log = logging.getLogger("logger")
 
@@ -167,7 +168,9 @@ def finish(daemon: Daemon, code: int) -> int:
     with this line in the journal), do not take it for a drive. Restart= does not act on a stop, so the service
     is not restarted for it; the daemon itself never ends on a full disk, it waits for space."""
     try:
-        print(run_summary(daemon), flush=True)
+        text = run_summary(daemon)
+        # On a terminal, fitted to it; the journal and a pipe get whole lines (one line, one grep)
+        print(fitted(text, shutil.get_terminal_size((80, 24)).columns) if sys.stdout.isatty() else text, flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
     if code == 0 and not any(daemon.recorder.status().written.values()):

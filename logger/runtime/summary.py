@@ -10,6 +10,7 @@ how long the filter had a position, and the commands to look at the drive.
 from __future__ import annotations
 
 import math
+import textwrap
 from importlib.util import find_spec
 from typing import Any
 
@@ -98,6 +99,23 @@ def run_summary(daemon: Daemon) -> str:
         lines += ["next:", f"  logger info {drive}", f"  logger plot {drive} --out plots/{plot_needs}",
                   f"  logger replay {drive} --out replay/", "  or open the files in Foxglove (docs/foxglove.md)"]
     return "\n".join(lines)
+
+
+def fitted(text: str, width: int) -> str:
+    """The summary for a terminal ``width`` columns wide: a line of words longer than that wrapped under its own
+    indent (two more for the lines after the first); commands and file paths, which are copied whole, stay whole.
+    The clock and nav lines and a recorder's loss ran to 108-160 columns on a phone's 80."""
+    out: list[str] = []
+    for line in text.split("\n"):
+        body = line.lstrip(" ")
+        if len(line) <= width or body.startswith(("logger ", "/")):
+            out.append(line)
+            continue
+        lead = line[:len(line) - len(body)]
+        more = lead + ("    " if body.startswith("! ") else "  ")
+        out += textwrap.wrap(body, width, initial_indent=lead, subsequent_indent=more, break_long_words=False,
+                             break_on_hyphens=False)
+    return "\n".join(out)
 
 
 DOWN_SHOWN_S = 1.0  # recorder downtime below this is not worth a line (a rotation's open is not downtime)
