@@ -332,3 +332,22 @@ def test_a_mistyped_command_is_one_line_and_not_the_critical_exit(args: list[str
         main(["status", *args])
     err = capsys.readouterr().err
     assert stop.value.code == 4 and err.count("\n") == 1 and err.startswith("logger status: "), err
+
+
+def test_a_receivers_first_two_fixes_read_together_do_not_double_its_rate() -> None:
+    """At start a 1 Hz receiver's first two fixes come in one read (one arrival time): the status said gnss 2.1/1,
+    then 1.6, 1.4 ..., 1.0 only once the 10 s window had passed them. Samples at the window's first time start it
+    as one; a FIFO read's samples (distinct times) count as before."""
+    from logger.runtime.sampler import SensorHealth
+
+    h = SensorHealth("gnss", 1.0)
+    h._recent.extend([5 * NS_S, 5 * NS_S, 6 * NS_S])
+    assert h.measured_rate_hz(6 * NS_S) == 1.0
+    h._recent.extend([7 * NS_S, 7 * NS_S, 8 * NS_S])  # two in one read later on: both counted (a host behind)
+    assert h.measured_rate_hz(8 * NS_S) == pytest.approx(4 / 3)
+    imu = SensorHealth("imu", 20.0)
+    imu._recent.extend(range(NS_S, 2 * NS_S + 1, NS_S // 20))
+    assert imu.measured_rate_hz(2 * NS_S) == pytest.approx(20.0)
+
+
+NS_S = 1_000_000_000

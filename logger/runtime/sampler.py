@@ -12,7 +12,7 @@ import logging
 import threading
 import time
 from abc import ABC, abstractmethod
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -124,6 +124,11 @@ class SensorHealth:
         n = len(recent) - first
         if n == 0:
             return 0.0
+        # Samples read together share their time: those at the window's first time start it as one, since the
+        # rate is of the intervals after it (a receiver's first two fixes came in one read: 2.1/1 Hz at start,
+        # 1.0 only after the 10 s window had passed them).
+        first = bisect_right(recent, recent[first]) - 1
+        n = len(recent) - first
         span = recent[-1] - recent[first]
         return (n - 1) / (span / 1e9) if n > 1 and span > 0 else None
 
