@@ -213,6 +213,9 @@ class Recorder:
         self._detail = ""
         self._state_since = self._mono_ns()
         self._dir_id: tuple[int, int] | None = None  # (device, inode) of the output folder the open file is in
+        # ... and that folder held open: a new folder at the next open (made again, or made by a user) tells only
+        # through it whether the old one was deleted or moved away, between two files as well as during one
+        self._dir_fd: int | None = None
         self._thread: threading.Thread | None = None
         self._writer: McapWriter | None = None
         self._stream: Any = None
@@ -323,6 +326,7 @@ class Recorder:
                 if self._stopping:
                     self._drain()
                     self._close_file()
+                    self._hold_folder(None)
                     self._set_state("stopped", "recorder stopped")
                     return
                 if self._now() - self._last_flush >= interval:
@@ -510,6 +514,27 @@ class Recorder:
             for held, went in zip(self._in_dir, (records, samples), strict=True):
                 held.subtract(went)
 
+    def _hold_folder(self, out: Path | None) -> None:
+        """Hold the output folder ``out`` open in place of the last one (None: none)."""
+        if self._dir_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._dir_fd)
+            self._dir_fd = None
+        if out is not None:
+            try:
+                self._dir_fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+            except OSError:
+                self._dir_fd = None
+
+    def _folder_deleted(self) -> bool:
+        """Whether the output folder held open was deleted (no link left; moved away, it keeps one)."""
+        if self._dir_fd is None:
+            return False
+        try:
+            return os.fstat(self._dir_fd).st_nlink == 0
+        except OSError:
+            return False
+
     def _rotate(self) -> None:
         self._close_file()
         self._check_space_and_open()
@@ -606,9 +631,15 @@ class Recorder:
             return
         self._sequence = part
         if self._dir_id != (d.st_dev, d.st_ino):  # a folder of its own (the first, or one made again)
+            if self._dir_id is not None and sum(self._in_dir[0].values()) and self._folder_deleted():
+                # Deleted between two files (a rotation's close and this open): the flushes' own check, which needs
+                # an open file, never saw it, and the run's earlier files were still counted on disk.
+                log.error("the output folder %s was deleted while recording", out)
+                self._deleted_with("folder")
             for c in self._in_dir:
                 c.clear()
             self._on_disk_before_dir = dict(self._on_disk)
+            self._hold_folder(out)
         self._dir_id = (d.st_dev, d.st_ino)
         for c in self._in_file:
             c.clear()
