@@ -223,8 +223,10 @@ class PpsClock(StampClock):
     def time_doubt(self) -> str | None:
         if not self.labeller.leap_unknown:
             return None
-        return (f"receiver has no broadcast leap-second count yet (cold start, up to 12.5 min): stamps within "
-                f"{LEAP_UNKNOWN_NS // NS} s")
+        said = "receiver has no broadcast leap-second count yet (cold start, up to 12.5 min): "
+        if self._locked_once or self._restored:
+            return said + f"stamps within {LEAP_UNKNOWN_NS // NS} s"
+        return said + "its UTC may be whole seconds off"  # free-running stamps: their own bound, none of this
 
     def recheck_wall(self, now_ns: int) -> None:
         """Before the first lock, on a system clock that was not synchronised at start: every WALL_RECHECK_S, whether
@@ -407,7 +409,9 @@ class PpsClock(StampClock):
         if len(self._edges) >= CONFIRM_EDGES and not self._confirm_left:
             self._unconfirmed_ns = 0.0
         self._consecutive += 1
-        if self.on_sample is not None and self._locked_once:
+        if self.on_sample is not None and self._locked_once and not self.labeller.doubt_ns:
+            # Not while the labels may be whole seconds off (a leap count the receiver has not confirmed, labels
+            # that disagree): chrony would steer the system clock by them, a second off.
             self.on_sample(true_board_ns, self.labeller.to_unix_plain(label_ns))
         if not self._locked_once and len(self._edges) >= self.s.lock_samples and self._agrees_with_wall(edge_ns):
             self._locked_once = True

@@ -39,4 +39,5 @@ class FixEpoch:
     # The receiver said its leap-second count is not yet the broadcast one (UBX NAV-TIMEGPS leapSValid clear: a cold
     # start's first 12.5 min at most, until the almanac page with the UTC parameters came): its UTC, and the GPS-UTC
     # the clock learns from it, may be its firmware's default, whole seconds off. The clock's bound says so.
-    leap_unknown: bool = False
+    # None: the receiver did not say (this epoch lacked NAV-TIMEGPS, or an NMEA receiver): the last word stands.
+    leap_unknown: bool | None = None

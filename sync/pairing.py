@@ -135,7 +135,8 @@ class EdgeLabeller:
 
     def on_fix(self, fix: FixEpoch, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
         utc = fix.gnss_time_ns
-        self.leap_unknown = fix.leap_unknown
+        if fix.leap_unknown is not None:  # an epoch without the word (a NAV-TIMEGPS dropped) changes nothing
+            self.leap_unknown = fix.leap_unknown
         itow = fix.itow_ms
         if fix.leap_second and utc % DAY_NS < NS:
             # The receiver says this epoch is 23:59:60: the Unix second after it repeats this one's.

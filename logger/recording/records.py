@@ -143,7 +143,7 @@ def location_fix(fix: GnssFix, t_mono_ns: int, late_read: bool = False, opened_m
         "num_sv": fix.num_sv, "pdop": fix.pdop, "hdop": fix.hdop,
         "vdop": fix.vdop, "source": fix.source, "late_read": late_read,
         **({"leap_second": True} if fix.leap_second else {}),
-        **({"leap_unknown": True} if fix.leap_known is False and fix.time_valid else {}),
+        **({"leap_unknown": not fix.leap_known} if fix.leap_known is not None and fix.time_valid else {}),
         **({"opened_mono_ns": opened_mono_ns} if opened_mono_ns is not None else {}),
     }
 
@@ -199,7 +199,7 @@ def fix_epoch(payload: dict[str, Any]) -> FixEpoch | None:
     t = payload.get("gnss_time_ns")
     return None if t is None else FixEpoch(t, payload.get("itow_ms"), bool(payload.get("late_read")),
                                            bool(payload.get("leap_second")), payload.get("opened_mono_ns"),
-                                           bool(payload.get("leap_unknown")))
+                                           payload.get("leap_unknown"))
 
 
 def clock_observer(clock: StampClock) -> dict[str, ClockInput]:

@@ -148,7 +148,8 @@ GNSS_FIX_FIELDS: dict[str, Field] = {
                                 "are then POSIX's Unix time for it, that of the 00:00:00 after it (absent otherwise)"),
     "leap_unknown": ("boolean?", "true when the receiver said its leap-second count is not yet the broadcast one (UBX "
                                  "NAV-TIMEGPS leapSValid clear, up to 12.5 min after a cold start): gnss_time_ns may "
-                                 "be whole seconds off, and the clock's bound says so (absent otherwise)"),
+                                 "be whole seconds off, and the clock's bound says so; false when it said the count "
+                                 "is; absent when the epoch did not say (no NAV-TIMEGPS in it, NMEA, gpsd)"),
 }
 
 TOPICS: dict[str, TopicSpec] = {}
