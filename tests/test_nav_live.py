@@ -540,6 +540,12 @@ def test_records_stamped_before_gnss_time_on_a_clock_with_no_bound_never_reach_t
     # The status says so, not "waiting for the IMU: no sample yet" beside an IMU row that says ok
     assert nav.section()["verdicts"] == [f"initialising: waiting for GNSS time (the clock's first lock): {before} "
                                          "records stamped without it left out"]
+    # Once a record with GNSS time comes, that is not what the filter waits for: an IMU that never delivers is
+    # (the line said "waiting for GNSS time" for the whole run after one unbound record)
+    fix = next(msg for _, topic, msg in recs[before:] if topic == "/gnss/fix")
+    with nav._lock:
+        nav.take([("/gnss/fix", fix)])
+    assert nav.section()["verdicts"] == ["initialising: waiting for the IMU: no sample yet"]
     rerun = NavRerun(NavParams(), lambda p: NavEngine(p))
     for _, topic, msg in recs:  # replay's feeding, record by record
         rerun.feed(topic, msg)

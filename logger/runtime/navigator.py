@@ -110,6 +110,7 @@ class Navigator:
         self.dropped = 0
         self.processed = 0
         self.unplaced = 0  # records not given to the filter: stamped before GNSS time, on a clock with no bound
+        self.unplaced_since_placed = 0  # ... of them since the last record that was given (0: GNSS time is known)
         self.cpu_s = 0.0
         self._halt = threading.Event()
         # Set by an offer that fills a quarter of the queue: a fast simulated drive (or a 1 kHz burst) is taken
@@ -314,6 +315,7 @@ class Navigator:
         # (records.unplaced), and a boot date's stamps would stand as the newest times and release measurements early.
         placed = [r for r in records if not unplaced(r[1])]
         self.unplaced += len(records) - len(placed)
+        self.unplaced_since_placed = 0 if placed else self.unplaced_since_placed + len(records)
         records = self.in_time_order(placed, release)
         rerun, run = self.rerun, []
         self._arm_tap()
@@ -423,11 +425,11 @@ class Navigator:
                 # beside an IMU row that says ok was not true. After its first turn the records waiting are not
                 # why (an IMU that never delivers left this line up for a whole run beside the GNSS's records).
                 verdicts = [f"initialising: {plural(self.queued, 'record')} waiting for the filter's first turn"]
-            elif sol is None and self.engine.counters.imu == 0 and self.unplaced:
+            elif sol is None and self.engine.counters.imu == 0 and self.unplaced_since_placed:
                 # Records stamped before GNSS time never reach the filter (take): its "no IMU sample yet" beside an
                 # IMU that delivers sent the operator to the wrong sensor, for as long as the receiver had no fix.
                 verdicts = [f"initialising: waiting for GNSS time (the clock's first lock): "
-                            f"{plural(self.unplaced, 'record')} stamped without it left out"]
+                            f"{plural(self.unplaced_since_placed, 'record')} stamped without it left out"]
             out: dict[str, Any] = {"lat_deg": None, "lon_deg": None, "height_m": None, "sigma_h_m": None,
                                    "source": "", "mode": self.engine.mode, "verdicts": verdicts,
                                    "dropped": self.dropped, "processed": self.processed,
