@@ -265,7 +265,9 @@ def solution_summary(solution: SolutionFile, used: SolutionPolicy, mode: str) ->
     return (f"GNSS solution {solution.path.name} ({solution.time_system}, {solution.position_format}: {counts}), "
             f"{'instead of' if mode == 'replace' else 'beside'} the receiver's positions: used {took}"
             + (f" (the filter's gate refused {offered - used.accepted})" if used.accepted < offered else "")
-            + (f"; not used: {'; '.join(left)}" if left else ""))
+            + (f"; not used: {'; '.join(left)}" if left else "")
+            + ("; not compared with the receiver's fixes (no epoch of theirs at its times)"
+               if offered and not used.receiver_distances_m else ""))
 
 
 def not_used(used: SolutionPolicy) -> list[str]:
