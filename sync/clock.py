@@ -106,12 +106,16 @@ class PpsClock(StampClock):
         self._lock = threading.RLock()
         mono = monotonic_ns()
         self._freerun_offset_ns = wall_ns() - mono
-        # A free run from a mapping the fit gave (_pair_again): its time, the fit's frequency kept from then, the
-        # temperature then and the bound the temperature has added since (the crystal drifts on without edges).
+        # A free run from a mapping the fit gave (_pair_again), carried on as a holdover is: its time, the fit's
+        # frequency then, the temperature then with the learnt coefficient's correction since and the bound the
+        # temperature adds (the crystal drifts on without edges), and the kernel's K and rate then (NTP's slew of
+        # the monotonic clock since is taken out, with the raw clock).
         self._freerun_from_ns: int | None = None
         self._freerun_slope = 0.0
         self._freerun_temp: float | None = None
         self._freerun_temp_ns = 0.0
+        self._freerun_comp_ns = 0.0
+        self._freerun_kernel: tuple[float, float] | None = None
         self.labeller = EdgeLabeller(self.s.pps_latency_ns)
         # Leap seconds: the fit runs in the labeller's continuous scale; a stamp becomes Unix time on the way out.
         self.labeller.now_ns = monotonic_ns
@@ -264,7 +268,12 @@ class PpsClock(StampClock):
             self._freerun_from_ns = now
             self._freerun_slope = self._current_slope(now)
             self._freerun_temp = self._last_temp[1] if self._last_temp is not None else None
-            self._freerun_temp_ns = 0.0
+            self._freerun_temp_ns = self._freerun_comp_ns = 0.0
+            self._freerun_kernel = None
+            if self.kslew is not None and self._edges:
+                edge = self.kslew.edge_rate(*self._kernel_window())
+                if edge is not None:
+                    self._freerun_kernel = (self.kslew.at(now), edge[2])
         log.warning("GNSS time has disagreed with the clock's by %+.0f s for %d PPS edges (not at a month's end: no "
                     "leap second); pairing again on the receiver's time (a receiver that corrected its leap seconds, "
                     "or the clock's own chain was a second off)", diff_ns / NS, REPAIR_LABELS)
@@ -583,8 +592,11 @@ class PpsClock(StampClock):
             return
         dt = (t_ns - last[0]) / NS
         if self._freerun_from_ns is not None and self._freerun_temp is not None and t_ns > self._freerun_from_ns:
-            self._freerun_temp_ns += (self._tempco_uncertainty() * abs(0.5 * (temp + last[1]) - self._freerun_temp)
-                                      * dt * NS)
+            d_free = 0.5 * (temp + last[1]) - self._freerun_temp
+            k_free = self.tempco.coefficient()
+            if k_free is not None:
+                self._freerun_comp_ns += k_free * d_free * dt * NS
+            self._freerun_temp_ns += self._tempco_uncertainty() * abs(d_free) * dt * NS
         if self._temp_at_fit is None:
             return
         d_temp = 0.5 * (temp + last[1]) - self._temp_at_fit
@@ -675,11 +687,8 @@ class PpsClock(StampClock):
                 if self._freerun_from_ns is None:
                     return Stamps((t + self._freerun_offset_ns).tolist(), [FREERUN] * n, [self._freerun_err_ns] * n,
                                   imu_cnt.tolist(), timer_cnt.tolist())
-                d = t - self._freerun_from_ns
-                off = self._freerun_offset_ns + np.rint(self._freerun_slope * d).astype(np.int64)
-                err = self._freerun_err_ns + np.rint(self.s.stability_ppm * 1e-6 * np.abs(d) + self._freerun_temp_ns)
-                return Stamps((t + off).tolist(), [FREERUN] * n, err.astype(np.int64).tolist(), imu_cnt.tolist(),
-                              timer_cnt.tolist())
+                unix, err = self._repair_run(t)
+                return Stamps(unix.tolist(), [FREERUN] * n, err.tolist(), imu_cnt.tolist(), timer_cnt.tolist())
             last = self._last_sample_ns
             s = self.s
             if (len(t) and last is not None and self._locked_once and times_ns[0] > last
@@ -738,13 +747,28 @@ class PpsClock(StampClock):
         if state == FREERUN or self._fit is None:
             if self._freerun_from_ns is None:
                 return Stamp(t_mono_ns + self._freerun_offset_ns, FREERUN, self._freerun_err_ns, imu_cnt, timer_cnt)
-            d = t_mono_ns - self._freerun_from_ns
-            return Stamp(t_mono_ns + self._freerun_offset_ns + round(self._freerun_slope * d), FREERUN,
-                         self._freerun_err_ns + round(self.s.stability_ppm * 1e-6 * abs(d) + self._freerun_temp_ns),
-                         imu_cnt, timer_cnt)
+            unix, err = self._repair_run(np.array([t_mono_ns], dtype=np.int64))
+            return Stamp(int(unix[0]), FREERUN, int(err[0]), imu_cnt, timer_cnt)
         off = self._offset_at(t_mono_ns)
         unix, leap_err = self.labeller.publish(t_mono_ns + round(off))
         return Stamp(unix, state, max(1, round(self._err_at(t_mono_ns, state) + leap_err)), imu_cnt, timer_cnt)
+
+    def _repair_run(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (Unix ns) and bounds of board times in the free run after pairing again: the mapping of that
+        moment carried on as a holdover's (the fit's frequency then, the learnt temperature correction since, NTP's
+        slew since taken out), its bound growing as a holdover's (stability, the temperature's allowance, the
+        kernel's margin), published through the leap seconds as locked stamps are. One form for stamp and
+        stamp_many: the same times."""
+        assert self._freerun_from_ns is not None
+        d = t - self._freerun_from_ns
+        rel = self._freerun_slope * d + self._freerun_comp_ns
+        err = self._freerun_err_ns + self.s.stability_ppm * 1e-6 * np.abs(d) + self._freerun_temp_ns
+        kernel = self._freerun_kernel
+        if kernel is not None and self.kslew is not None:
+            rel = rel - ((self.kslew.at_many(t) - kernel[0]) - kernel[1] * d)
+            err = err + self.kslew.margin_ns
+        unix, leap_err = self.labeller.publish_many(t + self._freerun_offset_ns + np.rint(rel).astype(np.int64))
+        return unix, np.rint(err + leap_err).astype(np.int64)
 
     # ---- reporting and persistence ----------------------------------------------------------------------------
     def report(self, now_ns: int | None = None) -> TrackingReport:
