@@ -19,7 +19,15 @@ from typing import Any
 
 from logger.nav.params import NavParams
 from logger.recording.settings import MIB, RecorderSettings
-from sensors.sim.profile import GNSS_RATES_HZ, IMUS, MAX_GNSS_LATENCY_S, RECEIVER_MODELS, RECEIVERS, SimProfile
+from sensors.sim.profile import (
+    GNSS_RATES_HZ,
+    IMUS,
+    MAX_GNSS_LATENCY_S,
+    MAX_LEAP_UNCONFIRMED_S,
+    RECEIVER_MODELS,
+    RECEIVERS,
+    SimProfile,
+)
 from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
@@ -327,6 +335,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                               "which u-blox: 'NEO-M8N' (no raw observations), 'NEO-M8T' or 'ZED-F9P' (raw)"),
         "gnss_rate_hz": Key(NUM, FIELD, _one_of(*GNSS_RATES_HZ), "the simulated receiver's fixes per second"),
         "gnss_latency_s": Key(NUM, FIELD, _range(0, MAX_GNSS_LATENCY_S), "least delay of a fix after its epoch"),
+        "leap_unconfirmed_s": Key(NUM, FIELD, _range(0, MAX_LEAP_UNCONFIRMED_S),
+                                  "a cold start: seconds after the first fix with the leap count not yet broadcast"),
         "imu": Key(str, FIELD, _one_of(*IMUS), "'mpu6050' (datasheet errors) or 'phone' (phone-grade, 100 Hz)"),
         "mounting_rpy_deg": Key(list, FIELD, _vector3(180.0),
                                 "simulated IMU board against the vehicle; the filter is not told"),

@@ -275,3 +275,30 @@ def test_the_daemons_service_thread_ending_is_critical_in_the_status(tmp_path: P
             "service") in snap["problems"], snap["problems"]
     finally:
         daemon.stop()
+
+
+def test_a_cold_start_receivers_unconfirmed_leap_count_is_in_the_status_until_it_says_otherwise(
+        tmp_path: Path) -> None:
+    """The simulated receiver on a cold start (`[sim] leap_unconfirmed_s`): its NAV-TIMEGPS says the leap count is
+    not yet the broadcast one for the first seconds after its fix. Through the real chain (UBX bytes on a pty, the
+    decoder, the records, the clock, the status): the fix records say leap_unknown, the status names the doubt, and
+    both end when the receiver says the count is confirmed."""
+    cfg = sim_config(tmp_path)
+    cfg.values["sim"].update(time_scale=4.0, leap_unconfirmed_s=12.0)
+    daemon, _ = build(cfg, duration_s=3600)
+    sock = tmp_path / "status.sock"
+    daemon.start()
+    seen: list[list[str]] = []
+    try:
+        def doubted() -> bool:
+            seen.append(fetch(sock)["problems"])
+            return any("no broadcast leap-second count" in p for p in seen[-1])
+
+        wait_for("the leap doubt in the status", doubted)
+        wait_for("the doubt gone", lambda: not doubted() and samples(daemon)["gnss"] > 20)
+    finally:
+        daemon.stop()
+    said = [m.msg.get("leap_unknown") for m in iter_messages(open_drive(sorted((tmp_path / "drives").glob("*.mcap"))),
+                                                             ["/gnss/fix"]) if m.msg.get("gnss_time_ns")]
+    first_false = said.index(False)
+    assert first_false >= 5 and set(said[:first_false]) == {True} and set(said[first_false:]) == {False}, said

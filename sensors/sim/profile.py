@@ -37,6 +37,7 @@ SOLUTION_JITTER_MAX_S = 0.35
 # A fix must still reach the host within the second after its epoch's PPS edge (sync.pairing's report window),
 # after the latency, the jitter and the line: 0.6 s leaves that.
 MAX_GNSS_LATENCY_S = 0.6
+MAX_LEAP_UNCONFIRMED_S = 750.0  # the almanac page with the UTC parameters comes every 12.5 min
 PHONE_IMU_RATE_HZ = 100.0  # a phone's sensor framework delivers its IMU at about 100 Hz
 
 
@@ -53,6 +54,9 @@ class SimProfile:
     # [nav] mounting_rpy_deg, so that the filter told the same angles undoes them exactly.
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     receiver_model: str = "NEO-M8N"  # a "ubx" receiver's product (RECEIVER_MODELS)
+    # A cold start: seconds after the first fix during which the receiver says its leap count is not yet the
+    # broadcast one (NAV-TIMEGPS leapSValid clear; the almanac's UTC page comes within 12.5 min)
+    leap_unconfirmed_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.receiver not in RECEIVERS:
@@ -66,6 +70,8 @@ class SimProfile:
                              f"(an epoch on every whole second), not {self.gnss_rate_hz!r}")
         if not 0.0 <= self.gnss_latency_s <= MAX_GNSS_LATENCY_S:
             raise ValueError(f"gnss_latency_s must be between 0 and {MAX_GNSS_LATENCY_S:g} s")
+        if not 0.0 <= self.leap_unconfirmed_s <= MAX_LEAP_UNCONFIRMED_S:
+            raise ValueError(f"leap_unconfirmed_s must be between 0 and {MAX_LEAP_UNCONFIRMED_S:g} s")
         if len(self.mounting_rpy_deg) != 3 or not all(math.isfinite(a) for a in self.mounting_rpy_deg):
             raise ValueError("mounting_rpy_deg must be three finite angles [roll, pitch, yaw]")
 
@@ -75,8 +81,9 @@ class SimProfile:
         values = {f.name: sim[f.name] for f in fields(cls) if f.name in sim}
         if "mounting_rpy_deg" in values:
             values["mounting_rpy_deg"] = tuple(float(a) for a in values["mounting_rpy_deg"])
-        if "gnss_rate_hz" in values:
-            values["gnss_rate_hz"] = float(values["gnss_rate_hz"])
+        for name in ("gnss_rate_hz", "leap_unconfirmed_s"):
+            if name in values:
+                values[name] = float(values[name])
         return cls(**values)
 
     @property
@@ -94,7 +101,8 @@ class SimProfile:
         """The profile as a recording's ``simulation`` metadata holds it (strings; the mounting as JSON)."""
         return {"receiver": self.receiver, "receiver_model": self.receiver_model,
                 "gnss_rate_hz": f"{self.gnss_rate_hz:g}", "gnss_latency_s": f"{self.gnss_latency_s:g}", "imu": self.imu,
-                "mounting_rpy_deg": json.dumps([float(a) for a in self.mounting_rpy_deg])}
+                "mounting_rpy_deg": json.dumps([float(a) for a in self.mounting_rpy_deg]),
+                "leap_unconfirmed_s": f"{self.leap_unconfirmed_s:g}"}
 
     @classmethod
     def from_metadata(cls, meta: Mapping[str, str]) -> SimProfile:
@@ -105,5 +113,6 @@ class SimProfile:
                 continue
             raw = meta[f.name]
             values[f.name] = (tuple(json.loads(raw)) if f.name == "mounting_rpy_deg"
-                              else float(raw) if f.name in ("gnss_rate_hz", "gnss_latency_s") else raw)
+                              else float(raw) if f.name in ("gnss_rate_hz", "gnss_latency_s", "leap_unconfirmed_s")
+                              else raw)
         return cls(**values)

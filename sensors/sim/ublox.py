@@ -186,6 +186,7 @@ class UbloxReceiverModel:
         raw_frames: Callable[[EpochRecord], Iterable[bytes]] | None = None,
         sent_log: BinaryIO | None = None,
         usb: bool = False,
+        leap_unconfirmed_s: float = 0.0,
     ) -> None:
         if model is not None and model not in RECEIVER_MODELS:
             raise ValueError(f"model must be one of {', '.join(RECEIVER_MODELS)}, not {model!r}")
@@ -205,6 +206,10 @@ class UbloxReceiverModel:
         self.generation = generation
         self.nmea_talker = nmea_talker
         self.time_to_first_fix_s = float(time_to_first_fix_s)
+        # A cold start: the leap count is the firmware's (NAV-TIMEGPS leapSValid clear) for this long after the
+        # first fix, until the almanac's UTC page (12.5 min at most); the count itself is the right one here.
+        self.leap_unconfirmed_s = float(leap_unconfirmed_s)
+        self._known_since_ns: int | None = None
         self.pulse_time_base = pulse_time_base
         self.max_satellites = max_satellites
         self.tx_buffer_bytes = tx_buffer_bytes
@@ -401,6 +406,7 @@ class UbloxReceiverModel:
         self._input.clear()
         self._power_on_ns = now_ns
         self._time_known = False
+        self._known_since_ns = None
         self._last_fix: EpochRecord | None = None
         self._last_solution_ns: int | None = None
         self._head_mot_deg = 0.0
@@ -555,7 +561,10 @@ class UbloxReceiverModel:
                           generation=self.generation)
             self._enqueue_ubx(ready, pvt, "NAV-PVT")
         if due("NAV-TIMEGPS", solution_index):
-            self._enqueue_ubx(ready, nav_timegps(rec, leap_s=leap_s, time_known=known), "NAV-TIMEGPS")
+            leap_known = (self._known_since_ns is not None
+                          and t_ns - self._known_since_ns >= self.leap_unconfirmed_s * NS_PER_S)
+            self._enqueue_ubx(ready, nav_timegps(rec, leap_s=leap_s, time_known=known, leap_known=leap_known),
+                              "NAV-TIMEGPS")
         if due("GGA", solution_index):
             self._enqueue_nmea(ready, gga(rec, utc_ns if known else None, talker=self.nmea_talker), "GGA")
         if due("RMC", solution_index):
@@ -632,6 +641,8 @@ class UbloxReceiverModel:
             lat = math.degrees(truth.lat_rad + pos_err[0] / (rn + truth.height_m))
             lon = math.degrees(truth.lon_rad + pos_err[1] / ((re + truth.height_m) * math.cos(truth.lat_rad)))
             height = truth.height_m - pos_err[2]
+            if not self._time_known:
+                self._known_since_ns = t_ns
             self._time_known = True
             rec = EpochRecord(t_ns, gps_ns, itow_ms, truth, fix_type, num_sv, lat, lon, height, vel, pos_err,
                               vel - truth.vel_ned_mps, err.time_ns, err, err.h_acc_m, v_acc, err.s_acc_mps,

@@ -115,15 +115,17 @@ def nav_pvt(rec: EpochRecord, utc_ns: int, *, time_known: bool, position_known: 
     )
 
 
-def nav_timegps(rec: EpochRecord, *, leap_s: int, time_known: bool) -> UBXMessage:
-    """UBX-NAV-TIMEGPS: the epoch's week and the clock error as fTOW (clamped to the field's +-0.5 ms)."""
+def nav_timegps(rec: EpochRecord, *, leap_s: int, time_known: bool, leap_known: bool | None = None) -> UBXMessage:
+    """UBX-NAV-TIMEGPS: the epoch's week and the clock error as fTOW (clamped to the field's +-0.5 ms);
+    ``leap_known`` False: the leap count is the firmware's (leapSValid clear), as before the almanac's UTC page."""
     week, _ = GnssTimeline.week_tow(rec.gps_ns)
     f_tow = max(-500_000, min(500_000, round(rec.time_error_ns)))
     return UBXMessage(
         "NAV", "NAV-TIMEGPS", GET,
         iTOW=rec.itow_ms, fTOW=f_tow if time_known else 0, week=week if time_known else 0,
         leapS=leap_s if time_known else 0,
-        towValid=int(time_known), weekValid=int(time_known), leapSValid=int(time_known),
+        towValid=int(time_known), weekValid=int(time_known),
+        leapSValid=int(time_known if leap_known is None else time_known and leap_known),
         tAcc=_acc(rec.t_acc_ns, 1.0),
     )
 

@@ -220,7 +220,8 @@ def build_vehicle(scenario: str = "urban", seed: int = 1, *, time_scale: float =
                                     messages=NMEA_ONLY_MESSAGES if nmea_only else DEFAULT_MESSAGES,
                                     meas_period_ms=profile.meas_period_ms,
                                     baud=FAST_RECEIVER_BAUD if profile.gnss_rate_hz > 2 else None,
-                                    latency_s=(profile.gnss_latency_s, SOLUTION_JITTER_S))
+                                    latency_s=(profile.gnss_latency_s, SOLUTION_JITTER_S),
+                                    leap_unconfirmed_s=profile.leap_unconfirmed_s)
         devices.gnss_path = v.gnss_port.path
         devices.gnss_baud = v.gnss.baud
         devices.gnss_meas_period_ms = v.gnss.meas_period_ms
