@@ -244,7 +244,7 @@ def test_a_member_added_since_this_login_is_told_to_log_in_again(tmp_path: Path,
     monkeypatch.setattr(status_socket.grp, "getgrgid", lambda g: SimpleNamespace(gr_name="vehicle-logger",
                                                                                   gr_mem=[me], gr_gid=real.gr_gid))
     monkeypatch.setattr(status_socket.os, "getgroups", lambda: [g for g in (gid + 1, gid + 2)])
-    assert str(status_socket.denied(sock)) == (f"not allowed to read {sock}: you were added to the group "
+    assert str(status_socket.denied(sock)) == (f"not allowed to read {sock}:\n  you were added to the group "
                                                "vehicle-logger after this login: log in again (or run `newgrp "
                                                "vehicle-logger`)")
     monkeypatch.setattr(status_socket.os, "getgroups", lambda: [gid])  # a member in this session: not that

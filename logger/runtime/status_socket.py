@@ -154,8 +154,9 @@ class StatusServer(threading.Thread):
 
 
 def denied(path: Path) -> StatusDenied:
-    """Not allowed to read ``path`` (the socket, or its folder): what to do about it, by the group that owns it."""
-    return StatusDenied(f"not allowed to read {path}: {group_advice(path)}")
+    """Not allowed to read ``path`` (the socket, or its folder): what to do about it, by the group that owns it, on a
+    line of its own (together they ran to 120 columns and more on a phone's 80)."""
+    return StatusDenied(f"not allowed to read {path}:\n  {group_advice(path)}")
 
 
 def group_advice(path: Path) -> str:
