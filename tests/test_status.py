@@ -248,7 +248,8 @@ def test_a_member_added_since_this_login_is_told_to_log_in_again(tmp_path: Path,
                                                "vehicle-logger after this login: log in again (or run `newgrp "
                                                "vehicle-logger`)")
     monkeypatch.setattr(status_socket.os, "getgroups", lambda: [gid])  # a member in this session: not that
-    assert "sudo usermod -a -G vehicle-logger $USER" in str(status_socket.denied(sock))
+    told = str(status_socket.denied(sock))
+    assert "\n  sudo usermod -a -G vehicle-logger $USER" in told and max(map(len, told.split("\n")[1:])) < 80, told
 
 
 def test_status_reads_the_socket_from_a_simulated_runs_configuration_and_says_what_is_wrong_with_one(

@@ -180,7 +180,7 @@ def group_advice(path: Path) -> str:
     name = group.gr_name
     if user in group.gr_mem and gid not in os.getgroups():
         return f"you were added to the group {name} after this login: log in again (or run `newgrp {name}`)"
-    return f"add yourself to the logger's group: sudo usermod -a -G {name} $USER, then log in again"
+    return f"add yourself to the logger's group, then log in again:\n  sudo usermod -a -G {name} $USER"
 
 
 def _connect_error(exc: OSError, path: str | os.PathLike[str], timeout_s: float) -> ConnectionError:
