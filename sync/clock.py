@@ -237,7 +237,8 @@ class PpsClock(StampClock):
         it is now (NTP came after the logger); then the free-running stamps follow it with its bound, and the first
         lock is checked against it. Stamps given before stay as they were (their bound said none)."""
         check = self._wall_check
-        if check is None or self.wall_trusted or self._locked_once or self._restored:
+        if (check is None or self.wall_trusted or self._locked_once or self._restored
+                or self._freerun_from_ns is not None):  # a free run after pairing again: the clock's own mapping
             return
         if self._wall_checked_ns is not None and now_ns - self._wall_checked_ns < WALL_RECHECK_S * NS:
             return
@@ -245,7 +246,7 @@ class PpsClock(StampClock):
         if not check():  # outside the lock: it may ask timedated (up to 2 s)
             return
         with self._lock:
-            if self._locked_once or self._restored:
+            if self._locked_once or self._restored or self._freerun_from_ns is not None:
                 return
             old = self._freerun_offset_ns
             self.wall_trusted = True

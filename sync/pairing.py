@@ -51,6 +51,10 @@ REPAIR_LABELS = 10
 # leapSValid clear): the count it uses then is its firmware's default, as old as the firmware. GPS-UTC was 15 s
 # from 2009 to mid-2012 and is 18 s since 2017-01-01, so firmware of u-blox 6 (2010) onwards is at most 3 s stale.
 LEAP_UNKNOWN_NS = 3 * NS
+# ... and how long the receiver's last word that its count is not confirmed stands when no word comes after it (a
+# receiver read through NMEA or gpsd, or one whose NAV-TIMEGPS was switched off): the almanac's UTC page comes
+# within 12.5 min, so after that, and a minute's margin, the count is the broadcast one whatever was last said.
+LEAP_UNKNOWN_HOLD_NS = 810 * NS
 
 Predict = Callable[[int], "int | None"]
 
@@ -97,7 +101,9 @@ class EdgeLabeller:
         self.now_ns: Callable[[], int] | None = None  # the clock's board time now, for when a leap became known
         self._candidate: tuple[int, int, int] | None = None  # (midnight, sign, labels so far) of a leap not yet sure
         self._disagree: tuple[int, int] = (0, 0)  # (whole seconds, labels in a row) the labels say off the prediction
-        self.leap_unknown = False  # the latest fix's receiver had no broadcast leap count yet (FixEpoch.leap_unknown)
+        # When the receiver last said its leap count is not the broadcast one (FixEpoch.leap_unknown; None: it said
+        # it is, or never said): the word stands until it says otherwise, or for LEAP_UNKNOWN_HOLD_NS without a word
+        self._leap_unknown_at: int | None = None
         self.repair_due = False  # REPAIR_LABELS in a row disagreed: the clock is to pair again (take_repair)
         self._last_ambiguous = False  # the last label was a Unix second a leap second shares (gpsd's PPS)
         self._unsure_cache: tuple[object, int | None] | None = None
@@ -136,7 +142,7 @@ class EdgeLabeller:
     def on_fix(self, fix: FixEpoch, received_ns: int, predict: Predict) -> list[tuple[int, int]]:
         utc = fix.gnss_time_ns
         if fix.leap_unknown is not None:  # an epoch without the word (a NAV-TIMEGPS dropped) changes nothing
-            self.leap_unknown = fix.leap_unknown
+            self._leap_unknown_at = received_ns if fix.leap_unknown else None
         itow = fix.itow_ms
         if fix.leap_second and utc % DAY_NS < NS:
             # The receiver says this epoch is 23:59:60: the Unix second after it repeats this one's.
@@ -392,6 +398,14 @@ class EdgeLabeller:
         k, n = self._disagree
         said = abs(k) * NS if n >= DOUBT_LABELS else 0
         return max(said, LEAP_UNKNOWN_NS) if self.leap_unknown else said
+
+    @property
+    def leap_unknown(self) -> bool:
+        """Whether the receiver's last word on its leap count, within LEAP_UNKNOWN_HOLD_NS, was "not confirmed"."""
+        at = self._leap_unknown_at
+        if at is None:
+            return False
+        return self.now_ns is None or self.now_ns() - at <= LEAP_UNKNOWN_HOLD_NS
 
     def take_repair(self) -> int | None:
         """The disagreement (ns, labels minus prediction) when REPAIR_LABELS in a row said it, once; else None."""

@@ -733,3 +733,20 @@ def test_a_folder_moved_away_or_unmounted_while_recording_keeps_its_records_coun
     st = rec.status()
     assert st.deleted == {} and st.lost == {} and st.written == {"/a": 2}, st
     assert _records_on_disk(tmp_path / "moved") + _records_on_disk(out) == 2
+
+
+def test_a_recorder_stopped_on_an_error_lets_go_of_its_folder(tmp_path: Path) -> None:
+    """The output folder is held open (to tell it deleted from moved): a stop whose last close failed (a card
+    failing) left it open after the recorder had stopped, keeping the storage busy."""
+    rec = Recorder(RecorderSettings(out_dir=tmp_path / "drives", flush_interval_s=0.05), TOPICS)
+    rec.start()
+    assert wait_until(lambda: rec._dir_fd is not None, 20.0)
+    close = rec._close_file
+
+    def failing_close() -> None:
+        close()
+        raise OSError(5, "Input/output error")
+
+    rec._close_file = failing_close  # type: ignore[method-assign]
+    rec.stop()
+    assert rec.status().state == "stopped" and rec._dir_fd is None

@@ -1206,7 +1206,7 @@ def test_a_receiver_without_its_broadcast_leap_count_is_never_trusted_to_the_sec
     observe_clock(clock, "/gnss/fix", {**fix, "leap_unknown": True}, stream.events[-1][0])
     assert (clock.time_doubt() or "").endswith("no broadcast leap-second count yet (cold start, up to 12.5 min): "
                                                "stamps within 3 s")
-    fresh = PpsClock(SyncSettings(), monotonic_ns=lambda: fix["gnss_time_ns"], wall_ns=lambda: 0)
+    fresh = PpsClock(SyncSettings(), monotonic_ns=lambda: stream.events[0][0], wall_ns=lambda: 0)
     observe_clock(fresh, "/gnss/fix", {**fix, "leap_unknown": True}, stream.events[0][0])
     assert (fresh.time_doubt() or "").endswith("its UTC may be whole seconds off")  # free-running: no 3 s claim
 
@@ -1308,3 +1308,50 @@ def test_stamps_keep_nanoseconds() -> None:
     times = [int(b) + k * 1_000_003 for b in board[-3:] for k in range(20)]
     many = clock.stamp_many(times).t_sync_ns
     assert many == [clock.stamp(t).t_sync_ns for t in times] and np.mean(np.array(many) % 256 != 0) > 0.9
+
+
+def test_a_receivers_unconfirmed_leap_count_is_doubted_until_it_says_otherwise_or_for_the_almanacs_time() -> None:
+    """One "not confirmed" word and then none (a receiver reopened as NMEA, read through gpsd, its NAV-TIMEGPS
+    switched off) held the 3 s bound, chrony's silence and the status line for the rest of the run (four hours in
+    the review's script). The word stands for the almanac's 12.5 min and a minute more (LEAP_UNKNOWN_HOLD_NS)."""
+    from sync.pairing import LEAP_UNKNOWN_HOLD_NS, EdgeLabeller
+
+    now = [100 * NS]
+    lab = EdgeLabeller(7_000)
+    lab.now_ns = lambda: now[0]
+    t = 1_796_000_000 * NS
+    lab.on_fix(FixEpoch(t, None, leap_unknown=True), now[0], lambda _t: None)
+    assert lab.leap_unknown and lab.doubt_ns == 3 * NS
+    for k in range(1, 600):  # epochs without the word (None): the last word stands meanwhile
+        now[0] = (100 + k) * NS
+        lab.on_fix(FixEpoch(t + k * NS, None), now[0], lambda _t: None)
+    assert lab.leap_unknown
+    now[0] = 100 * NS + LEAP_UNKNOWN_HOLD_NS + NS
+    assert not lab.leap_unknown and lab.doubt_ns == 0
+    lab.on_fix(FixEpoch(t + 900 * NS, None, leap_unknown=True), now[0], lambda _t: None)
+    lab.on_fix(FixEpoch(t + 901 * NS, None, leap_unknown=False), now[0] + NS, lambda _t: None)
+    assert not lab.leap_unknown  # said confirmed: at once
+
+
+def test_a_free_run_after_pairing_again_is_not_given_up_for_the_system_clock() -> None:
+    """After pairing again the clock counts as not locked, so the wall re-check (every 30 s from the health loop)
+    took a system clock synchronised meanwhile instead of the clock's own mapping: 300 ms off behind 10 s."""
+    t0, correct, out_from = 1_796_000_000, 60, 71
+    now = [0.0]
+
+    def mono() -> int:
+        return round(5000 * NS + now[0] * NS)
+
+    clock = PpsClock(monotonic_ns=mono, wall_ns=lambda: round((t0 + now[0] + 0.3) * NS),
+                     wall_synchronized=lambda: True)
+    for k in range(out_from):
+        now[0] = k + 7e-6
+        clock.on_edge(mono())
+        now[0] = k + 0.15
+        clock.on_fix_epoch(FixEpoch((t0 + k + (1 if k < correct else 0)) * NS, None), mono())
+    now[0] = out_from + 5
+    before = clock.stamp(mono())
+    clock.recheck_wall(mono())
+    after = clock.stamp(mono())
+    assert clock.counts["repairs"] == 1 and before.state == after.state == "freerun"
+    assert after.t_sync_ns == before.t_sync_ns and after.err_ns == before.err_ns < 1.1 * NS

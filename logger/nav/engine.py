@@ -939,7 +939,7 @@ class NavEngine:
             return
         sol = self.solution
         if sol is not None and msg.gnss_time_ns is not None and self.mode != "gnss":
-            sol.map(msg.gnss_time_ns, fix.t_ns, fix.t_mono_ns, fix.lat, fix.lon)
+            sol.map(msg.gnss_time_ns, fix.t_ns, fix.t_mono_ns, fix.lat, fix.lon, msg.leap_unknown)
         self.last_readings.fix = fix
         v = fix.vel
         # The fixes' speed holds stops too: a car without an OBD adapter, or this filter without its speed (the

@@ -32,6 +32,9 @@ class GnssObservation:
     num_sv: int | None
     hdop: float | None = None  # recordings made before the DOPs were kept have none
     vdop: float | None = None
+    # The receiver said its leap count is not yet the broadcast one (records' leap_unknown): gnss_time_ns may be whole
+    # seconds off, which the post-processed solution's join allows for
+    leap_unknown: bool = False
 
 
 @dataclass(frozen=True, slots=True)

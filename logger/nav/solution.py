@@ -54,9 +54,10 @@ NEVER = 2**63 - 1
 # another vehicle's track passed the time check, the gate refused 826 of its 836 epochs, the filter reset twice onto
 # it and its 480 m error replaced the folder's trajectory with exit 0.
 FOREIGN_SOLUTION_M = 30.0
-# The receiver's fix is compared with the solution's epochs this many whole seconds either side too, the nearest
-# kept: a receiver on its firmware's leap count (a cold start's first 12.5 min) labels its epochs seconds off, and
-# at 33 m/s a second is 33 m (GPS-UTC moved 3 s since 2010: sync.pairing.LEAP_UNKNOWN_NS).
+# A fix whose receiver said its leap count is not yet the broadcast one (a cold start's first 12.5 min) is compared
+# with the solution's epochs this many whole seconds either side too, the nearest kept: it labels its epochs seconds
+# off, and at 33 m/s a second is 33 m (GPS-UTC moved 3 s since 2010: sync.pairing.LEAP_UNKNOWN_NS). Other fixes
+# are compared at their own epoch only: another car on the same road a second or two behind is another track.
 FOREIGN_LABEL_SLACK_S = 3
 RESTART_SPEED_SIGMA_MPS = 1.0  # a filter restarted from a solution epoch (which has no velocity) keeps its own
 
@@ -135,16 +136,17 @@ class SolutionPolicy:
         self._t_prev_ns: int | None = None
 
     def map(self, gnss_time_ns: int, t_ns: int, t_mono_ns: int, lat: float | None = None,
-            lon: float | None = None) -> None:
+            lon: float | None = None, leap_unknown: bool = False) -> None:
         """A receiver fix with a GNSS time was placed at ``t_ns`` (``t_mono_ns``) on the logger's clock; its
-        position (rad), where it has one, is compared with the solution's at the same epoch."""
+        position (rad), where it has one, is compared with the solution's at the same epoch (within
+        FOREIGN_LABEL_SLACK_S of it when ``leap_unknown``)."""
         self._offset = (t_ns - gnss_time_ns, t_mono_ns - t_ns, t_ns)
         self._schedule()
         if lat is not None and lon is not None:
             ms = round(gnss_time_ns / 1e6)
+            slack = FOREIGN_LABEL_SLACK_S if leap_unknown else 0
             near = [math.hypot(*earth.ned_offset_m(there[0], there[1], 0.0, lat, lon, 0.0)[:2])
-                    for k in range(-FOREIGN_LABEL_SLACK_S, FOREIGN_LABEL_SLACK_S + 1)
-                    if (there := self._at_ms.get(ms + 1000 * k)) is not None]
+                    for k in range(-slack, slack + 1) if (there := self._at_ms.get(ms + 1000 * k)) is not None]
             if near:
                 self.receiver_distances_m.append(min(near))
 
@@ -158,8 +160,7 @@ class SolutionPolicy:
         if median < FOREIGN_SOLUTION_M:
             return None
         return (f"its positions lie a median {median:.0f} m from the receiver's own fixes at the same GNSS epochs "
-                f"(the nearest within {FOREIGN_LABEL_SLACK_S} s of them, {len(d)} fixes; over {FOREIGN_SOLUTION_M:g} "
-                "m: another vehicle's or drive's solution?)")
+                f"({len(d)} fixes; over {FOREIGN_SOLUTION_M:g} m: another vehicle's or drive's solution?)")
 
     def _schedule(self) -> None:
         off = self._offset

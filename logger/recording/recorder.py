@@ -335,6 +335,7 @@ class Recorder:
                 log.exception("recorder: unexpected error")
                 self._io_failed(exc)
                 if self._stopping:
+                    self._hold_folder(None)  # the storage is not kept busy by a recorder that has stopped
                     self._set_state("stopped", f"recorder stopped after an error: {type(exc).__name__}: {exc}")
                     return
 
