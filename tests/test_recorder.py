@@ -264,7 +264,8 @@ def test_info_and_recover_commands(tmp_path: Path, capsys) -> None:
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[:-100])
     assert main(["info", str(cut)]) == 0
-    assert "NO (cut short)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "NO (cut short)" in out and "Writer:    vehicle-logger " in out  # from the record walk's header
     # Just written, not closed: it may be a logger's open file (an older logger holds no lock on it): refused
     assert main(["recover", str(cut)]) == 1
     assert "a logger may still be recording it" in capsys.readouterr().err and not is_finished(cut)

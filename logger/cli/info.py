@@ -18,10 +18,10 @@ from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from mcap.records import Channel, Chunk, MessageIndex, Metadata
+from mcap.records import Channel, Chunk, Header, MessageIndex, Metadata
 from mcap.stream_reader import StreamReader
 
-from logger.recording.drive import DriveFileError, describe_writer, drive_paths, header_library
+from logger.recording.drive import DriveFileError, describe_writer, drive_paths
 from logger.recording.files import (
     Loss,
     McapFileError,
@@ -97,6 +97,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
     schemas: dict[int, str] = {}
     config: dict[str, str] = {}  # the daemon's configuration, as the file's "config" metadata keeps it
     note = ""
+    writer = ""  # the header's library (who wrote the file), from whichever walk reads the file
     recording = False
     losses: list[Loss] = []
     if finished:
@@ -122,6 +123,8 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
                         channels[record.id] = record
                     elif type(record).__name__ == "Schema":
                         schemas[record.id] = record.name  # type: ignore[attr-defined]
+                    elif isinstance(record, Header):
+                        writer = record.library  # the walk's record: the file is not opened again for it
                     elif isinstance(record, Metadata) and record.name == "config":
                         config = dict(record.metadata)
         except Exception as exc:  # a footer present but a broken body: fall back to the walk
@@ -131,6 +134,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
             losses.clear()
     if not finished:
         found = walk(p)
+        writer = found.library
         channels = dict(found.channels)
         schemas = {sid: s.name for sid, s in found.schemas.items()}
         for m in found.messages:
@@ -168,7 +172,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
                   f"rest; `logger recover {p}` rewrites the file without {'it' if len(losses) == 1 else 'them'}")
     return FileInfo(str(p), p.stat().st_size, finished, start, end, duration, total, topics, note, silent,
                     sum(x.chunks for x in losses), sum(x.messages for x in losses), damage,
-                    recording, undated, header_library(p))
+                    recording, undated, writer)
 
 
 def _utc(ns: int | None) -> str:

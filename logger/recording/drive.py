@@ -341,7 +341,7 @@ class DriveMessage:
     msg: dict[str, Any]
 
 
-def header_library(path: Path) -> str:
+def _header_library(path: Path) -> str:
     """The ``library`` string of the MCAP header record (the first record after the magic): who wrote the file."""
     try:
         with open(path, "rb") as f:
@@ -569,7 +569,7 @@ def open_drive(paths: Iterable[str | Path]) -> list[DriveFile]:
             raise DriveFileError(f"{p}: cannot open ({exc.strerror or exc})") from exc
         if magic != MAGIC:
             raise DriveFileError(f"{p}: not an MCAP file (no MCAP magic at the start)")
-        origin = "replay" if _writer_name(header_library(p)) == REPLAY_NAME else "live"
+        origin = "replay" if _writer_name(_header_library(p)) == REPLAY_NAME else "live"
         files.append(DriveFile(p, origin, is_finished(p), run_identity(p) if origin == "live" else None,
                                replay_source(p) if origin == "replay" else None))
     runs = {f.run[0] for f in files if f.run is not None}
