@@ -26,6 +26,7 @@ from logger.runtime.sampler import Reading
 from logger.runtime.sources import BaroSource, GnssSource, ImuSource, ObdSource, Plan, PpsSource
 from logger.runtime.timebase import TimeBase, host_timebase
 from sensors.errors import DeviceNotFound
+from sensors.mpu6050_identity import WHO_AM_I_VALUE
 from sensors.sim.profile import SimProfile
 from sync.chrony_sock import ChronySock
 from sync.clock import PpsClock
@@ -157,7 +158,7 @@ def plans_from_config(cfg: Config, tb: TimeBase, devices: VehicleDevices | None 
 
     imu_addr = devices.imu_address if imu["source"] == "sim" else imu["address"]
     src = ImuSource(bus_of(imu), imu_addr, imu["rate_hz"], imu["accel_range_g"], imu["gyro_range_dps"], tb,
-                    imu["read"])
+                    imu["read"], imu["who_am_i"] if imu["source"] != "sim" else WHO_AM_I_VALUE)
     plans.append(Plan(src, src.poll_hz, imu["rate_hz"]))
     baro_addr = devices.baro_address if baro["source"] == "sim" else baro["address"]
     plans.append(Plan(BaroSource(bus_of(baro), baro_addr, baro["oversampling"], baro["sea_level_pa"],

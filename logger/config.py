@@ -19,6 +19,7 @@ from typing import Any
 
 from logger.nav.params import NavParams
 from logger.recording.settings import MIB, RecorderSettings
+from sensors.mpu6050_identity import OTHER_PARTS, WHO_AM_I_VALUE
 from sensors.sim.profile import (
     GNSS_RATES_HZ,
     IMUS,
@@ -82,6 +83,14 @@ def _gpio_line(v: int | str) -> str | None:
     if isinstance(v, str):
         return None if v.strip() else "must be a line offset (0 or more) or a line name, not empty"
     return None if v >= 0 else "must be a line offset of 0 or more (or a line name)"
+
+
+def _who_am_i(v: int) -> str | None:
+    if not 0 <= v <= 0xFF:
+        return "is not a register value (0x00..0xff)"
+    if v in OTHER_PARTS:
+        return f"is {OTHER_PARTS[v]}'s: another register map, FIFO and temperature scale, which the logger cannot read"
+    return None
 
 
 def _i2c_address(v: int) -> str | None:
@@ -214,6 +223,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "source": Key(str, "i2c", _one_of(*SOURCES_I2C)),
         "bus": Key(int, 2, _range(0, 255), "I2C bus number: /dev/i2c-N"),
         "address": Key(int, 0x68, _i2c_address, "0x68, or 0x69 with AD0 high"),
+        "who_am_i": Key(int, WHO_AM_I_VALUE, _who_am_i,
+                        "the chip's WHO_AM_I: 0x68, or a GY-521 clone's (0x98, 0x72) that works as an MPU-6050"),
         "rate_hz": Key(NUM, 20, lambda v: _imu_rate(v), "sample rate"),
         "read": Key(str, IMU_READS[0], _one_of(*IMU_READS),
                     "'fifo' (batches, stamped by the chip's sample clock) or 'register' (a read per sample, to 50 Hz)"),
@@ -501,7 +512,7 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
                 continue
             complaint = spec.check(value) if spec.check else None
             if complaint:
-                shown = f"{value:#04x}" if key == "address" and isinstance(value, int) else repr(value)
+                shown = f"{value:#04x}" if key in ("address", "who_am_i") and isinstance(value, int) else repr(value)
                 problems.append(f"{at(path)}: {path} = {shown} {complaint}")
                 continue
             cfg.values[section][key] = float(value) if spec.kind == NUM else value

@@ -13,6 +13,7 @@ register 0xF4, which the driver checks; the BMP085 has no such bit, so there the
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +21,8 @@ from typing import Any, NamedTuple, TypeVar
 
 from sensors.errors import NoData, ProtocolError, WrongDevice
 from sensors.i2c import i2c_transfer
+
+log = logging.getLogger(__name__)
 
 DEFAULT_ADDRESS = 0x77
 CHIP_ID_VALUE = 0x55
@@ -42,6 +45,17 @@ SCO_POLLS = 10
 
 PRESSURE_RANGE_PA = (30000, 110000)  # the chip's operating range, 300..1100 hPa
 TEMPERATURE_RANGE_DEGC = (-40.0, 85.0)
+# A reading is refused as garbled only this far outside the rated range: at the range's edges the chip is still
+# measuring (its accuracy there is +-2 degC and +-2.5 hPa, and the datasheet's integer compensation gives 110001 Pa
+# at 1100 hPa with oversampling 0), and a car's cabin in the sun passes 85 degC. Inside the margin the reading is
+# kept, and the log says once that it lies outside the rated range.
+PRESSURE_MARGIN_PA = 5000
+TEMPERATURE_MARGIN_DEGC = 20.0
+# The result registers' power-on values (0xF6 0x80, 0xF7 0x00, 0xF8 0x00): read back unchanged when no conversion
+# ran (a BMP085, which has no Sco bit to poll, whose conversions never start). They compensate to a plausible
+# pressure, identical every time.
+UT_RESET = 0x8000
+UP_RESET = 0x800000
 
 # Eq. 4 of the paper (the standard atmosphere's troposphere): T0, P0, temperature gradient, R, g.
 ISA_T0_DEGC = 15.0
@@ -177,13 +191,17 @@ class Bmp085:
         self.bus_name = bus_name
         self._sleep = sleep
         self.calibration: Bmp085Calibration | None = None
+        self._answered = False  # the chip has answered since configure() began: a NACK is then a bus fault
+        self._outside_said = False  # a reading outside the rated range was logged (once a driver)
 
     def _bus(self, doing: str, fn: Callable[..., _T], *args: Any) -> _T:
-        return i2c_transfer(self.variant, self.address, self.bus_name, doing, fn, *args)
+        return i2c_transfer(self.variant, self.address, self.bus_name, doing, fn, *args, answered=self._answered)
 
     def configure(self) -> None:
         """Check the chip id and read and check the calibration EEPROM."""
+        self._answered = False
         chip_id = self._bus("reading the chip id", self.bus.read_byte_data, CHIP_ID)
+        self._answered = True
         if chip_id != CHIP_ID_VALUE:
             raise WrongDevice(f"{self.variant} at 0x{self.address:02x} on {self.bus_name}: chip id reads "
                               f"0x{chip_id:02x}, expected 0x55 (a BME280 reads 0x60, a BMP280 0x58)")
@@ -206,7 +224,8 @@ class Bmp085:
                 self._sleep(SCO_POLL_S)
             else:
                 raise NoData(f"BMP180 {what} conversion still running {(wait_s + SCO_POLLS * SCO_POLL_S) * 1e3:.1f}"
-                             " ms after its start (Sco bit stays set)")
+                             " ms after its start (Sco bit stays set; a BMP085, which has no Sco bit? then set "
+                             "[baro] variant = \"BMP085\")")
         raw = bytes(self._bus(f"reading the {what} result", self.bus.read_i2c_block_data, OUT_MSB, n))
         return int.from_bytes(raw, "big")
 
@@ -218,16 +237,26 @@ class Bmp085:
         assert cal is not None
         oss = self.oversampling
         ut = self._convert(CMD_TEMPERATURE, TEMPERATURE_WAIT_S, 2, "temperature")
-        up = self._convert(CMD_PRESSURE + (oss << 6), PRESSURE_WAIT_S[oss], 3, "pressure") >> (8 - oss)
+        up_word = self._convert(CMD_PRESSURE + (oss << 6), PRESSURE_WAIT_S[oss], 3, "pressure")
+        if ut == UT_RESET and up_word == UP_RESET:
+            raise NoData(f"{self.variant} result registers read their power-on values (0x8000 / 0x800000): no "
+                         "conversion ran")
+        up = up_word >> (8 - oss)
         t01, b5 = compensate_temperature(ut, cal)
         p = compensate_pressure(up, oss, b5, cal)
         temp_degc = t01 / 10.0
-        if not TEMPERATURE_RANGE_DEGC[0] <= temp_degc <= TEMPERATURE_RANGE_DEGC[1]:
-            raise ProtocolError(f"{self.variant} temperature {temp_degc:.1f} degC (raw {ut}) is outside the "
+        t_lo, t_hi = TEMPERATURE_RANGE_DEGC
+        if not t_lo - TEMPERATURE_MARGIN_DEGC <= temp_degc <= t_hi + TEMPERATURE_MARGIN_DEGC:
+            raise ProtocolError(f"{self.variant} temperature {temp_degc:.1f} degC (raw {ut}) is far outside the "
                                 "chip's -40..85 degC: garbled read")
-        if not PRESSURE_RANGE_PA[0] <= p <= PRESSURE_RANGE_PA[1]:
-            raise ProtocolError(f"{self.variant} pressure {p} Pa (raw {up}) is outside the chip's 300..1100 hPa:"
-                                " garbled read")
+        p_lo, p_hi = PRESSURE_RANGE_PA
+        if not p_lo - PRESSURE_MARGIN_PA <= p <= p_hi + PRESSURE_MARGIN_PA:
+            raise ProtocolError(f"{self.variant} pressure {p} Pa (raw {up}) is far outside the chip's 300..1100 "
+                                "hPa: garbled read")
+        if not (t_lo <= temp_degc <= t_hi and p_lo <= p <= p_hi) and not self._outside_said:
+            self._outside_said = True
+            log.warning("%s reads %.1f degC, %.0f Pa: outside its rated -40..85 degC, 300..1100 hPa (kept; less "
+                        "accurate there)", self.variant, temp_degc, p)
         return BaroSample(temp_degc, float(p), pressure_altitude_m(p, self.reference_pa), ut, up, oss)
 
 

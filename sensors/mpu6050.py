@@ -33,6 +33,7 @@ import numpy as np
 
 from sensors.errors import BusError, ProtocolError, WrongDevice
 from sensors.i2c import i2c_transfer
+from sensors.mpu6050_identity import CLONE_WHO_AM_I, OTHER_PARTS, WHO_AM_I_VALUE
 from sensors.mpu6050_timing import choose_sample_timing
 
 _BURST = struct.Struct(">7h")  # ACCEL_XOUT_H..GYRO_ZOUT_L: accel x y z, temperature, gyro x y z
@@ -40,7 +41,6 @@ _BURST = struct.Struct(">7h")  # ACCEL_XOUT_H..GYRO_ZOUT_L: accel x y z, tempera
 STANDARD_GRAVITY_MPS2 = 9.80665
 
 DEFAULT_ADDRESS = 0x68  # AD0 low; 0x69 with AD0 high
-WHO_AM_I_VALUE = 0x68
 
 # Register map
 SMPLRT_DIV = 0x19
@@ -93,7 +93,7 @@ GYRO_FULL_SCALE = {250: (0, 131.0), 500: (1, 65.5), 1000: (2, 32.8), 2000: (3, 1
 TEMP_LSB_PER_DEGC = 340.0
 TEMP_OFFSET_DEGC = 36.53
 
-_OTHER_CHIPS = {0x70: "an MPU-6500", 0x71: "an MPU-9250", 0x73: "an MPU-9255", 0x68: "an MPU-6050",
+_OTHER_CHIPS = {**OTHER_PARTS, 0x68: "an MPU-6050",
                 0x00: "nothing driving the bus (stuck low?)", 0xFF: "nothing driving the bus (no pull-ups?)"}
 
 
@@ -150,13 +150,15 @@ class Mpu6050:
     def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, *, rate_hz: float = 20.0,
                  accel_range_g: int = 2, gyro_range_dps: int = 250, fifo: bool = False,
                  dlpf_cfg: int | None = None, bus_name: str = "I2C",
-                 sleep: Callable[[float], None] = time.sleep, fifo_burst: bool = True) -> None:
+                 sleep: Callable[[float], None] = time.sleep, fifo_burst: bool = True,
+                 who_am_i: int = WHO_AM_I_VALUE) -> None:
         if accel_range_g not in ACCEL_FULL_SCALE:
             raise ValueError(f"MPU-6050 accel range {accel_range_g} g: must be one of 2, 4, 8, 16")
         if gyro_range_dps not in GYRO_FULL_SCALE:
             raise ValueError(f"MPU-6050 gyro range {gyro_range_dps} deg/s: must be one of 250, 500, 1000, 2000")
         self.bus = bus
         self.address = address
+        self.who_am_i = who_am_i  # what the chip must answer: the MPU-6050's 0x68, or a clone's its owner named
         self.timing = choose_sample_timing(rate_hz, dlpf_cfg)
         self.accel_range_g = accel_range_g
         self.gyro_range_dps = gyro_range_dps
@@ -180,6 +182,8 @@ class Mpu6050:
         self._last_read_ns: int | None = None
         self._backlog_frames = 0  # frames generated but not delivered at the last read
         self._temp: tuple[int, float] | None = None  # (read time, degC) of the die temperature last read
+        self._answered = False  # the chip has answered since configure() began: a NACK is then a bus fault
+        self.fifo_started_ns: int | None = None  # the caller's time of configure()'s FIFO reset, when it gave a clock
 
     # ---- what the configuration gives ------------------------------------------------------------
     @property
@@ -210,7 +214,7 @@ class Mpu6050:
     # ---- bus access with errors a field engineer can act on ---------------------------------------
     def _bus(self, doing: str, fn: Callable[..., _T], *args: Any) -> _T:
         return i2c_transfer("MPU-6050", self.address, self.bus_name, doing, fn, *args,
-                            no_ack_hint="check wiring, power and the AD0 address")
+                            no_ack_hint="check wiring, power and the AD0 address", answered=self._answered)
 
     def _read_byte(self, reg: int, doing: str) -> int:
         return self._bus(doing, self.bus.read_byte_data, reg)
@@ -222,13 +226,19 @@ class Mpu6050:
         self._bus(doing, self.bus.write_byte_data, reg, value)
 
     # ---- set-up ----------------------------------------------------------------------------------
-    def configure(self) -> None:
-        """Identify, reset, wake on the gyro PLL, set filter, rate and ranges, and start the FIFO if wanted."""
+    def configure(self, now_ns: Callable[[], int] | None = None) -> None:
+        """Identify, reset, wake on the gyro PLL, set filter, rate and ranges, and start the FIFO if wanted.
+
+        ``now_ns``, the caller's clock, dates the FIFO's start (:attr:`fifo_started_ns`): an overflow before the
+        first read then counts its loss from there (without it, one sample stands for what was lost)."""
+        self._answered = False
         who = self._read_byte(WHO_AM_I, "reading WHO_AM_I")
-        if who != WHO_AM_I_VALUE:
-            seen = _OTHER_CHIPS.get(who, "another chip")
+        self._answered = True
+        if who != self.who_am_i:
+            seen = (f"an MPU-6050 clone's? if it works as one, set [imu] who_am_i = 0x{who:02x}"
+                    if who in CLONE_WHO_AM_I else f"looks like {_OTHER_CHIPS.get(who, 'another chip')}")
             raise WrongDevice(f"MPU-6050 at 0x{self.address:02x} on {self.bus_name}: WHO_AM_I reads "
-                              f"0x{who:02x}, expected 0x68 (looks like {seen})")
+                              f"0x{who:02x}, expected 0x{self.who_am_i:02x} ({seen})")
         self._write_byte(PWR_MGMT_1, PWR1_DEVICE_RESET, "resetting")
         self._sleep(RESET_WAIT_S)
         if self._read_byte(PWR_MGMT_1, "checking the reset") & PWR1_DEVICE_RESET:
@@ -250,7 +260,7 @@ class Mpu6050:
             self._write_byte(USER_CTRL, 0, "disabling the FIFO")
         self._read_byte(INT_STATUS, "clearing status flags")
         self._overflow_seen = False
-        self._last_read_ns = None
+        self._last_read_ns = self.fifo_started_ns = now_ns() if now_ns is not None and self.fifo else None
         self._backlog_frames = 0
         self._temp = None
 

@@ -282,15 +282,16 @@ def test_model_enforces_conversion_time(rig) -> None:
     assert bus.read_i2c_block_data(0x77, 0xF6, 2) != ut
 
 
-def test_bmp085_driver_that_waits_too_little_gets_stale_data(rig) -> None:
+def test_bmp085_results_at_the_registers_power_on_values_are_no_data(rig) -> None:
+    """A BMP085 has no Sco bit: a driver that waits too little (or a chip whose conversions never run) reads the
+    result registers' power-on values 0x8000 / 0x800000, which compensate to a plausible pressure, identical at
+    every read. They are refused as no data, never recorded."""
     r = rig(variant="BMP085", noise=False)
     d = r.driver(oversampling=0, sleep=lambda s: r.clock.sleep(0.9 * s))
     d.configure()
     for _ in range(3):
-        stale = d.read()
-        # Each command came before the previous result: 0xF6/0xF7 still hold their reset value 0x8000.
-        assert (stale.ut, stale.up) == (0x8000, 0x8000)
-        assert abs(stale.temp_degc - 23.4) > 10
+        with pytest.raises(NoData, match="power-on values"):
+            d.read()
     good = r.driver(oversampling=0).read()
     assert good.temp_degc == pytest.approx(23.4, abs=0.1)
 
@@ -361,8 +362,71 @@ def test_pressure_outside_the_chips_range_is_rejected(rig) -> None:
     r = rig(trajectory=ParkedTrajectory(height_m=-4000.0), noise=False)
     d = r.driver()
     d.configure()
-    with pytest.raises(ProtocolError, match=r"outside the chip's 300\.\.1100 hPa"):
+    with pytest.raises(ProtocolError, match=r"far outside the chip's 300\.\.1100 hPa"):
         d.read()
+
+
+@pytest.mark.parametrize(("temp_degc", "sea_level_pa", "oss", "said"), [
+    (86.0, 100800.0, 3, True),  # past 85 degC
+    (23.4, 110000.0, 0, True),  # the compensation gives 110002 Pa
+    (-40.0, 30000.0, 0, False),  # both limits, read as exactly 30000 Pa
+])
+def test_a_reading_at_or_just_past_the_rated_range_is_kept_and_said_once(rig, caplog, temp_degc, sea_level_pa,
+                                                                          oss, said) -> None:
+    """A chip at the edge of its rating still measures (+-2 degC there; the integer compensation gives 110001 Pa
+    at 1100 hPa with oversampling 0): kept, and the log says once that it lies outside the rated range. Refused as
+    garbled it reopened the chip at every read and a hot cabin lost its barometer."""
+    r = rig(trajectory=ParkedTrajectory(height_m=0.0, extras={"ambient_degc": temp_degc,
+                                                               "sea_level_pa": sea_level_pa, "geoid_m": 0.0}),
+            noise=False, calibration=FIELD_CALIBRATION)
+    d = r.driver(oversampling=oss)
+    d.configure()
+    with caplog.at_level("WARNING", logger="sensors.bmp085"):
+        first, second = d.read(), d.read()
+    assert first.temp_degc == pytest.approx(temp_degc, abs=0.2)
+    assert second.pressure_pa == pytest.approx(sea_level_pa, abs=3.0)
+    outside = [rec for rec in caplog.records if "outside its rated" in rec.getMessage()]
+    assert len(outside) == (1 if said else 0)
+
+
+def test_a_temperature_far_past_the_rated_range_is_refused(rig) -> None:
+    r = rig(trajectory=ParkedTrajectory(height_m=0.0, extras={"ambient_degc": 115.0, "sea_level_pa": 100800.0,
+                                                               "geoid_m": 0.0}), noise=False)
+    d = r.driver()
+    d.configure()
+    with pytest.raises(ProtocolError, match=r"115\.0 degC .* far outside the chip's -40\.\.85 degC"):
+        d.read()
+
+
+def test_a_bmp085_read_as_a_bmp180_names_the_variant_setting(rig) -> None:
+    """A BMP085 keeps CTRL_MEAS as written, so its command's bit 5 reads as a BMP180's Sco that never clears."""
+    r = rig(variant="BMP085")
+    d = Bmp085(r.bus, variant="BMP180", bus_name=r.adapter.path, sleep=r.clock.sleep)
+    d.configure()
+    with pytest.raises(NoData, match=r'Sco bit stays set; a BMP085.*variant = "BMP085"'):
+        d.read()
+
+
+def test_a_nack_from_a_chip_that_answered_is_a_bus_error_not_a_missing_chip(rig) -> None:
+    """Some adapters (the BeagleBone's i2c-omap) say EREMOTEIO for a NACK of any byte: on a chip that answered
+    since it was opened that is a glitch on the bus (the sampler retries), not a wiring or address fault."""
+    r = rig(noise=False)
+    d = r.driver()
+    d.configure()
+    r.adapter.fail_next(1, code=errno.EREMOTEIO)
+    with pytest.raises(BusError, match="no ACK while starting a temperature conversion, after it had answered"):
+        d.read()
+    assert d.read().pressure_pa == pytest.approx(r.truth_pa(), abs=1.0)
+
+
+def test_an_address_held_by_a_kernel_driver_says_so(rig) -> None:
+    r = rig()
+    r.adapter.bind_kernel_driver(0x77)
+    with pytest.raises(BusError) as exc:
+        r.driver().configure()
+    message = str(exc.value)
+    assert "address busy" in message and "device-tree overlay" in message and "\n" not in message
+    assert "/driver/unbind" in message
 
 
 def test_bad_configuration_named() -> None:

@@ -68,6 +68,14 @@ def test_wrong_type() -> None:
     assert msg == "logger.toml:8: imu.rate_hz must be a number, not 'fast'"
 
 
+def test_who_am_i_takes_a_clones_and_refuses_another_parts() -> None:
+    assert parse(GOOD.replace("address = 0x68", "address = 0x68\nwho_am_i = 0x98"), "logger.toml")["imu"][
+        "who_am_i"] == 0x98
+    assert _problems(GOOD.replace("address = 0x68", "address = 0x68\nwho_am_i = 0x70")) == [
+        "logger.toml:8: imu.who_am_i = 0x70 is an MPU-6500's: another register map, FIFO and temperature scale, "
+        "which the logger cannot read"]
+
+
 def test_bad_address_and_out_of_range_reported_together() -> None:
     problems = _problems(GOOD.replace("address = 0x68", "address = 0x90").replace("rate_hz = 200", "rate_hz = 5000"))
     assert problems == [

@@ -117,6 +117,23 @@ def test_failure_backs_off_reconnects_and_counts(caplog: pytest.LogCaptureFixtur
     assert len(out) == 29  # every read but the failed one delivered
 
 
+@pytest.mark.parametrize(("fail_at", "reopened_within_s"), [(5, None), (200, 0.0)])
+def test_a_device_that_worked_for_a_while_is_opened_again_at_once_the_first_time(fail_at: int,
+                                                                                 reopened_within_s: float | None
+                                                                                 ) -> None:
+    """One bus error on a device that delivered for QUICK_RETRY_AFTER_S (10 s at 20 Hz here) reopens it at once:
+    one NACK cost the IMU the back-off's half second of samples as well. A device failing sooner backs off."""
+    tb = VirtualTime()
+    src = Scripted(tb, fail_at={fail_at}, limit=fail_at + 10)
+    _, out = _run(src, 20.0)
+    t = {r.payload["i"]: r.t_mono_ns for r in out}
+    waited_s = (t[fail_at + 1] - t[fail_at - 1]) / 1e9 - 2 * 0.05  # beyond the two periods the failed read spans
+    if reopened_within_s is None:
+        assert waited_s >= Sampler.BACKOFF_START_S - 0.05
+    else:
+        assert waited_s <= reopened_within_s + 1e-9
+
+
 class Silent(Scripted):
     """Answers NO DATA for a while, like an ELM327 with the engine off."""
 

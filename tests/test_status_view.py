@@ -73,7 +73,7 @@ def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on
     # What went to make room: where the data come from and the per-incident totals first, then the last verdicts.
     assert not any(line.startswith(("source ", "imu     fifo overflow: 3 since start")) for line in screen)
     # The samples those overflows destroyed, in all (the incident's line says only the last 30 s'), on the full view.
-    assert "imu     samples lost to FIFO overflows: 1234 since start" in full
+    assert "imu     samples lost (FIFO overflows, reopenings): 1234 since start" in full
     assert "filter restarted from GNSS 2 times" not in "\n".join(screen)
 
 

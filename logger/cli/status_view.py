@@ -126,8 +126,9 @@ def _sensors(sc: Screen, sensors: list[dict[str, Any]]) -> None:
     for h in sensors:
         for kind, count in (h.get("incidents") or {}).items():
             sc.add(FOOTNOTE, f"{h['name']:<7} {kind}: {count} since start")
-        if h.get("samples_lost"):  # a FIFO's overflows: the samples gone, which its gaps and rate do not count
-            sc.add(FOOTNOTE, f"{h['name']:<7} samples lost to FIFO overflows: {h['samples_lost']} since start")
+        if h.get("samples_lost"):  # a FIFO's overflows and reopenings: samples gone, which its rate does not count
+            sc.add(FOOTNOTE, f"{h['name']:<7} samples lost (FIFO overflows, reopenings): {h['samples_lost']} since "
+                             "start")
     origins = [f"{h['name']} from {h['origin']}" for h in sensors if h.get("origin")]
     if origins:
         sc.add(FOOTNOTE, "source  " + ", ".join(origins))

@@ -164,7 +164,8 @@ _add(IMU, "vehicle_logger.Imu", {
     "gyro_rps": ("number[3]", "angular rate about the chip's x, y, z axes, rad/s"),
     "temp_degc": ("number", "die temperature, degC"),
     "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
-    "lost": ("integer", "samples lost to a FIFO overflow just before this one"),
+    "lost": ("integer", "samples lost just before this one: to a FIFO overflow, or while the chip was opened again "
+                        "after an error"),
 }, "MPU-6050 accelerometer and gyro, one message per sample: an IMU read a register burst per sample "
    "([imu] read = \"register\", up to 50 Hz). Read through its FIFO, the default at every rate, it records "
    "/imu/batch instead; older recordings hold their 20 Hz samples here, and those made before /imu/batch existed "
@@ -187,7 +188,8 @@ _add(IMU_BATCH, "vehicle_logger.ImuBatch", {
     "gyro_z_rps": ("number[]", "angular rate about the chip's z axis, rad/s"),
     "temp_degc": ("number", "die temperature read with the batch, degC"),
     "period_s": ("number", "the chip's sample period, s"),
-    "lost": ("integer", "samples lost to a FIFO overflow just before the first one"),
+    "lost": ("integer", "samples lost just before the first one: to a FIFO overflow, or while the chip was opened "
+                        "again after an error"),
 }, "MPU-6050 FIFO read ([imu] read = \"fifo\", the default at every rate): every sample of one read as columns, one "
    "message per read, so that writing and filtering cost per read, not per sample. The logger's own readers "
    "(replay, export, plot, info, the sync report) hand its samples on as /imu records. In Foxglove's Plot panel, "
@@ -254,7 +256,7 @@ _add(HEALTH, "vehicle_logger.Health", {
     "sensors": ("object[]", "per sensor: state (ok, silent, no fix, starting: opening it, or open and nothing from "
                             "it yet within its rate's limit, retrying, missing, no-data, stalled, stopped), measured "
                             "rate (null while not delivering), errors, gaps, late, missed, reconnects, samples_lost "
-                            "(a FIFO's samples its overflows destroyed), last_error (cleared on recovery)"),
+                            "(a FIFO's samples its overflows and reopenings lost), last_error (cleared on recovery)"),
     "recorder": ("object", "queue depth, written and dropped records per topic, free disk"),
     "pace": ("object?", "a simulated drive's pace: ceiling (the --time-scale asked), now, achieved (on average), "
                         "slowest, held_back_s (host seconds below the ceiling); null for a real drive"),

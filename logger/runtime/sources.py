@@ -29,6 +29,7 @@ from logger.runtime.sampler import Reading, Source
 from logger.runtime.timebase import TimeBase
 from sensors.errors import BusError, DeviceNotFound, ProtocolError, SensorError
 from sensors.mpu6050 import FIFO_FRAME_BYTES, FIFO_SIZE_BYTES
+from sensors.mpu6050_identity import WHO_AM_I_VALUE
 from sensors.obd import SpeedDriver
 from sync.fifo import FifoClock
 
@@ -110,10 +111,10 @@ class ImuSource(Source):
     name = "imu"
 
     def __init__(self, bus: str | int, address: int, rate_hz: float, accel_range_g: int, gyro_range_dps: int,
-                 tb: TimeBase, read: str) -> None:
+                 tb: TimeBase, read: str, who_am_i: int = WHO_AM_I_VALUE) -> None:
         if read not in IMU_READS:
             raise ValueError(f"MPU-6050 read {read!r}: must be one of {', '.join(IMU_READS)}")
-        self.bus_id, self.address, self.rate_hz = bus, address, rate_hz
+        self.bus_id, self.address, self.rate_hz, self.who_am_i = bus, address, rate_hz, who_am_i
         self.ranges = (accel_range_g, gyro_range_dps)
         self.tb = tb
         self.fifo = read == "fifo"  # the configuration refuses register reads above REGISTER_READ_MAX_HZ
@@ -123,6 +124,7 @@ class ImuSource(Source):
         self._pending_lost = 0
         self._fifo_clock: FifoClock | None = None
         self._sampled_ns = self._checked_ns = 0  # drive time of the last samples read, of the last awake check
+        self._last_sample_ns: int | None = None  # the last delivered sample's time, kept across reopenings
 
     def open(self) -> None:
         from sensors.mpu6050 import Mpu6050, choose_sample_timing
@@ -143,11 +145,17 @@ class ImuSource(Source):
         try:
             self.driver = Mpu6050(self._bus, self.address, rate_hz=chip_rate, dlpf_cfg=dlpf,
                                   accel_range_g=self.ranges[0], gyro_range_dps=self.ranges[1], fifo=self.fifo,
-                                  bus_name=f"I2C bus {self.bus_id}", sleep=self.tb.sleep)
+                                  bus_name=f"I2C bus {self.bus_id}", sleep=self.tb.sleep, who_am_i=self.who_am_i)
         except ValueError as exc:
             raise SensorError(f"MPU-6050: {exc}") from None
-        self.driver.configure()
+        self.driver.configure(now_ns=self.tb.monotonic_ns)
         self._sampled_ns = self._checked_ns = self.tb.monotonic_ns()
+        started, last = self.driver.fifo_started_ns, self._last_sample_ns
+        if self.fifo and started is not None and last is not None:
+            # Opened again after an error (a NACK, a brown-out): the chip's samples from the last one delivered up
+            # to the FIFO's reset in configure() are gone (those left in the FIFO, those of the reopening), and
+            # are counted as an overflow's are, with the next samples.
+            self._pending_lost += max(0, (started - last) // round(self.driver.sample_period_s * 1e9))
 
     def _check_awake(self, t_ns: int) -> None:
         """Raise SensorError (the sampler closes the chip and configures it again) when it is no longer as
@@ -181,6 +189,7 @@ class ImuSource(Source):
             return []  # the lost count waits for the next samples, the first of which it precedes
         self._sampled_ns = t_done
         times = self._fifo_clock.stamps(n, t_read, t_done, self.driver.backlog_frames)
+        self._last_sample_ns = times[-1]
         payload = imu_batch_payload(times, batch.accel_mps2, batch.gyro_rps, batch.temp_degc, batch.period_s,
                                     self._pending_lost)
         self._pending_lost = 0
