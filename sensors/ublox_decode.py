@@ -676,11 +676,14 @@ class GnssDecoder:
             if self._nmea is None:
                 self._nmea = _Burst(key, opened=self.read_mark)
             elif self._nmea.key is None:
-                self._nmea.key = key
+                # The burst's start is its first timed sentence's read: the time-less ones before it may be the last
+                # epoch's tail (one GSA per constellation, the first of which was learnt as the burst's end), read a
+                # second earlier, and an epoch dated from there is paired with the PPS edge a second early.
+                self._nmea.key, self._nmea.opened = key, self.read_mark
         elif self._nmea is None:
             if kind not in ("GSA", "VTG"):
                 return items
-            # a time-less sentence opens the burst; the next timed one names it
+            # a time-less sentence opens the burst; the next timed one names it and dates its start
             self._nmea = _Burst(None, opened=self.read_mark)
         self._nmea.add(kind, msg)
         self._nmea.order[-1] = ident

@@ -591,6 +591,29 @@ def test_an_epoch_read_in_pieces_says_when_its_first_message_came() -> None:
     assert epoch is not None and epoch.opened_ns == 11 * NS and epoch.gnss_time_ns % (86_400 * NS) == 43_201 * NS
 
 
+def test_one_gsa_per_constellation_after_the_learnt_end_does_not_date_the_next_epoch() -> None:
+    """An NMEA 4.10/4.11 receiver ending each burst with a GSA per constellation (GSV, GLL off): the end is learnt as
+    "GSA", so the burst ends at the first one, and the other two opened the next epoch's burst, which then said it
+    began in the previous second's read (the clock paired it with the edge a second early: locked 1 s off behind a
+    13 us bound). An epoch's start is its first timed sentence's read."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    fixes = []
+    for k in range(5):
+        hhmmss = f"1200{k:02d}.00"
+        decoder.read_mark = k + 1  # each epoch in a read of its own
+        data = b"".join(nmea(body) for body in (
+            f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,0.010,,301126,,,A,V",
+            f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,",
+            "GNGSA,A,3,01,02,03,04,,,,,,,,,1.5,0.9,1.2,1", "GNGSA,A,3,65,66,67,,,,,,,,,,1.5,0.9,1.2,2",
+            "GNGSA,A,3,301,302,,,,,,,,,,,1.5,0.9,1.2,3"))
+        fixes += [(k + 1, item) for item in decoder.push_all(framer.feed(data)) if isinstance(item, GnssFix)]
+    # The first epoch ends when the next begins (its end is learnt then), the others at their first GSA.
+    assert [(read, fix.time_utc_ns % (60 * NS) // NS) for read, fix in fixes] == [(2, 0), (2, 1), (3, 2), (4, 3),
+                                                                                   (5, 4)]
+    assert [fix.opened_mark for _, fix in fixes] == [1, 2, 3, 4, 5]  # the read its RMC came in
+    assert all(fix.pdop == 1.5 and fix.fix_mode == 3 for _, fix in fixes)
+
+
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
     """A real u-blox M9N's NMEA output as it came (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV x12, GLL,
     GST, ZDA, GBS, about 1.5 kB an epoch), each epoch on the line from 0.3 s after its pulse to 1.2 s, read by the
