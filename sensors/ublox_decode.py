@@ -514,9 +514,14 @@ class GnssDecoder:
                 time_utc = _ubx_utc_ns(pvt)
                 time_valid = time_utc is not None and _flag(pvt, "fullyResolved")
                 leap = time_utc is not None and _ubx_leap(pvt)
-            if mode >= 2 and not _flag(pvt, "invalidLlh"):
-                lat, lon, hae, msl = _ubx_llh(pvt)
+            if mode >= 2:
                 vel = (pvt.velN / 1000.0, pvt.velE / 1000.0, pvt.velD / 1000.0)
+                if _flag(pvt, "invalidLlh"):
+                    # u-blox 9 and later: the fix type stands but longitude, latitude and heights are invalid. No
+                    # position is no fix to use (its record said a 3D fix at 0 N 0 E, which the filter took).
+                    fix_ok = False
+                else:
+                    lat, lon, hae, msl = _ubx_llh(pvt)
             h_acc = pvt.hAcc / 1000.0
             v_acc = pvt.vAcc / 1000.0
             s_acc = pvt.sAcc / 1000.0

@@ -292,6 +292,13 @@ def test_pvt_flags_drive_mode_validity_and_position() -> None:
     assert unresolved.time_utc_ns is not None and not unresolved.time_valid
     (no_date,) = decode(nav_pvt(validDate=0) + nav_eoe(345_600_250))
     assert no_date.time_utc_ns is None and not no_date.time_valid
+    # u-blox 9: a 3D fix type whose longitude, latitude and heights are flagged invalid is no fix to use (it was
+    # recorded as a 3D fix at 0 N 0 E); its velocity stands.
+    (no_llh,) = decode(nav_pvt(invalidLlh=1) + nav_eoe(345_600_250))
+    assert no_llh.fix_mode == 3 and not no_llh.fix_ok and no_llh.lat_deg is None and no_llh.height_hae_m is None
+    assert no_llh.vel_ned_mps is not None
+    from logger.recording.records import fix_name, location_fix
+    assert fix_name(location_fix(no_llh, 0)) == "no fix"
 
 
 def test_epoch_is_reported_at_the_learned_end_of_its_burst() -> None:
