@@ -180,10 +180,11 @@ class Elm327(SpeedDriver):
             self.open()
         if self._take_unsolicited():
             self._recover_from_reset()
-        lines, echoed = self._command(ELM_SPEED_COMMAND, long_wait=self._first_request)
+        self.answered_window_ns = None
+        lines, echoed = self._timed_command(ELM_SPEED_COMMAND, long_wait=self._first_request)
         if self._lost_settings(lines, echoed):
             self._recover_from_reset()
-            lines, echoed = self._command(ELM_SPEED_COMMAND, long_wait=True)
+            lines, echoed = self._timed_command(ELM_SPEED_COMMAND, long_wait=True)
             sign = self._lost_settings(lines, echoed)
             if sign == "headers":
                 raise ProtocolError(f"ELM327 on {self.port} does not show headers after ATH1: "
@@ -192,6 +193,14 @@ class Elm327(SpeedDriver):
                 raise BusError(f"ELM327 on {self.port} resets again right after set-up: check its power supply")
         speed = self._decode(lines)
         self._first_request = False
+        if self.clock is not None and any(line.upper().startswith(("SEARCHING", "BUS INIT")) for line in lines):
+            # The request began a protocol search or a bus initialisation (seconds): when in it the ECU was asked is
+            # not known, so neither is its answer's time. Asked again, at once, for a speed whose time is.
+            lines, echoed = self._timed_command(ELM_SPEED_COMMAND)
+            if self._lost_settings(lines, echoed):
+                raise BusError(f"ELM327 on {self.port} reset again right after a protocol search: check its power "
+                               "supply")
+            speed = self._decode(lines)
         return speed
 
     # ----------------------------------------------------------------- set-up
@@ -251,6 +260,17 @@ class Elm327(SpeedDriver):
         raise ProtocolError(f"ELM327 on {self.port} answered {command} with {got!r} instead of OK")
 
     # ----------------------------------------------------------------- the serial line
+
+    def _timed_command(self, command: str, long_wait: bool = False) -> tuple[list[str], bool]:
+        """:meth:`_command`, its request and answer timed by the caller's clock (``answered_window_ns``): a speed
+        read after the adapter was set up again inside the same read (ATZ, the set-up, a protocol search: seconds)
+        was stamped at the middle of all of it, 1.5-2.5 s before the ECU answered."""
+        if self.clock is None:
+            return self._command(command, long_wait)
+        t0 = self.clock()
+        answer = self._command(command, long_wait)
+        self.answered_window_ns = (t0, self.clock())
+        return answer
 
     def _command(self, command: str, long_wait: bool = False) -> tuple[list[str], bool]:
         """Send one command; the answer's lines without the echo, and whether an echo came back.

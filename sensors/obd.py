@@ -13,6 +13,7 @@ ELM327 shows with headers on (the adapter model computes them on its own, from t
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from sensors.errors import ProtocolError
@@ -112,6 +113,12 @@ class SpeedDriver(ABC):
     The optional parts have their defaults here, as python-can's ``BusABC`` does, so the code that runs a driver
     reads the contract in one place instead of probing each driver for what it might have.
     """
+
+    # The caller's monotonic clock (ns), set by whoever stamps the speeds. A driver that may do more than the
+    # speed request inside one read (an ELM327 set up again after it reset, its protocol asked after the answer)
+    # times the request that was answered by it: ``answered_window_ns`` (None: the whole read is the window).
+    clock: Callable[[], int] | None = None
+    answered_window_ns: tuple[int, int] | None = None
 
     def open(self) -> None:  # noqa: B027 - optional: a driver handed a ready bus has nothing to set up
         """Set the interface up (an adapter's reset and protocol search); nothing for a bus handed over ready."""

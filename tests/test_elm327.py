@@ -496,6 +496,22 @@ def test_reset_announced_between_requests_is_handled_before_asking(port: PtyPort
         assert model.commands == [*INIT, "010D", "ATDPN", "010D", *INIT, "010D", "ATDPN"]
 
 
+def test_a_speed_after_the_adapter_was_set_up_again_is_timed_by_its_own_request(port: PtyPort) -> None:
+    """Set up again inside a read (its reset, the set-up, the protocol search: seconds), the speed was stamped at
+    the middle of all of it, 1.5-2.5 s before the ECU answered. The driver times the request that was answered, by
+    its caller's clock; the one that began the protocol search is asked again, as its ECU time within the search
+    is not known."""
+    with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))]) as model, driver(port) as elm:
+        elm.clock = lambda: len(model.commands)  # a clock that tells which command the model is at
+        assert elm.read().speed_kmh == 50
+        assert elm.answered_window_ns == (len(model.commands) - 1, len(model.commands))
+        model.reset()
+        wait_for_input(elm)
+        assert elm.read().speed_kmh == 50
+        assert model.commands[-4:] == [*INIT[-1:], "010D", "ATDPN", "010D"]  # the search's request, asked again
+        assert elm.answered_window_ns == (len(model.commands) - 1, len(model.commands))
+
+
 @pytest.mark.parametrize(("echo_stuck", "headers"), [(False, True), (False, False), (True, True)])
 def test_reset_without_banner_is_noticed_by_its_defaults(port: PtyPort, echo_stuck: bool, headers: bool) -> None:
     # The banner was lost: echo coming back (or, on an always-echoing clone, the missing headers) tells.

@@ -240,14 +240,17 @@ class ObdSource(Source):
 
     def open(self) -> None:
         self.driver = self.make_driver()
+        self.driver.clock = self.tb.monotonic_ns
         self.driver.open()
 
     def read(self) -> list[Reading]:
         t0 = self.tb.monotonic_ns()
         s = self.driver.read()
         t1 = self.tb.monotonic_ns()
-        # The ECU sampled its speed somewhere between request and answer: the midpoint is the best guess.
-        return [Reading(OBD_SPEED, speed_record(s, self.interface), (t0 + t1) // 2)]
+        # The ECU sampled its speed somewhere between request and answer: the midpoint is the best guess. Of the
+        # request that was answered, where the driver did more inside the read (an adapter set up again).
+        w0, w1 = self.driver.answered_window_ns or (t0, t1)
+        return [Reading(OBD_SPEED, speed_record(s, self.interface), (w0 + w1) // 2)]
 
     def incidents(self) -> dict[str, int]:
         return {} if self.driver is None else self.driver.incidents()
