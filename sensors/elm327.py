@@ -49,9 +49,22 @@ K_LINE = "k-line"  # ISO 9141-2 / ISO 14230-4: 3 header bytes, data, sum checksu
 FAMILY_OF_PROTOCOL = {"1": J1850, "2": J1850, "3": K_LINE, "4": K_LINE, "5": K_LINE,
                       "6": CAN_11, "7": CAN_29, "8": CAN_11, "9": CAN_29}
 
+# A disturbed answer (a bus error, a check byte that fails, '?' for a request garbled on the serial line) is one
+# failed sample while the adapter answers: a reset and a new protocol search cost seconds of speed (4 s measured).
+# Only this many in a row make it the adapter's or the bus's fault, which the sampler answers by setting it up again.
+FAILED_ANSWERS_IN_A_ROW = 3
+
 # Messages the ELM327 prints instead of data; each maps to what the logger should make of it.
 VEHICLE_BUS_FAULTS = ("BUS ERROR", "BUS BUSY", "FB ERROR", "DATA ERROR", "<DATA ERROR", "RX ERROR", "<RX ERROR",
                       "BUFFER FULL", "ACT ALERT")
+
+
+class _OneOff(Exception):
+    """A disturbed answer: ``error`` is what it means once it is no longer a one-off."""
+
+    def __init__(self, error: SensorError) -> None:
+        super().__init__(str(error))
+        self.error = error
 
 
 class _NoPrompt(Exception):
@@ -103,6 +116,7 @@ class Elm327(SpeedDriver):
         self.echo_stuck = False  # the adapter ignores ATE0, as many clones do
         self.resets_seen = 0  # adapter resets noticed during reads (and recovered from)
         self.connect_problem: str | None = None  # why the vehicle did not answer during set-up, if it did not
+        self._failed_answers = 0  # disturbed answers in a row (FAILED_ANSWERS_IN_A_ROW)
         self._serial: serial.Serial | None = None
         self._rx = bytearray()
         self._owed = False  # a command was given up on: its answer may still come (_command)
@@ -191,7 +205,7 @@ class Elm327(SpeedDriver):
                                     "run it with headers off")
             if sign:
                 raise BusError(f"ELM327 on {self.port} resets again right after set-up: check its power supply")
-        speed = self._decode(lines)
+        speed = self._checked_decode(lines)
         self._first_request = False
         if self.clock is not None and any(line.upper().startswith(("SEARCHING", "BUS INIT")) for line in lines):
             # The request began a protocol search or a bus initialisation (seconds): when in it the ECU was asked is
@@ -200,7 +214,20 @@ class Elm327(SpeedDriver):
             if self._lost_settings(lines, echoed):
                 raise BusError(f"ELM327 on {self.port} reset again right after a protocol search: check its power "
                                "supply")
+            speed = self._checked_decode(lines)
+        return speed
+
+    def _checked_decode(self, lines: list[str]) -> ObdSpeed:
+        """:meth:`_decode`, a disturbed answer taken as one failed sample (NoData: the adapter stays as it is) until
+        FAILED_ANSWERS_IN_A_ROW of them come in a row."""
+        try:
             speed = self._decode(lines)
+        except _OneOff as one_off:
+            self._failed_answers += 1
+            if self._failed_answers >= FAILED_ANSWERS_IN_A_ROW:
+                raise one_off.error from None
+            raise NoData(f"{one_off.error} (once; asked again at the next period)") from None
+        self._failed_answers = 0
         return speed
 
     # ----------------------------------------------------------------- set-up
@@ -380,7 +407,7 @@ class Elm327(SpeedDriver):
     # ----------------------------------------------------------------- decoding
 
     def _decode(self, lines: list[str]) -> ObdSpeed:
-        failures: list[SensorError] = []
+        failures: list[SensorError | _OneOff] = []
         garbled: list[str] = []
         answers: list[tuple[int | None, bytes]] = []
         for line in lines:
@@ -394,7 +421,7 @@ class Elm327(SpeedDriver):
                 continue
             failure = _message_error(upper)
             if failure is not None:
-                failures.append(failure)
+                failures.append(_OneOff(failure) if _disturbed(upper) else failure)
                 continue
             answer = self._parse_line(line)
             if answer is None:
@@ -414,8 +441,8 @@ class Elm327(SpeedDriver):
             return speeds[0]
         if failures:
             raise failures[0]
-        if garbled:
-            raise ProtocolError(f"ELM327 answer to {ELM_SPEED_COMMAND} is not OBD data: {_show(garbled[0])}")
+        if garbled:  # a line that fails its check byte, or cut: a disturbed answer
+            raise _OneOff(ProtocolError(f"ELM327 answer to {ELM_SPEED_COMMAND} is not OBD data: {_show(garbled[0])}"))
         if answers:
             raise ProtocolError(f"ELM327 answer to {ELM_SPEED_COMMAND} holds no vehicle speed")
         raise ProtocolError(f"ELM327 gave an empty answer to {ELM_SPEED_COMMAND}")
@@ -476,6 +503,11 @@ def _show(line: str) -> str:
         return repr(line[:40])
     raw = line.encode("latin-1")
     return f"{len(raw)} bytes of junk ({raw[:8].hex(' ')} ...): wrong baud rate or a noisy line?"
+
+
+def _disturbed(upper: str) -> bool:
+    """Whether an adapter's message is what a single disturbed frame or request gives (FAILED_ANSWERS_IN_A_ROW)."""
+    return upper in ("?", "CAN ERROR") or upper in VEHICLE_BUS_FAULTS or re.fullmatch(r"ERR\d\d", upper) is not None
 
 
 def _message_error(upper: str) -> SensorError | None:

@@ -134,6 +134,33 @@ def test_a_device_that_worked_for_a_while_is_opened_again_at_once_the_first_time
         assert waited_s <= reopened_within_s + 1e-9
 
 
+class OpensButNeverDelivers(Scripted):
+    """An ELM327 with the ignition off (its set-up succeeds, every request fails), a CAN interface on a bus that is
+    off: each open succeeds, each read fails."""
+
+    def read(self) -> list[Reading]:
+        self.n += 1
+        if self.opens >= 6:
+            self.done.set()
+        raise BusError("ELM327 unable to connect to the vehicle: ignition off or protocol not supported")
+
+
+def test_a_device_that_opens_but_never_delivers_is_not_back_and_backs_off_further(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Each successful open counted a reconnection, logged "back after", set the state ok and started the back-off
+    over: 7 reconnections in 20 s of a parked car, the adapter reset and searching every few seconds all day."""
+    tb = VirtualTime()
+    src = OpensButNeverDelivers(tb)
+    opened_at: list[int] = []
+    open_ = src.open
+    src.open = lambda: (opened_at.append(tb.monotonic_ns()), open_())[1]  # type: ignore[method-assign]
+    s, out = _run(src, 2.0)
+    assert out == [] and s.health.reconnects == 0
+    assert "back after" not in caplog.text
+    waits = [(b - a) / 1e9 for a, b in itertools.pairwise(opened_at)]
+    assert waits == sorted(waits) and waits[-1] >= 4 * waits[0], waits
+
+
 class Silent(Scripted):
     """Answers NO DATA for a while, like an ELM327 with the engine off."""
 

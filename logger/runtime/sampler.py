@@ -178,6 +178,8 @@ class Sampler(threading.Thread):
         # Which readings are this sensor's samples for rates and gaps (a receiver also sends time pulses).
         self._sample_topic = source.sample_topic
         self._incident_base: dict[str, int] | None = None  # counts of the device opened now, at its first read
+        self._delivered_ns: int | None = None  # when the device opened now first delivered (None: not yet)
+        self._back_after: str | None = None  # the error a reopened device is back after, once it delivers
         self._incidents_of = source.incidents
 
     # The thread body: open, sample until an error, back off, reopen.
@@ -198,15 +200,16 @@ class Sampler(threading.Thread):
                     break
                 backoff = min(backoff * 2, self.BACKOFF_MAX_S)
                 continue
-            if opened_once:
-                self.health.reconnects += 1
-                self._log(f"back after: {self.health.last_error or 'an error'}")
-            self.health.last_error = ""  # recovered: the error is in the log and the counters, not a present one
+            # Opened is not yet back: an ELM327 opens with the ignition off (its set-up keeps the vehicle's silence
+            # for the reads), a CAN interface opens while the bus is off. The reconnection is counted and logged,
+            # and the back-off starts over, once the device delivers (_read_once); until then a device that
+            # fails again backs off further instead of being set up again every half second, "back after" each time.
+            self._back_after = (self.health.last_error or "an error") if opened_once else None
+            self._delivered_ns = None
             opened_once = True
             self._incident_base = None
             self.health.state = "ok"
-            opened_ns = self.health.ok_since_mono_ns = self.tb.monotonic_ns()
-            backoff = self.BACKOFF_START_S
+            self.health.ok_since_mono_ns = self.tb.monotonic_ns()
             try:
                 if self.rate_hz:
                     self._periodic()
@@ -215,8 +218,15 @@ class Sampler(threading.Thread):
             except SensorError as exc:
                 self._failed(exc, missing=isinstance(exc, DeviceNotFound))
                 self._close()
-                worked_s = (self.tb.monotonic_ns() - opened_ns) / 1e9
-                if self.tb.wait(self.stop_event, 0.0 if worked_s >= self.QUICK_RETRY_AFTER_S else backoff):
+                delivered = self._delivered_ns
+                if delivered is None:
+                    wait_s, backoff = backoff, min(backoff * 2, self.BACKOFF_MAX_S)
+                else:
+                    worked_s = (self.tb.monotonic_ns() - delivered) / 1e9
+                    wait_s = backoff = self.BACKOFF_START_S  # it delivered: a new fault, backed off from the start
+                    if worked_s >= self.QUICK_RETRY_AFTER_S:
+                        wait_s = 0.0
+                if self.tb.wait(self.stop_event, wait_s):
                     break
                 continue
             except Exception as exc:  # a bug in a driver must not take the daemon down: log it, retry
@@ -289,6 +299,13 @@ class Sampler(threading.Thread):
         if self.health.state != "ok":  # data again after 'no data': recovered, the error is no present one
             self.health.state, self.health.last_error = "ok", ""
             self.health.ok_since_mono_ns = self.tb.monotonic_ns()
+        if readings and self._delivered_ns is None:
+            self._delivered_ns = self.tb.monotonic_ns()
+            self.health.last_error = ""  # recovered: the error is in the log and the counters, not a present one
+            if self._back_after is not None:
+                self.health.reconnects += 1
+                self._log(f"back after: {self._back_after}")
+                self._back_after = None
         self._deliver(readings)
 
     def _deliver(self, readings: list[Reading]) -> None:
