@@ -772,7 +772,8 @@ class GnssDecoder:
         elif quality == 0 or status_ok is False or lat is None:
             mode = 1
         else:
-            alt_known = gga is not None and _num(_attr(gga, "alt")) is not None
+            # A height in GGA or in GNS (which NMEA 4 receivers send instead of GGA) makes it 3D.
+            alt_known = any(m is not None and _num(_attr(m, "alt")) is not None for m in (gga, gns))
             mode = 3 if alt_known else 2
         fix_ok = bool(status_ok) if status_ok is not None else bool(quality)
 

@@ -523,3 +523,28 @@ def test_the_outputs_are_named_for_the_drive_whatever_order_its_files_come_in(dr
     first = re.sub(r"_\d{4}$", "", drive.files[0].stem)
     assert [p.name for p in (tmp_path / "backward").iterdir()] == [f"{first}.gpx"]
     assert [p.name for p in (tmp_path / "forward").iterdir()] == [f"{first}.gpx"]
+
+
+def test_a_fix_without_a_geoid_separation_keeps_its_point_and_its_height_above_sea_level(tmp_path: Path) -> None:
+    """A receiver without a geoid model sends GGA with an empty separation: its fixes have a height above sea level
+    and none above the ellipsoid. Every one was dropped as "no position"; the point stands, written with the
+    height it has (--height msl) or without one (the ellipsoid's), never with a made-up one."""
+    from logger.exports.formats import write_csv, write_gpx, write_kml
+    from logger.exports.tracks import Track, gnss_point
+
+    fix = {"timestamp": {"sec": 1_796_000_000, "nsec": 0}, "latitude": 48.1173, "longitude": 11.5167,
+           "altitude": None, "height_msl_m": 545.4, "fix_mode": 3, "fix_ok": True, "vel_ned_mps": [1.0, 0.0, None]}
+    p = gnss_point(fix)
+    assert not isinstance(p, str)
+    assert (p.h_ell_m, p.h_msl_m) == (None, 545.4)
+    track = Track("gnss_fix", "/gnss/fix", "live", "/gnss/fix", [[p]])
+    write_csv(tmp_path / "t.csv", track)
+    with open(tmp_path / "t.csv", newline="") as f:
+        (row,) = list(csv.DictReader(f))
+    assert (row["height_ellipsoid_m"], row["height_msl_m"]) == ("", "545.400")
+    for which, ele in (("msl", "545.400"), ("ellipsoid", None)):
+        write_gpx(tmp_path / f"{which}.gpx", [track], which, "t")
+        (pt,) = ET.parse(tmp_path / f"{which}.gpx").getroot().iter(f"{GPX}trkpt")
+        assert pt.findtext(f"{GPX}ele") == ele and pt.find(f"{GPX}geoidheight") is None
+        write_kml(tmp_path / f"{which}.kml", [track], which, "t")
+        ET.parse(tmp_path / f"{which}.kml")

@@ -383,6 +383,18 @@ def test_nmea_sentences_are_combined_per_epoch() -> None:
     assert (second.pdop, second.hdop, second.vdop) == (None, 0.49, None)  # GGA's HDOP: the only DOP without GSA
 
 
+def test_gns_instead_of_gga_gives_a_3d_fix_with_its_height() -> None:
+    """An NMEA 4 receiver sending RMC and GNS (no GGA, no GSA): GNS carries the height, so the fix is 3D (it was
+    recorded as 2D with a height, which `logger export` then dropped point by point)."""
+    first, _ = decode(b"".join(nmea(body) for body in (
+        "GNRMC,120000.00,A,4807.03800,N,01131.00000,E,0.010,,301126,,,A,V",
+        "GNGNS,120000.00,4807.03800,N,01131.00000,E,AAN,10,0.9,545.4,46.9,,,V",
+        "GNRMC,120001.00,A,4807.03800,N,01131.00000,E,0.010,,301126,,,A,V",
+        "GNGNS,120001.00,4807.03800,N,01131.00000,E,AAN,10,0.9,545.4,46.9,,,V")))
+    assert first.fix_mode == 3 and first.fix_ok
+    assert first.height_msl_m == 545.4 and first.height_hae_m == pytest.approx(592.3)
+
+
 def test_nav_dop_gives_its_horizontal_and_vertical_dops() -> None:
     dop = UBXMessage("NAV", "NAV-DOP", GET, iTOW=345_600_250, pDOP=1.9, hDOP=1.1, vDOP=1.55).serialize()
     (fix,) = [i for i in decode(nav_pvt() + dop + nav_eoe(345_600_250)) if isinstance(i, GnssFix)]

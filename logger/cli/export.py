@@ -301,6 +301,9 @@ def main(argv: list[str]) -> int:
     if args.height == "msl" and any(p.h_msl_m is None for t in chosen for p in t.points):
         print(f"logger export: note: some points have no {HEIGHT_TEXT['msl']} (no receiver fix to take the geoid "
               "from): written without a height", file=sys.stderr)
+    if args.height == "ellipsoid" and any(p.h_ell_m is None for t in chosen for p in t.points):
+        print(f"logger export: note: some points have no {HEIGHT_TEXT['ellipsoid']} (the receiver sent no geoid "
+              "separation): written without a height; --height msl has theirs", file=sys.stderr)
     for p in streamed + written:
         print(f"wrote {p}")
     return 0

@@ -62,7 +62,7 @@ def _gpx_point(p: TrackPoint, which: str, gnss: bool) -> str:
     if h is not None:
         parts.append(f"<ele>{h:.3f}</ele>")
     parts.append(f"<time>{utc_iso(p.t_ns)}</time>")
-    if which == "msl" and p.h_msl_m is not None:
+    if which == "msl" and p.h_msl_m is not None and p.h_ell_m is not None:
         parts.append(f"<geoidheight>{p.h_ell_m - p.h_msl_m:.3f}</geoidheight>")
     if gnss:
         if p.fix_mode == 3:
@@ -112,7 +112,7 @@ def _coord(p: TrackPoint, which: str) -> str:
 def _gx_track(seg: list[TrackPoint], which: str) -> str:
     """One segment as a gx:Track: all the ``<when>`` first, then the ``<gx:coord>`` (lon lat alt, by spaces)."""
     whens = "".join(f"<when>{utc_iso(p.t_ns)}</when>" for p in seg)
-    # gx:coord is always three numbers; a point without the chosen height (no geoid separation for MSL) gets 0,
+    # gx:coord is always three numbers; a point without the chosen height (no geoid separation) gets 0,
     # which the track's clampToGround does not use anyway.
     coords = "".join(f"<gx:coord>{p.lon_deg:.9f} {p.lat_deg:.9f} {_num(height(p, which), 3) or '0'}</gx:coord>"
                      for p in seg)
@@ -162,7 +162,7 @@ def write_csv(path: Path, track: Track) -> None:
         w.writerow(CSV_COLUMNS)
         for n, seg in enumerate(track.segments, 1):
             for p in seg:
-                w.writerow([utc_iso(p.t_ns), p.t_ns, n, f"{p.lat_deg:.9f}", f"{p.lon_deg:.9f}", f"{p.h_ell_m:.3f}",
+                w.writerow([utc_iso(p.t_ns), p.t_ns, n, f"{p.lat_deg:.9f}", f"{p.lon_deg:.9f}", _num(p.h_ell_m, 3),
                             _num(p.h_msl_m, 3), _num(p.speed_mps, 3), _num(p.course_deg, 2),
                             _num(p.vel_down_mps, 3), _num(p.h_sigma_m, 3), _num(p.v_sigma_m, 3),
                             "" if p.fix_mode is None else p.fix_mode, "" if p.num_sv is None else p.num_sv,

@@ -32,7 +32,7 @@ class TrackPoint:
     t_ns: int  # GNSS time of the position, Unix ns UTC
     lat_deg: float
     lon_deg: float
-    h_ell_m: float  # above the WGS-84 ellipsoid
+    h_ell_m: float | None  # above the WGS-84 ellipsoid (None: a receiver that sent no geoid separation)
     h_msl_m: float | None  # above mean sea level (the receiver's geoid)
     speed_mps: float | None  # horizontal
     course_deg: float | None  # over ground, from north, 0..360
@@ -115,11 +115,14 @@ def gnss_point(msg: dict) -> TrackPoint | str:
     if not ok:
         return "fix not flagged valid"
     lat, lon, alt = msg.get("latitude"), msg.get("longitude"), msg.get("altitude")
-    if _no_position(lat, lon) or not _finite(alt):
+    msl = msg.get("height_msl_m")
+    # A receiver without a geoid model sends GGA without its separation: a height above sea level and none above
+    # the ellipsoid. The point stands with the height it has (it was dropped as "no position").
+    if _no_position(lat, lon) or not (_finite(alt) or _finite(msl)):
         return "no position"
     speed, course, vd = _velocity(msg.get("vel_ned_mps"))
-    msl = msg.get("height_msl_m")
-    return TrackPoint(fix_time_ns(msg), float(lat), float(lon), float(alt), float(msl) if _finite(msl) else None,
+    return TrackPoint(fix_time_ns(msg), float(lat), float(lon), float(alt) if _finite(alt) else None,
+                      float(msl) if _finite(msl) else None,
                       speed, course, vd, msg.get("h_acc_m"), msg.get("v_acc_m"), mode, msg.get("num_sv"),
                       msg.get("pdop"), msg.get("sync_state"), msg.get("sync_err_ns"))
 
@@ -227,7 +230,7 @@ def fill_msl(tracks: list[Track]) -> None:
     """Give filter points a height above sea level from the receiver's own geoid separation (ellipsoidal
     minus MSL height of its fixes, interpolated in time); left None without GNSS fixes that carry one."""
     ref = [(p.t_ns, p.h_ell_m - p.h_msl_m) for t in tracks if t.topic == GNSS_FIX for p in t.points
-           if p.h_msl_m is not None]
+           if p.h_msl_m is not None and p.h_ell_m is not None]
     if not ref:
         return
     ref.sort()
@@ -241,4 +244,4 @@ def fill_msl(tracks: list[Track]) -> None:
             continue
         sep = np.interp(np.array([p.t_ns for p in pts], dtype=float), t_ref, n_ref)
         for p, n in zip(pts, sep, strict=True):
-            p.h_msl_m = p.h_ell_m - float(n)
+            p.h_msl_m = None if p.h_ell_m is None else p.h_ell_m - float(n)
