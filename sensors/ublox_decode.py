@@ -41,6 +41,9 @@ KNOT_MPS = 1852.0 / 3600.0
 # Measured: in the 36 GPSD u-blox captures every RMC with a fix and an empty course had at most 0.20 m/s (lea-5h;
 # 0.13 ublox-8, 0.08 neo-m8n, the F9s under 0.06).
 NO_COURSE_SPEED_MPS = 0.25
+# A receiver's GST (its accuracies) stands this long for the epochs after it that have none of their own: one sent
+# once a second with fixes at 5 or 10 Hz, or after the burst's learnt end.
+GST_HOLD_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -300,6 +303,11 @@ class GnssDecoder:
         self._nmea: _Burst | None = None
         self._nmea_done: float | None = None
         self._nmea_ender: str | None = None
+        # The sentences of the last NMEA epoch that ended (its burst's, and those that came after its end) and of
+        # the epoch before it: a sentence after an epoch's end that the one before had too is the burst's real end.
+        self._nmea_seen: set[str] = set()
+        self._nmea_seen_before: set[str] = set()
+        self._gst: tuple[float, Any] | None = None  # the last GST (time of day, message): _gst_for
         self._ubx_solutions = False
         self.leap_s: int | None = None
         self.week: int | None = None
@@ -672,7 +680,15 @@ class GnssDecoder:
                 return items
         if key is not None:
             if self._nmea is None and key == self._nmea_done:
-                self._nmea_ender = ident  # the burst went on after where we thought it ended
+                # The burst went on after where we thought it ended. A sentence the burst before it lacked too is one
+                # the receiver sends at a lower rate (GST once a second at 5 Hz): the end stays (moved to it, every
+                # burst without it ended only when the next began, a fix late, and the end flapped to and fro), and
+                # its accuracies stand for the epochs of the next second (_gst_for).
+                if kind == "GST":
+                    self._gst = (key, msg)
+                self._nmea_seen.add(ident)
+                if ident in self._nmea_seen_before:
+                    self._nmea_ender = ident
                 return items
             if self._nmea is not None and self._nmea.key is not None and self._nmea.key != key:
                 if self._date is None:
@@ -729,6 +745,7 @@ class GnssDecoder:
         if burst is None or burst.key is None:
             return []
         self._nmea_done = burst.key
+        self._nmea_seen_before, self._nmea_seen = self._nmea_seen, set(burst.order)
         if learn and burst.order:
             self._nmea_ender = burst.order[-1]
         try:
@@ -738,6 +755,17 @@ class GnssDecoder:
             return []
         return _marked(fix, burst)
 
+    def _gst_for(self, gst: Any, tod_s: float | None) -> Any:
+        """The GST of an epoch: its own, or the receiver's last within GST_HOLD_S before it (one sent at a lower
+        rate than the fixes, or after the epoch's learnt end: its accuracies are the receiver's latest word)."""
+        if gst is not None:
+            if tod_s is not None:
+                self._gst = (tod_s, gst)
+            return gst
+        if self._gst is None or tod_s is None or not 0.0 <= tod_s - self._gst[0] <= GST_HOLD_S:
+            return None
+        return self._gst[1]
+
     def _fix_from_nmea(self, burst: _Burst) -> GnssFix | None:
         parts = burst.parts
         gga = parts.get("GGA")
@@ -745,7 +773,7 @@ class GnssDecoder:
         rmc = parts.get("RMC")
         gll = parts.get("GLL")
         gsa = parts.get("GSA")
-        gst = parts.get("GST")
+        gst = self._gst_for(parts.get("GST"), float(burst.key) if burst.key is not None else None)
         vtg = parts.get("VTG")
         pos = next((m for m in (gga, gns, rmc, gll) if m is not None), None)
         if pos is None or burst.key is None:

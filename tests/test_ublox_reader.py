@@ -633,6 +633,28 @@ def test_one_gsa_per_constellation_after_the_learnt_end_does_not_date_the_next_e
     assert all(fix.pdop == 1.5 and fix.fix_mode == 3 for _, fix in fixes)
 
 
+def test_a_gst_sent_once_a_second_at_5_hz_gives_every_fix_its_accuracies_and_ends_no_epoch_late() -> None:
+    """GST (the receiver's accuracies) once a second, fixes at 5 Hz: after the first second every GST came after
+    its epoch's learnt end and was dropped (the filter fell back on its DOP model for every fix), and the end
+    flapped to and fro, each burst without GST ending only when the next began. Its accuracies stand for the next
+    second's fixes, and the end stays."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    got = []
+    for k in range(20):
+        sec, frac = divmod(k * 20, 100)
+        hhmmss = f"1200{sec:02d}.{frac:02d}"
+        bodies = [f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,230324,,,A,V",
+                  f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,14,0.8,545.4,M,46.9,M,,"]
+        if frac == 0:
+            bodies.append(f"GNGST,{hhmmss},1.0,1.5,1.0,45.0,1.2,1.3,2.5")
+        decoder.read_mark = k + 1
+        got += [(k + 1, f) for f in decoder.push_all(framer.feed(b"".join(nmea(b) for b in bodies)))
+                if isinstance(f, GnssFix)]
+    assert len(got) == 20
+    assert all(fix.h_acc_m == pytest.approx(math.hypot(1.2, 1.3)) and fix.v_acc_m == 2.5 for _, fix in got)
+    assert all(read == fix.opened_mark for read, fix in got[2:])  # each in its own read once the end is learnt
+
+
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
     """A real u-blox M9N's NMEA output as it came (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV x12, GLL,
     GST, ZDA, GBS, about 1.5 kB an epoch), each epoch on the line from 0.3 s after its pulse to 1.2 s, read by the
