@@ -381,7 +381,7 @@ class GnssDecoder:
             items.append(self._time_from_timeutc(msg))
         elif ident == "NAV-TIMELS" and _flag(msg, "validCurrLs"):
             self.leap_s = _int(_attr(msg, "currLs"))
-        if ident in ("NAV-PVT", "NAV-PVAT", "NAV-SOL", "NAV-POSLLH", "NAV-HPPOSLLH"):
+        if ident in ("NAV-PVT", "NAV-PVAT", "NAV-SOL"):  # a solution with its fix type and time (_fix_from_ubx)
             self._ubx_solutions = True
             if self._nmea is not None:
                 items += self._finish_nmea(learn=False)
@@ -496,6 +496,12 @@ class GnssDecoder:
         if pvt is None and sol is None and posllh is None and hp is None:
             return None  # a burst without a position (time or satellite messages only)
         status = parts.get("NAV-STATUS")
+        if pvt is None and sol is None:
+            if status is None:
+                # A position without a fix type or a time (NAV-HPPOSLLH added by an owner to NMEA output): no fix of
+                # its own. The NMEA beside it has both (it was ignored from then on: every record "no fix").
+                return None
+            self._ubx_solutions = True  # the older receivers' separate messages: the UBX solution from now on
         velned = parts.get("NAV-VELNED")
         dop = parts.get("NAV-DOP")
         timegps = parts.get("NAV-TIMEGPS")

@@ -395,6 +395,23 @@ def test_gns_instead_of_gga_gives_a_3d_fix_with_its_height() -> None:
     assert first.height_msl_m == 545.4 and first.height_hae_m == pytest.approx(592.3)
 
 
+def test_a_high_precision_position_beside_nmea_leaves_the_fix_to_the_nmea() -> None:
+    """An F9P set up by its owner for RTK: NMEA GGA/RMC/GSA plus UBX NAV-HPPOSLLH, no NAV-PVT or NAV-STATUS. The
+    UBX position has no fix type and no time: it made the decoder ignore the NMEA, and every record said "no fix"
+    without a time (the filter refused all, the clock got no epoch). The NMEA gives the fix."""
+    stream = b""
+    for k in range(4):
+        hhmmss = f"1200{k:02d}.00"
+        stream += (nmea(f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,0.010,,010326,,,R,V")
+                   + nmea(f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,4,24,0.6,545.4,M,46.9,M,1.0,0000")
+                   + nmea("GNGSA,A,3,01,02,03,04,05,06,07,08,,,,,1.1,0.6,0.9,1")
+                   + UBXMessage("NAV", "NAV-HPPOSLLH", GET, version=0, iTOW=388_800_000 + 1000 * k, lon=11.5166666,
+                                lat=48.1173, height=592_300, hMSL=545_400, hAcc=14, vAcc=20).serialize())
+    fixes = [f for f in decode(stream) if isinstance(f, GnssFix)]
+    assert len(fixes) == 4
+    assert all(f.source == "NMEA" and f.fix_mode == 3 and f.fix_ok and f.time_valid for f in fixes)
+
+
 def test_nav_dop_gives_its_horizontal_and_vertical_dops() -> None:
     dop = UBXMessage("NAV", "NAV-DOP", GET, iTOW=345_600_250, pDOP=1.9, hDOP=1.1, vDOP=1.55).serialize()
     (fix,) = [i for i in decode(nav_pvt() + dop + nav_eoe(345_600_250)) if isinstance(i, GnssFix)]
