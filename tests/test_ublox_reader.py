@@ -578,6 +578,50 @@ def test_serial_round_trip_vanish_and_come_back() -> None:
             again.close()
 
 
+def test_a_receiver_plugged_back_in_starts_its_raw_stream_over() -> None:
+    """/gnss/raw's offset counts the bytes read since the port was opened: after the receiver was unplugged and
+    plugged back in it went on counting, so `logger export --format ubx` saw no gap and joined the frame cut at
+    the unplugging to the new bytes. It starts at 0 again, which the export notes as the port opened again."""
+    from logger.exports.raw_stream import _gap
+    from logger.recording.topics import GNSS_RAW
+    from logger.runtime.sources import GnssSource
+    from logger.runtime.timebase import host_timebase
+
+    pvt = nav_pvt()
+    records = []
+    with PtyPort() as device:
+        source = GnssSource(device.path, 115200, False, host_timebase())
+
+        def pump(data: bytes) -> None:
+            device.write(data)
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                got = [r for r in source.read() if r.topic == GNSS_RAW]
+                records.extend(got)
+                if got:
+                    return
+
+        source.open()
+        pump(pvt)
+        pump(pvt[:40])  # the unplugging cuts a frame in half
+        device.vanish()
+        with pytest.raises(BusError):
+            source.read()
+        source.close()
+        device.reappear()
+        source.open()
+        pump(pvt)
+        source.close()
+
+    class Message:  # what the raw export reads of a drive's message
+        def __init__(self, payload: dict[str, object]) -> None:
+            self.msg, self.file, self.log_time = payload, "drive.mcap", 0
+
+    assert [r.payload["offset"] for r in records] == [0, len(pvt), 0]
+    gap = _gap(Message(records[1].payload), Message(records[2].payload), 0)
+    assert gap is not None and gap.kind == "reopened"
+
+
 def test_write_to_a_vanished_port_is_bus_error() -> None:
     with PtyPort() as device:
         receiver = GnssReceiver.open(device.path)

@@ -352,6 +352,11 @@ class GnssSource(Source):
         """Counted from the end of the set-up, which may take seconds of retries: a restart is what comes after."""
         from sensors.ublox_config import message_id
 
+        # Each /gnss/raw record says where its bytes start in the port's stream since it was opened: opened again
+        # (unplugged and back, or set up again after a restart), the stream starts over, and an offset back at 0
+        # tells the office's raw export that what came meanwhile was not read (it went on counting: no gap shown,
+        # and a UBX frame cut at the unplugging joined to the new bytes).
+        self.offset = 0
         now = self.tb.monotonic_ns()
         self._heard_ns, self._restart = now, None
         self._read_at.clear()  # a new receiver object numbers its reads from 1 again
