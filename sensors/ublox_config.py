@@ -320,6 +320,9 @@ def configure_receiver(
     if version is None:
         heard = (f"though it sent {s.nmea_sentences} NMEA sentences: not a u-blox receiver, or UBX input disabled"
                  if s.nmea_sentences else "and sent no NMEA either: wrong baud rate, or nothing on the line")
+        if not s.nmea_sentences and s.framer.nmea_without_checksum:
+            heard = (f"and sent {s.framer.nmea_without_checksum} NMEA sentences without a checksum, which the logger "
+                     "refuses (a receiver older than NMEA 2.3? turn its checksums on)")
         raise NoUbxAnswer(
             f"GNSS receiver on {path} did not answer UBX-MON-VER within {reply_timeout_s:g} s ({tries} tries) "
             f"at {port.baudrate} baud, {heard}", s.nmea_sentences)

@@ -114,7 +114,9 @@ class UbxNmeaFramer:
       rescanned and counted as garbage unless a good frame starts inside them),
     - ``garbage_bytes``: bytes that belong to no good frame,
     - ``undecoded``: good frames the decoding library could not turn into a message,
-    - ``rtcm3_unchecked``: RTCM3 candidates skipped unchecked because the check budget was spent.
+    - ``rtcm3_unchecked``: RTCM3 candidates skipped unchecked because the check budget was spent,
+    - ``nmea_without_checksum``: NMEA sentences that came without their ``*hh`` (an old receiver's, from before
+      NMEA 2.3 made it mandatory), refused: counted so that the refusal can be named (they count as bad too).
 
     ``decode_nmea`` False frames and checks NMEA sentences but leaves their ``message`` None (not counted as
     undecoded): for a reader that takes its solutions from UBX and ignores NMEA, as ``GnssDecoder`` does once it
@@ -128,6 +130,7 @@ class UbxNmeaFramer:
         self.garbage_bytes = 0
         self.undecoded = 0
         self.rtcm3_unchecked = 0
+        self.nmea_without_checksum = 0
         self.decode_nmea = True
         self._consumed = 0  # bytes of the stream before the buffer
         self._rtcm3_credit = RTCM3_CHECK_BURST
@@ -181,6 +184,8 @@ class UbxNmeaFramer:
             raw = bytes(buf[pos : pos + size])
             frame = self._check(raw)
             if frame is None:
+                if lead == 0x24 and b"*" not in raw:
+                    self.nmea_without_checksum += 1
                 self.bad_checksum += 1
                 self.garbage_bytes += 1
                 pos += 1

@@ -155,6 +155,22 @@ def test_silence_is_a_timeout_in_drive_time(bench: Bench) -> None:
     assert bench.clock.now_ns() == pytest.approx(3 * 0.5e9, rel=0.1)
 
 
+def test_a_receiver_sending_nmea_without_checksums_is_told_so(bench: Bench) -> None:
+    """A receiver older than NMEA 2.3 sends its sentences without '*hh': they are refused, and the set-up said
+    "sent no NMEA either: wrong baud rate, or nothing on the line" with the NMEA there at the right speed."""
+    ser = bench.host(9600)
+    line = b"$GPGGA,120000.00,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,\r\n"
+
+    def sleep(seconds: float) -> None:
+        bench.port.write(line)  # the receiver's talk while the poll waits
+        bench.sleep(seconds)
+
+    with pytest.raises(NoData) as err:
+        configure_receiver(ser, sleep=sleep, reply_timeout_s=0.5, tries=2)
+    text = str(err.value)
+    assert "NMEA sentences without a checksum, which the logger refuses" in text and "wrong baud rate" not in text
+
+
 def test_a_receiver_at_another_baud_rate_is_silence_too(bench: Bench) -> None:
     model = bench.receiver(generation=8, seed=5, baud=38400)
     with pytest.raises(NoData, match="at 9600 baud"):

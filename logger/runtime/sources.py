@@ -451,7 +451,8 @@ class GnssSource(Source):
             return {}
         framer = self.receiver.framer
         return {"bytes of garbage on the serial line": framer.garbage_bytes,
-                "frames with a bad checksum": framer.bad_checksum}
+                "frames with a bad checksum": framer.bad_checksum,
+                "NMEA sentences without a checksum (refused)": framer.nmea_without_checksum}
 
     def close(self) -> None:
         _close_quietly(self.receiver)
