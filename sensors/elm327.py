@@ -16,6 +16,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import time
 
 import serial
 
@@ -55,6 +56,7 @@ FAMILY_OF_PROTOCOL = {"1": J1850, "2": J1850, "3": K_LINE, "4": K_LINE, "5": K_L
 FAILED_ANSWERS_IN_A_ROW = 3
 
 # Messages the ELM327 prints instead of data; each maps to what the logger should make of it.
+FLAGGED_LINE_ENDS = ("<DATA ERROR", "<RX ERROR")  # at the end of the data line they flag
 VEHICLE_BUS_FAULTS = ("BUS ERROR", "BUS BUSY", "FB ERROR", "DATA ERROR", "<DATA ERROR", "RX ERROR", "<RX ERROR",
                       "BUFFER FULL", "ACT ALERT")
 
@@ -117,6 +119,7 @@ class Elm327(SpeedDriver):
         self.resets_seen = 0  # adapter resets noticed during reads (and recovered from)
         self.connect_problem: str | None = None  # why the vehicle did not answer during set-up, if it did not
         self._failed_answers = 0  # disturbed answers in a row (FAILED_ANSWERS_IN_A_ROW)
+        self._speed_answer_s: float | None = None  # how long the last answered speed request took
         self._serial: serial.Serial | None = None
         self._rx = bytearray()
         self._owed = False  # a command was given up on: its answer may still come (_command)
@@ -210,7 +213,9 @@ class Elm327(SpeedDriver):
         if self.clock is not None and any(line.upper().startswith(("SEARCHING", "BUS INIT")) for line in lines):
             # The request began a protocol search or a bus initialisation (seconds): when in it the ECU was asked is
             # not known, so neither is its answer's time. Asked again, at once, for a speed whose time is.
-            lines, echoed = self._timed_command(ELM_SPEED_COMMAND)
+            # Given the search's wait: a slow adapter's answer (a Bluetooth bridge's 1.2 s) is then read, and its time
+            # tells the timeout's message what to change.
+            lines, echoed = self._timed_command(ELM_SPEED_COMMAND, long_wait=True)
             if self._lost_settings(lines, echoed):
                 raise BusError(f"ELM327 on {self.port} reset again right after a protocol search: check its power "
                                "supply")
@@ -313,11 +318,21 @@ class Elm327(SpeedDriver):
             except _NoPrompt:
                 self._rx.clear()  # it never came: what there is belongs to no command
         self._write(command)
+        asked = time.monotonic()  # a wait's length, not a time stamp
         try:
             answer = self._read_answer(self.timeout_s, self.search_timeout_s if long_wait else None)
         except _NoPrompt as e:
             self._owed = True
-            raise BusError(f"ELM327 on {self.port} stopped answering ({command}: {e})") from None
+            slow = ""
+            if command == ELM_SPEED_COMMAND and self._speed_answer_s is not None:
+                # A slow clone or Bluetooth bridge answers every request, later than the timeout: the set-up's own
+                # request (given the search's wait) showed how late, which says what to change.
+                slow = (f"; its speed answer in the set-up took {self._speed_answer_s:.1f} s: a slow adapter? raise "
+                        f"[obd] answer_timeout_s ({self.timeout_s:g} s)" if self._speed_answer_s > self.timeout_s
+                        else "")
+            raise BusError(f"ELM327 on {self.port} stopped answering ({command}: {e}){slow}") from None
+        if command == ELM_SPEED_COMMAND and b"SEARCHING" not in answer and b"BUS INIT" not in answer:
+            self._speed_answer_s = time.monotonic() - asked
         wanted = command.replace(" ", "").upper()
         lines, echoed = [], False
         for line in _lines(answer[:-1].decode("latin-1")):
@@ -507,10 +522,19 @@ def _show(line: str) -> str:
 
 def _disturbed(upper: str) -> bool:
     """Whether an adapter's message is what a single disturbed frame or request gives (FAILED_ANSWERS_IN_A_ROW)."""
-    return upper in ("?", "CAN ERROR") or upper in VEHICLE_BUS_FAULTS or re.fullmatch(r"ERR\d\d", upper) is not None
+    return (upper in ("?", "CAN ERROR", "OUT OF MEMORY") or upper in VEHICLE_BUS_FAULTS
+            or re.fullmatch(r"ERR\d\d", upper) is not None or upper.endswith(FLAGGED_LINE_ENDS))
 
 
 def _message_error(upper: str) -> SensorError | None:
+    if upper.endswith(FLAGGED_LINE_ENDS):
+        # The ELM327 flags the data line it could not receive whole at its end (7E8 03 41 0D 32 <DATA ERROR).
+        flag = upper[upper.rindex("<") + 1:]
+        return BusError(f"ELM327 flags its answer with {flag}: a frame received with an error")
+    if upper == "LP ALERT":
+        return BusError("ELM327 is about to go to low power (LP ALERT): its supply, or its LP input, says so")
+    if upper == "OUT OF MEMORY":
+        return BusError("ELM327 ran out of memory for the answer (OUT OF MEMORY)")
     if upper == "NO DATA":
         return NoData("vehicle gave no speed (ELM327: NO DATA): engine off, or PID 0x0D not supported")
     if upper == "STOPPED":

@@ -422,6 +422,8 @@ def test_ignition_off_at_start_is_unable_to_connect(port: PtyPort) -> None:
         (ElmFault.UNABLE_TO_CONNECT, BusError, "unable to connect"),
         (ElmFault.BUS_INIT_ERROR, BusError, "BUS INIT ERROR"),
         (ElmFault.MISUNDERSTOOD, NoData, "did not understand"),
+        (ElmFault.DATA_ERROR_FLAGGED, NoData, "flags its answer with DATA ERROR"),
+        (ElmFault.LP_ALERT, BusError, "about to go to low power (LP ALERT)"),
         (ElmFault.GARBAGE, NoData, "junk"),
     ],
 )
@@ -459,6 +461,26 @@ def test_disturbed_answers_in_a_row_are_the_adapters_fault(port: PtyPort, fault:
             with pytest.raises(error if k == FAILED_ANSWERS_IN_A_ROW - 1 else NoData) as exc:
                 elm.read()
             assert text in one_line(exc)
+
+
+def test_an_adapter_slower_than_the_timeout_is_told_by_its_set_up(port: PtyPort) -> None:
+    """A slow clone or Bluetooth bridge answers every request later than the timeout: its set-up's request (given
+    the search's wait) was answered and thrown away, and the reads' timeouts blamed the adapter. They name the
+    answer's time and the setting to change."""
+    with adapter(port, [engine_ecu(StraightTrajectory(speed_mps=13.9))], ScaledClock(1.0),
+                 slow_commands={"010D": 0.6}):
+        elm = driver(port, timeout_s=0.3)
+        elm.clock = time.monotonic_ns
+        elm.open()
+        try:
+            with pytest.raises(BusError) as exc:
+                elm.read()
+        finally:
+            elm.close()
+    message = one_line(exc)
+    took = re.search(r"speed answer in the set-up took (\d+\.\d) s: a slow adapter\? raise \[obd\] "
+                     r"answer_timeout_s \(0\.3 s\)", message)
+    assert took is not None and float(took.group(1)) >= 0.6, message
 
 
 def test_bus_init_error_on_a_k_line_car(port: PtyPort) -> None:

@@ -93,6 +93,8 @@ class ElmFault(enum.Enum):
     BUS_INIT_ERROR = "BUS INIT: ...ERROR"
     MISUNDERSTOOD = "?"  # the request arrived garbled and the adapter did not recognise it
     BIT_ERROR = "bit error"  # the answer's last data byte arrives with a bit flipped
+    DATA_ERROR_FLAGGED = "<DATA ERROR"  # the answer's data line, flagged at its end as received with an error
+    LP_ALERT = "LP ALERT"  # the adapter is about to go to low power
     GARBAGE = "garbage"
 
 
@@ -311,7 +313,7 @@ class Elm327Model(DeviceThread):
 
     def _obd(self, request: bytes) -> None:
         fault = self._faults.popleft() if self._faults else None
-        if fault is not None and fault is not ElmFault.BIT_ERROR:
+        if fault is not None and fault not in (ElmFault.BIT_ERROR, ElmFault.DATA_ERROR_FLAGGED):
             self._fail(fault)
             return
         flip_bit = fault is ElmFault.BIT_ERROR
@@ -329,6 +331,8 @@ class Elm327Model(DeviceThread):
             if not lines:
                 self.clock.sleep(self._settings.timeout_hh * 4.096e-3)  # the ELM waits out its timeout
                 lines = ["NO DATA"]
+        if fault is ElmFault.DATA_ERROR_FLAGGED and lines:
+            lines[-1] += f" {fault.value}"
         self._answer(lines)
 
     def _connect(self) -> str | None:
