@@ -34,7 +34,7 @@ BUSY = {
              "no_fix_s": 35.2},
     "sync": {"state": "holdover", "err_ns": 48_200, "offset_ns": 1500, "freq_ppm": -26.121, "since_edge_s": 35.2},
     "nav": {"lat_deg": 37.5596131, "lon_deg": 126.9996644, "height_m": 62.7, "sigma_h_m": 9.7,
-            "source": "ins 17-state", "mode": "17",
+            "source": "ins 17-state", "mode": "17", "age_s": 1.4,
             "verdicts": ["no GNSS fix for 35 s: dead reckoning on IMU and baro (no OBD)",
                          "no OBD speed: the filter runs without the vehicle's speed",
                          "barometer offset stable: +96.9 m (+-0.2 m), -0.17 m/min",
@@ -69,6 +69,8 @@ def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on
     assert any(line.startswith("gnss    no fix") for line in screen)
     assert any(line.startswith("clock   holdover") for line in screen)
     assert any(line.startswith("nav     37.5596131") for line in screen)
+    # How old the position is, on its row (the published solution is up to a wake and a publish period old).
+    assert any(line.startswith("nav     37.5596131") and ", 1.4 s ago" in line for line in screen)
     assert any(line.startswith("rec     recording drive_20261201T220721Z_0001.mcap") for line in screen)
     # What went to make room: where the data come from and the per-incident totals first, then the last verdicts.
     assert not any(line.startswith(("source ", "imu     fifo overflow: 3 since start")) for line in screen)

@@ -195,7 +195,10 @@ def _nav(sc: Screen, nav: dict[str, Any] | None) -> None:
             sc.add(LINE, f"{where}, {age(nav.get('age_s'))} old: not current")
         else:
             sigma = f", sigma {nav['sigma_h_m']:.1f} m" if nav.get("sigma_h_m") is not None else ""
-            sc.add(LINE, f"{where}{sigma}" + (f" ({nav['source']})" if nav.get("source") else ""))
+            # Its age too: published on the whole seconds and taken up to a wake (2 s) later, a car's position is
+            # tens of metres behind it at speed, which a bare position does not say.
+            ago = f", {age(nav['age_s'])} ago" if nav.get("age_s") is not None else ""
+            sc.add(LINE, f"{where}{sigma}{ago}" + (f" ({nav['source']})" if nav.get("source") else ""))
         for v in verdicts:
             sc.add(VERDICT, f"        {v}")
     elif verdicts:  # before the first solution: what the start waits for, on the row itself
