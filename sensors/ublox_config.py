@@ -149,9 +149,10 @@ class NoUbxAnswer(NoData):
     that is not a u-blox, such as an ST TESEO, or a u-blox with UBX input turned off), none that nothing is
     heard at this rate."""
 
-    def __init__(self, message: str, nmea_sentences: int) -> None:
+    def __init__(self, message: str, nmea_sentences: int, nmea_without_checksum: int = 0) -> None:
         super().__init__(message)
         self.nmea_sentences = nmea_sentences
+        self.nmea_without_checksum = nmea_without_checksum  # refused sentences: the speed was right
 
 
 class _Session:
@@ -325,7 +326,7 @@ def configure_receiver(
                      "refuses (a receiver older than NMEA 2.3? turn its checksums on)")
         raise NoUbxAnswer(
             f"GNSS receiver on {path} did not answer UBX-MON-VER within {reply_timeout_s:g} s ({tries} tries) "
-            f"at {port.baudrate} baud, {heard}", s.nmea_sentences)
+            f"at {port.baudrate} baud, {heard}", s.nmea_sentences, s.framer.nmea_without_checksum)
     extensions = tuple(_text(v) for k, v in sorted(vars(version).items()) if k.startswith("extension"))
 
     time_ref = _TIME_REF[setup.time_ref]

@@ -170,6 +170,21 @@ def test_a_receiver_sending_nmea_without_checksums_is_told_so(bench: Bench) -> N
     text = str(err.value)
     assert "NMEA sentences without a checksum, which the logger refuses" in text and "wrong baud rate" not in text
 
+    # The daemon's GNSS source, which tries the next speed when nothing is understood at one, says it too (it said
+    # "sent no NMEA at 9600, 19200 baud: wrong baud rate").
+    from logger.runtime.sources import GnssSource
+    from logger.runtime.timebase import TimeBase
+
+    class Talking(TimeBase):
+        def sleep(self, seconds: float) -> None:
+            sleep(seconds)
+
+    source = GnssSource(bench.port.path, 9600, True, Talking(bench.clock.now_ns, 1.0))
+    with pytest.raises(NoData) as err:
+        source.open()
+    text = str(err.value)
+    assert "NMEA sentences without a checksum, which the logger refuses" in text and "wrong baud rate" not in text
+
 
 def test_a_receiver_at_another_baud_rate_is_silence_too(bench: Bench) -> None:
     model = bench.receiver(generation=8, seed=5, baud=38400)

@@ -326,6 +326,11 @@ class GnssSource(Source):
             try:
                 self.setup = configure_receiver(self.receiver, setup, sleep=self.tb.sleep)
             except NoUbxAnswer as exc:
+                if exc.nmea_without_checksum and not exc.nmea_sentences:
+                    # The speed is right, the sentences are refused: that is what to say, not the next speed's
+                    # silence ("wrong baud rate").
+                    _close_quietly(self.receiver)
+                    raise
                 if not exc.nmea_sentences:  # nothing understood at this speed: try the next
                     _close_quietly(self.receiver)
                     continue
