@@ -183,7 +183,8 @@ class Mpu6050:
         self._backlog_frames = 0  # frames generated but not delivered at the last read
         self._temp: tuple[int, float] | None = None  # (read time, degC) of the die temperature last read
         self._answered = False  # the chip has answered since configure() began: a NACK is then a bus fault
-        self.fifo_started_ns: int | None = None  # the caller's time of configure()'s FIFO reset, when it gave a clock
+        # The caller's time of the FIFO's last start (configure()'s reset, or an overflow's), when it gave a clock.
+        self.fifo_started_ns: int | None = None
 
     # ---- what the configuration gives ------------------------------------------------------------
     @property
@@ -396,6 +397,8 @@ class Mpu6050:
         self._overflow_seen = False
         self._backlog_frames = 0
         self._last_read_ns = reset_ns
+        if reset_ns is not None:
+            self.fifo_started_ns = reset_ns  # its loss counted up to here
         empty = np.empty((0, 3))
         return ImuBatch(empty, empty.copy(), self.read_temperature_degc(), self.sample_period_s,
                         overflowed=True, lost_samples=lost)

@@ -758,3 +758,31 @@ def test_an_overflow_before_the_first_read_counts_its_loss_from_the_fifos_start(
         source.close()
     assert first == []  # the overflow: the FIFO is reset, nothing delivered
     assert 190 <= lost[0] <= 200 and len(times) >= 95, (lost, len(times))
+
+
+def test_an_overflow_then_a_reopening_count_each_lost_sample_once() -> None:
+    """A host stalled long enough to overflow the FIFO (its loss counted to the reset), then a bus error before
+    the next batch: the reopening counted its loss from the last sample delivered again, the overflow's samples
+    twice (530 counted for 336 missing at 200 Hz)."""
+    from logger.runtime.sources import ImuSource
+    from sensors.errors import SensorError
+
+    r = Rig(errors=Mpu6050Errors.ideal())
+    source = ImuSource(r.adapter.path, 0x68, 200, 4, 500, _ClockTime(r.clock), "fifo")
+    try:
+        source.open()
+        before, _ = _source_reads(r, source, 2.0)
+        r.clock.advance(1.0)  # 200 samples into 85 frames
+        assert source.read() == []  # the overflow: reset, counted, nothing delivered
+        r.adapter.fail_next(1, code=errno.EREMOTEIO)
+        r.clock.advance(0.05)
+        with pytest.raises(SensorError):
+            source.read()
+        source.close()
+        r.clock.advance(0.5)
+        source.open()
+        after, lost = _source_reads(r, source, 1.0)
+    finally:
+        source.close()
+    hole = round((after[0] - before[-1]) / 5e6) - 1
+    assert hole - 10 <= sum(lost) <= hole, (hole, sum(lost))

@@ -164,8 +164,8 @@ _add(IMU, "vehicle_logger.Imu", {
     "gyro_rps": ("number[3]", "angular rate about the chip's x, y, z axes, rad/s"),
     "temp_degc": ("number", "die temperature, degC"),
     "fifo": ("boolean", "read through the FIFO (t_mono_ns reconstructed from the sample period)"),
-    "lost": ("integer", "samples lost just before this one: to a FIFO overflow, or while the chip was opened again "
-                        "after an error"),
+    "lost": ("integer", "samples lost to a FIFO overflow just before this one (0 for reads of the data registers, "
+                        "whose holes the health's gaps count)"),
 }, "MPU-6050 accelerometer and gyro, one message per sample: an IMU read a register burst per sample "
    "([imu] read = \"register\", up to 50 Hz). Read through its FIFO, the default at every rate, it records "
    "/imu/batch instead; older recordings hold their 20 Hz samples here, and those made before /imu/batch existed "

@@ -181,6 +181,8 @@ class ImuSource(Source):
         if batch.overflowed:
             self._pending_lost += batch.lost_samples if batch.lost_samples is not None else 1
             self._fifo_clock.reset()
+            if self.driver.fifo_started_ns is not None:
+                self._last_sample_ns = self.driver.fifo_started_ns  # counted up to the reset: a reopening from there
         n = len(batch)
         if not n:
             check_ns = round(IMU_AWAKE_CHECK_S * 1e9)
