@@ -229,9 +229,14 @@ class Elm327(SpeedDriver):
             speed = self._decode(lines)
         except _OneOff as one_off:
             self._failed_answers += 1
-            if self._failed_answers >= FAILED_ANSWERS_IN_A_ROW:
+            n = self._failed_answers
+            if n >= FAILED_ANSWERS_IN_A_ROW:
                 raise one_off.error from None
-            raise NoData(f"{one_off.error} (once; asked again at the next period)") from None
+            raise NoData(f"{one_off.error} ({n} of {FAILED_ANSWERS_IN_A_ROW} in a row before the adapter is set up "
+                         "again)") from None
+        except SensorError:
+            self._failed_answers = 0  # an answer of another kind (NO DATA): the disturbed ones are no longer in a row
+            raise
         self._failed_answers = 0
         return speed
 

@@ -456,11 +456,20 @@ def test_disturbed_answers_in_a_row_are_the_adapters_fault(port: PtyPort, fault:
             with pytest.raises(NoData, match=re.escape(text) if text.isupper() else text):
                 elm.read()
         assert elm.read().speed_kmh == 50
+        for _ in range(FAILED_ANSWERS_IN_A_ROW - 1):  # an answer of another kind between them: not in a row either
+            model.inject(fault)
+            with pytest.raises(NoData, match=f"1 of {FAILED_ANSWERS_IN_A_ROW} in a row"):
+                elm.read()
+            model.inject(ElmFault.NO_DATA)
+            with pytest.raises(NoData, match="NO DATA"):
+                elm.read()
         for k in range(FAILED_ANSWERS_IN_A_ROW):
             model.inject(fault)
             with pytest.raises(error if k == FAILED_ANSWERS_IN_A_ROW - 1 else NoData) as exc:
                 elm.read()
             assert text in one_line(exc)
+            if k < FAILED_ANSWERS_IN_A_ROW - 1:
+                assert f"{k + 1} of {FAILED_ANSWERS_IN_A_ROW} in a row" in one_line(exc)
 
 
 def test_an_adapter_slower_than_the_timeout_is_told_by_its_set_up(port: PtyPort) -> None:
