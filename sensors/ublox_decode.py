@@ -393,6 +393,14 @@ class GnssDecoder:
         if self._ubx is None:
             self._ubx = _Burst(itow, opened=self.read_mark)
         self._ubx.add(ident, msg)
+        parts = self._ubx.parts
+        if (not self._ubx_solutions and "NAV-STATUS" in parts
+                and ("NAV-POSLLH" in parts or "NAV-HPPOSLLH" in parts)):
+            # The older receivers' separate messages: a position with its fix type is the UBX solution, from the
+            # moment both are in (a position alone, beside NMEA, is not: _fix_from_ubx).
+            self._ubx_solutions = True
+            if self._nmea is not None:
+                items += self._finish_nmea(learn=False)
         if ident in ("NAV-EOE", self._ubx_ender):
             items += self._finish_ubx(learn=ident == "NAV-EOE")
         return items
@@ -496,12 +504,10 @@ class GnssDecoder:
         if pvt is None and sol is None and posllh is None and hp is None:
             return None  # a burst without a position (time or satellite messages only)
         status = parts.get("NAV-STATUS")
-        if pvt is None and sol is None:
-            if status is None:
-                # A position without a fix type or a time (NAV-HPPOSLLH added by an owner to NMEA output): no fix of
-                # its own. The NMEA beside it has both (it was ignored from then on: every record "no fix").
-                return None
-            self._ubx_solutions = True  # the older receivers' separate messages: the UBX solution from now on
+        if pvt is None and sol is None and status is None:
+            # A position without a fix type or a time (NAV-HPPOSLLH added by an owner to NMEA output): no fix of its
+            # own. The NMEA beside it has both (it was ignored from then on: every record "no fix").
+            return None
         velned = parts.get("NAV-VELNED")
         dop = parts.get("NAV-DOP")
         timegps = parts.get("NAV-TIMEGPS")

@@ -412,6 +412,23 @@ def test_a_high_precision_position_beside_nmea_leaves_the_fix_to_the_nmea() -> N
     assert all(f.source == "NMEA" and f.fix_mode == 3 and f.fix_ok and f.time_valid for f in fixes)
 
 
+def test_an_old_receivers_position_and_status_take_over_from_its_nmea_at_once() -> None:
+    """A u-blox 6's NAV-POSLLH and NAV-STATUS beside its NMEA: the UBX solution from the moment both are in, as
+    before (taking over only once its first epoch ended gave an NMEA epoch twice, out of order)."""
+    stream = b""
+    for k in range(4):
+        itow = 345_600_000 + 1000 * k
+        stream += nmea(f"GPRMC,00000{k}.00,A,4845.9259,N,00907.4074,E,0.0,,010124,,,A")
+        stream += nmea(f"GPGGA,00000{k}.00,4845.9259,N,00907.4074,E,1,14,0.9,264.3,M,48.0,M,,")
+        stream += UBXMessage("NAV", "NAV-POSLLH", GET, iTOW=itow, lon=9.12, lat=48.76, height=300_000,
+                             hMSL=252_000, hAcc=700, vAcc=1100).serialize()
+        stream += UBXMessage("NAV", "NAV-STATUS", GET, iTOW=itow, gpsFix=3, gpsFixOk=1).serialize()
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    fixes = [i for frame in framer.feed(stream) for i in decoder.push(frame) if isinstance(i, GnssFix)]
+    assert [f.source for f in fixes] == ["NMEA", "NAV-POSLLH", "NAV-POSLLH", "NAV-POSLLH", "NAV-POSLLH"]
+    assert [f.itow_ms for f in fixes[1:]] == [345_600_000 + 1000 * k for k in range(4)]
+
+
 def test_nav_dop_gives_its_horizontal_and_vertical_dops() -> None:
     dop = UBXMessage("NAV", "NAV-DOP", GET, iTOW=345_600_250, pDOP=1.9, hDOP=1.1, vDOP=1.55).serialize()
     (fix,) = [i for i in decode(nav_pvt() + dop + nav_eoe(345_600_250)) if isinstance(i, GnssFix)]
