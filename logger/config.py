@@ -504,8 +504,11 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
             spec = keys.get(key)
             if spec is None:
                 hint = difflib.get_close_matches(key, keys, n=1)
-                problems.append(f"{at(path)}: unknown key {_shown(path)}" + (f" (did you mean {section}.{hint[0]}?)"
-                                                                      if hint else ""))
+                homes = [sec for sec, ks in SCHEMA.items() if key in ks]  # a key of another section, put here
+                where = (f" (it belongs under [{homes[0]}])" if len(homes) == 1 else
+                         f" (a key of [{'], ['.join(homes)}])" if homes else
+                         f" (did you mean {section}.{hint[0]}?)" if hint else "")
+                problems.append(f"{at(path)}: unknown key {_shown(path)}{where}")
                 continue
             if not _check_type(value, spec.kind):
                 problems.append(f"{at(path)}: {path} must be {_type_name(spec.kind)}, not {value!r}")

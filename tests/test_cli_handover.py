@@ -256,3 +256,32 @@ def test_a_typo_at_a_terminal_gets_a_hint_and_still_reaches_the_system_logger(
     assert "did you mean `logger status`?" in r.stderr and "passing it to the system logger" in r.stderr
     r = run([str(OUR_SCRIPT), "stauts"], env)  # from a script (stdin not a terminal): no hint, same hand-over
     assert r.returncode == 7 and "did you mean" not in r.stderr
+
+
+def test_the_commands_list_fits_80_columns() -> None:
+    from logger.cli import usage
+
+    assert max(len(line) for line in usage().splitlines()) < 80  # `status`'s line was 160 columns
+
+
+def test_ctrl_c_while_a_command_loads_is_one_line_and_exit_130(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """Loading a command's modules is most of a short command's time (seconds on the board): Ctrl-C there gave a
+    traceback and a death by the signal."""
+    from logger.cli import run_subcommand
+
+    (tmp_path / "interrupted_while_loading.py").write_text("raise KeyboardInterrupt\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert run_subcommand("interrupted_while_loading", []) == 130
+    assert capsys.readouterr().err == "\nlogger interrupted-while-loading: interrupted\n"
+
+
+@pytest.mark.parametrize("args", [["--help"], ["info", "/nonexistent.mcap"]])
+def test_a_command_started_with_stdout_closed_ends_with_its_own_code(args: list[str]) -> None:
+    """Started with stdout closed (`>&-`), every command did its work and then died at the final flush: a
+    traceback and exit 1 (a good `logger run` read as a failure)."""
+    own = subprocess.run([sys.executable, "-m", "logger.cli", *args], capture_output=True, text=True, timeout=60)
+    closed = subprocess.run([sys.executable, "-m", "logger.cli", *args], stderr=subprocess.PIPE, text=True,
+                            timeout=60, preexec_fn=lambda: os.close(1))
+    assert closed.returncode == own.returncode
+    assert "Traceback" not in closed.stderr, closed.stderr

@@ -76,6 +76,11 @@ def test_who_am_i_takes_a_clones_and_refuses_another_parts() -> None:
         "which the logger cannot read"]
 
 
+def test_a_key_of_another_section_says_where_it_belongs() -> None:
+    assert _problems(GOOD.replace("baud = 115200", "baud = 115200\nsea_level_pa = 101800.0")) == [
+        "logger.toml:17: unknown key gnss.sea_level_pa (it belongs under [baro])"]
+
+
 def test_bad_address_and_out_of_range_reported_together() -> None:
     problems = _problems(GOOD.replace("address = 0x68", "address = 0x90").replace("rate_hz = 200", "rate_hz = 5000"))
     assert problems == [

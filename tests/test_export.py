@@ -548,3 +548,12 @@ def test_a_fix_without_a_geoid_separation_keeps_its_point_and_its_height_above_s
         assert pt.findtext(f"{GPX}ele") == ele and pt.find(f"{GPX}geoidheight") is None
         write_kml(tmp_path / f"{which}.kml", [track], which, "t")
         ET.parse(tmp_path / f"{which}.kml")
+
+
+def test_repeated_formats_add_up() -> None:
+    """`--format gpx --format kml` wrote only the KML, exit 0 (the last one won, silently); --topic adds up."""
+    from logger.cli.export import check_args, parse_args
+
+    formats, _ = check_args(parse_args(["d.mcap", "--out", "o", "--format", "gpx", "--format", "kml,gpx"]))
+    assert formats == ["gpx", "kml"]
+    assert check_args(parse_args(["d.mcap", "--out", "o"]))[0] == ["gpx", "kml", "csv"]

@@ -325,7 +325,7 @@ def test_watch_moves_the_cursor_only_on_a_terminal_that_can(tmp_path: Path, term
     assert (b"\x1b[" in got) is (term == "xterm-256color"), got[:200]
 
 
-@pytest.mark.parametrize("args", [["--jsn"], ["--watch", "abc"], ["extra"]])
+@pytest.mark.parametrize("args", [["--jsn"], ["--watch", "abc"], ["extra"], ["--watch", "0"], ["--watch=-1"]])
 def test_a_mistyped_command_is_one_line_and_not_the_critical_exit(args: list[str], capsys) -> None:
     """argparse's usage error exits 2, which for this command means "critical": a typo read as a critical logger
     by a script or a phone widget. It is one line and exit 4 (nobody can say)."""

@@ -4,6 +4,8 @@ the exit of a run that recorded nothing."""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -72,6 +74,28 @@ def test_a_fifo_imu_is_judged_by_the_samples_it_delivered_not_by_its_reads() -> 
         "against 20 Hz"]
     assert shortfalls(daemon, host_only=True) == [
         "imu let 470 of its 1801 samples pass unsampled (26.1%), 14.54 Hz of drive time against 20 Hz"]
+
+
+def test_a_run_stopped_as_it_starts_is_no_failure(tmp_path: Path) -> None:
+    """systemd's stop (SIGTERM) right after "recording to": nothing had arrived to record, and the run exited 4,
+    "nothing of this run is on disk (the log says why)", on a disk with 68 GB free. Nothing was lost: exit 0, and
+    a line saying that the stop came before the first record (or, stopped a moment later, the records on disk)."""
+    import signal
+
+    p = subprocess.Popen([sys.executable, "-m", "logger.cli", "run", "--sim", "--out", str(tmp_path / "drive"),
+                          "--status-socket", str(tmp_path / "s.sock")], stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True, cwd=Path(__file__).resolve().parents[1])
+    assert p.stdout is not None
+    seen = []
+    for line in p.stdout:
+        seen.append(line)
+        if "recording to" in line:
+            p.send_signal(signal.SIGTERM)
+            break
+    rest, _ = p.communicate(timeout=120)
+    text = "".join(seen) + rest
+    assert p.returncode == 0, text
+    assert "nothing of this run is on disk" not in text
 
 
 def test_a_run_of_which_nothing_is_on_disk_exits_4_and_says_so(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ import importlib
 import os
 import subprocess
 import sys
+import textwrap
 from collections.abc import Callable, Sequence
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -43,10 +44,13 @@ HANDOVER_ENV = "VEHICLE_LOGGER_HANDED_OVER"  # set for the system logger: a seco
 
 
 def usage() -> str:
+    """The commands, each wrapped to 80 columns under its name."""
     lines = ["usage: logger COMMAND [ARGS...]", "", "commands:"]
-    lines += [f"  {name:<14}{text}" for name, (_, text) in SUBCOMMANDS.items()]
-    lines += ["", "Anything else (logger -t TAG MESSAGE, echo MESSAGE | logger, ...) goes to the system's logger",
-              f"(util-linux, {SYSTEM_LOGGER}) unchanged."]
+    for name, (_, text) in SUBCOMMANDS.items():
+        lines += textwrap.wrap(text, 79, initial_indent=f"  {name:<14}", subsequent_indent=" " * 16,
+                               break_on_hyphens=False)
+    lines += ["", *textwrap.wrap("Anything else (logger -t TAG MESSAGE, echo MESSAGE | logger, ...) goes to the "
+                                 f"system's logger (util-linux, {SYSTEM_LOGGER}) unchanged.", 79)]
     return "\n".join(lines)
 
 
@@ -127,8 +131,10 @@ def run_subcommand(module_name: str, args: list[str]) -> int:
     with one line (a replay or an export stopped part-way writes its outputs whole or not at all; ``logger run``
     stopped before its own handlers are in place has recorded nothing yet, or leaves a file the next start
     recovers)."""
-    module = importlib.import_module(module_name)
     try:
+        # The import inside: it is most of a short command's time (seconds on a board's core), and Ctrl-C there gave
+        # a traceback and a death by the signal.
+        module = importlib.import_module(module_name)
         return quiet_on_closed_pipe(lambda: int(module.main(args) or 0))
     except KeyboardInterrupt:
         name = module_name.rsplit(".", 1)[-1].replace("_", "-")
@@ -140,7 +146,8 @@ def quiet_on_closed_pipe(body: Callable[[], int]) -> int:
     """``body``'s exit code, or 141 without a traceback when the reader of stdout went away (``| head``)."""
     try:
         code = body()
-        sys.stdout.flush()
+        if sys.stdout is not None:  # None when started with stdout closed (``>&-``): print() then writes nothing
+            sys.stdout.flush()
         return code
     except BrokenPipeError:
         # Python's own recipe: point stdout at /dev/null so the interpreter's final flush does not fail again.

@@ -60,9 +60,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="MCAP files of one drive (rotated files, a cut file) or the folder holding them, and/or "
                         "logger replay's trajectory.mcap")
     p.add_argument("--out", required=True, type=Path, help="folder for the exported files")
-    p.add_argument("--format", default="gpx,kml,csv",
-                   help="comma-separated: gpx, kml, csv (default: these three); ubx (the receiver's bytes from "
-                        "/gnss/raw, gaps noted in NAME.ubx.json), rinex (that through RTKLIB's convbin)")
+    p.add_argument("--format", action="append", metavar="FORMATS",
+                   help="comma-separated, or repeated: gpx, kml, csv (default: these three); ubx (the receiver's "
+                        "bytes from /gnss/raw, gaps noted in NAME.ubx.json), rinex (that through RTKLIB's convbin)")
     p.add_argument("--config", type=Path, metavar="FILE",
                    help="rinex: take [gnss] antenna_height_m and receiver_name from FILE instead of the drive's "
                         "recorded configuration")
@@ -81,10 +81,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
-    formats = [f.strip().lower() for f in args.format.split(",") if f.strip()]
+    # Repeated, the formats add up (the last one alone was written, silently): --format gpx --format kml is both.
+    given = ",".join(args.format) if args.format else "gpx,kml,csv"
+    formats = list(dict.fromkeys(f.strip().lower() for f in given.split(",") if f.strip()))
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
-        raise UsageError(f"--format {args.format!r}: choose from {', '.join(FORMATS)} (comma-separated)")
+        raise UsageError(f"--format {given!r}: choose from {', '.join(FORMATS)} (comma-separated)")
     topics = args.topics or list(EXPORT_TOPICS)
     bad = [t for t in topics if t not in EXPORT_TOPICS]
     if bad:

@@ -173,7 +173,14 @@ def finish(daemon: Daemon, code: int) -> int:
         print(fitted(text, shutil.get_terminal_size((80, 24)).columns) if sys.stdout.isatty() else text, flush=True)
     except Exception:  # the run is over and its files are closed: a summary that fails must not change that
         log.exception("could not summarise the run")
-    if code == 0 and not any(daemon.recorder.status().written.values()):
+    rec = daemon.recorder.status()
+    if code == 0 and not any(rec.written.values()):
+        if not any(rec.lost.values()) and not any(rec.unrecorded.values()) and not any(rec.deleted.values()) \
+                and rec.down_s == 0.0:
+            # Stopped before its first record arrived (a stop right after the start): no fault of the disk, and
+            # nothing lost; "nothing of this run is on disk" with exit 4 sent a person to a disk with 68 GB free.
+            print("logger: stopped before the first record arrived: nothing to record", file=sys.stderr)
+            return code
         print("logger: nothing of this run is on disk (see above: the recorder's state and the log say why)",
               file=sys.stderr)
         return NOTHING_RECORDED

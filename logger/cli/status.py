@@ -63,6 +63,20 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(UNKNOWN)
 
 
+WATCH_MIN_S = 0.2  # the quickest redraw: the daemon's snapshot is a second's
+
+
+def _interval(text: str) -> float:
+    """--watch's seconds: a number from WATCH_MIN_S (0 drew one frame and stopped, -1 redrew five times a second)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not value >= WATCH_MIN_S or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} seconds: from {WATCH_MIN_S:g} s up")
+    return value
+
+
 def redraws_in_place(tty: bool) -> bool:
     """Whether --watch may move the cursor: a terminal that says what it is, and not a dumb one (TERM=dumb, or
     none: an Emacs shell, a serial console), where the escape codes came out as text in every frame."""
@@ -73,7 +87,7 @@ def main(argv: list[str]) -> int:
     parser = _Parser(prog="logger status", description="show the running logger's health",
                      epilog=COLUMNS, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the raw snapshot")
-    parser.add_argument("--watch", nargs="?", const=1.0, type=float, metavar="SECONDS",
+    parser.add_argument("--watch", nargs="?", const=1.0, type=_interval, metavar="SECONDS",
                         help="redraw in place until Ctrl-C (default every second)")
     parser.add_argument("--socket", help="status socket path (default: from the configuration)")
     parser.add_argument("--config", default=None, help=f"configuration file (default {DEFAULT_PATH})")
@@ -125,7 +139,7 @@ def main(argv: list[str]) -> int:
                     sys.stdout.write(text + "\n\n")
                 sys.stdout.flush()
                 first = False
-                time.sleep(max(0.2, args.watch))
+                time.sleep(args.watch)
                 continue
             print(text, file=sys.stderr if code in (NOT_RUNNING, UNKNOWN) else sys.stdout)
             return code
