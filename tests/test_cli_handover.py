@@ -276,12 +276,19 @@ def test_ctrl_c_while_a_command_loads_is_one_line_and_exit_130(tmp_path: Path, m
     assert capsys.readouterr().err == "\nlogger interrupted-while-loading: interrupted\n"
 
 
-@pytest.mark.parametrize("args", [["--help"], ["info", "/nonexistent.mcap"]])
-def test_a_command_started_with_stdout_closed_ends_with_its_own_code(args: list[str]) -> None:
+@pytest.mark.parametrize("args", [["--help"], ["info", "/nonexistent.mcap"], ["run", "--sim", "--duration", "2"]])
+def test_a_command_started_with_stdout_closed_ends_with_its_own_code(args: list[str], tmp_path: Path) -> None:
     """Started with stdout closed (`>&-`), every command did its work and then died at the final flush: a
     traceback and exit 1 (a good `logger run` read as a failure)."""
-    own = subprocess.run([sys.executable, "-m", "logger.cli", *args], capture_output=True, text=True, timeout=60)
-    closed = subprocess.run([sys.executable, "-m", "logger.cli", *args], stderr=subprocess.PIPE, text=True,
-                            timeout=60, preexec_fn=lambda: os.close(1))
-    assert closed.returncode == own.returncode
+    def with_out(n: int) -> list[str]:  # a run records into a folder of its own, with its own socket
+        return [*args, "--out", str(tmp_path / f"d{n}"), "--status-socket", str(tmp_path / f"s{n}")] \
+            if args[0] == "run" else args
+
+    own = subprocess.run([sys.executable, "-m", "logger.cli", *with_out(1)], capture_output=True, text=True,
+                         timeout=120)
+    closed = subprocess.run([sys.executable, "-m", "logger.cli", *with_out(2)], stderr=subprocess.PIPE, text=True,
+                            timeout=120, preexec_fn=lambda: os.close(1))
+    # A simulated run may also exit 3 on a host too busy to hold its rates; the traceback's exit was 1.
+    assert closed.returncode == own.returncode or {closed.returncode, own.returncode} <= {0, 3}, \
+        own.stderr + closed.stderr
     assert "Traceback" not in closed.stderr, closed.stderr

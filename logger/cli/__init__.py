@@ -146,8 +146,7 @@ def quiet_on_closed_pipe(body: Callable[[], int]) -> int:
     """``body``'s exit code, or 141 without a traceback when the reader of stdout went away (``| head``)."""
     try:
         code = body()
-        if sys.stdout is not None:  # None when started with stdout closed (``>&-``): print() then writes nothing
-            sys.stdout.flush()
+        sys.stdout.flush()
         return code
     except BrokenPipeError:
         # Python's own recipe: point stdout at /dev/null so the interpreter's final flush does not fail again.
@@ -168,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     calling process would be a surprise there.
     """
     args = sys.argv[1:] if argv is None else argv
+    if sys.stdout is None:
+        # Started with stdout closed (``>&-``): Python leaves sys.stdout None, print() writes nothing, and every
+        # other use of it (the final flush, a run's summary asking isatty()) failed with a traceback, after the work.
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - for the life of the process
     if args and args[0] in ("-h", "--help"):
         return quiet_on_closed_pipe(lambda: _print(usage()))
     if args and args[0] in ("-V", "--version") and len(args) == 1:
