@@ -774,9 +774,12 @@ class GnssDecoder:
             if tod_s is not None:
                 self._gst = (tod_s, gst)
             return gst
-        if self._gst is None or tod_s is None or not 0.0 <= tod_s - self._gst[0] <= GST_HOLD_S:
+        if self._gst is None or tod_s is None:
             return None
-        return self._gst[1]
+        since = tod_s - self._gst[0]
+        if since < -43_200.0:  # across midnight (times of day; 23:59:60 is keyed 86400)
+            since += 86_400.0
+        return self._gst[1] if 0.0 <= since <= GST_HOLD_S else None
 
     def _fix_from_nmea(self, burst: _Burst) -> GnssFix | None:
         parts = burst.parts

@@ -732,6 +732,21 @@ def test_a_gst_sent_once_a_second_at_5_hz_gives_every_fix_its_accuracies_and_end
     assert all(fix.h_acc_m == pytest.approx(math.hypot(1.2, 1.3)) and fix.v_acc_m == 2.5 for _, fix in got)
     assert all(read == fix.opened_mark for read, fix in got[2:])  # each in its own read once the end is learnt
 
+    # Across midnight too: 23:59:59.8 and 00:00:00.0 are 0.2 s apart.
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    stream = b""
+    for hhmmss, date, gst in (("235959.00", "230324", True), ("235959.20", "230324", False),
+                              ("235959.40", "230324", False), ("235959.60", "230324", False),
+                              ("235959.80", "230324", False), ("000000.00", "240324", False),
+                              ("000000.20", "240324", False)):
+        stream += nmea(f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,{date},,,A,V")
+        stream += nmea(f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,14,0.8,545.4,M,46.9,M,,")
+        if gst:
+            stream += nmea(f"GNGST,{hhmmss},1.0,1.5,1.0,45.0,1.2,1.3,2.5")
+    fixes = [f for f in decoder.push_all(framer.feed(stream)) if isinstance(f, GnssFix)]
+    # 00:00:00.00 is 1.0 s after the GST's epoch (held), 00:00:00.20 1.2 s (not)
+    assert [f.h_acc_m is not None for f in fixes] == [True, True, True, True, True, True, False]
+
 
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
     """A real u-blox M9N's NMEA output as it came (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV x12, GLL,
