@@ -161,6 +161,28 @@ def test_a_device_that_opens_but_never_delivers_is_not_back_and_backs_off_furthe
     assert waits == sorted(waits) and waits[-1] >= 4 * waits[0], waits
 
 
+class QuietAfterReopening(Scripted):
+    """A PPS line: pulses, one read error, then opened again with the receiver without a fix: no pulses."""
+
+    def read(self) -> list[Reading]:
+        if self.opens == 1:
+            return super().read()
+        self.n += 1
+        if self.n >= 60:
+            self.done.set()
+        return []
+
+
+def test_a_device_opened_again_that_is_quiet_shows_no_old_error() -> None:
+    """Opened again, it is not back until it delivers (no reconnection counted), but the error it was opened again
+    after is past: a PPS line without a fix kept showing its read error as present for as long as it was quiet."""
+    tb = VirtualTime()
+    src = QuietAfterReopening(tb, fail_at={5}, limit=1000)
+    s, out = _run(src, 20.0)
+    assert len(out) == 5 and s.health.reconnects == 0
+    assert s.health.last_error == ""
+
+
 class Silent(Scripted):
     """Answers NO DATA for a while, like an ELM327 with the engine off."""
 

@@ -205,6 +205,8 @@ class Sampler(threading.Thread):
             # and the back-off starts over, once the device delivers (_read_once); until then a device that
             # fails again backs off further instead of being set up again every half second, "back after" each time.
             self._back_after = (self.health.last_error or "an error") if opened_once else None
+            self.health.last_error = ""  # open again: no error now (a PPS line without a fix delivers nothing for
+            # long, and kept showing the read error it was opened again after, as if present)
             self._delivered_ns = None
             opened_once = True
             self._incident_base = None
@@ -301,7 +303,6 @@ class Sampler(threading.Thread):
             self.health.ok_since_mono_ns = self.tb.monotonic_ns()
         if readings and self._delivered_ns is None:
             self._delivered_ns = self.tb.monotonic_ns()
-            self.health.last_error = ""  # recovered: the error is in the log and the counters, not a present one
             if self._back_after is not None:
                 self.health.reconnects += 1
                 self._log(f"back after: {self._back_after}")
