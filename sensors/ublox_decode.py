@@ -20,6 +20,7 @@ import calendar
 import datetime as dt
 import math
 import re
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -44,6 +45,7 @@ NO_COURSE_SPEED_MPS = 0.25
 # A receiver's GST (its accuracies) stands this long for the epochs after it that have none of their own: one sent
 # once a second with fixes at 5 or 10 Hz, or after the burst's learnt end.
 GST_HOLD_S = 1.0
+NMEA_EPOCHS_KEPT = 4  # the last NMEA epochs whose sentences tell a burst's regular end and tail
 
 
 @dataclass(frozen=True, slots=True)
@@ -303,10 +305,11 @@ class GnssDecoder:
         self._nmea: _Burst | None = None
         self._nmea_done: float | None = None
         self._nmea_ender: str | None = None
-        # The sentences of the last NMEA epoch that ended (its burst's, and those that came after its end) and of
-        # the epoch before it: a sentence after an epoch's end that the one before had too is the burst's real end.
-        self._nmea_seen: set[str] = set()
-        self._nmea_seen_before: set[str] = set()
+        # The sentences of the last NMEA epochs that ended (each burst's, and those that came after its end), newest
+        # last, and the sentence each burst began with: what a receiver sends in (almost) every epoch tells a
+        # burst's real end from a sentence sent at a lower rate, and an epoch's tail from the next one's head.
+        self._nmea_epochs: deque[set[str]] = deque(maxlen=NMEA_EPOCHS_KEPT)
+        self._nmea_heads: deque[str] = deque(maxlen=NMEA_EPOCHS_KEPT)
         self._gst: tuple[float, Any] | None = None  # the last GST (time of day, message): _gst_for
         self._ubx_solutions = False
         self.leap_s: int | None = None
@@ -698,8 +701,9 @@ class GnssDecoder:
                 # its accuracies stand for the epochs of the next second (_gst_for).
                 if kind == "GST":
                     self._gst = (key, msg)
-                self._nmea_seen.add(ident)
-                if ident in self._nmea_seen_before:
+                if self._nmea_epochs:
+                    self._nmea_epochs[-1].add(ident)
+                if len(self._nmea_epochs) >= 2 and ident in self._nmea_epochs[-2]:
                     self._nmea_ender = ident
                 return items
             if self._nmea is not None and self._nmea.key is not None and self._nmea.key != key:
@@ -716,6 +720,11 @@ class GnssDecoder:
         elif self._nmea is None:
             if kind not in ("GSA", "VTG"):
                 return items
+            if self._regular_tail(ident):
+                # The end of the epoch just reported (RMC, GGA, GSA: one GSA lost to a bad checksum had its end
+                # learnt at GGA for good, and every epoch carried the previous one's GSA, its fix mode and DOPs).
+                self._nmea_ender = ident
+                return items
             # a time-less sentence opens the burst; the next timed one names it and dates its start
             self._nmea = _Burst(None, opened=self.read_mark)
         self._nmea.add(kind, msg)
@@ -723,6 +732,19 @@ class GnssDecoder:
         if ident == self._nmea_ender and self._nmea.key is not None:
             items += self._finish_nmea(learn=False)
         return items
+
+    def _regular_tail(self, ident: str) -> bool:
+        """Whether a time-less sentence come after the last epoch's end is that epoch's tail: one the receiver sends in
+        all but one of the last epochs, never at a burst's head (a receiver that begins its bursts with GSA), and
+        not the learnt end itself (one GSA per constellation: the first ends the burst, the others follow it)."""
+        epochs = self._nmea_epochs
+        if len(epochs) < NMEA_EPOCHS_KEPT - 1 or ident == self._nmea_ender or ident in self._nmea_heads:
+            return False
+        epochs[-1].add(ident)
+        if sum(ident in seen for seen in epochs) >= len(epochs) - 1:
+            return True
+        epochs[-1].discard(ident)
+        return False
 
     def _bootstrap_date(self, msg: Any, kind: str, prev_tod_s: float, tod_s: float) -> None:
         """Date the very first epoch from the sentence that opens the next one (a receiver that sends
@@ -757,7 +779,9 @@ class GnssDecoder:
         if burst is None or burst.key is None:
             return []
         self._nmea_done = burst.key
-        self._nmea_seen_before, self._nmea_seen = self._nmea_seen, set(burst.order)
+        self._nmea_epochs.append(set(burst.order))
+        if burst.order:
+            self._nmea_heads.append(burst.order[0])
         if learn and burst.order:
             self._nmea_ender = burst.order[-1]
         try:

@@ -748,6 +748,33 @@ def test_a_gst_sent_once_a_second_at_5_hz_gives_every_fix_its_accuracies_and_end
     assert [f.h_acc_m is not None for f in fixes] == [True, True, True, True, True, True, False]
 
 
+def test_one_lost_gsa_does_not_leave_every_later_epoch_with_the_previous_ones() -> None:
+    """RMC, GGA, GSA at 1 Hz (u-blox with GSV, GLL, VTG off): one GSA lost to a bad checksum had the burst's end
+    learnt at GGA for good, and every later epoch took the previous one's GSA: its DOPs a second behind, and the
+    first fix after the receiver regained its fix recorded as none. The GSA after the end it is regularly part of
+    puts the end back."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    fixes = []
+    for k in range(12):
+        hhmmss = f"1200{k:02d}.00"
+        fixed = not 6 <= k < 9  # the receiver loses its fix at epoch 6, has it again at 9
+        pos = "4807.03800,N,01131.00000,E" if fixed else ",,,"
+        data = nmea(f"GPRMC,{hhmmss},{'A' if fixed else 'V'},{pos},0.1,,071226,,,{'A' if fixed else 'N'}")
+        data += nmea(f"GPGGA,{hhmmss},{pos},{1 if fixed else 0},{10 if fixed else 0},0.9,"
+                     f"{'545.4' if fixed else ''},M,{'46.9' if fixed else ''},M,,")
+        gsa = nmea(f"GPGSA,A,{3 if fixed else 1},01,02,03,04,,,,,,,,,{1.0 + k / 10:.1f},0.9,1.2")
+        if k == 3:
+            gsa = gsa[:-5] + b"00\r\n"  # a bad checksum: refused
+        decoder.read_mark = k + 1
+        fixes += [f for f in decoder.push_all(framer.feed(data + gsa)) if isinstance(f, GnssFix)]
+    epoch = {f.time_utc_ns // NS % 60: f for f in fixes}
+    assert sorted(epoch) == list(range(12))
+    for k in (5, 9, 10):  # from the second epoch after the loss on: its own GSA
+        assert epoch[k].pdop == pytest.approx(1.0 + k / 10), k
+    assert epoch[9].fix_mode == 3 and epoch[9].fix_ok and epoch[9].lat_deg is not None  # regained, recorded so
+    assert all(epoch[k].fix_mode == 1 and not epoch[k].fix_ok for k in (6, 7, 8))
+
+
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
     """A real u-blox M9N's NMEA output as it came (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV x12, GLL,
     GST, ZDA, GBS, about 1.5 kB an epoch), each epoch on the line from 0.3 s after its pulse to 1.2 s, read by the
