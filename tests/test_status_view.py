@@ -50,6 +50,17 @@ BUSY["sensors"][0]["samples_lost"] = 1234
 BUSY["sensors"][3]["origin"] = "serial /dev/serial/by-id/usb-u-blox_AG_-_www.u-blox.com_u-blox_GNSS_receiver-if00"
 
 
+def test_an_ok_beside_sensors_still_starting_says_so_on_its_line() -> None:
+    """At start the verdict is ok while a sensor still opens (no fault: an ELM327's search takes seconds): the first
+    line said "logger OK" alone, beside a row saying starting."""
+    snap = {"verdict": "ok", "uptime_s": 2, "pid": 7, "problems": [],
+            "sensors": [_sensor("imu", "ok", 20, 20.0, 0.1), _sensor("gnss", "starting", 1, None, None),
+                        _sensor("obd", "starting", 2, None, None)]}
+    first = render(snap, width=80).split("\n")[0]
+    assert first.startswith("logger OK   up 0h00m02s   pid 7") and first.endswith("starting: gnss, obd")
+    assert "starting" not in render({**snap, "sensors": snap["sensors"][:1]}, width=80).split("\n")[0]
+
+
 def test_every_line_fits_80_columns_and_24_rows_with_the_verdict_and_problems_on_screen() -> None:
     full = render(BUSY, width=80).split("\n")
     assert max(map(len, full)) <= 79  # the last column wraps on a real terminal

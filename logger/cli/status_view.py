@@ -96,7 +96,13 @@ def render(snap: dict[str, Any], width: int = 80, height: int | None = None) -> 
     sc = Screen(width)
     verdict = str(snap.get("verdict", "?")).upper()
     head = f"logger {verdict}   up {duration(snap.get('uptime_s', 0))}   pid {snap.get('pid', '?')}"
-    sc.add(MUST, head + (f"   {snap['mode']}" if snap.get("mode") else ""))
+    head += f"   {snap['mode']}" if snap.get("mode") else ""
+    starting = [str(h.get("name")) for h in snap.get("sensors") or [] if h.get("state") == "starting"]
+    if starting:
+        # A sensor still opening (an ELM327's protocol search, a receiver's set-up: seconds at every start) is no
+        # fault, and the verdict is ok; the first line says that it is not delivering yet, beside the OK.
+        head += f"   starting: {', '.join(starting)}"
+    sc.add(MUST, head)
     problems = snap.get("problems") or []
     shown = problems if len(problems) <= MAX_PROBLEMS else problems[:MAX_PROBLEMS - 1]
     for p in shown:
