@@ -85,6 +85,14 @@ def _gpio_line(v: int | str) -> str | None:
     return None if v >= 0 else "must be a line offset of 0 or more (or a line name)"
 
 
+def _home_of(key: str) -> str:
+    """Where a key put in the wrong place belongs, for its message: " (it belongs under [baro])", or ""."""
+    homes = [sec for sec, ks in SCHEMA.items() if key in ks]
+    if len(homes) == 1:
+        return f" (it belongs under [{homes[0]}])"
+    return f" (a key of [{'], ['.join(homes)}])" if homes else ""
+
+
 def _who_am_i(v: int) -> str | None:
     if not 0 <= v <= 0xFF:
         return "is not a register value (0x00..0xff)"
@@ -486,10 +494,7 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
         keys = SCHEMA.get(section)
         if keys is None and not isinstance(body, dict):
             # A key written before any [section] header: not a section of its own. Which section holds that key?
-            homes = [sec for sec, ks in SCHEMA.items() if section in ks]
-            problems.append(f"{at(section)}: {_shown(section)} is outside any section"
-                            + (f" (it belongs under [{homes[0]}])" if len(homes) == 1 else
-                               f" (a key of [{'], ['.join(homes)}])" if homes else ""))
+            problems.append(f"{at(section)}: {_shown(section)} is outside any section{_home_of(section)}")
             continue
         if keys is None:
             hint = difflib.get_close_matches(section, SCHEMA, n=1)
@@ -504,10 +509,7 @@ def parse(text: str, name: str = "config", sim: bool = False, devices: bool = Tr
             spec = keys.get(key)
             if spec is None:
                 hint = difflib.get_close_matches(key, keys, n=1)
-                homes = [sec for sec, ks in SCHEMA.items() if key in ks]  # a key of another section, put here
-                where = (f" (it belongs under [{homes[0]}])" if len(homes) == 1 else
-                         f" (a key of [{'], ['.join(homes)}])" if homes else
-                         f" (did you mean {section}.{hint[0]}?)" if hint else "")
+                where = _home_of(key) or (f" (did you mean {section}.{hint[0]}?)" if hint else "")  # another's key?
                 problems.append(f"{at(path)}: unknown key {_shown(path)}{where}")
                 continue
             if not _check_type(value, spec.kind):

@@ -57,8 +57,10 @@ FAILED_ANSWERS_IN_A_ROW = 3
 
 # Messages the ELM327 prints instead of data; each maps to what the logger should make of it.
 FLAGGED_LINE_ENDS = ("<DATA ERROR", "<RX ERROR")  # at the end of the data line they flag
-VEHICLE_BUS_FAULTS = ("BUS ERROR", "BUS BUSY", "FB ERROR", "DATA ERROR", "<DATA ERROR", "RX ERROR", "<RX ERROR",
-                      "BUFFER FULL", "ACT ALERT")
+VEHICLE_BUS_FAULTS = ("BUS ERROR", "BUS BUSY", "FB ERROR", "DATA ERROR", "RX ERROR", "BUFFER FULL", "ACT ALERT")
+# What the adapter prints while it searches for the vehicle's protocol or initialises a K-line bus (seconds)
+SEARCH_MARKS = ("SEARCHING", "BUS INIT")
+_SEARCH_MARKS_BYTES = tuple(mark.encode() for mark in SEARCH_MARKS)
 
 
 class _OneOff(Exception):
@@ -210,7 +212,7 @@ class Elm327(SpeedDriver):
                 raise BusError(f"ELM327 on {self.port} resets again right after set-up: check its power supply")
         speed = self._checked_decode(lines)
         self._first_request = False
-        if self.clock is not None and any(line.upper().startswith(("SEARCHING", "BUS INIT")) for line in lines):
+        if self.clock is not None and any(line.upper().startswith(SEARCH_MARKS) for line in lines):
             # The request began a protocol search or a bus initialisation (seconds): when in it the ECU was asked is
             # not known, so neither is its answer's time. Asked again, at once, for a speed whose time is.
             # Given the search's wait: a slow adapter's answer (a Bluetooth bridge's 1.2 s) is then read, and its time
@@ -336,7 +338,7 @@ class Elm327(SpeedDriver):
                         f"[obd] answer_timeout_s ({self.timeout_s:g} s)" if self._speed_answer_s > self.timeout_s
                         else "")
             raise BusError(f"ELM327 on {self.port} stopped answering ({command}: {e}){slow}") from None
-        if command == ELM_SPEED_COMMAND and b"SEARCHING" not in answer and b"BUS INIT" not in answer:
+        if command == ELM_SPEED_COMMAND and not any(mark in answer for mark in _SEARCH_MARKS_BYTES):
             self._speed_answer_s = time.monotonic() - asked
         wanted = command.replace(" ", "").upper()
         lines, echoed = [], False
@@ -377,7 +379,7 @@ class Elm327(SpeedDriver):
                                     f"(starting {junk!r}): wrong baud rate?")
             if search_silence_s is not None:
                 wait = search_silence_s
-            elif b"SEARCHING" in self._rx or b"BUS INIT" in self._rx:
+            elif any(mark in self._rx for mark in _SEARCH_MARKS_BYTES):
                 wait = max(self.search_timeout_s, silence_s)  # the adapter said it is busy with the car
             else:
                 wait = silence_s
@@ -441,7 +443,7 @@ class Elm327(SpeedDriver):
                 continue
             failure = _message_error(upper)
             if failure is not None:
-                failures.append(_OneOff(failure) if _disturbed(upper) else failure)
+                failures.append(failure)
                 continue
             answer = self._parse_line(line)
             if answer is None:
@@ -525,33 +527,31 @@ def _show(line: str) -> str:
     return f"{len(raw)} bytes of junk ({raw[:8].hex(' ')} ...): wrong baud rate or a noisy line?"
 
 
-def _disturbed(upper: str) -> bool:
-    """Whether an adapter's message is what a single disturbed frame or request gives (FAILED_ANSWERS_IN_A_ROW)."""
-    return (upper in ("?", "CAN ERROR", "OUT OF MEMORY") or upper in VEHICLE_BUS_FAULTS
-            or re.fullmatch(r"ERR\d\d", upper) is not None or upper.endswith(FLAGGED_LINE_ENDS))
-
-
-def _message_error(upper: str) -> SensorError | None:
+def _message_error(upper: str) -> SensorError | _OneOff | None:
+    """What an adapter's message stands for; one that a single disturbed frame or request gives comes as a
+    :class:`_OneOff` (FAILED_ANSWERS_IN_A_ROW)."""
     if upper.endswith(FLAGGED_LINE_ENDS):
         # The ELM327 flags the data line it could not receive whole at its end (7E8 03 41 0D 32 <DATA ERROR).
         flag = upper[upper.rindex("<") + 1:]
-        return BusError(f"ELM327 flags its answer with {flag}: a frame received with an error")
+        return _OneOff(BusError(f"ELM327 flags its answer with {flag}: a frame received with an error"))
     if upper == "LP ALERT":
         return BusError("ELM327 is about to go to low power (LP ALERT): its supply, or its LP input, says so")
     if upper == "OUT OF MEMORY":
-        return BusError("ELM327 ran out of memory for the answer (OUT OF MEMORY)")
+        return _OneOff(BusError("ELM327 ran out of memory for the answer (OUT OF MEMORY)"))
     if upper == "NO DATA":
         return NoData("vehicle gave no speed (ELM327: NO DATA): engine off, or PID 0x0D not supported")
     if upper == "STOPPED":
         return NoData("ELM327 request was interrupted (STOPPED): no speed this time")
     if upper == "?":
-        return ProtocolError(f"ELM327 did not understand {ELM_SPEED_COMMAND} (answered '?'): garbled serial line?")
+        return _OneOff(ProtocolError(f"ELM327 did not understand {ELM_SPEED_COMMAND} (answered '?'): garbled serial "
+                                     "line?"))
     if upper == "UNABLE TO CONNECT":
         return BusError("ELM327 unable to connect to the vehicle: ignition off or protocol not supported")
     if upper == "CAN ERROR":
-        return BusError("ELM327 reports CAN ERROR: no working vehicle CAN bus (ignition off? wrong protocol?)")
+        return _OneOff(BusError("ELM327 reports CAN ERROR: no working vehicle CAN bus (ignition off? wrong "
+                                "protocol?)"))
     if upper in VEHICLE_BUS_FAULTS or re.fullmatch(r"ERR\d\d", upper):
-        return BusError(f"ELM327 reports {upper} on the vehicle bus")
+        return _OneOff(BusError(f"ELM327 reports {upper} on the vehicle bus"))
     return None
 
 

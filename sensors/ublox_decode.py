@@ -694,13 +694,13 @@ class GnssDecoder:
                 self.rejected += 1  # a garbled time field: the sentence cannot be placed in an epoch
                 return items
         if key is not None:
+            if kind == "GST":
+                self._gst = (key, msg)  # the receiver's latest accuracies, for the fixes after it too (_gst_for)
             if self._nmea is None and key == self._nmea_done:
                 # The burst went on after where we thought it ended. A sentence the burst before it lacked too is one
                 # the receiver sends at a lower rate (GST once a second at 5 Hz): the end stays (moved to it, every
                 # burst without it ended only when the next began, a fix late, and the end flapped to and fro), and
                 # its accuracies stand for the epochs of the next second (_gst_for).
-                if kind == "GST":
-                    self._gst = (key, msg)
                 if self._nmea_epochs:
                     self._nmea_epochs[-1].add(ident)
                 if len(self._nmea_epochs) >= 2 and ident in self._nmea_epochs[-2]:
@@ -740,11 +740,10 @@ class GnssDecoder:
         epochs = self._nmea_epochs
         if len(epochs) < NMEA_EPOCHS_KEPT - 1 or ident == self._nmea_ender or ident in self._nmea_heads:
             return False
+        if 1 + sum(ident in seen for seen in list(epochs)[:-1]) < len(epochs) - 1:  # the last epoch with it now
+            return False
         epochs[-1].add(ident)
-        if sum(ident in seen for seen in epochs) >= len(epochs) - 1:
-            return True
-        epochs[-1].discard(ident)
-        return False
+        return True
 
     def _bootstrap_date(self, msg: Any, kind: str, prev_tod_s: float, tod_s: float) -> None:
         """Date the very first epoch from the sentence that opens the next one (a receiver that sends
@@ -795,8 +794,6 @@ class GnssDecoder:
         """The GST of an epoch: its own, or the receiver's last within GST_HOLD_S before it (one sent at a lower
         rate than the fixes, or after the epoch's learnt end: its accuracies are the receiver's latest word)."""
         if gst is not None:
-            if tod_s is not None:
-                self._gst = (tod_s, gst)
             return gst
         if self._gst is None or tod_s is None:
             return None

@@ -21,6 +21,7 @@ from logger.cli.outputs import drive_name, os_error_line, out_folder_problem
 from logger.cli.progress import Progress
 from logger.config import SCHEMA, ConfigError, load
 from logger.exports.formats import HEIGHT_TEXT, HEIGHTS, write_csv, write_gpx, write_kml
+from logger.exports.formats import height as point_height
 from logger.exports.raw_stream import (
     ConvbinError,
     StreamReport,
@@ -300,12 +301,11 @@ def main(argv: list[str]) -> int:
             print(f"logger export: note: no valid {topic} in these files", file=sys.stderr)
     for t in chosen:
         print(summary(t))
-    if args.height == "msl" and any(p.h_msl_m is None for t in chosen for p in t.points):
-        print(f"logger export: note: some points have no {HEIGHT_TEXT['msl']} (no receiver fix to take the geoid "
-              "from): written without a height", file=sys.stderr)
-    if args.height == "ellipsoid" and any(p.h_ell_m is None for t in chosen for p in t.points):
-        print(f"logger export: note: some points have no {HEIGHT_TEXT['ellipsoid']} (the receiver sent no geoid "
-              "separation): written without a height; --height msl has theirs", file=sys.stderr)
+    if any(point_height(p, args.height) is None for t in chosen for p in t.points):
+        why = ("no receiver fix to take the geoid from" if args.height == "msl" else
+               "the receiver sent no geoid separation; --height msl has theirs")
+        print(f"logger export: note: some points have no {HEIGHT_TEXT[args.height]} ({why}): written without a "
+              "height", file=sys.stderr)
     for p in streamed + written:
         print(f"wrote {p}")
     return 0

@@ -9,6 +9,7 @@ screen is drawn to its size (:mod:`logger.cli.status_view`); ``--watch`` redraws
 from __future__ import annotations
 
 import argparse
+import math
 import json
 import os
 import shutil
@@ -72,7 +73,7 @@ def _interval(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not value >= WATCH_MIN_S or value == float("inf"):
+    if not (math.isfinite(value) and value >= WATCH_MIN_S):
         raise argparse.ArgumentTypeError(f"{text} seconds: from {WATCH_MIN_S:g} s up")
     return value
 

@@ -151,7 +151,7 @@ class ImuSource(Source):
         self.driver.configure(now_ns=self.tb.monotonic_ns)
         self._sampled_ns = self._checked_ns = self.tb.monotonic_ns()
         started, last = self.driver.fifo_started_ns, self._last_sample_ns
-        if self.fifo and started is not None and last is not None:
+        if started is not None and last is not None:  # started is None for register reads: no FIFO
             # Opened again after an error (a NACK, a brown-out): the chip's samples from the last one delivered up
             # to the FIFO's reset in configure() are gone (those left in the FIFO, those of the reopening), and
             # are counted as an overflow's are, with the next samples.
