@@ -9,8 +9,8 @@ screen is drawn to its size (:mod:`logger.cli.status_view`); ``--watch`` redraws
 from __future__ import annotations
 
 import argparse
-import math
 import json
+import math
 import os
 import shutil
 import sys
