@@ -66,12 +66,18 @@ def in_order(read: list[int], cycle: list[int]) -> bool:
     return any(all(read[k] == cycle[(i + k) % n] for k in range(len(read))) for i in range(n))
 
 
+@pytest.mark.parametrize("timed", [False, True])
 @pytest.mark.parametrize("delay_s", [0.0, 0.6])
-def test_driver_reads_the_emulated_car_in_step(emulator: object, delay_s: float) -> None:
+def test_driver_reads_the_emulated_car_in_step(emulator: object, delay_s: float, timed: bool) -> None:
+    """``timed``: as the daemon runs it (ObdSource hands it its clock), each speed timed by its own request, a
+    request that began a protocol search asked again."""
     emulator.delay = delay_s  # type: ignore[attr-defined]
     cycle = scenario_speeds(emulator)
     assert len(cycle) >= 8
-    with Elm327(emulator.get_pty()) as driver:  # type: ignore[attr-defined]
+    driver = Elm327(emulator.get_pty())  # type: ignore[attr-defined]
+    if timed:
+        driver.clock = time.monotonic_ns
+    with driver:
         assert driver.version is not None and driver.version.startswith("ELM327")
         assert driver.protocol_number == "6" and driver.connect_problem is None
         speeds, took = [], []
@@ -79,6 +85,9 @@ def test_driver_reads_the_emulated_car_in_step(emulator: object, delay_s: float)
             t0 = time.monotonic()
             reading = driver.read()
             took.append(time.monotonic() - t0)
+            if timed:  # the answered request's window, inside the read, as long as the emulator's delay at least
+                w0, w1 = driver.answered_window_ns or (0, 0)
+                assert t0 * 1e9 - 1e6 <= w0 <= w1 and w1 - w0 >= 0.9 * delay_s * 1e9
             assert reading.ecu_id == 0x7E8
             assert reading.speed_mps == pytest.approx(reading.speed_kmh / 3.6)
             speeds.append(reading.speed_kmh)
