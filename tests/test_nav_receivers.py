@@ -542,3 +542,27 @@ def test_a_fix_held_past_a_second_is_placed_on_its_own_epoch_by_the_pps():
         assert clock.epoch_time(T0 + k * NS + frac + 200_000_000, T0 + k * NS, "free") == T0 + k * NS + frac
     assert clock.method == "pps"
     assert clock.epoch_time(T0 + 5 * NS + frac + 1_500_000_000, T0 + 5 * NS, "free") == T0 + 5 * NS + frac
+
+
+def test_an_epoch_completed_over_a_second_after_it_is_placed_by_the_read_it_began_in():
+    """u-blox's factory NMEA at 9600 baud: a 0.9 s burst that begins 0.15 s after its epoch is read whole 1.07 s after
+    it, every epoch. Clock not locked yet, PPS edges known: the whole seconds come from the read each epoch began in
+    (the record's opened_mono_ns), as the clock pairs it; from the completing read, every epoch was placed a second
+    late (20 m at 20 m/s) until the clock locked."""
+    frac = 123_000_000  # the board clock 0.123 s past UTC's seconds; its t_sync runs 40 s ahead of its t_mono
+    feed = nav_feeder(engine := NavEngine(NavParams(mode="17")))
+    for k in range(5):
+        feed_record(feed, "/pps", {"t_sync_ns": T0 + k * NS + frac, "t_mono_ns": T0 - 40 * NS + k * NS + frac,
+                                   "seqno": k})
+        began, done = T0 + k * NS + frac + 150_000_000, T0 + k * NS + frac + 1_070_000_000
+        feed_record(feed, "/gnss/fix", {
+            "t_sync_ns": done, "t_mono_ns": done - 40 * NS, "opened_mono_ns": began - 40 * NS,
+            "gnss_time_ns": T0 + k * NS, "sync_state": "freerun", "fix_ok": True, "fix_mode": 3, "latitude": 48.1,
+            "longitude": 11.5, "altitude": 545.0, "vel_ned_mps": [0.0, 0.0, None], "pdop": 1.5, "hdop": 0.9,
+            "vdop": 1.2, "num_sv": 9})
+        fix = engine.last_readings.fix
+        assert engine.epoch_clock.method == "pps" and fix is not None and fix.t_ns == T0 + k * NS + frac, k
+    # The same fixes without the read they began in (one read held each): a second late.
+    clock = GnssEpochClock()
+    clock.pps(T0 + frac)
+    assert clock.epoch_time(T0 + frac + 1_070_000_000, T0, "free") == T0 + NS + frac

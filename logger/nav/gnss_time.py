@@ -6,9 +6,10 @@ states its epoch time (UTC), which is the measurement time once the logger's clo
 
 - a clock locked to the PPS already runs on UTC: the epoch time is used as it is;
 - otherwise the PPS edges, which fall on whole UTC seconds, give the clock's offset modulo one second, and the
-  fix's own arrival (between zero and one second after its epoch) picks the whole second;
-- without PPS either, the shortest arrival delay seen over the last minute stands for the offset, less a
-  nominal solution latency: the best that can be done, and flagged as such.
+  read its first message came in (between zero and one second after its epoch) picks the whole second: not the
+  fix's arrival, which at 9600 baud can come more than a second after its epoch (a burst of 0.9 s);
+- without PPS either, the shortest delay seen over the last minute (to the read an epoch began in) stands for the
+  offset, less a nominal solution latency: the best that can be done, and flagged as such.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ RECENT_DELAYS = 10  # the fixes whose shortest arrival delay picks the offset's 
 class GnssEpochClock:
     def __init__(self) -> None:
         self._pps: deque[tuple[int, int]] = deque(maxlen=5)  # (t_sync_ns, offset modulo 1 s)
-        self._delays: deque[int] = deque(maxlen=60)
+        self._delays: deque[int] = deque(maxlen=60)  # from each fix's epoch to the read its first message came in
         self._latencies: deque[int] = deque(maxlen=60)  # arrival delays while the clock was locked (on UTC)
         self.method = "none"
         self.offset_ns = 0
@@ -36,8 +37,10 @@ class GnssEpochClock:
     def pps(self, t_sync_ns: int) -> None:
         self._pps.append((t_sync_ns, (t_sync_ns + NS // 2) % NS - NS // 2))
 
-    def epoch_time(self, t_sync_ns: int, gnss_time_ns: int | None, sync_state: str) -> int:
-        """The fix's epoch on the logger's clock (t_sync scale), ns."""
+    def epoch_time(self, t_sync_ns: int, gnss_time_ns: int | None, sync_state: str,
+                   began_sync_ns: int | None = None) -> int:
+        """The fix's epoch on the logger's clock (t_sync scale), ns: ``t_sync_ns`` when the fix was read whole,
+        ``began_sync_ns`` when its first message was (earlier on a slow line; None: the same read)."""
         if gnss_time_ns is None:
             # No valid epoch time (a receiver without a date yet, GGA alone): the fix is placed by its arrival,
             # less the latency its predecessors showed while their time was valid and the clock on UTC, or less a
@@ -54,9 +57,9 @@ class GnssEpochClock:
             return t_sync_ns - NOMINAL_LATENCY_NS
         self.uncertainty_s = 0.0
         delay = t_sync_ns - gnss_time_ns
-        self._delays.append(delay)
+        self._delays.append(delay if began_sync_ns is None else min(delay, began_sync_ns - gnss_time_ns))
         if sync_state == "locked":
-            self._latencies.append(delay)
+            self._latencies.append(delay)  # an epoch without time is placed by its arrival, less these
             self.method, self.offset_ns = "clock locked", 0
             return gnss_time_ns
         if self._pps and t_sync_ns - self._pps[-1][0] < PPS_STALE_NS:

@@ -35,6 +35,9 @@ class GnssObservation:
     # The receiver said its leap count is not yet the broadcast one (records' leap_unknown): gnss_time_ns may be whole
     # seconds off, which the post-processed solution's join allows for
     leap_unknown: bool = False
+    # The board time of the read the epoch's first message came in, when before t_mono_ns (a slow line: 9600 baud
+    # NMEA ends an epoch's burst after the next pulse); None: the fix came in one read
+    opened_mono_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)

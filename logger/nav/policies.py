@@ -128,7 +128,8 @@ class GnssPolicy:
         counters.gnss_fixes += 1
         p = self.params
         t_sync = msg.t_sync_ns
-        t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state)
+        began = None if msg.opened_mono_ns is None else t_sync - (msg.t_mono_ns - msg.opened_mono_ns)
+        t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state, began)
         fig = self.accuracy.figures(msg.h_acc_m, msg.v_acc_m, msg.s_acc_mps, msg.pdop, msg.hdop, msg.vdop, t_e)
         k = p.gnss_acc_scale
         # The receiver's own figures describe the error of the moment, which lasts: its floor is taken as

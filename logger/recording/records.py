@@ -245,7 +245,8 @@ def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
         height_m=None if msg.get("altitude") is None else float(msg["altitude"]),
         vel_ned_mps=None if vel is None else tuple(vel), h_acc_m=msg.get("h_acc_m"), v_acc_m=msg.get("v_acc_m"),
         s_acc_mps=msg.get("s_acc_mps"), pdop=msg.get("pdop"), num_sv=msg.get("num_sv"),
-        hdop=msg.get("hdop"), vdop=msg.get("vdop"), leap_unknown=msg.get("leap_unknown") is True)
+        hdop=msg.get("hdop"), vdop=msg.get("vdop"), leap_unknown=msg.get("leap_unknown") is True,
+        opened_mono_ns=msg.get("opened_mono_ns"))
 
 
 # What the filter reads of each input record (nav_feeder and gnss_observation): a record kept for the filter alone
@@ -255,7 +256,7 @@ NAV_INPUT_KEYS: dict[str, tuple[str, ...]] = {
     IMU: ("t_sync_ns", "t_mono_ns", "accel_mps2", "gyro_rps", "temp_degc"),
     GNSS_FIX: ("t_sync_ns", "t_mono_ns", "gnss_time_ns", "sync_state", "fix_ok", "fix_mode", "latitude", "longitude",
                "altitude", "vel_ned_mps", "h_acc_m", "v_acc_m", "s_acc_mps", "pdop", "num_sv", "hdop", "vdop",
-               "leap_unknown"),
+               "leap_unknown", "opened_mono_ns"),
     OBD_SPEED: ("t_sync_ns", "speed_mps"),
     BARO: ("t_sync_ns", "altitude_m"),
     PPS: ("t_sync_ns",),
