@@ -60,6 +60,7 @@ class GnssReceiver:
         # Good UBX frames by (class, id) since the port was opened: which messages the receiver still sends (a
         # receiver restarted under the open port comes back without the ones the host's set-up turned on).
         self.ubx_counts: Counter[tuple[int, int]] = Counter()
+        self._idle_from: int | None = None  # the caller's time from which nothing was waiting on the line (read)
 
     @property
     def port(self) -> serial.Serial:
@@ -81,19 +82,33 @@ class GnssReceiver:
             raise BusError(f"GNSS receiver: cannot open {path}: {_one_line(err)}") from err
         return cls(port, path)
 
-    def read(self, timeout_s: float, settle: Callable[[], None] | None = None) -> GnssRead:
+    def read(self, timeout_s: float, settle: Callable[[], None] | None = None,
+             now_ns: Callable[[], int] | None = None, quiet_ns: int = 0) -> GnssRead:
         """Wait up to ``timeout_s`` for bytes, take all that are waiting, decode them.
 
         ``settle``, called once the first byte is in, waits for the rest of the burst (the caller's clock): an
         epoch's messages come back to back, and a read that took each as it came would wake the reader once per
         message here and once per tty flush on a board's UART. Returns an empty read when the receiver stayed
         silent; that is not an error here.
+
+        ``now_ns`` (the caller's clock) tells the decoder whether the line was quiet before this read: nothing was
+        waiting, and the first byte came ``quiet_ns`` or more after the read began to wait for it. A receiver's burst
+        comes back to back, so such a read begins a burst (GnssDecoder.read_quiet); without a clock, not known.
         """
         timeout_s = max(0.0, timeout_s)  # a negative wait means 'do not wait', not an error
         try:
             if self._port.timeout != timeout_s:
                 self._port.timeout = timeout_s
+            if now_ns is not None:
+                if self._port.in_waiting:
+                    self._idle_from = None
+                elif self._idle_from is None:
+                    self._idle_from = now_ns()  # nothing waiting since (across reads that timed out)
             data = self._port.read(1)
+            quiet: bool | None = None
+            if now_ns is not None and data:
+                quiet = self._idle_from is not None and now_ns() - self._idle_from >= quiet_ns
+                self._idle_from = None
             if data:
                 if settle is not None:
                     settle()
@@ -107,6 +122,7 @@ class GnssReceiver:
             # Each read its number: an epoch's fix names the read its first message came in (GnssFix.opened_mark),
             # which the caller dated (GnssRead.mark is this one).
             self.decoder.read_mark = self.reads = self.reads + 1
+            self.decoder.read_quiet = quiet
             self.framer.decode_nmea = not self.decoder.ignores_nmea  # what the decoder would discard is not parsed
             for frame in self.framer.feed(data):
                 if frame.kind == KIND_UBX:

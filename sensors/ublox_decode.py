@@ -46,6 +46,7 @@ NO_COURSE_SPEED_MPS = 0.25
 # once a second with fixes at 5 or 10 Hz, or after the burst's learnt end.
 GST_HOLD_S = 1.0
 NMEA_EPOCHS_KEPT = 4  # the last NMEA epochs whose sentences tell a burst's regular end and tail
+NMEA_HEADS_KNOWN = 2  # a time-less head that began this many epochs before, each after a quiet line, dates its epoch
 
 
 @dataclass(frozen=True, slots=True)
@@ -277,6 +278,9 @@ class _Burst:
     parts: dict[str, Any] = field(default_factory=dict)
     order: list[str] = field(default_factory=list)
     opened: int | None = None  # the decoder's read_mark when its first message came
+    # NMEA, a burst begun with a time-less sentence (GSA, VTG): whether that came first in a read begun after a quiet
+    # line (a head) or not (the previous epoch's tail, more likely). None: begun with a timed sentence, or not known.
+    quiet_head: bool | None = None
 
     def add(self, ident: str, msg: Any) -> None:
         self.parts[ident] = msg
@@ -311,6 +315,8 @@ class GnssDecoder:
         self._nmea_epochs: deque[set[str]] = deque(maxlen=NMEA_EPOCHS_KEPT)
         self._nmea_heads: deque[str] = deque(maxlen=NMEA_EPOCHS_KEPT)
         self._gst: tuple[float, Any] | None = None  # the last GST (time of day, message): _gst_for
+        self._nmea_read: int | None = None  # the read_mark of the last NMEA sentence
+        self._first_in_read = False  # the sentence being pushed is its read's first NMEA sentence
         self._ubx_solutions = False
         self.leap_s: int | None = None
         self.week: int | None = None
@@ -320,6 +326,9 @@ class GnssDecoder:
         # The caller's number for what it is pushing now (GnssReceiver: one per read of the port); an epoch's fix
         # carries the one its first message came under (GnssFix.opened_mark). None: not marked.
         self.read_mark: int | None = None
+        # Whether the line was quiet before the read being pushed (GnssReceiver.read: a burst's start); None: unknown.
+        # A time-less sentence is taken as a burst's head only at the start of such a read.
+        self.read_quiet: bool | None = None
 
     # ---- public
 
@@ -681,6 +690,7 @@ class GnssDecoder:
             return []  # the same receiver also sends UBX solutions: those are the better copy
         kind = str(_attr(msg, "msgID", default=""))
         ident = str(_attr(msg, "talker", default="")) + kind
+        self._first_in_read, self._nmea_read = self.read_mark != self._nmea_read, self.read_mark
         items: list[GnssItem] = []
         tod = _attr(msg, "time")
         key: float | None = None
@@ -715,8 +725,12 @@ class GnssDecoder:
             elif self._nmea.key is None:
                 # The burst's start is its first timed sentence's read: the time-less ones before it may be the last
                 # epoch's tail (one GSA per constellation, the first of which was learnt as the burst's end), read a
-                # second earlier, and an epoch dated from there is paired with the PPS edge a second early.
-                self._nmea.key, self._nmea.opened = key, self.read_mark
+                # second earlier, and an epoch dated from there is paired with the PPS edge a second early. Unless
+                # they are the receiver's head, after a quiet line in the last epochs too: a long one (GSA and GSV
+                # before RMC at 9600 baud) puts the first timed sentence past the next pulse.
+                self._nmea.key = key
+                if not self._known_head(self._nmea):
+                    self._nmea.opened = self.read_mark
         elif self._nmea is None:
             if kind not in ("GSA", "VTG"):
                 return items
@@ -726,12 +740,43 @@ class GnssDecoder:
                 self._nmea_ender = ident
                 return items
             # a time-less sentence opens the burst; the next timed one names it and dates its start
-            self._nmea = _Burst(None, opened=self.read_mark)
+            self._nmea = _Burst(None, opened=self.read_mark, quiet_head=self._read_begins())
+        elif self._begins_next(ident):
+            # A receiver that begins its bursts with this sentence: the next epoch's, not this one's tail. Taken into
+            # this burst, it ended the first epoch, was learnt as every burst's end, and every fix came a read late
+            # with the next epoch's GSA (its fix mode and DOPs) or VTG. The start is dated by the first timed
+            # sentence's read until such heads are known (_known_head): a tail taken for a head (a receiver pausing
+            # inside its burst) then costs a few epochs' GSA, not a second.
+            items += self._finish_nmea(learn=True)
+            self._nmea = _Burst(None, opened=self.read_mark, quiet_head=True)
         self._nmea.add(kind, msg)
         self._nmea.order[-1] = ident
         if ident == self._nmea_ender and self._nmea.key is not None:
             items += self._finish_nmea(learn=False)
         return items
+
+    def _begins_next(self, ident: str) -> bool:
+        """Whether a time-less sentence begins the next epoch's burst: the burst being collected has its time, began
+        with this sentence after a quiet line, and this one comes first after a quiet line too (a receiver sends a
+        burst back to back; its next burst a fix period later)."""
+        b = self._nmea
+        return (b is not None and b.key is not None and b.quiet_head is True and b.order[0] == ident
+                and self._read_begins() is True)
+
+    def _read_begins(self) -> bool | None:
+        """Whether the sentence being pushed came first in a read begun after a quiet line: a burst's first (None:
+        reads not marked, or their quiet not known)."""
+        if self.read_mark is None or self.read_quiet is None:
+            return None
+        return self.read_quiet and self._first_in_read
+
+    def _known_head(self, burst: _Burst) -> bool:
+        """Whether a burst begun with a time-less sentence after a quiet line begins as the last epochs' did, with a
+        sentence other than the one bursts end with (one GSA per constellation at a burst's end: the first ends it,
+        the others begin the next burst's collection)."""
+        heads, head = self._nmea_heads, burst.order[0]
+        return (burst.quiet_head is True and head != self._nmea_ender and len(heads) >= NMEA_HEADS_KNOWN
+                and all(h == head for h in list(heads)[-NMEA_HEADS_KNOWN:]))
 
     def _regular_tail(self, ident: str) -> bool:
         """Whether a time-less sentence come after the last epoch's end is that epoch's tail: one the receiver sends in
@@ -780,7 +825,9 @@ class GnssDecoder:
         self._nmea_done = burst.key
         self._nmea_epochs.append(set(burst.order))
         if burst.order:
-            self._nmea_heads.append(burst.order[0])
+            # A time-less sentence that did not come after a quiet line is no head: a receiver that ends its bursts
+            # with it, first taken for a head, comes back to its real end (_regular_tail).
+            self._nmea_heads.append("" if burst.quiet_head is False else burst.order[0])
         if learn and burst.order:
             self._nmea_ender = burst.order[-1]
         try:

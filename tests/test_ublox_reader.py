@@ -710,6 +710,25 @@ def test_one_gsa_per_constellation_after_the_learnt_end_does_not_date_the_next_e
     assert [fix.opened_mark for _, fix in fixes] == [1, 2, 3, 4, 5]  # the read its RMC came in
     assert all(fix.pdop == 1.5 and fix.fix_mode == 3 for _, fix in fixes)
 
+    # The last two GSAs read apart from the rest, every epoch, even after a quiet line (a receiver that pauses there):
+    # they begin the next burst's collection as a receiver's head would, but they are the sentence the bursts end
+    # with, no head to date an epoch by (dated by them, every epoch from the fourth took the previous second's read).
+    for paused in (False, True):
+        framer, decoder = UbxNmeaFramer(), GnssDecoder()
+        fixes = []
+        for k in range(8):
+            hhmmss = f"1200{k:02d}.00"
+            reads = (nmea(f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,0.010,,301126,,,A,V")
+                     + nmea(f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,")
+                     + nmea("GNGSA,A,3,01,02,03,04,,,,,,,,,1.5,0.9,1.2,1"),
+                     nmea("GNGSA,A,3,65,66,67,,,,,,,,,,1.5,0.9,1.2,2")
+                     + nmea("GNGSA,A,3,301,302,,,,,,,,,,,1.5,0.9,1.2,3"))
+            for j, data in enumerate(reads):
+                decoder.read_mark, decoder.read_quiet = 2 * k + j + 1, j == 0 or paused
+                fixes += [f for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+        assert [f.time_utc_ns // NS % 60 for f in fixes] == list(range(8))
+        assert [f.opened_mark for f in fixes] == [2 * k + 1 for k in range(8)]  # the read its RMC came in
+
 
 def test_a_gst_sent_once_a_second_at_5_hz_gives_every_fix_its_accuracies_and_ends_no_epoch_late() -> None:
     """GST (the receiver's accuracies) once a second, fixes at 5 Hz: after the first second every GST came after
@@ -773,6 +792,136 @@ def test_one_lost_gsa_does_not_leave_every_later_epoch_with_the_previous_ones() 
         assert epoch[k].pdop == pytest.approx(1.0 + k / 10), k
     assert epoch[9].fix_mode == 3 and epoch[9].fix_ok and epoch[9].lat_deg is not None  # regained, recorded so
     assert all(epoch[k].fix_mode == 1 and not epoch[k].fix_ok for k in (6, 7, 8))
+
+
+@pytest.mark.parametrize("head", ["GPGSA", "GPVTG"])
+def test_a_receiver_beginning_its_bursts_with_a_time_less_sentence_ends_each_epoch_at_its_own_last(head) -> None:
+    """GSA (or VTG), RMC, GGA at 1 Hz, each burst read after a quiet line: the next epoch's GSA was taken into the
+    first burst, learnt as every burst's end, and every fix came a read (a second) late with the next epoch's GSA (fix
+    mode and DOPs) or VTG. A time-less sentence that began the burst after a quiet line, come again after one, begins
+    the next; each epoch ends at its GGA with its own GSA, dated by its RMC's read. Whether the line was quiet not
+    known (a replay of reads), as before."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    got = []
+    for k in range(6):
+        hhmmss = f"1200{k:02d}.00"
+        lead = (f"GPGSA,A,3,01,02,03,04,,,,,,,,,{1.0 + k / 10:.1f},0.9,1.2" if head == "GPGSA"
+                else f"GPVTG,90.0,T,,M,{10 + k:.1f},N,{(10 + k) * 1.852:.2f},K,A")
+        decoder.read_mark, decoder.read_quiet = k + 1, True
+        data = nmea(lead) + nmea(f"GPRMC,{hhmmss},A,4807.03800,N,01131.00000,E,{10 + k:.1f},90.0,071226,,,A")
+        data += nmea(f"GPGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,")
+        got += [(k + 1, f) for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+    # The first epoch ends when its successor's head comes (its end learnt then), every other at its own GGA.
+    assert [(read, f.time_utc_ns // NS % 60) for read, f in got] == [(2, 0), (2, 1), (3, 2), (4, 3), (5, 4), (6, 5)]
+    assert [f.opened_mark for _, f in got] == [1, 2, 3, 4, 5, 6]
+    if head == "GPGSA":
+        assert [f.pdop for _, f in got] == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4, 1.5])
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    for k in range(6):
+        decoder.read_mark = k + 1
+        decoder.push_all(framer.feed(nmea(f"GPGSA,A,3,01,02,03,04,,,,,,,,,{1.0 + k / 10:.1f},0.9,1.2")
+                                     + nmea(f"GPRMC,1200{k:02d}.00,A,4807.03800,N,01131.00000,E,10.0,90.0,071226,,,A")))
+    assert decoder._nmea_ender == "GPGSA"
+
+
+@pytest.mark.parametrize("paused", [False, True])
+def test_a_trailing_gsa_read_apart_from_its_burst_at_the_start_does_not_stay_a_head(paused) -> None:
+    """RMC, GGA, GSA, the logger's first read holding only the tail of an epoch (its GSA) after a quiet line, and the
+    next epoch's GSA read apart from its RMC and GGA (a read cut by a slow line: no quiet before it, every epoch its own
+    GSA). Had the receiver paused before that GSA, it would look like a head come again after a quiet line, and the
+    next epochs took the previous ones' GSA (six of them here); its later GSAs come with their epochs' timed ones,
+    not after a quiet line: it is no head, and the end goes back to the GSA. Every epoch is dated by its RMC's read."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+
+    def gsa(k: int) -> bytes:
+        return nmea(f"GPGSA,A,3,01,02,03,04,,,,,,,,,{1.0 + k / 10:.1f},0.9,1.2")
+
+    def timed(k: int) -> bytes:
+        hhmmss = f"1200{k:02d}.00"
+        return (nmea(f"GPRMC,{hhmmss},A,4807.03800,N,01131.00000,E,0.1,,071226,,,A")
+                + nmea(f"GPGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,"))
+
+    reads = [gsa(-1), timed(0), gsa(0)] + [timed(k) + gsa(k) for k in range(1, 12)]
+    got = []
+    for mark, data in enumerate(reads, 1):
+        decoder.read_mark, decoder.read_quiet = mark, mark != 3 or paused
+        got += [f for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+    got += [f for f in decoder.flush() if isinstance(f, GnssFix)]
+    epoch = {f.time_utc_ns // NS % 60: f for f in got}
+    assert sorted(epoch) == list(range(12))
+    assert [epoch[k].opened_mark for k in range(12)] == [2] + [k + 3 for k in range(1, 12)]  # its RMC's read
+    own = range(6, 12) if paused else range(12)
+    assert all(epoch[k].pdop == pytest.approx(1.0 + k / 10) for k in own)
+
+
+class _IdlePort:
+    """A serial port at the bus: each chunk comes after the line was idle so long (on a clock the test owns)."""
+
+    timeout = 0.0
+
+    def __init__(self, now: list[int], chunks: list[tuple[int, bytes]]) -> None:
+        self.now, self.chunks, self.buf = now, chunks, b""
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.buf)
+
+    def read(self, n: int) -> bytes:
+        if not self.buf and self.chunks:
+            idle_ns, self.buf = self.chunks.pop(0)
+            self.now[0] += idle_ns
+        out, self.buf = self.buf[:n], self.buf[n:]
+        return out
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_receiver_says_whether_the_line_was_quiet_before_a_read() -> None:
+    """A read begun after a quiet line is a burst's start: nothing waiting when the reader came, and its first byte
+    that long after. Bytes already waiting (a reader back late, or a burst read in pieces), or a byte soon after (a
+    pause inside a burst), are not; without the caller's clock it is not known."""
+    now = [0]
+    gsa = nmea("GPGSA,A,3,01,02,03,04,,,,,,,,,1.5,0.9,1.2")
+    port = _IdlePort(now, [(200_000_000, gsa), (0, gsa), (10_000_000, gsa), (60_000_000, gsa)])
+    receiver = GnssReceiver(port, "/dev/fake")
+    quiet = []
+    for waiting in (False, True, False, False):
+        if waiting:
+            port.buf = port.chunks.pop(0)[1]  # come in while the reader was away
+        receiver.read(1.0, now_ns=lambda: now[0], quiet_ns=50_000_000)
+        quiet.append(receiver.decoder.read_quiet)
+    assert quiet == [True, False, False, True]
+    # A wait that timed out (a second without bytes) and the first byte just after the next began: quiet all along.
+    port.chunks = [(1_000_000_000, b""), (10_000_000, gsa)]
+    receiver.read(1.0, now_ns=lambda: now[0], quiet_ns=50_000_000)
+    receiver.read(1.0, now_ns=lambda: now[0], quiet_ns=50_000_000)
+    assert receiver.decoder.read_quiet is True
+    receiver = GnssReceiver(_IdlePort(now, [(200_000_000, gsa)]), "/dev/fake")
+    receiver.read(1.0)
+    assert receiver.decoder.read_quiet is None
+
+
+def test_a_long_time_less_head_dates_its_epoch_once_it_began_the_last_ones_too() -> None:
+    """GSA x4 and GSV x6 before RMC and GGA at 9600 baud: 0.7 s of the line before the first timed sentence, read in
+    two reads, the second after the next pulse. Dated by its RMC's read, every epoch took the next second's edge
+    (the clock locked a second off, 0 mislabels). A time-less head that began the last epochs, each after a quiet
+    line, dates its epoch; the first epochs, before that is known, are dated by their RMC's read as before."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    gsv = "GPGSV,3,1,12,01,40,083,46,02,17,308,41,12,07,344,39,14,22,228,45"
+    got = []
+    for k in range(8):
+        hhmmss = f"1200{k:02d}.00"
+        head = [f"GNGSA,A,3,0{i},02,03,04,,,,,,,,,1.5,0.9,1.2" for i in range(1, 5)] + [gsv] * 6
+        reads = (head[:7], [*head[7:], f"GPRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,071226,,,A",
+                            f"GPGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,"])
+        for j, bodies in enumerate(reads):
+            decoder.read_mark, decoder.read_quiet = 2 * k + j + 1, j == 0
+            got += [f for f in decoder.push_all(framer.feed(b"".join(nmea(b) for b in bodies)))
+                    if isinstance(f, GnssFix)]
+    assert [f.time_utc_ns // NS % 60 for f in got] == list(range(8))
+    # Epoch k's head came in read 2k + 1, its RMC in read 2k + 2.
+    assert [f.opened_mark for f in got] == [2, 4] + [2 * k + 1 for k in range(2, 8)]
 
 
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:
