@@ -706,13 +706,17 @@ class GnssDecoder:
         if key is not None:
             if kind == "GST":
                 self._gst = (key, msg)  # the receiver's latest accuracies, for the fixes after it too (_gst_for)
-            if self._nmea is None and key == self._nmea_done:
+            if key == self._nmea_done and (self._nmea is None or self._nmea.key is None):
                 # The burst went on after where we thought it ended. A sentence the burst before it lacked too is one
                 # the receiver sends at a lower rate (GST once a second at 5 Hz): the end stays (moved to it, every
                 # burst without it ended only when the next began, a fix late, and the end flapped to and fro), and
-                # its accuracies stand for the epochs of the next second (_gst_for).
+                # its accuracies stand for the epochs of the next second (_gst_for). Time-less sentences collected
+                # since are that epoch's too (an end learnt at a GSA when its burst's last sentence was lost: the
+                # GSAs after the first and the GLL after them made the same epoch again, a fix of the GLL alone).
                 if self._nmea_epochs:
+                    self._nmea_epochs[-1].update(() if self._nmea is None else self._nmea.order)
                     self._nmea_epochs[-1].add(ident)
+                self._nmea = None
                 if len(self._nmea_epochs) >= 2 and ident in self._nmea_epochs[-2]:
                     self._nmea_ender = ident
                 return items

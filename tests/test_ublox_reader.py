@@ -794,6 +794,30 @@ def test_one_lost_gsa_does_not_leave_every_later_epoch_with_the_previous_ones() 
     assert all(epoch[k].fix_mode == 1 and not epoch[k].fix_ok for k in (6, 7, 8))
 
 
+def test_a_lost_last_sentence_does_not_report_its_successor_twice() -> None:
+    """RMC, VTG, GGA, GSA x4, GLL (u-blox M9N's order without GSV), the GLL of one epoch lost to a bad checksum: that
+    burst ended when the next began, its end learnt at GSA; the next burst ended at its first GSA, and its other GSAs
+    and its GLL made the same epoch again (a second record of it, the GLL's position alone, which the filter took as
+    a second fix). They are that epoch's tail: each epoch once, the end back at GLL."""
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    fixes = []
+    for k in range(10):
+        hhmmss = f"1200{k:02d}.00"
+        bodies = [f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,071226,,,A,V",
+                  "GNVTG,90.0,T,,M,12.0,N,22.2,K,A",
+                  f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,",
+                  *(f"GNGSA,A,3,0{i},02,03,04,,,,,,,,,1.5,0.9,1.2,{i}" for i in range(1, 5)),
+                  f"GNGLL,4807.03800,N,01131.00000,E,{hhmmss},A,A"]
+        data = b"".join(nmea(b) for b in bodies)
+        if k == 4:
+            data = data[:-5] + b"00\r\n"  # the GLL's checksum spoilt: refused
+        decoder.read_mark, decoder.read_quiet = k + 1, True
+        fixes += [f for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+    epochs = [f.time_utc_ns // NS % 60 for f in fixes]
+    assert epochs == list(range(10)) and decoder._nmea_ender == "GNGLL"
+    assert all(f.opened_mark == k + 1 for k, f in enumerate(fixes))
+
+
 @pytest.mark.parametrize("head", ["GPGSA", "GPVTG"])
 def test_a_receiver_beginning_its_bursts_with_a_time_less_sentence_ends_each_epoch_at_its_own_last(head) -> None:
     """GSA (or VTG), RMC, GGA at 1 Hz, each burst read after a quiet line: the next epoch's GSA was taken into the
