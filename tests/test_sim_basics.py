@@ -84,6 +84,28 @@ def test_pty_port_vanishes_and_comes_back_under_the_same_path() -> None:
         ser.close()
 
 
+def test_a_pty_port_removes_the_folders_runs_killed_before_it_left_behind(tmp_path, monkeypatch) -> None:
+    """Each simulated serial port is a folder in the temporary folder; a run killed with SIGKILL left its folders
+    (hundreds on a CI host). A new port removes those of processes that are gone, keeps those of live ones."""
+    import os
+    import subprocess
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = subprocess.Popen(["true"])  # a process that has ended: its pid is free
+    dead.wait()
+    for name in (f"sim-tty-{dead.pid}-abc", f"sim-tty-{os.getpid()}-def", "sim-tty-x1y2z3", "other-1-x"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "tty").symlink_to("/dev/pts/999999")
+    with PtyPort() as port:
+        assert Path(port.path).parent.name.startswith(f"sim-tty-{os.getpid()}-")
+        left = sorted(p.name for p in tmp_path.iterdir())
+    assert f"sim-tty-{dead.pid}-abc" not in left
+    assert {f"sim-tty-{os.getpid()}-def", "sim-tty-x1y2z3", "other-1-x"} <= set(left)
+    assert not any(p.name.startswith(f"sim-tty-{os.getpid()}-") and p.name != f"sim-tty-{os.getpid()}-def"
+                   for p in tmp_path.iterdir())  # its own folder went with it
+
+
 # ---- models do not import drivers -------------------------------------------------------------------
 def driver_imports(source: str, module: str) -> list[tuple[int, str]]:
     """(line, imported module) of every import in ``source`` that reaches into ``sensors`` outside ``sensors.sim``.

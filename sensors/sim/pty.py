@@ -13,9 +13,12 @@ from __future__ import annotations
 import os
 import pty
 import select
+import shutil
 import tempfile
 import threading
 import tty
+
+TMP_PREFIX = "sim-tty-"  # then the owning process's pid and "-": a folder a killed run left is told by its pid
 
 
 class PtyPort:
@@ -23,7 +26,8 @@ class PtyPort:
 
     def __init__(self, link_path: str | None = None) -> None:
         if link_path is None:
-            self._tmpdir: str | None = tempfile.mkdtemp(prefix="sim-tty-")
+            _remove_left_behind(tempfile.gettempdir())
+            self._tmpdir: str | None = tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-")
             link_path = os.path.join(self._tmpdir, "tty")
         else:
             self._tmpdir = None
@@ -101,3 +105,28 @@ class PtyPort:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _remove_left_behind(tmp: str) -> None:
+    """Remove the port folders of simulated runs whose process is gone (a run killed with SIGKILL, a test run
+    stopped hard): each held only a symlink to a pty that went with its process, and hundreds of them filled
+    the temporary folder of a development machine or a CI host. Folders of live processes, and any other, stay."""
+    try:
+        names = os.listdir(tmp)
+    except OSError:
+        return
+    for name in names:
+        pid = name[len(TMP_PREFIX):].partition("-")[0]
+        if not name.startswith(TMP_PREFIX) or not pid.isdigit() or _alive(int(pid)):
+            continue
+        shutil.rmtree(os.path.join(tmp, name), ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process: alive
+        return True
+    return True
