@@ -92,8 +92,9 @@ class GnssReceiver:
         silent; that is not an error here.
 
         ``now_ns`` (the caller's clock) tells the decoder whether the line was quiet before this read: nothing was
-        waiting, and the first byte came ``quiet_ns`` or more after the read began to wait for it. A receiver's burst
-        comes back to back, so such a read begins a burst (GnssDecoder.read_quiet); without a clock, not known.
+        waiting, and the first byte came ``quiet_ns`` or more after the reader began to wait for it (less the line
+        time of what came in while it woke up). A receiver's burst comes back to back, so such a read begins a
+        burst (GnssDecoder.read_quiet); without a clock, not known.
         """
         timeout_s = max(0.0, timeout_s)  # a negative wait means 'do not wait', not an error
         try:
@@ -107,7 +108,11 @@ class GnssReceiver:
             data = self._port.read(1)
             quiet: bool | None = None
             if now_ns is not None and data:
-                quiet = self._idle_from is not None and now_ns() - self._idle_from >= quiet_ns
+                # Bytes come in while a late reader wakes up (another thread holding the interpreter, a busy core):
+                # the line's quiet ended that many byte times before the reader saw its first byte.
+                baud = getattr(self._port, "baudrate", None) or 9600
+                late_ns = self._port.in_waiting * 10_000_000_000 // baud  # 8N1: ten bits a byte
+                quiet = self._idle_from is not None and now_ns() - self._idle_from - late_ns >= quiet_ns
                 self._idle_from = None
             if data:
                 if settle is not None:

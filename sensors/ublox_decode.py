@@ -46,7 +46,6 @@ NO_COURSE_SPEED_MPS = 0.25
 # once a second with fixes at 5 or 10 Hz, or after the burst's learnt end.
 GST_HOLD_S = 1.0
 NMEA_EPOCHS_KEPT = 4  # the last NMEA epochs whose sentences tell a burst's regular end and tail
-NMEA_HEADS_KNOWN = 2  # a time-less head that began this many epochs before, each after a quiet line, dates its epoch
 
 
 @dataclass(frozen=True, slots=True)
@@ -729,12 +728,10 @@ class GnssDecoder:
             elif self._nmea.key is None:
                 # The burst's start is its first timed sentence's read: the time-less ones before it may be the last
                 # epoch's tail (one GSA per constellation, the first of which was learnt as the burst's end), read a
-                # second earlier, and an epoch dated from there is paired with the PPS edge a second early. Unless
-                # they are the receiver's head, after a quiet line in the last epochs too: a long one (GSA and GSV
-                # before RMC at 9600 baud) puts the first timed sentence past the next pulse.
-                self._nmea.key = key
-                if not self._known_head(self._nmea):
-                    self._nmea.opened = self.read_mark
+                # second earlier, and an epoch dated from there is paired with the PPS edge a second early. Even a
+                # head read after a quiet line is not trusted with the date: a tail after a pause of the receiver's,
+                # the port opened in it, looks the same, and dating by it locked the clock a second off.
+                self._nmea.key, self._nmea.opened = key, self.read_mark
         elif self._nmea is None:
             if kind not in ("GSA", "VTG"):
                 return items
@@ -749,8 +746,8 @@ class GnssDecoder:
             # A receiver that begins its bursts with this sentence: the next epoch's, not this one's tail. Taken into
             # this burst, it ended the first epoch, was learnt as every burst's end, and every fix came a read late
             # with the next epoch's GSA (its fix mode and DOPs) or VTG. The start is dated by the first timed
-            # sentence's read until such heads are known (_known_head): a tail taken for a head (a receiver pausing
-            # inside its burst) then costs a few epochs' GSA, not a second.
+            # sentence's read all the same: a tail taken for a head (the receiver paused before it, longer than
+            # a tenth of its period, the port opened in the pause) costs its epochs' GSA, not a second.
             items += self._finish_nmea(learn=True)
             self._nmea = _Burst(None, opened=self.read_mark, quiet_head=True)
         self._nmea.add(kind, msg)
@@ -773,14 +770,6 @@ class GnssDecoder:
         if self.read_mark is None or self.read_quiet is None:
             return None
         return self.read_quiet and self._first_in_read
-
-    def _known_head(self, burst: _Burst) -> bool:
-        """Whether a burst begun with a time-less sentence after a quiet line begins as the last epochs' did, with a
-        sentence other than the one bursts end with (one GSA per constellation at a burst's end: the first ends it,
-        the others begin the next burst's collection)."""
-        heads, head = self._nmea_heads, burst.order[0]
-        return (burst.quiet_head is True and head != self._nmea_ender and len(heads) >= NMEA_HEADS_KNOWN
-                and all(h == head for h in list(heads)[-NMEA_HEADS_KNOWN:]))
 
     def _regular_tail(self, ident: str) -> bool:
         """Whether a time-less sentence come after the last epoch's end is that epoch's tail: one the receiver sends in

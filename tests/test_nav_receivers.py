@@ -566,3 +566,13 @@ def test_an_epoch_completed_over_a_second_after_it_is_placed_by_the_read_it_bega
     clock = GnssEpochClock()
     clock.pps(T0 + frac)
     assert clock.epoch_time(T0 + frac + 1_070_000_000, T0, "free") == T0 + NS + frac
+    # One epoch whose first message is dated a second early (a tail taken for its head): it and the next are placed
+    # by the others' reads, not a second early (the shortest of the last ten moved ten epochs).
+    clock = GnssEpochClock()
+    clock.pps(T0 + frac)
+    placed = []
+    for k in range(8):
+        began = T0 + k * NS + frac + 150_000_000 - (NS if k == 3 else 0)
+        placed.append(clock.epoch_time(T0 + k * NS + frac + 1_070_000_000, T0 + k * NS, "free", began)
+                      - (T0 + k * NS))
+    assert placed == [frac] * 8

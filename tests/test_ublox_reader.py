@@ -882,6 +882,7 @@ class _IdlePort:
     """A serial port at the bus: each chunk comes after the line was idle so long (on a clock the test owns)."""
 
     timeout = 0.0
+    baudrate = 115_200
 
     def __init__(self, now: list[int], chunks: list[tuple[int, bytes]]) -> None:
         self.now, self.chunks, self.buf = now, chunks, b""
@@ -903,19 +904,21 @@ class _IdlePort:
 
 def test_the_receiver_says_whether_the_line_was_quiet_before_a_read() -> None:
     """A read begun after a quiet line is a burst's start: nothing waiting when the reader came, and its first byte
-    that long after. Bytes already waiting (a reader back late, or a burst read in pieces), or a byte soon after (a
-    pause inside a burst), are not; without the caller's clock it is not known."""
+    that long after. Bytes already waiting (a reader back late, or a burst read in pieces), a byte soon after (a
+    pause inside a burst), or one seen late by a reader slow to wake, with as much line time of bytes behind it, are
+    not; without the caller's clock it is not known."""
     now = [0]
     gsa = nmea("GPGSA,A,3,01,02,03,04,,,,,,,,,1.5,0.9,1.2")
-    port = _IdlePort(now, [(200_000_000, gsa), (0, gsa), (10_000_000, gsa), (60_000_000, gsa)])
+    port = _IdlePort(now, [(200_000_000, gsa), (0, gsa), (10_000_000, gsa), (60_000_000, gsa),
+                           (60_000_000, gsa * 20)])  # 840 bytes: 73 ms of the line at 115200 baud
     receiver = GnssReceiver(port, "/dev/fake")
     quiet = []
-    for waiting in (False, True, False, False):
+    for waiting in (False, True, False, False, False):
         if waiting:
             port.buf = port.chunks.pop(0)[1]  # come in while the reader was away
         receiver.read(1.0, now_ns=lambda: now[0], quiet_ns=50_000_000)
         quiet.append(receiver.decoder.read_quiet)
-    assert quiet == [True, False, False, True]
+    assert quiet == [True, False, False, True, False]
     # A wait that timed out (a second without bytes) and the first byte just after the next began: quiet all along.
     port.chunks = [(1_000_000_000, b""), (10_000_000, gsa)]
     receiver.read(1.0, now_ns=lambda: now[0], quiet_ns=50_000_000)
@@ -926,26 +929,30 @@ def test_the_receiver_says_whether_the_line_was_quiet_before_a_read() -> None:
     assert receiver.decoder.read_quiet is None
 
 
-def test_a_long_time_less_head_dates_its_epoch_once_it_began_the_last_ones_too() -> None:
-    """GSA x4 and GSV x6 before RMC and GGA at 9600 baud: 0.7 s of the line before the first timed sentence, read in
-    two reads, the second after the next pulse. Dated by its RMC's read, every epoch took the next second's edge
-    (the clock locked a second off, 0 mislabels). A time-less head that began the last epochs, each after a quiet
-    line, dates its epoch; the first epochs, before that is known, are dated by their RMC's read as before."""
-    framer, decoder = UbxNmeaFramer(), GnssDecoder()
-    gsv = "GPGSV,3,1,12,01,40,083,46,02,17,308,41,12,07,344,39,14,22,228,45"
-    got = []
-    for k in range(8):
-        hhmmss = f"1200{k:02d}.00"
-        head = [f"GNGSA,A,3,0{i},02,03,04,,,,,,,,,1.5,0.9,1.2" for i in range(1, 5)] + [gsv] * 6
-        reads = (head[:7], [*head[7:], f"GPRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,071226,,,A",
-                            f"GPGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,"])
-        for j, bodies in enumerate(reads):
-            decoder.read_mark, decoder.read_quiet = 2 * k + j + 1, j == 0
-            got += [f for f in decoder.push_all(framer.feed(b"".join(nmea(b) for b in bodies)))
-                    if isinstance(f, GnssFix)]
-    assert [f.time_utc_ns // NS % 60 for f in got] == list(range(8))
-    # Epoch k's head came in read 2k + 1, its RMC in read 2k + 2.
-    assert [f.opened_mark for f in got] == [2, 4] + [2 * k + 1 for k in range(2, 8)]
+def test_a_head_after_a_quiet_line_is_not_trusted_with_the_date() -> None:
+    """A receiver that pauses before its trailing GSA longer than the quiet share of its period, the port opened in
+    the pause: the GSA comes first after a quiet line, as a head would, every epoch. Dated by it (a head that began the
+    last bursts too), every epoch took the previous second's read: the clock locked a second off, 0 mislabels. An
+    epoch is dated by its first timed sentence's read; the pause costs its epochs their own GSA, not a second. The
+    same order without the opening in the pause keeps each epoch its own GSA."""
+    for opened_in_pause in (True, False):
+        framer, decoder = UbxNmeaFramer(), GnssDecoder()
+        got = []
+        mark = 0
+        for k in range(-1 if opened_in_pause else 0, 8):
+            hhmmss = f"1200{k:02d}.00"
+            timed = (nmea(f"GNRMC,{hhmmss},A,4807.03800,N,01131.00000,E,12.0,90.0,071226,,,A,V")
+                     + nmea(f"GNGGA,{hhmmss},4807.03800,N,01131.00000,E,1,10,0.9,545.4,M,46.9,M,,"))
+            tail = nmea(f"GNGSA,A,3,01,02,03,04,,,,,,,,,{1.0 + k / 10:.1f},0.9,1.2,1")
+            for data in ((tail,) if k < 0 else (timed, tail)):  # each after a quiet line
+                mark += 1
+                decoder.read_mark, decoder.read_quiet = mark, True
+                got += [(mark, f) for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+        epochs = {f.time_utc_ns // NS % 60: (read, f) for read, f in got}
+        first = 2 if opened_in_pause else 1  # the read epoch 0's RMC came in
+        assert all(f.opened_mark == first + 2 * k for k, (_, f) in epochs.items()), epochs
+        if not opened_in_pause:
+            assert all(f.pdop == pytest.approx(1.0 + k / 10) for k, (_, f) in epochs.items())
 
 
 def test_a_real_receivers_nmea_ending_after_the_next_pulse_labels_the_pulse_before_it() -> None:

@@ -8,8 +8,8 @@ states its epoch time (UTC), which is the measurement time once the logger's clo
 - otherwise the PPS edges, which fall on whole UTC seconds, give the clock's offset modulo one second, and the
   read its first message came in (between zero and one second after its epoch) picks the whole second: not the
   fix's arrival, which at 9600 baud can come more than a second after its epoch (a burst of 0.9 s);
-- without PPS either, the shortest delay seen over the last minute (to the read an epoch began in) stands for the
-  offset, less a nominal solution latency: the best that can be done, and flagged as such.
+- without PPS either, the shortest arrival delay seen over the last minute stands for the offset, less a
+  nominal solution latency: the best that can be done, and flagged as such.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ RECENT_DELAYS = 10  # the fixes whose shortest arrival delay picks the offset's 
 class GnssEpochClock:
     def __init__(self) -> None:
         self._pps: deque[tuple[int, int]] = deque(maxlen=5)  # (t_sync_ns, offset modulo 1 s)
-        self._delays: deque[int] = deque(maxlen=60)  # from each fix's epoch to the read its first message came in
+        self._delays: deque[int] = deque(maxlen=60)  # from each fix's epoch to its arrival
+        self._began: deque[int] = deque(maxlen=RECENT_DELAYS)  # ... to the read its first message came in, if earlier
         self._latencies: deque[int] = deque(maxlen=60)  # arrival delays while the clock was locked (on UTC)
         self.method = "none"
         self.offset_ns = 0
@@ -57,7 +58,9 @@ class GnssEpochClock:
             return t_sync_ns - NOMINAL_LATENCY_NS
         self.uncertainty_s = 0.0
         delay = t_sync_ns - gnss_time_ns
-        self._delays.append(delay if began_sync_ns is None else min(delay, began_sync_ns - gnss_time_ns))
+        self._delays.append(delay)
+        if began_sync_ns is not None:
+            self._began.append(began_sync_ns - gnss_time_ns)
         if sync_state == "locked":
             self._latencies.append(delay)  # an epoch without time is placed by its arrival, less these
             self.method, self.offset_ns = "clock locked", 0
@@ -67,8 +70,14 @@ class GnssEpochClock:
             frac = fracs[len(fracs) // 2]
             # delay = offset + latency with 0 <= latency < 1 s: the whole seconds of the offset follow, from the
             # shortest delay of the last few fixes (one held back past a second, an NMEA epoch sent with the next
-            # burst, took a whole second too many and landed on its successor's time).
-            k = (min(itertools.islice(reversed(self._delays), RECENT_DELAYS)) - frac) // NS
+            # burst, took a whole second too many and landed on its successor's time). A fix read over several reads
+            # (a slow line) is measured from the first, whose delay stays under a second where its arrival's does
+            # not: the median of the last few such, which one epoch misdated either way does not move.
+            if began_sync_ns is not None:
+                began = sorted(self._began)
+                k = (began[len(began) // 2] - frac) // NS
+            else:
+                k = (min(itertools.islice(reversed(self._delays), RECENT_DELAYS)) - frac) // NS
             self.method, self.offset_ns = "pps", frac + k * NS
             return gnss_time_ns + self.offset_ns
         self.method = "shortest delay"

@@ -50,10 +50,15 @@ LATE_READ_SPAN_NS = 500_000_000  # epochs this far apart in one read: the older 
 # taken as late only when its epochs lie LATE_READ_SPAN_NS apart.
 EPOCH_BURST_BYTES = 320
 BURST_SETTLE_MAX_S = 0.35
-# A read whose first byte came this long (at most a quarter of the fix period) after the reader began to wait for it,
-# nothing waiting before, began after a quiet line: a burst's start (a receiver sends a burst back to back). What a
-# receiver that begins its bursts with a sentence without a time (GSA, VTG, GSV) needs to tell its head from a tail.
-READ_QUIET_S = 0.05
+# A read whose first byte came this share of the fix period (one second when not configured), and at least
+# READ_QUIET_MIN_S, after the reader began to wait for it, nothing waiting before, began after a quiet line: a
+# burst's start (a receiver sends a burst back to back, its next one a period later). What a receiver that begins its
+# bursts with a sentence without a time (GSA, VTG) needs to tell its head from the last epoch's tail; a receiver that
+# pauses this long inside its burst has a tail read after a quiet line too, when the port opens in the pause (its
+# epochs then carry the GSA before theirs). The head after a 9600 baud burst of GSA, GSV x3, RMC and VTG comes 0.22 s
+# after the reader's settling wait.
+READ_QUIET_PERIODS = 0.1
+READ_QUIET_MIN_S = 0.05
 READ_MARKS_KEPT = 64  # reads whose time is kept to date an epoch's first message (a slow line's epoch spans ~5)
 # A receiver that restarts (a voltage dip while the engine cranks) comes back at the speed and with the messages its
 # flash holds, while the logger's port stays open at the speed the set-up raised it to. Bytes with not one message
@@ -296,7 +301,7 @@ class GnssSource(Source):
         # (the receiver's read mark, drive time) of the latest reads: when an epoch began to arrive (_opened_at)
         self._read_at: deque[tuple[int, int]] = deque(maxlen=READ_MARKS_KEPT)
         self._settle = lambda: tb.sleep(self.settle_s())
-        self._quiet_ns = round(min(READ_QUIET_S, 0.25e-3 * (meas_period_ms or 1000)) * 1e9)
+        self._quiet_ns = round(max(READ_QUIET_MIN_S, READ_QUIET_PERIODS * (meas_period_ms or 1000) / 1000) * 1e9)
         self._raw_warned = False
         self._heard_ns = 0  # drive time of the last message of any kind
         self._frames_ok = self._bad_frames = 0
