@@ -295,21 +295,25 @@ def test_info_names_the_version_that_wrote_a_file_and_leaves_a_boot_dates_stamps
     from logger import __version__
     from logger.cli import main
 
-    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), TOPICS)
+    topics = {**TOPICS, "/b": TopicSpec("/b", "test.A", TOPICS["/a"].schema, "test")}
+    rec = Recorder(RecorderSettings(out_dir=tmp_path, flush_interval_s=0.02), topics)
     path = rec.start()
     assert path is not None
     boot, t0 = 3_000_000_000, 1_700_000_000_000_000_000  # 1970-01-01 00:00:03, then GNSS time
     for i in range(30):  # 3 s on the board's clock, then 10 s locked, at 10 Hz
         rec.submit("/a", {"x": i}, boot + i * 100_000_000, i)
+        rec.submit("/b", {"x": i}, boot + i * 100_000_000, i)  # a sensor that went silent before the time came
     for i in range(100):
         rec.submit("/a", {"x": i}, t0 + i * 100_000_000, 3_000_000_000 + i)
     rec.stop()
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
     assert f"Writer:    vehicle-logger {__version__}" in out
-    assert "Duration:  9.9 s" in out and "Start:     2023-11-14" in out and "Messages:  130" in out
-    assert "Undated:   30 messages stamped before 2020" in out and "left out of Start, End, Duration" in out
+    assert "Duration:  9.9 s" in out and "Start:     2023-11-14" in out and "Messages:  160" in out
+    assert "Undated:   60 messages stamped before 2020" in out and "left out of Start, End, Duration" in out
     assert " 130 " in out and "10.00" in out  # /a counts every message; its rate is the dated span's
+    # /b's 30 messages all came before the time was known: said so (it said nothing, as a topic that ran to the end)
+    assert "/b: every message undated: none after the time was known" in out and "/a: every" not in out
     old = tmp_path / "old" / "old.mcap"
     old.parent.mkdir()
     with open(old, "wb") as f:

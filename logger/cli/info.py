@@ -57,6 +57,9 @@ class TopicInfo:
     # From its last message to the file's last: a sensor that stopped before the recording did (its rate and gaps,
     # taken over its own span, do not show it)
     ended_before_end_s: float = 0.0
+    # Every message of it stamped before any time was known (a file whose other topics are dated): a sensor that
+    # delivered in the first seconds and not after the clock was set; its rate and its end are not known
+    undated_only: bool = False
 
 
 @dataclass
@@ -163,7 +166,7 @@ def inspect(path: str | os.PathLike[str]) -> FileInfo:
         reg = regularity(own)
         ended = (end - own[-1]) / 1e9 if own and end is not None else 0.0
         topics.append(TopicInfo(ch.topic, schemas.get(ch.schema_id, ""), count, reg.rate_hz,
-                                reg.largest_interval_s, len(reg.gaps), round(ended, 3)))
+                                reg.largest_interval_s, len(reg.gaps), round(ended, 3), bool(count and not own)))
     duration = (end - start) / 1e9 if start is not None and end is not None else 0.0
     silent = silent_sensors(config, {t.topic: t.count for t in topics})
     damage = ""
@@ -215,7 +218,9 @@ def render(info: FileInfo) -> str:
     lines.append(f"  (rate over each topic's span; a gap: an interval over {GAP_FACTOR:g}x the usual one)")
     for t in info.topics:
         usual = 1.0 / t.rate_hz if t.rate_hz > 0 else 0.0
-        if t.count and t.ended_before_end_s > max(ENDED_EARLY_MIN_S, GAP_FACTOR * usual):
+        if t.undated_only:
+            lines.append(f"  {t.topic}: every message undated: none after the time was known")
+        elif t.count and t.ended_before_end_s > max(ENDED_EARLY_MIN_S, GAP_FACTOR * usual):
             lines.append(f"  {t.topic}: its last message {t.ended_before_end_s:.1f} s before the file's end")
     return "\n".join(lines)
 
