@@ -944,7 +944,8 @@ def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse(
     gpsd's TPV comes after the next pulse, its TOFF (the epoch's time latched at its first sentence) before it.
     Our source's records and PPS edges at each pulse, through the clock: every fix gpsd sent a TOFF for records
     that read as its opened time, and the clock locks to the right second (without the TOFF the pairing took
-    each fix's completion, after the next edge: a clock a second off behind a bound of microseconds).
+    each fix's completion, after the next edge: a clock a second off behind a bound of microseconds). The filter,
+    before the clock locks, places each epoch on its own pulse by the same TOFF (by the completion, a second late).
     The drive runs at twice the host's pace (gpsd goes by the sentences' times, not by when they come)."""
     import os
     import pty
@@ -1027,6 +1028,25 @@ def test_a_slow_nmea_line_through_a_real_gpsd_pairs_each_fix_with_its_own_pulse(
     stamp = clock.stamp(probe)
     assert stamp.state == "locked", stamp
     assert abs(stamp.t_sync_ns - ((first_utc_s + len(epochs) - 1) * NS + 500_000_000)) < 1_000_000, stamp
+    # The same records to the filter before the clock locks (its synchronised scale the board's here, the PPS edges
+    # known): each epoch placed by the read its first sentence came in (gpsd's TOFF), on its own pulse; placed by
+    # its completion, 1.05 s after its pulse, every one was a second late.
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.records import feed_record, nav_feeder
+
+    engine = NavEngine(NavParams(mode="17"))
+    feed = nav_feeder(engine)
+    placed = []
+    events = [(t0 + k * NS + 7_000, "/pps", {}) for k in range(len(epochs))]
+    events += [(t, "/gnss/fix", fix) for t, fix in fixes if "opened_mono_ns" in fix and fix.get("fix_ok")]
+    for t, topic, payload in sorted(events, key=lambda e: e[0]):
+        feed_record(feed, topic, {**payload, "t_sync_ns": t, "t_mono_ns": t, "sync_state": "freerun"})
+        if topic == "/gnss/fix":
+            k = round(payload["gnss_time_ns"] / NS - first_utc_s)
+            placed.append(engine.last_readings.fix.t_ns - (t0 + k * NS))
+    assert len(placed) >= len(fixes) - 4 and engine.epoch_clock.method == "pps"
+    assert all(abs(d - 7_000) < 1_000_000 for d in placed), placed
 
 
 def test_the_first_tpv_of_a_burst_before_the_date_is_known_joins_its_epoch() -> None:

@@ -929,6 +929,35 @@ def test_the_receiver_says_whether_the_line_was_quiet_before_a_read() -> None:
     assert receiver.decoder.read_quiet is None
 
 
+@pytest.mark.parametrize("opened_in_tail", [False, True])
+def test_a_real_receivers_time_less_tail_read_after_quiet_lines_dates_each_epoch_by_its_rmc(opened_in_tail) -> None:
+    """A real u-blox ZED-F9P's NMEA (the GPSD project's capture: RMC, VTG, GGA, GSA x4, GSV..., its bursts ending
+    with sentences without a time), each burst read after a quiet line; and the same with the port opened inside a
+    burst, its first read the rest of an epoch from its first GSA on, taken as after a quiet line too (the worst
+    case: a receiver pausing there): every epoch once, dated by its RMC's read, whatever the quiet reads say of
+    heads."""
+    from logger.cli.gnss_decode import strip_capture_comments
+
+    capture = strip_capture_comments(
+        (Path(__file__).parent / "data" / "gpsd-ublox" / "ublox-f9p-hpnmea.log").read_bytes())
+    nmea_only = b"".join(f.raw for f in UbxNmeaFramer().feed(capture) if f.kind == KIND_NMEA)
+    bursts = [b"$GNRMC" + part for part in nmea_only.split(b"$GNRMC")[1:]]
+    assert len(bursts) >= 7 and all(b.count(b"GNGSA") == 4 for b in bursts)
+    reads = bursts[1:]
+    if opened_in_tail:
+        reads = [bursts[0][bursts[0].index(b"$GNGSA"):], *reads]
+    framer, decoder = UbxNmeaFramer(), GnssDecoder()
+    got = []
+    for mark, data in enumerate(reads, 1):
+        decoder.read_mark, decoder.read_quiet = mark, True
+        got += [f for f in decoder.push_all(framer.feed(data)) if isinstance(f, GnssFix)]
+    got += [f for f in decoder.flush() if isinstance(f, GnssFix)]
+    seconds = [f.time_utc_ns // NS for f in got]
+    assert seconds == list(range(seconds[0], seconds[0] + len(bursts) - 1))  # each epoch of bursts[1:] once
+    rmc_read = {s: k + 1 + opened_in_tail for k, s in enumerate(seconds)}
+    assert all(f.opened_mark == rmc_read[f.time_utc_ns // NS] for f in got)
+
+
 def test_a_head_after_a_quiet_line_is_not_trusted_with_the_date() -> None:
     """A receiver that pauses before its trailing GSA longer than the quiet share of its period, the port opened in
     the pause: the GSA comes first after a quiet line, as a head would, every epoch. Dated by it (a head that began the
