@@ -91,7 +91,7 @@ def test_a_pty_port_removes_the_folders_runs_killed_before_it_left_behind(tmp_pa
     import subprocess
     import tempfile
 
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # a folder this process has not swept yet
     dead = subprocess.Popen(["true"])  # a process that has ended: its pid is free
     dead.wait()
     for name in (f"sim-tty-{dead.pid}-abc", f"sim-tty-{os.getpid()}-def", "sim-tty-x1y2z3", "other-1-x"):

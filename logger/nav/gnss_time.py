@@ -22,7 +22,7 @@ NOMINAL_LATENCY_NS = 100_000_000
 ARRIVAL_SIGMA_S = 0.1  # spread of a receiver's solution and output latency (u-blox: some tens to 300 ms)
 MIN_LATENCY_SIGMA_S = 0.02  # the least spread taken for latencies learnt while the time was valid
 PPS_STALE_NS = 10 * NS
-RECENT_DELAYS = 10  # the fixes whose shortest arrival delay picks the offset's whole seconds
+RECENT_DELAYS = 10  # the fixes whose shortest arrival delay (median first-read delay) picks the whole seconds
 
 
 class GnssEpochClock:

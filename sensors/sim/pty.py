@@ -19,6 +19,7 @@ import threading
 import tty
 
 TMP_PREFIX = "sim-tty-"  # then the owning process's pid and "-": a folder a killed run left is told by its pid
+_swept: set[str] = set()  # the temporary folders this process has swept of folders killed runs left (once each)
 
 
 class PtyPort:
@@ -110,7 +111,11 @@ class PtyPort:
 def _remove_left_behind(tmp: str) -> None:
     """Remove the port folders of simulated runs whose process is gone (a run killed with SIGKILL, a test run
     stopped hard): each held only a symlink to a pty that went with its process, and hundreds of them filled
-    the temporary folder of a development machine or a CI host. Folders of live processes, and any other, stay."""
+    the temporary folder of a development machine or a CI host. Folders of live processes, and any other, stay.
+    Once per process and folder: a run's later ports find nothing new left there."""
+    if tmp in _swept:
+        return
+    _swept.add(tmp)
     try:
         names = os.listdir(tmp)
     except OSError:
@@ -127,6 +132,6 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except OSError:  # another user's process: alive
-        return True
+    except OSError:  # another user's process
+        pass
     return True
