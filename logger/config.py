@@ -326,6 +326,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                  "how long the error at the receiver's own accuracy floor lasts, s (0: white)"),
         "gnss_independent_hz": Key(NUM, FIELD, _range(0.01, 100),
                                    "faster fixes weigh together what fixes at this rate do (errors last)"),
+        "gnss_max_hz": Key(NUM, FIELD, _range(0, 100), "a faster receiver's fixes are thinned to this rate (0: all)"),
         "gnss_min_sv": Key(int, FIELD, _range(4, 40), "fixes on fewer satellites are not used"),
         "gnss_multipath_corr_s": Key(NUM, FIELD, _range(0, 600),
                                      "correlation time of GNSS errors above the receiver's floor, s"),

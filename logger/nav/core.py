@@ -31,6 +31,7 @@ class EngineCounters:
     imu_gaps: int = 0
     imu_out_of_order: int = 0
     gnss_fixes: int = 0
+    gnss_thinned: int = 0  # fixes of a receiver faster than gnss_max_hz left out (gnss_rate.py)
     gnss_no_fix: int = 0
     gnss_few_sv: int = 0  # fixes left out for too few satellites
     gnss_skipped: int = 0  # GNSS rows (axes) that would add almost nothing but their bias

@@ -26,6 +26,7 @@ import numpy as np
 from logger.nav.core import EngineCounters, FilterCore, PreparedFix
 from logger.nav.evidence import GOOD_FIX_H_ACC_M, HeightEvidence, PositionEvidence, VelocityEvidence
 from logger.nav.gnss_noise import RECEIVER, AccuracyModel, CorrelatedGnssNoise, UsualFigure
+from logger.nav.gnss_rate import FixThinner
 from logger.nav.gnss_time import GnssEpochClock
 from logger.nav.inputs import GnssObservation
 from logger.nav.measurements import (
@@ -100,6 +101,8 @@ class GnssPolicy:
         self.position, self.velocity, self.height = position, velocity, height
         self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s, params.gnss_independent_hz,
                                           params.gnss_floor_corr_s)
+        # A GNSS-only solution is the fixes themselves: every one is a row.
+        self._thinner = FixThinner(params.gnss_max_hz if params.mode != "gnss" else 0.0)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
                                                            params.gnss_nominal_s_acc_mps), params.gnss_learn_scatter)
         # The epoch of the last fix whose height went in, whatever its accuracy (LastReadings.height_in_ns counts
@@ -125,11 +128,14 @@ class GnssPolicy:
             height = last_3d[1]
         else:
             height = msg.height_m if msg.height_m is not None else 0.0
-        counters.gnss_fixes += 1
         p = self.params
         t_sync = msg.t_sync_ns
         began = None if msg.opened_mono_ns is None else t_sync - (msg.t_mono_ns - msg.opened_mono_ns)
         t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state, began)
+        if not self._thinner.take(t_e):
+            counters.gnss_thinned += 1  # a receiver faster than gnss_max_hz (gnss_rate.py)
+            return None
+        counters.gnss_fixes += 1
         fig = self.accuracy.figures(msg.h_acc_m, msg.v_acc_m, msg.s_acc_mps, msg.pdop, msg.hdop, msg.vdop, t_e)
         k = p.gnss_acc_scale
         # The receiver's own figures describe the error of the moment, which lasts: its floor is taken as
