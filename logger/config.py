@@ -33,8 +33,9 @@ from sensors.sim.scenario_names import SCENARIOS
 from sync.settings import NS_PER_US, SyncSettings
 
 DEFAULT_PATH = Path("/etc/vehicle-logger/logger.toml")
-# Navigation rates a receiver may be set to ([gnss] rate_hz): whole milliseconds apart, up to an F9P's 25 Hz.
-RECEIVER_RATES_HZ = (1, 2, 4, 5, 8, 10, 20, 25)
+# Navigation rates a receiver may be set to ([gnss] rate_hz): whole milliseconds apart, up to an M9's 25 Hz; the
+# simulated receiver plays each of them ([sim] gnss_rate_hz).
+RECEIVER_RATES_HZ = GNSS_RATES_HZ
 SIM_SECTIONS = ("imu", "baro", "obd", "gnss", "pps")  # the sensors a simulated vehicle can play
 DEFAULT_SIM_OUT = "drives"  # `logger run --sim` without a configuration: files under ./drives
 DEFAULT_SIM_SOCKET = "/tmp/vehicle-logger-sim/status.sock"  # ... and its status socket, where `logger status` looks

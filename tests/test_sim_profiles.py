@@ -26,6 +26,8 @@ from pyubx2 import POLL, SET, UBXMessage
 from sync_streams import NS, START_UTC_NS, feed, make_stream
 
 from logger.config import ConfigError, defaults, parse
+from logger.exports.trajectory import run_filter
+from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_euler
 from logger.recording.drive import iter_messages, open_drive
 from logger.recording.topics import GNSS_FIX
@@ -424,6 +426,27 @@ def test_the_daemon_records_an_nmea_only_receiver_at_5_hz(tmp_path: Path) -> Non
     rp = subprocess.run([sys.executable, "-m", "logger.cli", "replay", str(path), "--out", str(tmp_path / "replay"),
                          "--config", str(nav), "--no-mcap"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert rp.returncode != 2 and "is required" not in rp.stderr, rp.stderr
+
+
+@pytest.mark.slow_on_board
+@pytest.mark.parametrize("receiver", ["ubx", "nmea"])
+def test_the_daemon_records_a_25_hz_receiver_and_the_filter_takes_every_third_fix(tmp_path: Path,
+                                                                                 receiver: str) -> None:
+    """A receiver at its fastest (a u-blox M9's 25 Hz), with its UBX set-up or NMEA only: every epoch recorded 40 ms
+    after the last, the clock locked on them, and the filter thinning them to every third (gnss_max_hz)."""
+    _, path = run_with_profile(tmp_path, f'gnss_rate_hz = 25\nreceiver = "{receiver}"\n', 25.0)
+    msgs = read_messages(path)
+    valid = [m for _, _, m in msgs["/gnss/fix"] if m["fix_ok"]]
+    epochs = [m["gnss_time_ns"] for m in valid]
+    assert all(round((b - a) / 1e6) == 40 for a, b in itertools.pairwise(epochs)) and len(epochs) > 25 * 20
+    assert {m["source"] for m in valid} == ({"NAV-PVT"} if receiver == "ubx" else {"NMEA"})
+    assert sum(m["sync_state"] == "locked" for m in valid) > 0.7 * len(valid)
+    gnss = next(h for h in msgs["/health"][-1][2]["sensors"] if h["name"] == "gnss")
+    assert gnss["rate_hz"] == 25.0
+    engine, rows = run_filter([path], NavParams())
+    c = engine.counters
+    assert c.init_method == "gnss course" and c.resets == 0 and rows
+    assert abs(c.gnss_thinned - 2 * c.gnss_fixes) <= 3 and c.gnss_fixes + c.gnss_thinned == len(valid)
 
 
 @pytest.mark.slow_on_board

@@ -27,7 +27,7 @@ RECEIVER_MODELS = ("NEO-M8N", "NEO-M8T", "ZED-F9P")
 IMUS = ("mpu6050", "phone")  # the datasheet's MPU-6050, or phone-grade MEMS errors in the same register model
 # Navigation rates a receiver can run at with an epoch on every whole second (measurement periods of whole
 # milliseconds that divide 1000 ms): the clock pairs each PPS edge with the fix of its second.
-GNSS_RATES_HZ = (1, 2, 4, 5, 8, 10)
+GNSS_RATES_HZ = (1, 2, 4, 5, 8, 10, 20, 25)
 # The u-blox solution comes this long after its epoch at the least, plus an exponential excess of this mean
 # capped at SOLUTION_JITTER_MAX_S (or the solution period, when shorter), as NAV-PVT arrival times of M8
 # receivers on a UART show.
