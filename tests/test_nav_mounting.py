@@ -608,6 +608,27 @@ def test_an_imu_too_fast_for_the_tape_keeps_nothing(imu_hz, kept):
         assert RATE_SPAN_S - 0.5 <= t_kept[-1] <= RATE_SPAN_S + 0.5
 
 
+@pytest.mark.parametrize("gnss_hz", [10.0, 20.0, 25.0])
+def test_a_fast_receivers_thinned_fixes_stay_off_the_tape(gnss_hz):
+    """The fixes the filter leaves out of a receiver faster than gnss_max_hz (gnss_rate.py) are left off the tape,
+    which a re-run would leave out too: at 20 and 25 Hz they counted 2 KB each and the tape was let go within 2 s."""
+    from logger.nav.engine import NavEngine
+    from logger.nav.params import NavParams
+    from logger.recording.nav_rerun import FIX_BYTES, NavRerun
+    from logger.recording.topics import GNSS_FIX
+
+    drive = make_drive("outage-60s", seed=1, duration_s=20.0)
+    rerun = NavRerun(NavParams(), lambda p: NavEngine(p))
+    for _, topic, msg in records(drive, 12.0, seed=3, gnss_hz=gnss_hz):
+        rerun.feed(topic, msg)
+    c = rerun.engine.counters
+    assert rerun.kept is not None and rerun.kept[0] > 11.0
+    assert sum(1 for e in rerun._tape if e[0] == GNSS_FIX) == c.gnss_fixes + c.gnss_no_fix
+    # Half of a 20 Hz receiver's, four in five of a 25 Hz one's, once its rate shows (its first fixes go in).
+    assert c.gnss_thinned == pytest.approx({10.0: 0, 20.0: c.gnss_fixes, 25.0: 4 * c.gnss_fixes}[gnss_hz], abs=5)
+    assert rerun.kept[1] < 12 * 10 * FIX_BYTES + 300_000  # ten fixes a second at most, and the IMU's samples
+
+
 @pytest.mark.parametrize(("imu_hz", "kept"), [(1000.0, False), (500.0, True)])
 def test_the_tape_counts_a_run_of_reads_over_the_time_it_spans(imu_hz, kept):
     """Before the start the navigator hands a wake-up's reads over as one run (only the fixes cut it here: no OBD,

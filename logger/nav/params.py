@@ -73,8 +73,9 @@ class NavParams:
     gnss_learn_scatter: bool = True
     # Fixes faster than this report the same error more often; they weigh together what fixes at this rate do.
     gnss_independent_hz: float = 1.0
-    # A faster receiver's fixes are thinned to this rate, every n-th taken (logger/nav/gnss_rate.py): a second of
-    # fixes says no more at 25 Hz than at 10, and weighed as one, each was too weak to go in. 0: every fix.
+    # A faster receiver's fixes are thinned to this rate or under, every n-th epoch on a grid through the whole
+    # seconds (logger/nav/gnss_rate.py): a second of fixes says no more at 25 Hz than at 10, and weighed as one,
+    # each was too weak to go in. 0: every fix.
     gnss_max_hz: float = 10.0
     # How long the error at a receiver's own accuracy floor lasts (atmosphere, orbits, clocks: minutes in truth).
     # Taken as white, the simulated drives' positions sat inside their 3 sigma 71-98 % of the time (urban: 78 / 78

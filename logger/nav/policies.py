@@ -132,7 +132,7 @@ class GnssPolicy:
         t_sync = msg.t_sync_ns
         began = None if msg.opened_mono_ns is None else t_sync - (msg.t_mono_ns - msg.opened_mono_ns)
         t_e = self.epoch_clock.epoch_time(t_sync, msg.gnss_time_ns, msg.sync_state, began)
-        if not self._thinner.take(t_e):
+        if not self._thinner.take(msg.gnss_time_ns):
             counters.gnss_thinned += 1  # a receiver faster than gnss_max_hz (gnss_rate.py)
             return None
         counters.gnss_fixes += 1
