@@ -261,7 +261,7 @@ def test_fixes_that_say_the_car_stands_teach_a_phone_grade_imu_without_an_obd_sp
 
 def test_smoothing_shrinks_the_outage_error(outage):
     drive, span, recs = outage
-    engine = run(recs, gnss_floor_corr_s=0.0)  # the synthetic fixes' errors are white: the filter is told so
+    engine = run(recs, gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0)  # the synthetic fixes' errors are white: told so
     engine.close_epochs()
     smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p)
     t, ef, sf = errors(drive, engine.rows)
@@ -597,7 +597,7 @@ def test_the_baseline_restarts_from_fixes_that_agree_only_in_height(outage):
     vertical innovation: that is a lost filter too, restarted from the receiver."""
     drive, _, recs = outage
     # The synthetic fixes' errors are white: the filter is told so, and trusts them as much as they deserve.
-    engine = shifted_height(recs, 60.0, 15.0, mode="15", gnss_floor_corr_s=0.0)
+    engine = shifted_height(recs, 60.0, 15.0, mode="15", gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0)
     assert engine.counters.resets == 1
     t, e, _ = errors(drive, engine.rows)
     assert np.abs(e[(t > 100.0) & (t < 140.0), 2]).max() < 1.0
@@ -657,7 +657,10 @@ def test_a_2d_fix_before_any_3d_one_claims_no_height() -> None:
     assert [r[9][2] for r in engine.rows] == [UNKNOWN_HEIGHT_SIGMA_M] * 2
     engine.gnss(gnss_observation({**fix2d, "t_sync_ns": fix2d["t_sync_ns"] + 2 * 10**9, "fix_mode": 3,
                                   "altitude": 520.0}))
-    assert engine.rows[-1][4] == 520.0 and engine.rows[-1][9][2] < 10.0  # its figure (widened as correlated)
+    # Its figure, widened as the floor's error lasting gnss_floor_corr_v_s at one fix a second.
+    rho = math.exp(-1.0 / NavParams().gnss_floor_corr_v_s)
+    assert engine.rows[-1][4] == 520.0
+    assert engine.rows[-1][9][2] == pytest.approx(3.0 * math.sqrt((1 + rho) / (1 - rho)))
 
 
 def _reopening_core(p0: np.ndarray) -> Any:

@@ -11,6 +11,7 @@ import pytest
 from logger.nav.ekf import ErrorStateEkf
 from logger.nav.gnss_noise import CorrelatedGnssNoise, RunningMin
 from logger.nav.measurements import OBD_STEP_MPS, ROUNDING_VAR, Observation, repeat_variance
+from logger.nav.params import NavParams
 
 NS = 1_000_000_000
 
@@ -53,6 +54,24 @@ def test_a_canyons_correlated_fixes_weigh_what_their_shared_error_leaves_them():
     assert 0.5 < believed / true < 2.0
     white, true = _belief_and_truth(corr_s=0.0, tau_s=5.0, n=60)  # taken as independent: far too sure
     assert white / true < 0.2
+
+
+def test_the_verticals_floor_error_lasts_its_own_time():
+    """gnss_floor_corr_v_s widens the vertical's floor by its own time; the horizontal's and the speed's keep
+    floor_corr_s's, and without it the vertical keeps the horizontal's."""
+    def widened(rho: float) -> float:
+        return math.sqrt((1 + rho) / (1 - rho))
+
+    both = CorrelatedGnssNoise(corr_s=5.0, floor_corr_s=5.0, floor_corr_v_s=8.0)
+    same = CorrelatedGnssNoise(corr_s=5.0, floor_corr_s=5.0)
+    for k in range(20):
+        h, v, s = both.sigmas(k * NS, 0.5, 0.8, 0.05)
+        h1, v1, _ = same.sigmas(k * NS, 0.5, 0.8, 0.05)
+    assert h == pytest.approx(0.5 / math.sqrt(2.0) * widened(math.exp(-1 / 5.0))) and h1 == pytest.approx(h)
+    assert s == pytest.approx(0.05 * widened(math.exp(-1 / 5.0)))
+    assert v == pytest.approx(0.8 * widened(math.exp(-1 / 8.0)))
+    assert v1 == pytest.approx(0.8 * widened(math.exp(-1 / 5.0)))
+    assert NavParams().gnss_floor_corr_v_s == 8.0 and NavParams().gnss_floor_corr_s == 5.0
 
 
 def test_fixes_far_apart_are_taken_as_independent():

@@ -88,9 +88,12 @@ class UsualFigure:
 class CorrelatedGnssNoise:
     """Per-fix variances for position (per axis, from hAcc and vAcc) and velocity (from sAcc)."""
 
-    def __init__(self, corr_s: float, independent_hz: float = 1.0, floor_corr_s: float = 0.0) -> None:
+    def __init__(self, corr_s: float, independent_hz: float = 1.0, floor_corr_s: float = 0.0,
+                 floor_corr_v_s: float | None = None) -> None:
         self.corr_s = corr_s
         self.floor_corr_s = floor_corr_s
+        # The vertical's floor error lasts its own time (None: the horizontal's).
+        self.floor_corr_v_s = floor_corr_s if floor_corr_v_s is None else floor_corr_v_s
         self.independent_s = 1.0 / independent_hz if independent_hz > 0.0 else 0.0
         self._floors = (RunningMin(), RunningMin(), RunningMin())
         self._t_last_ns: int | None = None
@@ -110,12 +113,14 @@ class CorrelatedGnssNoise:
         rho = math.exp(-dt / self.corr_s)
         return (1.0 + rho) / (1.0 - rho)
 
-    def floor_factor(self) -> float:
+    def floor_factor(self, corr_s: float | None = None) -> float:
         """How much more slowly the floor's own error (atmosphere, orbits: minutes) averages out than a white one
-        at the receiver's usual interval; 1 when ``floor_corr_s`` is 0 (the floor taken as white)."""
-        if self.floor_corr_s <= 0.0 or self.interval_s <= 0.0 or not 0.0 < self._dt_last < MAX_GAP_S:
+        at the receiver's usual interval, the error lasting ``corr_s`` (the horizontal's ``floor_corr_s`` unless
+        given); 1 when that is 0 (the floor taken as white)."""
+        corr = self.floor_corr_s if corr_s is None else corr_s
+        if corr <= 0.0 or self.interval_s <= 0.0 or not 0.0 < self._dt_last < MAX_GAP_S:
             return 1.0
-        rho = math.exp(-self.interval_s / self.floor_corr_s)
+        rho = math.exp(-self.interval_s / corr)
         return (1.0 + rho) / (1.0 - rho)
 
     def rate_factor(self) -> float:
@@ -135,11 +140,13 @@ class CorrelatedGnssNoise:
         canyon would read as excess over a floor remembered from before it, and be widened again as multipath for
         as long as that floor is remembered.)"""
         c = self.factor(t_ns)
-        r = max(self.rate_factor(), self.floor_factor() if floor_correlated else 1.0)
+        rate = self.rate_factor()
+        r = max(rate, self.floor_factor() if floor_correlated else 1.0)
+        rv = max(rate, self.floor_factor(self.floor_corr_v_s) if floor_correlated else 1.0)
         out = []
-        for value, floor, k in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), strict=True):
+        for value, floor, k, rr in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), (r, rv, r), strict=True):
             low = floor.add(value)
-            out.append(math.sqrt(k * (r * low * low + c * (value * value - low * low))))
+            out.append(math.sqrt(k * (rr * low * low + c * (value * value - low * low))))
         return out[0] / math.sqrt(2.0), out[1], out[2]
 
 
