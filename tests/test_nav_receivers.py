@@ -158,6 +158,28 @@ def test_a_nav_pvt_epoch_some_nanoseconds_off_its_nominal_one_is_on_the_grid():
     assert [k for k in taken if k >= 25] == list(range(25, 500, 5))
 
 
+def test_the_grid_holds_through_epochs_lost_on_the_line():
+    """One epoch in fifty lost (a sentence with a bad checksum): the period is the receiver's still, and every fix
+    taken of a 25 Hz receiver is on the 5 Hz grid, each grid epoch that came taken. With the intervals' mean for the
+    period, three in four taken were off the grid."""
+    thinner = FixThinner(10.0)
+    epochs = [T0 + k * 40_000_000 for k in range(2500) if k % 50 != 7]
+    taken = [e for e in epochs if thinner.take(e)]
+    assert taken[5:] == [e for e in epochs if e % 200_000_000 == 0 and e >= taken[5]]
+
+
+def test_a_receiver_that_slows_down_has_its_fixes_taken_before_its_old_grid_is_forgotten():
+    """25 Hz, then 1 Hz on epochs off the 5 Hz grid: the first slow fix, 80 ms after the last fast one, is left out
+    as a grid would leave it; every one after it is taken (none for two grid spacings), while the last intervals
+    still say 40 ms."""
+    thinner = FixThinner(10.0)
+    for k in range(100):
+        thinner.take(T0 + k * 40_000_000)
+    slow = [T0 + 4 * NS + 40_000_000 + k * NS for k in range(20)]
+    assert [thinner.take(e) for e in slow] == [False] + [True] * 19
+    assert thinner.period_ms == 1000
+
+
 def test_fixes_without_an_epoch_time_are_never_thinned():
     """Placed by their arrival, their spacing jitters (tens of milliseconds) and says little of the rate: taken."""
     thinner = FixThinner(10.0)

@@ -13,7 +13,8 @@ than ``gnss_max_hz`` as if the receiver ran at a lower rate of its own: every ``
 whole seconds, ``step`` the least that brings the rate to ``gnss_max_hz`` (a quarter over it allowed) and divides the
 second's epochs, so that those taken are evenly spaced: at 20 Hz every second (10 Hz), at 25 Hz every fifth (5 Hz).
 The rest are counted as thinned. The grid runs on the receiver's own epoch times (GNSS time, whole milliseconds), not
-on when fixes arrive, and always holds the whole seconds: a post-processed solution is checked against the
+on when fixes arrive, its period the least of the last intervals between them (an epoch lost on the line does not
+move it), and always holds the whole seconds: a post-processed solution is checked against the
 receiver's fixes at the epochs both have (a 1 Hz ``.pos`` at whole seconds, :class:`logger.nav.solution.
 SolutionPolicy`), and a live re-run (:mod:`logger.recording.nav_rerun`) thins the same fixes again. A receiver whose
 second holds no whole number of epochs (a 60 ms period) has every ``step``-th taken by count from each whole second.
@@ -26,42 +27,47 @@ taken, and weighs them at their own spacing.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 from logger.nav.gnss_noise import MAX_GAP_S
 
 NS = 1_000_000_000
 MS = 1_000_000
 RATE_MARGIN = 0.25  # a receiver this much (of gnss_max_hz) faster than it is taken whole: 12.5 Hz at 10
-INTERVAL_GAIN = 0.1  # the usual interval follows each new one by this much (as CorrelatedGnssNoise's)
+PERIODS_KEPT = 8  # the receiver's period is the least of its last this many intervals between epochs
 
 
 class FixThinner:
     """Which fixes of a receiver go into the filter: all at up to ``max_hz`` (and RATE_MARGIN over it), those on a
-    grid of ``step`` epochs through the whole seconds of a faster one, its rate taken from its usual interval
-    between epochs (GNSS time)."""
+    grid of ``step`` epochs through the whole seconds of a faster one. Its period is the least of its last
+    intervals between epochs (GNSS time, to the millisecond): an epoch lost on the line (a sentence with a bad
+    checksum) makes one interval longer, never shorter, so the grid holds through it. (A mean of the intervals, as
+    the noise model keeps, moved off the period at each loss: with one epoch in fifty lost, three in four of a 25 Hz
+    receiver's fixes taken were off the 5 Hz grid.)"""
 
     def __init__(self, max_hz: float) -> None:
         self.max_hz = max_hz
-        self.interval_s = 0.0  # the receiver's usual interval between epochs (0 until two have come)
-        self._last_ns: int | None = None  # the last epoch seen (GNSS time)
+        self._last_ms: int | None = None  # the last epoch seen (GNSS time, ms)
+        self._intervals: deque[int] = deque(maxlen=PERIODS_KEPT)  # the last intervals between epochs, ms
         self._passed = 0  # fixes left out since the last one taken, where the grid does not apply
+        self._taken_ms: int | None = None  # the last epoch taken
 
-    def _per_second(self) -> int | None:
-        """The receiver's epochs in a second where its period is a whole number of nanoseconds dividing the second."""
-        if self.interval_s <= 0.0:
-            return None
-        n = round(1.0 / self.interval_s)
-        return n if n > 0 and abs(1.0 / self.interval_s - n) < 0.01 and NS % n == 0 else None
+    @property
+    def period_ms(self) -> int:
+        """The receiver's period, ms (0 until two epochs have come)."""
+        return min(self._intervals, default=0)
 
     @property
     def step(self) -> int:
-        """One epoch taken of this many: 1 until the receiver shows itself faster than ``max_hz``."""
-        if self.max_hz <= 0.0 or self.interval_s <= 0.0:
+        """One epoch taken of this many: 1 until the receiver shows itself faster than ``max_hz``. Where the
+        period divides the second, a divisor of the second's epochs, so that the grid holds the whole seconds."""
+        period = self.period_ms
+        if self.max_hz <= 0.0 or period <= 0:
             return 1
-        least = max(1, math.ceil(1.0 / (self.interval_s * self.max_hz) - RATE_MARGIN - 1e-6))
-        n = self._per_second()
-        if least == 1 or n is None:
+        least = max(1, math.ceil(1000.0 / (period * self.max_hz) - RATE_MARGIN - 1e-6))
+        if least == 1 or 1000 % period:
             return least
+        n = 1000 // period
         return next(k for k in range(least, n + 1) if n % k == 0)
 
     def take(self, gnss_time_ns: int | None) -> bool:
@@ -69,19 +75,27 @@ class FixThinner:
         millisecond: a u-blox NAV-PVT's epoch lies some nanoseconds off the nominal one (its ``nano``)."""
         if gnss_time_ns is None:
             return True
-        gnss_time_ns = round(gnss_time_ns / MS) * MS
-        last, self._last_ns = self._last_ns, gnss_time_ns
-        dt = None if last is None else (gnss_time_ns - last) / NS
-        if dt is not None and 0.0 < dt < MAX_GAP_S:
-            self.interval_s = dt if self.interval_s == 0.0 else self.interval_s + INTERVAL_GAIN * (dt - self.interval_s)
-        step = self.step
+        t_ms = round(gnss_time_ns / MS)
+        last, self._last_ms = self._last_ms, t_ms
+        dt_ms = None if last is None else t_ms - last
+        gap = dt_ms is None or not 0 < dt_ms < MAX_GAP_S * 1000
+        if not gap:
+            self._intervals.append(dt_ms)
+        if self._decide(t_ms, gap):
+            self._taken_ms = t_ms
+            return True
+        return False
+
+    def _decide(self, t_ms: int, gap: bool) -> bool:
+        step, period = self.step, self.period_ms
         if step == 1:
             return True
-        n = self._per_second()
-        if n is not None:
-            return gnss_time_ns % NS % (step * (NS // n)) == 0
+        if self._taken_ms is None or t_ms - self._taken_ms > 2 * step * period:
+            return True  # none taken for two grid spacings: the receiver slowed down (its grid not yet forgotten)
+        if 1000 % period == 0:
+            return t_ms % 1000 % (step * period) == 0
         # No grid: every step-th by count from each whole second, and the first after a gap.
-        if dt is None or not 0.0 < dt < MAX_GAP_S or gnss_time_ns % NS == 0 or self._passed + 1 >= step:
+        if gap or t_ms % 1000 == 0 or self._passed + 1 >= step:
             self._passed = 0
             return True
         self._passed += 1
