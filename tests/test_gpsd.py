@@ -603,6 +603,9 @@ def _through_gpsd(log: str) -> tuple[dict[int, dict[str, Any]], dict[int, dict[s
         with contextlib.suppress(ProcessLookupError):
             os.killpg(fake.pid, signal.SIGKILL)
         fake.wait()
+        # Killed, gpsfake never removes its gpsd's control socket (gps/fake.py names it by gpsfake's pid): one
+        # file a capture a run, 204 of them found in /tmp.
+        Path(os.environ.get("TMPDIR", "/tmp"), f"gpsfake-{fake.pid}.sock").unlink(missing_ok=True)
     records: dict[int, dict[str, Any]] = {}
     for r in got:
         ts = r.payload["timestamp"]
