@@ -277,6 +277,50 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path):
                                "'accel_mps2')\n"), r.stderr
 
 
+def test_a_failure_of_the_filter_on_the_loggers_own_records_is_not_taken_for_a_foreign_file(recorded: Path,
+                                                                                             monkeypatch):
+    """A message the feeding raised on is skipped and counted as "not the logger's records" only when it is not
+    one: the recorded drive's own records, on which the filter itself raises (numpy's LinAlgError is a
+    ValueError, the exception a foreign message's wrong field raises too), stop the replay with the filter named.
+    Before, the drive's 70 barometer readings were "skipped: not the logger's records (Singular matrix)"."""
+    from logger.exports.trajectory import FilterFailed, run_filter
+    from logger.nav.engine import NavEngine
+
+    files = sorted(recorded.glob("*.mcap"))
+
+    def singular(self: NavEngine, t_ns: int, altitude_m: float) -> None:
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(NavEngine, "baro", singular)
+    skipped: list[str] = []
+    with pytest.raises(FilterFailed, match=r"failed on a well-formed /baro record .*LinAlgError: Singular matrix"):
+        run_filter(files, NavParams(), skipped=skipped)
+    assert skipped == []
+
+
+def test_what_is_wrong_with_a_message_that_is_not_a_record_of_its_topic(recorded: Path):
+    """record_fault finds nothing wrong with any record the daemon wrote, and names the field of one that is not
+    the logger's."""
+    from logger.recording.drive import read_messages
+    from logger.recording.records import NAV_INPUT_TOPICS, record_fault
+
+    seen: dict[str, dict] = {}
+    for topic, msg in read_messages(sorted(recorded.glob("*.mcap")), (*NAV_INPUT_TOPICS, "/imu/batch")):
+        assert record_fault(topic, msg) is None, (topic, msg)
+        seen.setdefault(topic, msg)
+    assert {"/imu/batch", "/gnss/fix", "/obd/speed", "/baro"} <= set(seen)
+    batch = dict(seen["/imu/batch"], accel_y_mps2=seen["/imu/batch"]["accel_y_mps2"][:-1])
+    assert record_fault("/imu/batch", batch).startswith("accel_y_mps2 holds ")
+    assert record_fault("/imu/batch", {"a": 1}) == "t_sync_ns is not a list of numbers"
+    assert record_fault("/imu", {"a": 1}) == "t_sync_ns is not an integer"
+    assert record_fault("/imu", {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0], "gyro_rps": [0, 0, 0]}) \
+        == "accel_mps2 is not three numbers"
+    assert record_fault("/gnss/fix", dict(seen["/gnss/fix"], latitude="52.1")) == "latitude is not a number"
+    assert record_fault("/gnss/fix", dict(seen["/gnss/fix"], vel_ned_mps=[1.0, 2.0, None])) is None
+    assert record_fault("/obd/speed", dict(seen["/obd/speed"], speed_mps=None)) == "speed_mps is not a number"
+    assert record_fault("/baro", [1, 2]) == "not an object"
+
+
 def test_replay_takes_the_drive_folder_and_a_file_cut_short(recorded: Path, tmp_path: Path):
     """The daemon's --out folder stands for its files (what a user has at hand after a drive); a drive cut short by
     a power loss is replayed up to the cut without `logger recover` first, as export and plot read it."""

@@ -41,6 +41,7 @@ from logger.recording.records import (
     nav_fix_record,
     nav_state_record,
     next_whole_second,
+    record_fault,
 )
 from logger.recording.topics import IMU, IMU_BATCH, NAV_FIX, NAV_STATE, TOPICS
 from logger.words import plural
@@ -160,6 +161,17 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
                      f"{r.climb_se_deg:.2f} deg over {r.moving_s:.0f} s at speed with fixes")
 
 
+class FilterFailed(RuntimeError):
+    """The filter raised on records that are the logger's own and well-formed (:func:`record_fault` finds nothing
+    wrong with them): a defect of the filter, not of the file, so not skipped as a foreign file's messages are."""
+
+    def __init__(self, topic: str, msg: dict[str, Any], exc: Exception) -> None:
+        t = msg.get("t_sync_ns")
+        t = t[0] if isinstance(t, list) and t else t
+        super().__init__(f"the filter failed on a well-formed {topic} record (t_sync_ns {t}): {type(exc).__name__}: "
+                         f"{exc}; a defect of the logger, not of the file: please report it with the file")
+
+
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
               progress: ProgressFn | None, solution: Sequence[SolutionEpoch],
               solution_replaces: bool, notes: list[str] | None = None,
@@ -196,7 +208,9 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
     # fields): skipped and counted per topic, with what was wrong with the first, instead of a traceback.
     foreign: dict[str, tuple[int, str]] = {}
 
-    def skip(topic: str, exc: Exception) -> None:
+    def skip(topic: str, exc: Exception, msgs: Sequence[Any]) -> None:
+        if all(record_fault(topic, m) is None for m in msgs):  # the logger's own records: the filter failed
+            raise FilterFailed(topic, msgs[-1], exc) from exc
         n, why = foreign.get(topic, (0, f"no field {exc}" if isinstance(exc, KeyError) else str(exc)))
         foreign[topic] = (n + 1, why)
 
@@ -205,7 +219,7 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
             try:
                 rerun.feed_reads(run)
             except (KeyError, TypeError, ValueError, IndexError) as exc:
-                skip(IMU_BATCH, exc)
+                skip(IMU_BATCH, exc, run)
             else:
                 note_state(IMU_BATCH, run[-1])
             run.clear()
@@ -220,7 +234,7 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
             if topic in (IMU, IMU_BATCH):
                 note_state(topic, msg)
         except (KeyError, TypeError, ValueError, IndexError) as exc:
-            skip(topic, exc)
+            skip(topic, exc, (msg,))
     feed_run()
     if notes is not None and rerun.note():
         notes.append(rerun.note())

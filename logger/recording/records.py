@@ -290,6 +290,60 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
 
 _ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
 _GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
+# A fix's fields that are numbers where present (gnss_observation passes them on as they are).
+_FIX_NUMBERS = ("gnss_time_ns", "fix_mode", "latitude", "longitude", "altitude", "h_acc_m", "v_acc_m", "s_acc_mps",
+                "pdop", "num_sv", "hdop", "vdop", "opened_mono_ns")
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def record_fault(topic: str, msg: Any) -> str | None:
+    """What keeps ``msg`` from being a ``topic`` record the filter can take (the field and what is wrong with it), or
+    None when it is one.
+
+    Asked only after feeding a message raised: a foreign file's messages (another tool's /imu of other fields) are
+    skipped and counted, but a message that is a well-formed record and still raised met a failure of the filter
+    (numpy's LinAlgError is a ValueError), which must not be reported as the file's."""
+    if not isinstance(msg, dict):
+        return "not an object"
+    if topic == IMU_BATCH:
+        n = None
+        for key in ("t_sync_ns", "t_mono_ns", *_ACC, *_GYRO):
+            col = msg.get(key)
+            if not isinstance(col, list) or not all(_number(v) for v in col):
+                return f"{key} is not a list of numbers"
+            if n is not None and len(col) != n:
+                return f"{key} holds {len(col)} values, t_sync_ns {n}"
+            n = len(col)
+        return None if msg.get("temp_degc") is None or _number(msg["temp_degc"]) else "temp_degc is not a number"
+    if topic not in NAV_INPUT_KEYS:
+        return None
+    for key in ("t_sync_ns", "t_mono_ns") if topic in (IMU, GNSS_FIX) else ("t_sync_ns",):
+        if not isinstance(msg.get(key), (int, np.integer)) or isinstance(msg[key], bool):
+            return f"{key} is not an integer"
+    if topic == IMU:
+        for key in ("accel_mps2", "gyro_rps"):
+            v = msg.get(key)
+            if not isinstance(v, list) or len(v) != 3 or not all(_number(x) for x in v):
+                return f"{key} is not three numbers"
+        return None if msg.get("temp_degc") is None or _number(msg["temp_degc"]) else "temp_degc is not a number"
+    if topic == OBD_SPEED:
+        return None if _number(msg.get("speed_mps")) else "speed_mps is not a number"
+    if topic == BARO:
+        return None if _number(msg.get("altitude_m")) else "altitude_m is not a number"
+    if topic == GNSS_FIX:
+        for key in _FIX_NUMBERS:
+            if msg.get(key) is not None and not _number(msg[key]):
+                return f"{key} is not a number"
+        vel = msg.get("vel_ned_mps")
+        if vel is not None and (not isinstance(vel, list) or len(vel) != 3
+                                or not all(v is None or _number(v) for v in vel)):
+            return "vel_ned_mps is not three numbers (or nulls)"
+        if not isinstance(msg.get("sync_state", ""), str):
+            return "sync_state is not a string"
+    return None
 
 
 def unplaced(m: dict[str, Any]) -> bool:
