@@ -312,6 +312,7 @@ def test_what_is_wrong_with_a_message_that_is_not_a_record_of_its_topic(recorded
     batch = dict(seen["/imu/batch"], accel_y_mps2=seen["/imu/batch"]["accel_y_mps2"][:-1])
     assert record_fault("/imu/batch", batch).startswith("accel_y_mps2 holds ")
     assert record_fault("/imu/batch", {"a": 1}) == "t_sync_ns is not a list of numbers"
+    assert record_fault("/imu/batch", dict(seen["/imu/batch"], period_s="0.05")) == "period_s is not a number"
     assert record_fault("/imu", {"a": 1}) == "t_sync_ns is not an integer"
     assert record_fault("/imu", {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0], "gyro_rps": [0, 0, 0]}) \
         == "accel_mps2 is not three numbers"

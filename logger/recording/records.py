@@ -317,7 +317,10 @@ def record_fault(topic: str, msg: Any) -> str | None:
             if n is not None and len(col) != n:
                 return f"{key} holds {len(col)} values, t_sync_ns {n}"
             n = len(col)
-        return None if msg.get("temp_degc") is None or _number(msg["temp_degc"]) else "temp_degc is not a number"
+        for key in ("temp_degc", "period_s", "lost"):  # the last two: what follows_on reads
+            if msg.get(key) is not None and not _number(msg[key]):
+                return f"{key} is not a number"
+        return None
     if topic not in NAV_INPUT_KEYS:
         return None
     for key in ("t_sync_ns", "t_mono_ns") if topic in (IMU, GNSS_FIX) else ("t_sync_ns",):
