@@ -218,8 +218,19 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
         if run:
             try:
                 rerun.feed_reads(run)
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
-                skip(IMU_BATCH, exc, run)
+            except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
+                if len(run) == 1:
+                    skip(IMU_BATCH, exc, run)
+                elif all(record_fault(IMU_BATCH, m) is None for m in run):
+                    raise FilterFailed(IMU_BATCH, run[-1], exc) from exc
+                else:  # nothing of it was taken (feed_reads checks first): its reads again one by one
+                    for m in run:
+                        try:
+                            rerun.feed_reads([m])
+                        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as one:
+                            skip(IMU_BATCH, one, [m])
+                        else:
+                            note_state(IMU_BATCH, m)
             else:
                 note_state(IMU_BATCH, run[-1])
             run.clear()
@@ -233,7 +244,7 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
             rerun.feed(topic, msg)
             if topic in (IMU, IMU_BATCH):
                 note_state(topic, msg)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             skip(topic, exc, (msg,))
     feed_run()
     if notes is not None and rerun.note():

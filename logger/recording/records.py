@@ -236,7 +236,12 @@ def observe_clock(clock: StampClock, topic: str, payload: dict[str, Any], t_mono
 
 # ---- records to the navigation filter -------------------------------------------------------------------------
 def gnss_observation(msg: dict[str, Any]) -> GnssObservation:
-    """A ``/gnss/fix`` record as the filter's input: optional fields stay None, nothing is made up."""
+    """A ``/gnss/fix`` record as the filter's input: optional fields stay None, nothing is made up. A number that is
+    not one (NaN, infinite) or a position off the globe is refused (ValueError): no receiver reports it, and the
+    filter would take it in."""
+    fault = _fix_numbers_fault(msg)
+    if fault is not None:
+        raise ValueError(fault)
     vel = msg.get("vel_ned_mps")
     return GnssObservation(
         t_sync_ns=int(msg["t_sync_ns"]), t_mono_ns=int(msg["t_mono_ns"]), gnss_time_ns=msg.get("gnss_time_ns"),
@@ -268,7 +273,10 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
 
     def imu(m: dict[str, Any]) -> None:
         a, g = m["accel_mps2"], m["gyro_rps"]
-        engine.imu(m["t_sync_ns"], m["t_mono_ns"], (a[0], a[1], a[2]), (g[0], g[1], g[2]), m.get("temp_degc"))
+        acc, rate = (a[0], a[1], a[2]), (g[0], g[1], g[2])
+        if not all(abs(v) <= SAMPLE_LIMIT for v in acc + rate):  # NaN fails too
+            raise ValueError("a sample's acceleration or rate is not a number a sensor gives")
+        engine.imu(m["t_sync_ns"], m["t_mono_ns"], acc, rate, m.get("temp_degc"))
 
     def imu_batch(m: dict[str, Any]) -> None:
         feed_reads(engine, (m,))
@@ -277,10 +285,10 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
         engine.gnss(gnss_observation(m))
 
     def obd(m: dict[str, Any]) -> None:
-        engine.obd(m["t_sync_ns"], float(m["speed_mps"]))
+        engine.obd(m["t_sync_ns"], _finite(m["speed_mps"], "speed_mps"))
 
     def baro(m: dict[str, Any]) -> None:
-        engine.baro(m["t_sync_ns"], float(m["altitude_m"]))
+        engine.baro(m["t_sync_ns"], _finite(m["altitude_m"], "altitude_m"))
 
     def pps(m: dict[str, Any]) -> None:
         engine.pps(m["t_sync_ns"])
@@ -291,12 +299,54 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
 _ACC = ("accel_x_mps2", "accel_y_mps2", "accel_z_mps2")
 _GYRO = ("gyro_x_rps", "gyro_y_rps", "gyro_z_rps")
 # A fix's fields that are numbers where present (gnss_observation passes them on as they are).
-_FIX_NUMBERS = ("gnss_time_ns", "fix_mode", "latitude", "longitude", "altitude", "h_acc_m", "v_acc_m", "s_acc_mps",
-                "pdop", "num_sv", "hdop", "vdop", "opened_mono_ns")
+_FIX_NUMBERS = ("fix_mode", "latitude", "longitude", "altitude", "h_acc_m", "v_acc_m", "s_acc_mps", "pdop", "num_sv",
+                "hdop", "vdop")
+_FIX_TIMES = ("gnss_time_ns", "opened_mono_ns")
+GNSS_EPOCH_SPAN_NS = (315_964_800_000_000_000, 7_258_118_400_000_000_000)  # 1980-01-06 (GPS time's start) to 2200
+TIME_LIMIT_NS = 2**62  # a board or Unix time in ns is well within this
+# No MEMS IMU reports more (the MPU-6050 at most 16 g and 2000 deg/s: 157 m/s^2, 35 rad/s): a value beyond it is not
+# a sample, and the filter's squares of it overflow.
+SAMPLE_LIMIT = 1.0e4
 
 
 def _number(v: Any) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    """A finite number (JSON's Infinity and NaN are not measurements; a bool is not a number here)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _time(v: Any) -> bool:
+    """A time in integer nanoseconds, as the logger writes them."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and abs(v) < TIME_LIMIT_NS
+
+
+def _finite(v: Any, name: str) -> float:
+    """``v`` as a float, or ValueError naming ``name`` where it is not a finite number."""
+    x = float(v)
+    if not math.isfinite(x):
+        raise ValueError(f"{name} is not a finite number")
+    return x
+
+
+def _fix_numbers_fault(msg: dict[str, Any]) -> str | None:
+    """What is wrong with the numbers of a ``/gnss/fix`` record (finite, on the globe, times in ns), or None."""
+    for key in _FIX_NUMBERS:
+        if msg.get(key) is not None and not _number(msg[key]):
+            return f"{key} is not a number"
+    for key in _FIX_TIMES:
+        if msg.get(key) is not None and not _time(msg[key]):
+            return f"{key} is not a time in integer nanoseconds"
+    t = msg.get("gnss_time_ns")
+    if t is not None and not GNSS_EPOCH_SPAN_NS[0] <= t <= GNSS_EPOCH_SPAN_NS[1]:
+        return "gnss_time_ns is not a time between 1980 and 2200"
+    if msg.get("latitude") is not None and abs(msg["latitude"]) > 90.0:
+        return "latitude is off the globe"
+    if msg.get("longitude") is not None and abs(msg["longitude"]) > 180.0:
+        return "longitude is off the globe"
+    vel = msg.get("vel_ned_mps")
+    if vel is not None and (not isinstance(vel, list) or len(vel) != 3
+                            or not all(v is None or _number(v) for v in vel)):
+        return "vel_ned_mps is not three numbers (or nulls)"
+    return None
 
 
 def record_fault(topic: str, msg: Any) -> str | None:
@@ -312,8 +362,12 @@ def record_fault(topic: str, msg: Any) -> str | None:
         n = None
         for key in ("t_sync_ns", "t_mono_ns", *_ACC, *_GYRO):
             col = msg.get(key)
-            if not isinstance(col, list) or not all(_number(v) for v in col):
-                return f"{key} is not a list of numbers"
+            times = key in ("t_sync_ns", "t_mono_ns")
+            if not isinstance(col, list) or not col:
+                return f"{key} is not a list of samples"
+            if not all(_time(v) if times else _number(v) and abs(v) <= SAMPLE_LIMIT for v in col):
+                return f"{key} holds " + ("a time that is not in integer nanoseconds" if times else
+                                           "a value that is not a number a sensor gives")
             if n is not None and len(col) != n:
                 return f"{key} holds {len(col)} values, t_sync_ns {n}"
             n = len(col)
@@ -324,26 +378,22 @@ def record_fault(topic: str, msg: Any) -> str | None:
     if topic not in NAV_INPUT_KEYS:
         return None
     for key in ("t_sync_ns", "t_mono_ns") if topic in (IMU, GNSS_FIX) else ("t_sync_ns",):
-        if not isinstance(msg.get(key), (int, np.integer)) or isinstance(msg[key], bool):
-            return f"{key} is not an integer"
+        if not _time(msg.get(key)):
+            return f"{key} is not a time in integer nanoseconds"
     if topic == IMU:
         for key in ("accel_mps2", "gyro_rps"):
             v = msg.get(key)
-            if not isinstance(v, list) or len(v) != 3 or not all(_number(x) for x in v):
-                return f"{key} is not three numbers"
+            if not isinstance(v, list) or len(v) != 3 or not all(_number(x) and abs(x) <= SAMPLE_LIMIT for x in v):
+                return f"{key} is not three numbers a sensor gives"
         return None if msg.get("temp_degc") is None or _number(msg["temp_degc"]) else "temp_degc is not a number"
     if topic == OBD_SPEED:
         return None if _number(msg.get("speed_mps")) else "speed_mps is not a number"
     if topic == BARO:
         return None if _number(msg.get("altitude_m")) else "altitude_m is not a number"
     if topic == GNSS_FIX:
-        for key in _FIX_NUMBERS:
-            if msg.get(key) is not None and not _number(msg[key]):
-                return f"{key} is not a number"
-        vel = msg.get("vel_ned_mps")
-        if vel is not None and (not isinstance(vel, list) or len(vel) != 3
-                                or not all(v is None or _number(v) for v in vel)):
-            return "vel_ned_mps is not three numbers (or nulls)"
+        fault = _fix_numbers_fault(msg)
+        if fault is not None:
+            return fault
         if not isinstance(msg.get("sync_state", ""), str):
             return "sync_state is not a string"
     return None
@@ -392,8 +442,17 @@ def feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
         if any(c != temp for c in temps):
             temp = np.repeat(np.array([math.nan if c is None else c for c in temps], dtype=float),
                              [len(r["t_sync_ns"]) for r in ms])
-    engine.imu_batch(column("t_sync_ns"), column("t_mono_ns"), np.array([column(k) for k in _ACC], dtype=float).T,
-                     np.array([column(k) for k in _GYRO], dtype=float).T, temp)
+    # Checked before the filter takes any of it (a run that fails is then fed again read by read, the bad one left
+    # out): times in integer ns, one per sample; values a sensor gives (NaN and Infinity fail).
+    t_sync, t_mono = np.asarray(column("t_sync_ns")), np.asarray(column("t_mono_ns"))
+    if not (t_sync.ndim == 1 and len(t_sync) and t_sync.shape == t_mono.shape and t_sync.dtype.kind == "i"
+            and t_mono.dtype.kind == "i"):
+        raise ValueError("a FIFO read's times are not integer nanoseconds, one a sample")
+    acc = np.array([column(k) for k in _ACC], dtype=float).T
+    rate = np.array([column(k) for k in _GYRO], dtype=float).T
+    if not ((np.abs(acc) <= SAMPLE_LIMIT).all() and (np.abs(rate) <= SAMPLE_LIMIT).all()):  # NaN fails too
+        raise ValueError("a sample's acceleration or rate is not a number a sensor gives")
+    engine.imu_batch(t_sync, t_mono, acc, rate, temp)
 
 
 def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:
