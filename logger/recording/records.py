@@ -445,7 +445,9 @@ def feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
     # Checked before the filter takes any of it (a run that fails is then fed again read by read, the bad one left
     # out): times in integer ns, one per sample; values a sensor gives (NaN and Infinity fail).
     t_sync, t_mono = np.asarray(column("t_sync_ns")), np.asarray(column("t_mono_ns"))
-    if not (t_sync.ndim == 1 and len(t_sync) and t_sync.shape == t_mono.shape and t_sync.dtype.kind == "i"
+    if not t_sync.size:
+        raise ValueError("a FIFO read without samples")
+    if not (t_sync.ndim == 1 and t_sync.shape == t_mono.shape and t_sync.dtype.kind == "i"
             and t_mono.dtype.kind == "i"):
         raise ValueError("a FIFO read's times are not integer nanoseconds, one a sample")
     acc = np.array([column(k) for k in _ACC], dtype=float).T
