@@ -161,6 +161,12 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
                      f"{r.climb_se_deg:.2f} deg over {r.moving_s:.0f} s at speed with fixes")
 
 
+# What feeding a message raises when it is not a record of its topic (a missing field, a value of another type, a
+# number JSON holds and a float does not), and what the filter raises when it fails (numpy's LinAlgError is a
+# ValueError): record_fault tells which.
+_FEEDING_FAILED = (KeyError, TypeError, ValueError, IndexError, OverflowError)
+
+
 class FilterFailed(RuntimeError):
     """The filter raised on records that are the logger's own and well-formed (:func:`record_fault` finds nothing
     wrong with them): a defect of the filter, not of the file, so not skipped as a foreign file's messages are."""
@@ -218,16 +224,16 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
         if run:
             try:
                 rerun.feed_reads(run)
-            except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
+            except _FEEDING_FAILED as exc:
                 if len(run) == 1:
                     skip(IMU_BATCH, exc, run)
                 elif all(record_fault(IMU_BATCH, m) is None for m in run):
                     raise FilterFailed(IMU_BATCH, run[-1], exc) from exc
-                else:  # nothing of it was taken (feed_reads checks first): its reads again one by one
+                else:  # feed_reads checks its reads before the filter takes any: again one by one
                     for m in run:
                         try:
                             rerun.feed_reads([m])
-                        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as one:
+                        except _FEEDING_FAILED as one:
                             skip(IMU_BATCH, one, [m])
                         else:
                             note_state(IMU_BATCH, m)
@@ -244,7 +250,7 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
             rerun.feed(topic, msg)
             if topic in (IMU, IMU_BATCH):
                 note_state(topic, msg)
-        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
+        except _FEEDING_FAILED as exc:
             skip(topic, exc, (msg,))
     feed_run()
     if notes is not None and rerun.note():
