@@ -162,8 +162,8 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
 
 
 # What feeding a message raises when it is not a record of its topic (a missing field, a value of another type, a
-# number JSON holds and a float does not), and what the filter raises when it fails (numpy's LinAlgError is a
-# ValueError): record_fault tells which.
+# number JSON holds and a float does not), and what the filter raises when it fails (math's domain errors; numpy
+# 2's LinAlgError is a ValueError, 1.24's on Debian 12 is not and goes through): record_fault tells which.
 _FEEDING_FAILED = (KeyError, TypeError, ValueError, IndexError, OverflowError)
 
 

@@ -355,7 +355,7 @@ def record_fault(topic: str, msg: Any) -> str | None:
 
     Asked only after feeding a message raised: a foreign file's messages (another tool's /imu of other fields) are
     skipped and counted, but a message that is a well-formed record and still raised met a failure of the filter
-    (numpy's LinAlgError is a ValueError), which must not be reported as the file's."""
+    (a math domain error is a ValueError, as numpy 2's LinAlgError is), which must not be reported as the file's."""
     if not isinstance(msg, dict):
         return "not an object"
     if topic == IMU_BATCH:
