@@ -162,9 +162,9 @@ def _boresight(paths: list[Path], params: NavParams, rpy: tuple[float, ...], sol
 
 
 # What feeding a message raises when it is not a record of its topic (a missing field, a value of another type, a
-# number JSON holds and a float does not), and what the filter raises when it fails (math's domain errors; numpy
-# 2's LinAlgError is a ValueError, 1.24's on Debian 12 is not and goes through): record_fault tells which.
-_FEEDING_FAILED = (KeyError, TypeError, ValueError, IndexError, OverflowError)
+# number JSON holds and a float does not), and what the filter raises when it fails (math's domain errors, numpy's
+# LinAlgError: a ValueError in numpy 2, not in Debian 12's 1.24, named for it): record_fault tells which.
+_FEEDING_FAILED = (KeyError, TypeError, ValueError, IndexError, OverflowError, np.linalg.LinAlgError)
 
 
 class FilterFailed(RuntimeError):
