@@ -180,6 +180,18 @@ def test_a_receiver_that_slows_down_has_its_fixes_taken_before_its_old_grid_is_f
     assert thinner.period_ms == 1000
 
 
+def test_a_receiver_whose_period_does_not_divide_the_second_has_every_step_th_fix_taken():
+    """A 60 ms period (16.7 Hz; no receiver rate the logger sets, one set up by hand) has no grid through the whole
+    seconds: every second fix by count. After a hole in the epochs the first fix is taken (none for two spacings),
+    and the count starts again from it (and from the whole second at 3 s): before, the count went on from before the
+    hole, and the fix after the first was taken too."""
+    thinner = FixThinner(10.0)
+    epochs = [k * 60 for k in range(40)] + [39 * 60 + 300 + k * 60 for k in range(1, 12)]
+    taken = [t for t in epochs if thinner.take(T0 + t * 1_000_000)]
+    assert (thinner.step, thinner.period_ms) == (2, 60)
+    assert taken == list(range(0, 2340, 120)) + [2700, 2820, 2940, 3000, 3120, 3240]
+
+
 def test_fixes_without_an_epoch_time_are_never_thinned():
     """Placed by their arrival, their spacing jitters (tens of milliseconds) and says little of the rate: taken."""
     thinner = FixThinner(10.0)

@@ -49,7 +49,7 @@ class FixThinner:
         self.max_hz = max_hz
         self._last_ms: int | None = None  # the last epoch seen (GNSS time, ms)
         self._intervals: deque[int] = deque(maxlen=PERIODS_KEPT)  # the last intervals between epochs, ms
-        self._passed = 0  # fixes left out since the last one taken, where the grid does not apply
+        self._passed = 0  # fixes left out since the last one taken (what the count goes by where there is no grid)
         self._taken_ms: int | None = None  # the last epoch taken
 
     @property
@@ -82,8 +82,9 @@ class FixThinner:
         if not gap:
             self._intervals.append(dt_ms)
         if self._decide(t_ms, gap):
-            self._taken_ms = t_ms
+            self._taken_ms, self._passed = t_ms, 0
             return True
+        self._passed += 1
         return False
 
     def _decide(self, t_ms: int, gap: bool) -> bool:
@@ -95,8 +96,4 @@ class FixThinner:
         if 1000 % period == 0:
             return t_ms % 1000 % (step * period) == 0
         # No grid: every step-th by count from each whole second, and the first after a gap.
-        if gap or t_ms % 1000 == 0 or self._passed + 1 >= step:
-            self._passed = 0
-            return True
-        self._passed += 1
-        return False
+        return gap or t_ms % 1000 == 0 or self._passed + 1 >= step
