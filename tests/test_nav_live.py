@@ -413,8 +413,13 @@ def test_what_is_wrong_with_a_message_that_is_not_a_record_of_its_topic(recorded
         seen.setdefault(topic, msg)
     assert {"/imu/batch", "/gnss/fix", "/obd/speed", "/baro"} <= set(seen)
     batch = dict(seen["/imu/batch"], accel_y_mps2=seen["/imu/batch"]["accel_y_mps2"][:-1])
-    assert record_fault("/imu/batch", batch).startswith("accel_y_mps2 holds ")
-    assert record_fault("/imu/batch", {"a": 1}) == "t_sync_ns is not a list of samples"
+    assert record_fault("/imu/batch", batch) == "a FIFO read's columns hold different numbers of samples"
+    assert record_fault("/imu/batch", {"a": 1}) == "no field 't_sync_ns'"
+    floats = dict(seen["/imu/batch"], t_mono_ns=[float(t) for t in seen["/imu/batch"]["t_mono_ns"]])
+    assert record_fault("/imu/batch", floats) == "a FIFO read's times are not integer nanoseconds"
+    nan = dict(seen["/imu/batch"], gyro_z_rps=[math.nan] * len(seen["/imu/batch"]["gyro_z_rps"]))
+    assert record_fault("/imu/batch", nan) == "a sample's acceleration or rate is not a number a sensor gives"
+    assert record_fault("/imu/batch", dict(seen["/imu/batch"], t_sync_ns=[])) == "a FIFO read without samples"
     assert record_fault("/imu/batch", dict(seen["/imu/batch"], period_s="0.05")) == "period_s is not a number"
     assert record_fault("/imu", {"a": 1}) == "t_sync_ns is not a time in integer nanoseconds"
     assert record_fault("/imu", {"t_sync_ns": 1, "t_mono_ns": 1, "accel_mps2": [0, 0], "gyro_rps": [0, 0, 0]}) \

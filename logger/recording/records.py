@@ -274,8 +274,8 @@ def nav_feeder(engine: NavEngine) -> dict[str, RecordInput]:
     def imu(m: dict[str, Any]) -> None:
         a, g = m["accel_mps2"], m["gyro_rps"]
         acc, rate = (a[0], a[1], a[2]), (g[0], g[1], g[2])
-        if not all(abs(v) <= SAMPLE_LIMIT for v in acc + rate):  # NaN fails too
-            raise ValueError("a sample's acceleration or rate is not a number a sensor gives")
+        if not all(_sample(v) for v in acc + rate):
+            raise ValueError(SAMPLE_FAULT)
         engine.imu(m["t_sync_ns"], m["t_mono_ns"], acc, rate, m.get("temp_degc"))
 
     def imu_batch(m: dict[str, Any]) -> None:
@@ -307,11 +307,17 @@ TIME_LIMIT_NS = 2**62  # a board or Unix time in ns is well within this
 # No MEMS IMU reports more (the MPU-6050 at most 16 g and 2000 deg/s: 157 m/s^2, 35 rad/s): a value beyond it is not
 # a sample, and the filter's squares of it overflow.
 SAMPLE_LIMIT = 1.0e4
+SAMPLE_FAULT = "a sample's acceleration or rate is not a number a sensor gives"
 
 
 def _number(v: Any) -> bool:
     """A finite number (JSON's Infinity and NaN are not measurements; a bool is not a number here)."""
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _sample(v: Any) -> bool:
+    """An acceleration (m/s^2) or rate (rad/s) a sensor gives."""
+    return _number(v) and abs(v) <= SAMPLE_LIMIT
 
 
 def _time(v: Any) -> bool:
@@ -359,18 +365,12 @@ def record_fault(topic: str, msg: Any) -> str | None:
     if not isinstance(msg, dict):
         return "not an object"
     if topic == IMU_BATCH:
-        n = None
-        for key in ("t_sync_ns", "t_mono_ns", *_ACC, *_GYRO):
-            col = msg.get(key)
-            times = key in ("t_sync_ns", "t_mono_ns")
-            if not isinstance(col, list) or not col:
-                return f"{key} is not a list of samples"
-            if not all(_time(v) if times else _number(v) and abs(v) <= SAMPLE_LIMIT for v in col):
-                return f"{key} holds " + ("a time that is not in integer nanoseconds" if times else
-                                           "a value that is not a number a sensor gives")
-            if n is not None and len(col) != n:
-                return f"{key} holds {len(col)} values, t_sync_ns {n}"
-            n = len(col)
+        try:
+            read_columns((msg,))
+        except KeyError as exc:
+            return f"no field {exc}"
+        except (TypeError, ValueError) as exc:
+            return str(exc)
         for key in ("temp_degc", "period_s", "lost"):  # the last two: what follows_on reads
             if msg.get(key) is not None and not _number(msg[key]):
                 return f"{key} is not a number"
@@ -383,7 +383,7 @@ def record_fault(topic: str, msg: Any) -> str | None:
     if topic == IMU:
         for key in ("accel_mps2", "gyro_rps"):
             v = msg.get(key)
-            if not isinstance(v, list) or len(v) != 3 or not all(_number(x) and abs(x) <= SAMPLE_LIMIT for x in v):
+            if not isinstance(v, list) or len(v) != 3 or not all(_sample(x) for x in v):
                 return f"{key} is not three numbers a sensor gives"
         return None if msg.get("temp_degc") is None or _number(msg["temp_degc"]) else "temp_degc is not a number"
     if topic == OBD_SPEED:
@@ -427,34 +427,44 @@ def feed_reads(engine: NavEngine, ms: Sequence[dict[str, Any]]) -> None:
     the last one's) through one :meth:`NavEngine.imu_batch` call: their columns end to end, a block long enough for
     the engine's block forms where each FIFO read alone is shorter. The die temperature goes one per read (one per
     sample where the reads' differ), so the engine gives what it gives fed the reads one by one (to round-off);
-    which reads may go together is the caller's to judge."""
+    which reads may go together is the caller's to judge. Columns that are not a FIFO read's raise ValueError before
+    the filter takes any of them (:func:`read_columns`)."""
+    t_sync, t_mono, acc, rate = read_columns(ms)
+    temp: float | np.ndarray | None = ms[0].get("temp_degc")
+    if len(ms) > 1:
+        temps = [r.get("temp_degc") for r in ms]
+        if any(c != temp for c in temps):
+            temp = np.repeat(np.array([math.nan if c is None else c for c in temps], dtype=float),
+                             [len(r["t_sync_ns"]) for r in ms])
+    engine.imu_batch(t_sync, t_mono, acc, rate, temp)
+
+
+def read_columns(ms: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The times (board and synchronised, int64) and the acceleration and rate (n x 3) of one or more ``/imu/batch``
+    records, end to end; ValueError naming what is not a FIFO read's: no samples, columns of other lengths, times
+    that are not integer nanoseconds, a value no sensor gives (NaN and Infinity among them; the filter's squares of
+    1e300 overflow). The one rule of what the filter takes of a FIFO read, for :func:`feed_reads` and
+    :func:`record_fault`."""
     if len(ms) == 1:
         m = ms[0]
 
         def column(key: str) -> list[Any]:
             return m[key]
-        temp: float | np.ndarray | None = m.get("temp_degc")
     else:
         def column(key: str) -> list[Any]:
             return list(chain.from_iterable(r[key] for r in ms))
-        temps = [r.get("temp_degc") for r in ms]
-        temp = temps[0]
-        if any(c != temp for c in temps):
-            temp = np.repeat(np.array([math.nan if c is None else c for c in temps], dtype=float),
-                             [len(r["t_sync_ns"]) for r in ms])
-    # Checked before the filter takes any of it (a run that fails is then fed again read by read, the bad one left
-    # out): times in integer ns, one per sample; values a sensor gives (NaN and Infinity fail).
     t_sync, t_mono = np.asarray(column("t_sync_ns")), np.asarray(column("t_mono_ns"))
+    values = [column(k) for k in (*_ACC, *_GYRO)]
     if not t_sync.size:
         raise ValueError("a FIFO read without samples")
-    if not (t_sync.ndim == 1 and t_sync.shape == t_mono.shape and t_sync.dtype.kind == "i"
-            and t_mono.dtype.kind == "i"):
-        raise ValueError("a FIFO read's times are not integer nanoseconds, one a sample")
-    acc = np.array([column(k) for k in _ACC], dtype=float).T
-    rate = np.array([column(k) for k in _GYRO], dtype=float).T
-    if not ((np.abs(acc) <= SAMPLE_LIMIT).all() and (np.abs(rate) <= SAMPLE_LIMIT).all()):  # NaN fails too
-        raise ValueError("a sample's acceleration or rate is not a number a sensor gives")
-    engine.imu_batch(t_sync, t_mono, acc, rate, temp)
+    if t_sync.ndim != 1 or any(len(c) != len(t_sync) for c in (t_mono, *values)):
+        raise ValueError("a FIFO read's columns hold different numbers of samples")
+    if t_sync.dtype.kind != "i" or t_mono.dtype.kind != "i":
+        raise ValueError("a FIFO read's times are not integer nanoseconds")
+    cols = np.array(values, dtype=float)
+    if not (np.abs(cols) <= SAMPLE_LIMIT).all():  # NaN fails too
+        raise ValueError(SAMPLE_FAULT)
+    return t_sync, t_mono, cols[:3].T, cols[3:].T
 
 
 def feed_record(feed: dict[str, RecordInput], topic: str, msg: dict[str, Any]) -> None:
