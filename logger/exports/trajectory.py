@@ -168,14 +168,15 @@ _FEEDING_FAILED = (KeyError, TypeError, ValueError, IndexError, OverflowError, n
 
 
 class FilterFailed(RuntimeError):
-    """The filter raised on records that are the logger's own and well-formed (:func:`record_fault` finds nothing
-    wrong with them): a defect of the filter, not of the file, so not skipped as a foreign file's messages are."""
+    """The filter raised on records :func:`record_fault` finds nothing wrong with: not skipped as a foreign file's
+    messages are. Most likely a defect of the filter; a file of well-formed but implausible values (accelerations
+    of 1000 g) could end here too, which is why the message asks for the file."""
 
     def __init__(self, topic: str, msg: dict[str, Any], exc: Exception) -> None:
         t = msg.get("t_sync_ns")
         t = t[0] if isinstance(t, list) and t else t
         super().__init__(f"the filter failed on a well-formed {topic} record (t_sync_ns {t}): {type(exc).__name__}: "
-                         f"{exc}; a defect of the logger, not of the file: please report it with the file")
+                         f"{exc}; nothing found wrong with the record: please report it with the file")
 
 
 def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]] | None,
@@ -220,25 +221,22 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
         n, why = foreign.get(topic, (0, f"no field {exc}" if isinstance(exc, KeyError) else str(exc)))
         foreign[topic] = (n + 1, why)
 
+    def feed_reads(reads: list[dict[str, Any]]) -> None:
+        try:
+            rerun.feed_reads(reads)
+        except _FEEDING_FAILED as exc:
+            if len(reads) > 1 and any(record_fault(IMU_BATCH, m) for m in reads):
+                # records.read_columns refused the run before the filter took any of it: its reads one by one
+                for m in reads:
+                    feed_reads([m])
+            else:
+                skip(IMU_BATCH, exc, reads)
+        else:
+            note_state(IMU_BATCH, reads[-1])
+
     def feed_run() -> None:
         if run:
-            try:
-                rerun.feed_reads(run)
-            except _FEEDING_FAILED as exc:
-                if len(run) == 1:
-                    skip(IMU_BATCH, exc, run)
-                elif all(record_fault(IMU_BATCH, m) is None for m in run):
-                    raise FilterFailed(IMU_BATCH, run[-1], exc) from exc
-                else:  # feed_reads checks its reads before the filter takes any: again one by one
-                    for m in run:
-                        try:
-                            rerun.feed_reads([m])
-                        except _FEEDING_FAILED as one:
-                            skip(IMU_BATCH, one, [m])
-                        else:
-                            note_state(IMU_BATCH, m)
-            else:
-                note_state(IMU_BATCH, run[-1])
+            feed_reads(run)
             run.clear()
 
     for topic, msg in read_drive(paths, progress=progress, runs=True):
