@@ -189,7 +189,7 @@ def test_a_receiver_whose_period_does_not_divide_the_second_has_every_step_th_fi
     epochs = [k * 60 for k in range(40)] + [39 * 60 + 300 + k * 60 for k in range(1, 12)]
     taken = [t for t in epochs if thinner.take(T0 + t * 1_000_000)]
     assert (thinner.step, thinner.period_ms) == (2, 60)
-    assert taken == list(range(0, 2340, 120)) + [2700, 2820, 2940, 3000, 3120, 3240]
+    assert taken == [*range(0, 2340, 120), 2700, 2820, 2940, 3000, 3120, 3240]
 
 
 def test_fixes_without_an_epoch_time_are_never_thinned():
