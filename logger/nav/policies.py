@@ -194,9 +194,12 @@ class GnssPolicy:
         last = self.last_readings
         canyon = (fix.v_over_usual >= CANYON_HEIGHT_RATIO and last.baro_fresh(t_e) and self._height_in_ns is not None
                   and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
-        obs = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, t_e if canyon else None)
+        obs, rows = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, t_e if canyon else None)
         ok = True if obs is None else core.apply(obs)
-        if ok and obs is not None and len(obs.z) == 3:
+        # The height went in (with both horizontal rows or one: a fix whose east is too weak still gives its north
+        # and height, and the canyon's hold counts from it).
+        height_in = ok and 2 in rows
+        if height_in:
             self._height_in_ns = t_e
         if ok:
             # Learnt from fixes the gate let in, and from those too weak to reach it (which nothing vetted: they may
@@ -210,7 +213,7 @@ class GnssPolicy:
             self.accuracy.observe(t_e, fix.figures, full_pos.z.tolist(), p_prior, obs is not None)
         if obs is not None and ok:
             last.pos_ok = (t_e, fix.h_acc)
-            if fix.fix_3d and len(obs.z) == 3 and fix.h_acc < GOOD_FIX_H_ACC_M:
+            if fix.fix_3d and height_in and fix.h_acc < GOOD_FIX_H_ACC_M:
                 last.height_in_ns = t_e
         if ok:
             # Position and velocity are one solution of the receiver's: one whose position the gate refuses is in
@@ -238,15 +241,16 @@ class GnssPolicy:
             assert core.ekf is not None
             p_prior = [float(core.ekf.p[V_ID + i, V_ID + i]) for i in range(2)]
             self.accuracy.observe_speed(fix.t_ns, fix.figures, full.z[:2].tolist(), p_prior, fix.figures.s_acc**2)
-        obs = self._informative(core, full, V_ID)
+        obs, _ = self._informative(core, full, V_ID)
         if obs is not None:
             self.velocity.judge(core, obs, core.apply(obs), fix.t_ns,
                                 fix.fix_3d and len(obs.z) == len(full.z) and fix.h_acc < GOOD_FIX_H_ACC_M)
 
     def _informative(self, core: FilterCore, obs: Observation, block: int, height_on_its_own: bool = False,
-                     canyon_ns: int | None = None) -> Observation | None:
-        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO; with
-        ``canyon_ns`` (a street canyon's fix, of that epoch) without its height, which the barometer holds instead."""
+                     canyon_ns: int | None = None) -> tuple[Observation | None, list[int]]:
+        """The observation without its rows whose variance exceeds the filter's own by UNINFORMATIVE_RATIO, and the
+        rows of ``obs`` it keeps; with ``canyon_ns`` (a street canyon's fix, of that epoch) without its height, which
+        the barometer holds instead."""
         assert core.ekf is not None
         p = core.ekf.p
         keep = [i for i in range(min(2, len(obs.z)))
@@ -269,9 +273,9 @@ class GnssPolicy:
         if len(keep) < len(obs.z):
             core.counters.gnss_skipped += len(obs.z) - len(keep) - held
             if not keep:
-                return None
+                return None, []
             obs = Observation(obs.name, obs.z[keep], obs.h[keep], obs.r[keep])
-        return obs
+        return obs, keep
 
 
 class StopPolicy:
