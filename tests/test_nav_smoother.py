@@ -120,11 +120,12 @@ def test_a_fix_the_rest_of_the_drive_contradicts_is_not_carried_back_into_the_ou
     else:
         assert report.refused == report.disagreements == 0
     assert hs.max() <= hf.max()
-    # Without a step where the pass found the disagreement: the epochs after it keep the little of the fix the
-    # smoothed solution there holds (0.17 m here, of the 5 m).
+    # Without a step where the pass found the disagreement, and the epochs after it without the fix too (the forward
+    # pass still pulled towards it for seconds): a tenth of the 5 m at most in the ten seconds after the exit. Only
+    # the epochs from the fix to the disagreement taken without it, those after it held 1.6 m of it.
     assert np.abs(np.diff(es[(t > span.end_s - 2.0) & (t < span.end_s + 10.0), :2], axis=0)).max() < 0.25
-    after = (t >= span.end_s) & (t < span.end_s + 10.0)  # and the seconds after it, where the fix pulled
-    assert np.hypot(es[after, 0], es[after, 1]).max() < np.hypot(ef[after, 0], ef[after, 1]).max()
+    after = (t >= span.end_s) & (t < span.end_s + 10.0)
+    assert np.hypot(es[after, 0], es[after, 1]).max() < 0.5 < np.hypot(ef[after, 0], ef[after, 1]).max()
 
 
 def test_keeping_the_forward_solution_instead_carries_the_fix_back(bad_exit, monkeypatch):

@@ -27,7 +27,8 @@ it). Two rules keep it from doing so:
   taken whole by a forward pass wide open after an outage leaves the forward solution off, and over-confident,
   until later fixes pull it back; keeping it would carry the fix back into the outage. Where such an update is
   found (the smoothed solution moves by more without it than its information admits, and without it the forward
-  prior agrees), the epochs from it to the disagreement are smoothed without it (:func:`_explain`). Otherwise
+  prior agrees), the epochs from it to the disagreement, and those of the LOOKBACK_NS after the disagreement,
+  which the forward pass still pulled towards it, are smoothed without it (:func:`_explain`). Otherwise
   the forward solution (it never used the model the disagreement puts in doubt past that epoch) is kept there
   and the pass starts again from it. All three are counted in a :class:`SmoothingReport`, which ``logger
   replay`` prints.
@@ -48,6 +49,7 @@ forward one it corrects, whose sigma holds by itself. The smoothed solution itse
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,13 +100,19 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
     ps = p_last.copy()
     e_minus[-1] = _dx(epochs[-1], zero)
     sig[-1] = _fused_sigma(ps, p_last)
+    # The epochs smoothed last (up to LOOKBACK_NS after the current one, latest first) with their smoothed
+    # covariances and gains: an update refused further back still pulls them through the forward pass, and its
+    # information is taken out of them too (_spread). Emptied where the chain of gains breaks.
+    recent: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque()
     j = m - 2
     while j >= 0:
         step = _back(epochs, j, e_minus[j + 1], ps)
         if step is None:
             report.cuts += 1
         elif _disagree(step[0], step[1], _p_plus(epochs, j)):
-            explained = _explain(epochs, j, step)
+            while recent and epochs[recent[0][0]].t_ns - epochs[j].t_ns > LOOKBACK_NS:
+                recent.popleft()
+            explained = _explain(epochs, j, step, list(recent))
             if explained is not None:  # an update before it that the rest refuses: smoothed without it
                 report.refused += 1
                 for i, ei, psi in explained:
@@ -112,6 +120,7 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
                     sig[i] = _fused_sigma(ps, _p_plus(epochs, i))
                     e_minus[i] = ei + _dx(epochs[i], zero)
                 j = explained[-1][0] - 1
+                recent.clear()
                 continue
             report.disagreements += 1
             step = None
@@ -119,8 +128,12 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
             kept[j] = True
             e[j] = 0.0
             ps = _p_plus(epochs, j).copy()
+            recent.clear()
         else:
             e[j], ps = step[0], step[1]
+            recent.append((j, e[j], ps, step[2]))
+            while recent and epochs[recent[0][0]].t_ns - epochs[j].t_ns > LOOKBACK_NS:
+                recent.popleft()
         sig[j] = _fused_sigma(ps, _p_plus(epochs, j))
         e_minus[j] = e[j] + _dx(epochs[j], zero)
         j -= 1
@@ -181,10 +194,12 @@ def _back(epochs: list[Epoch], j: int, e_minus_next: np.ndarray, ps_next: np.nda
     return a @ e_minus_next, 0.5 * (ps_j + ps_j.T), a
 
 
-def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np.ndarray]
+def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np.ndarray],
+             after: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = ()
              ) -> list[tuple[int, np.ndarray, np.ndarray]] | None:
     """Where the passes disagree at epoch j: an update at j or up to LOOKBACK_NS before it that the rest of the
-    drive refuses, and the smoothed errors and covariances from j back to it without it; None if there is none.
+    drive refuses, and the smoothed errors and covariances from j back to it without it, and of the epochs
+    ``after`` j (smoothed already, latest first, with their gains) too; None if there is none.
 
     A fix taken whole by a forward pass wide open after an outage leaves the forward solution off by more than its
     covariance, now small, admits, until later fixes pull it back: the passes disagree there, seconds after the
@@ -205,7 +220,7 @@ def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np
             without = _without_update(ei, psi, _p_plus(epochs, i), ep.p_minus, dx)
             if (without is not None and _disagree(ei - without[0], psi, without[1])
                     and not _disagree(without[0] + dx, without[1], ep.p_minus)):
-                return _spread(out, i, ei, psi, ai, *without)
+                return _spread([*after, *out], i, ei, psi, ai, *without)
         out.append((i, ei, psi, ai))
         if i == 0 or t_j - epochs[i].t_ns > LOOKBACK_NS:
             return None
