@@ -327,6 +327,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                  "how long the error at the receiver's own accuracy floor lasts, s (0: white)"),
         "gnss_floor_corr_v_s": Key(NUM, FIELD, _range(0, 3600),
                                    "how long the error at the receiver's floor lasts in the vertical, s (0: white)"),
+        "gnss_floor_corr_speed_s": Key(NUM, FIELD, _range(0, 3600),
+                                       "how long the error at the receiver's speed floor lasts, s (0: white)"),
         "gnss_independent_hz": Key(NUM, FIELD, _range(0.01, 100),
                                    "faster fixes weigh together what fixes at this rate do (errors last)"),
         "gnss_max_hz": Key(NUM, FIELD, _range(0, 100),

@@ -57,21 +57,23 @@ def test_a_canyons_correlated_fixes_weigh_what_their_shared_error_leaves_them():
 
 
 def test_the_verticals_floor_error_lasts_its_own_time():
-    """gnss_floor_corr_v_s widens the vertical's floor by its own time; the horizontal's and the speed's keep
-    floor_corr_s's, and without it the vertical keeps the horizontal's."""
+    """gnss_floor_corr_v_s widens the vertical's floor by its own time, gnss_floor_corr_speed_s the speed's; the
+    horizontal's keeps floor_corr_s's, and without them the vertical and the speed keep the horizontal's."""
     def widened(rho: float) -> float:
         return math.sqrt((1 + rho) / (1 - rho))
 
-    both = CorrelatedGnssNoise(corr_s=5.0, floor_corr_s=5.0, floor_corr_v_s=8.0)
+    both = CorrelatedGnssNoise(corr_s=5.0, floor_corr_s=5.0, floor_corr_v_s=8.0, floor_corr_speed_s=3.5)
     same = CorrelatedGnssNoise(corr_s=5.0, floor_corr_s=5.0)
     for k in range(20):
         h, v, s = both.sigmas(k * NS, 0.5, 0.8, 0.05)
-        h1, v1, _ = same.sigmas(k * NS, 0.5, 0.8, 0.05)
+        h1, v1, s1 = same.sigmas(k * NS, 0.5, 0.8, 0.05)
     assert h == pytest.approx(0.5 / math.sqrt(2.0) * widened(math.exp(-1 / 5.0))) and h1 == pytest.approx(h)
-    assert s == pytest.approx(0.05 * widened(math.exp(-1 / 5.0)))
+    assert s == pytest.approx(0.05 * widened(math.exp(-1 / 3.5)))
+    assert s1 == pytest.approx(0.05 * widened(math.exp(-1 / 5.0)))
     assert v == pytest.approx(0.8 * widened(math.exp(-1 / 8.0)))
     assert v1 == pytest.approx(0.8 * widened(math.exp(-1 / 5.0)))
-    assert NavParams().gnss_floor_corr_v_s == 8.0 and NavParams().gnss_floor_corr_s == 5.0
+    p = NavParams()
+    assert (p.gnss_floor_corr_v_s, p.gnss_floor_corr_s, p.gnss_floor_corr_speed_s) == (8.0, 5.0, 3.5)
 
 
 def test_fixes_far_apart_are_taken_as_independent():

@@ -89,11 +89,12 @@ class CorrelatedGnssNoise:
     """Per-fix variances for position (per axis, from hAcc and vAcc) and velocity (from sAcc)."""
 
     def __init__(self, corr_s: float, independent_hz: float = 1.0, floor_corr_s: float = 0.0,
-                 floor_corr_v_s: float | None = None) -> None:
+                 floor_corr_v_s: float | None = None, floor_corr_speed_s: float | None = None) -> None:
         self.corr_s = corr_s
         self.floor_corr_s = floor_corr_s
-        # The vertical's floor error lasts its own time (None: the horizontal's).
+        # The vertical's and the speed's floor errors last their own times (None: the horizontal's).
         self.floor_corr_v_s = floor_corr_s if floor_corr_v_s is None else floor_corr_v_s
+        self.floor_corr_speed_s = floor_corr_s if floor_corr_speed_s is None else floor_corr_speed_s
         self.independent_s = 1.0 / independent_hz if independent_hz > 0.0 else 0.0
         self._floors = (RunningMin(), RunningMin(), RunningMin())
         self._t_last_ns: int | None = None
@@ -132,7 +133,8 @@ class CorrelatedGnssNoise:
     def sigmas(self, t_ns: int, h_acc: float, v_acc: float, s_acc: float,
                floor_correlated: bool = True, scale: tuple[float, float] = (1.0, 1.0)) -> tuple[float, float, float]:
         """1-sigma horizontal per axis, vertical and speed, with the excess over the floor widened (and the floor
-        too, as lasting ``floor_corr_s``, unless ``floor_correlated`` is False).
+        too, as lasting ``floor_corr_s``, the vertical's ``floor_corr_v_s`` and the speed's ``floor_corr_speed_s``,
+        unless ``floor_correlated`` is False).
 
         ``scale``: the variance scale (horizontal, vertical) learnt of guessed figures, which the figures given here
         do not include. It is this receiver's figures all being that much worse, its floor as well: applied to floor
@@ -143,8 +145,9 @@ class CorrelatedGnssNoise:
         rate = self.rate_factor()
         r = max(rate, self.floor_factor() if floor_correlated else 1.0)
         rv = max(rate, self.floor_factor(self.floor_corr_v_s) if floor_correlated else 1.0)
+        rs = max(rate, self.floor_factor(self.floor_corr_speed_s) if floor_correlated else 1.0)
         out = []
-        for value, floor, k, rr in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), (r, rv, r), strict=True):
+        for value, floor, k, rr in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), (r, rv, rs), strict=True):
             low = floor.add(value)
             out.append(math.sqrt(k * (rr * low * low + c * (value * value - low * low))))
         return out[0] / math.sqrt(2.0), out[1], out[2]

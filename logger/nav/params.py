@@ -87,6 +87,14 @@ class NavParams:
     # within 3 sigma; at 8 s 98.9 %, the vertical RMSE of five 1200 s drives 0.40 -> 0.41 m on average and of the
     # matrix's 600 s default drives unchanged (docs/nav.md).
     gnss_floor_corr_v_s: float = 8.0
+    # The same for the speed (Doppler): its floor is the carrier loop's noise, which changes faster than the
+    # position's (the simulated receivers' open-sky speed errors are white, lag-1 correlation under 0.11 at 10 Hz).
+    # At the position's 5 s a phone-grade IMU's gyro offset was read too slowly from the course and the phone's
+    # 60 s outage (seed 2) ended 22.5 m off; at 3.5 s 17.5 m, the default drives' squared horizontal RMSE 10 %
+    # lower in sum (tunnel-130s seed 1 north 0.77 -> 0.86 m the one worse). Shorter weighs them too much for
+    # the rest of the model: white, that tunnel's north 1.73 m and 85 % within 3 sigma east on a 60 s outage
+    # (docs/nav.md).
+    gnss_floor_corr_speed_s: float = 3.5
     gnss_acc_scale: float = 1.0
     gnss_min_sv: int = 5  # fewer satellites: the fix's own accuracy figure cannot be trusted (no redundancy)
     gnss_multipath_corr_s: float = 5.0  # how long a fix's error above the receiver's floor lasts (facades)

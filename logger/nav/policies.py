@@ -100,7 +100,8 @@ class GnssPolicy:
         self.last_readings = last
         self.position, self.velocity, self.height = position, velocity, height
         self._noise = CorrelatedGnssNoise(params.gnss_multipath_corr_s, params.gnss_independent_hz,
-                                          params.gnss_floor_corr_s, params.gnss_floor_corr_v_s)
+                                          params.gnss_floor_corr_s, params.gnss_floor_corr_v_s,
+                                          params.gnss_floor_corr_speed_s)
         # A GNSS-only solution is the fixes themselves: every one is a row.
         self._thinner = FixThinner(params.gnss_max_hz if params.mode != "gnss" else 0.0)
         self.accuracy = AccuracyModel(params.gnss_uere_m, (params.gnss_nominal_h_acc_m, params.gnss_nominal_v_acc_m,
