@@ -31,7 +31,7 @@ from logger.nav.inputs import SolutionEpoch
 from logger.nav.mounting import SETTLED, USABLE_SIGMA_DEG, MountEstimate
 from logger.nav.params import NavParams
 from logger.nav.rotations import dcm_from_quat
-from logger.recording.drive import REPLAY_LIBRARY, REPLAY_OF_METADATA, ProgressFn, read_messages
+from logger.recording.drive import REPLAY_LIBRARY, REPLAY_OF_METADATA, ProgressFn, read_messages, record_of
 from logger.recording.intervals import next_due_ns
 from logger.recording.mcap_writer import McapWriter
 from logger.recording.nav_rerun import NavRerun
@@ -214,12 +214,20 @@ def _one_pass(paths: list[Path], params: NavParams, states: list[dict[str, Any]]
     # Messages of the filter's topics that are not the logger's records (another tool's file with an /imu of other
     # fields): skipped and counted per topic, with what was wrong with the first, instead of a traceback.
     foreign: dict[str, tuple[int, str]] = {}
+    # The record each topic's last skipped message is of: a FIFO read cut in pieces at other topics' messages is one
+    # message of the file, counted once however many of its pieces are skipped (its pieces come one after another).
+    last_skipped: dict[str, dict[str, Any]] = {}
 
     def skip(topic: str, exc: Exception, msgs: Sequence[Any]) -> None:
         if all(record_fault(topic, m) is None for m in msgs):  # the logger's own records: the filter failed
             raise FilterFailed(topic, msgs[-1], exc) from exc
         n, why = foreign.get(topic, (0, f"no field {exc}" if isinstance(exc, KeyError) else str(exc)))
-        foreign[topic] = (n + 1, why)
+        for m in msgs:
+            record = record_of(m)
+            if record is not last_skipped.get(topic):
+                last_skipped[topic] = record
+                n += 1
+        foreign[topic] = (n, why)
 
     def feed_reads(reads: list[dict[str, Any]]) -> None:
         try:

@@ -701,14 +701,30 @@ def _wanted(topics: Iterable[str]) -> tuple[set[str], bool]:
     return wanted, expand
 
 
-def imu_slice(batch: dict[str, Any], lo: int, hi: int) -> dict[str, Any]:
+class ImuSlice(dict):
+    """Samples of an ``/imu/batch`` record as a record of their own, which knows the record it was cut from: the
+    file's one message, however many pieces a reader cuts it in (what a count of messages counts)."""
+
+    __slots__ = ("record",)
+
+    def __init__(self, fields: dict[str, Any], record: dict[str, Any]) -> None:
+        super().__init__(fields)
+        self.record = record
+
+
+def imu_slice(batch: dict[str, Any], lo: int, hi: int) -> ImuSlice:
     """Samples ``lo`` to ``hi - 1`` of an ``/imu/batch`` record as a record of its own (its lost count goes with
     its first sample, its number is its first sample's)."""
-    out = {k: v[lo:hi] if isinstance(v, list) else v for k, v in batch.items()}
+    out = ImuSlice({k: v[lo:hi] if isinstance(v, list) else v for k, v in batch.items()}, batch)
     if lo:
         out["lost"] = 0
         out["seq"] = batch["seq"] + lo
     return out
+
+
+def record_of(msg: dict[str, Any]) -> dict[str, Any]:
+    """The file's message ``msg`` is, or is a piece of (:class:`ImuSlice`)."""
+    return msg.record if isinstance(msg, ImuSlice) else msg
 
 
 def _in_time_order(items: Iterator[tuple[int, str, int, dict[str, Any]]],
