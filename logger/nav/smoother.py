@@ -102,7 +102,9 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
     sig[-1] = _fused_sigma(ps, p_last)
     # The epochs smoothed last (up to LOOKBACK_NS after the current one, latest first) with their smoothed
     # covariances and gains: an update refused further back still pulls them through the forward pass, and its
-    # information is taken out of them too (_spread). Emptied where the chain of gains breaks.
+    # information is taken out of them too (_spread). Emptied where the chain of gains breaks; after a refusal, the
+    # epochs it smoothed again (a second refusal within the window reaches past the first: the gains there are the
+    # forward pass's, which took the first, so that is close, not exact).
     recent: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque()
     j = m - 2
     while j >= 0:
@@ -115,12 +117,12 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
             explained = _explain(epochs, j, step, list(recent))
             if explained is not None:  # an update before it that the rest refuses: smoothed without it
                 report.refused += 1
-                for i, ei, psi in explained:
+                for i, ei, psi, _ in explained:
                     e[i], ps = ei, psi
                     sig[i] = _fused_sigma(ps, _p_plus(epochs, i))
                     e_minus[i] = ei + _dx(epochs[i], zero)
                 j = explained[-1][0] - 1
-                recent.clear()
+                recent = deque(explained)
                 continue
             report.disagreements += 1
             step = None
@@ -196,10 +198,10 @@ def _back(epochs: list[Epoch], j: int, e_minus_next: np.ndarray, ps_next: np.nda
 
 def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np.ndarray],
              after: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = ()
-             ) -> list[tuple[int, np.ndarray, np.ndarray]] | None:
+             ) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] | None:
     """Where the passes disagree at epoch j: an update at j or up to LOOKBACK_NS before it that the rest of the
-    drive refuses, and the smoothed errors and covariances from j back to it without it, and of the epochs
-    ``after`` j (smoothed already, latest first, with their gains) too; None if there is none.
+    drive refuses, and the smoothed errors and covariances (with the gains) from j back to it without it, and of
+    the epochs ``after`` j (smoothed already, latest first, with their gains) too; None if there is none.
 
     A fix taken whole by a forward pass wide open after an outage leaves the forward solution off by more than its
     covariance, now small, admits, until later fixes pull it back: the passes disagree there, seconds after the
@@ -207,7 +209,7 @@ def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np
     pass's model, is what the rest of the drive contradicts. An update is refused where (1) the smoothed solution
     moves by more without it than its information admits (the deleted-residual test, position, DISAGREE_CHI2) and
     (2) without it the forward prior agrees with the rest. The epochs between it and j are then smoothed without
-    it too: their change is the refused epoch's through the smoothed cross-covariance, Ps_i (A_{i-1}...A_r)^T
+    it too: their change is the refused epoch's through the smoothed cross-covariance, Ps_i (A_r ... A_{i-1})^T
     Ps_r^-1 (the updates' likelihood depends on that epoch's state only)."""
     zero = np.zeros(step[0].shape[0])
     t_j = epochs[j].t_ns
@@ -232,23 +234,23 @@ def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np
 
 def _spread(later: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], r: int, er: np.ndarray, psr: np.ndarray,
             ar: np.ndarray, er_without: np.ndarray, psr_without: np.ndarray
-            ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+            ) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
     """The refused epoch r and the epochs after it (``later``: latest first, with their gains A_i) without r's
-    updates, latest first."""
-    res = [(r, er_without, psr_without)]
+    updates, latest first, with their gains."""
+    res = [(r, er_without, psr_without, ar)]
     try:
         inv = np.linalg.inv(psr)
     except np.linalg.LinAlgError:
-        return [(i, ei, psi) for i, ei, psi, _ in later] + res
+        return [*later, *res]
     v = inv @ (er_without - er)
     d = inv @ (psr_without - psr) @ inv
     w = np.eye(len(er))
     a_prev = ar
     for i, ei, psi, ai in reversed(later):
-        w = a_prev.T @ w  # (A_{i-1} ... A_r)^T
+        w = a_prev.T @ w  # (A_r ... A_{i-1})^T
         c = psi @ w  # the smoothed cross-covariance of epochs i and r
         ps_new = psi + c @ d @ c.T
-        res.append((i, ei + c @ v, 0.5 * (ps_new + ps_new.T)))
+        res.append((i, ei + c @ v, 0.5 * (ps_new + ps_new.T), ai))
         a_prev = ai
     return list(reversed(res))
 
