@@ -261,7 +261,8 @@ def test_fixes_that_say_the_car_stands_teach_a_phone_grade_imu_without_an_obd_sp
 
 def test_smoothing_shrinks_the_outage_error(outage):
     drive, span, recs = outage
-    engine = run(recs, gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0)  # the synthetic fixes' errors are white: told so
+    # The synthetic fixes' errors are white: told so
+    engine = run(recs, gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0, gnss_floor_corr_speed_s=0.0)
     engine.close_epochs()
     smoothed = smooth_rows(engine.rows, engine.epochs, engine.ekf.p)
     t, ef, sf = errors(drive, engine.rows)
@@ -597,7 +598,8 @@ def test_the_baseline_restarts_from_fixes_that_agree_only_in_height(outage):
     vertical innovation: that is a lost filter too, restarted from the receiver."""
     drive, _, recs = outage
     # The synthetic fixes' errors are white: the filter is told so, and trusts them as much as they deserve.
-    engine = shifted_height(recs, 60.0, 15.0, mode="15", gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0)
+    engine = shifted_height(recs, 60.0, 15.0, mode="15", gnss_floor_corr_s=0.0, gnss_floor_corr_v_s=0.0,
+                            gnss_floor_corr_speed_s=0.0)
     assert engine.counters.resets == 1
     t, e, _ = errors(drive, engine.rows)
     assert np.abs(e[(t > 100.0) & (t < 140.0), 2]).max() < 1.0

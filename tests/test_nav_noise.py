@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from logger.nav.ekf import ErrorStateEkf
+from logger.nav.engine import NavEngine
 from logger.nav.gnss_noise import CorrelatedGnssNoise, RunningMin
 from logger.nav.measurements import OBD_STEP_MPS, ROUNDING_VAR, Observation, repeat_variance
 from logger.nav.params import NavParams
@@ -74,6 +75,8 @@ def test_the_verticals_floor_error_lasts_its_own_time():
     assert v1 == pytest.approx(0.8 * widened(math.exp(-1 / 5.0)))
     p = NavParams()
     assert (p.gnss_floor_corr_v_s, p.gnss_floor_corr_s, p.gnss_floor_corr_speed_s) == (8.0, 5.0, 3.5)
+    noise = NavEngine(NavParams(gnss_floor_corr_speed_s=2.0))._gnss._noise  # the filter's fixes take the key
+    assert (noise.floor_corr_s, noise.floor_corr_v_s, noise.floor_corr_speed_s) == (5.0, 8.0, 2.0)
 
 
 def test_fixes_far_apart_are_taken_as_independent():
