@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,13 +109,13 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
     recent: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque()
     j = m - 2
     while j >= 0:
+        while recent and epochs[recent[0][0]].t_ns - epochs[j].t_ns > LOOKBACK_NS:
+            recent.popleft()
         step = _back(epochs, j, e_minus[j + 1], ps)
         if step is None:
             report.cuts += 1
         elif _disagree(step[0], step[1], _p_plus(epochs, j)):
-            while recent and epochs[recent[0][0]].t_ns - epochs[j].t_ns > LOOKBACK_NS:
-                recent.popleft()
-            explained = _explain(epochs, j, step, list(recent))
+            explained = _explain(epochs, j, step, recent)
             if explained is not None:  # an update before it that the rest refuses: smoothed without it
                 report.refused += 1
                 for i, ei, psi, _ in explained:
@@ -133,9 +134,7 @@ def smooth_errors(epochs: list[Epoch], p_last: np.ndarray, report: SmoothingRepo
             recent.clear()
         else:
             e[j], ps = step[0], step[1]
-            recent.append((j, e[j], ps, step[2]))
-            while recent and epochs[recent[0][0]].t_ns - epochs[j].t_ns > LOOKBACK_NS:
-                recent.popleft()
+            recent.append((j, step[0], ps, step[2]))
         sig[j] = _fused_sigma(ps, _p_plus(epochs, j))
         e_minus[j] = e[j] + _dx(epochs[j], zero)
         j -= 1
@@ -197,7 +196,7 @@ def _back(epochs: list[Epoch], j: int, e_minus_next: np.ndarray, ps_next: np.nda
 
 
 def _explain(epochs: list[Epoch], j: int, step: tuple[np.ndarray, np.ndarray, np.ndarray],
-             after: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = ()
+             after: Sequence[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = ()
              ) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] | None:
     """Where the passes disagree at epoch j: an update at j or up to LOOKBACK_NS before it that the rest of the
     drive refuses, and the smoothed errors and covariances (with the gains) from j back to it without it, and of
