@@ -143,11 +143,10 @@ class CorrelatedGnssNoise:
         as long as that floor is remembered.)"""
         c = self.factor(t_ns)
         rate = self.rate_factor()
-        r = max(rate, self.floor_factor() if floor_correlated else 1.0)
-        rv = max(rate, self.floor_factor(self.floor_corr_v_s) if floor_correlated else 1.0)
-        rs = max(rate, self.floor_factor(self.floor_corr_speed_s) if floor_correlated else 1.0)
+        corrs = (self.floor_corr_s, self.floor_corr_v_s, self.floor_corr_speed_s)
         out = []
-        for value, floor, k, rr in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), (r, rv, rs), strict=True):
+        for value, floor, k, corr in zip((h_acc, v_acc, s_acc), self._floors, (*scale, 1.0), corrs, strict=True):
+            rr = max(rate, self.floor_factor(corr) if floor_correlated else 1.0)
             low = floor.add(value)
             out.append(math.sqrt(k * (rr * low * low + c * (value * value - low * low))))
         return out[0] / math.sqrt(2.0), out[1], out[2]
