@@ -88,12 +88,14 @@ class NavParams:
     # matrix's 600 s default drives unchanged (docs/nav.md).
     gnss_floor_corr_v_s: float = 8.0
     # The same for the speed (Doppler): its floor is the carrier loop's noise, which changes faster than the
-    # position's (the simulated receivers' open-sky speed errors are white, lag-1 correlation under 0.11 at 10 Hz).
-    # At the position's 5 s a phone-grade IMU's gyro offset was read too slowly from the course and the phone's
-    # 60 s outage (seed 2) ended 22.5 m off; at 3.5 s 17.5 m, the default drives' squared horizontal RMSE 10 %
-    # lower in sum (tunnel-130s seed 1 north 0.77 -> 0.86 m the one worse). Shorter weighs them too much for
-    # the rest of the model: white, that tunnel's north 1.73 m and 85 % within 3 sigma east on a 60 s outage
-    # (docs/nav.md).
+    # position's. 3.5 s is not a measured correlation time but the value chosen on the simulated matrix drives,
+    # whose open-sky speed errors are white (lag-1 correlation under 0.11 at 10 Hz, one drive): at the position's
+    # 5 s a phone-grade IMU's gyro offset was read too slowly from the course and the phone's 60 s outage (seed 2)
+    # ended 22.5 m off; at 3.5 s 17.5 m, the six default drives' squared horizontal RMSE while moving 10 % lower in
+    # sum (tunnel-130s seed 1 north 0.77 -> 0.86 m the one worse). Shorter weighs them too much for the rest of the
+    # model: white, that tunnel's north 1.73 m and 85 % within 3 sigma east on a 60 s outage. A real receiver's
+    # 10 Hz speeds come out of its own tracking loops and filter, correlated over a fraction of a second to seconds:
+    # not measured here (no recording of one against a truth), so the value is the simulator's (docs/nav.md).
     gnss_floor_corr_speed_s: float = 3.5
     gnss_acc_scale: float = 1.0
     gnss_min_sv: int = 5  # fewer satellites: the fix's own accuracy figure cannot be trusted (no redundancy)
