@@ -197,8 +197,8 @@ class GnssPolicy:
                   and t_e - self._height_in_ns <= CANYON_HEIGHT_HOLD_NS)
         obs, rows = self._informative(core, full_pos, P_ID, fix.figures.source != RECEIVER, t_e if canyon else None)
         ok = True if obs is None else core.apply(obs)
-        # The height went in (with both horizontal rows or one: a fix whose east is too weak still gives its north
-        # and height, and the canyon's hold counts from it).
+        # The height went in, with both horizontal rows, one (a fix whose east is too weak still gives its north and
+        # height) or none (guessed figures' height judged on its own): the canyon's hold counts from it.
         height_in = ok and 2 in rows
         if height_in:
             self._height_in_ns = t_e
